@@ -1,0 +1,75 @@
+"""The `rig` command: one subcommand per module in this package, dispatched by argparse.
+
+Exit codes (DESIGN §5): 0 done; 1 stopped by a fault or abort, hardware left safe; 2 invalid
+input, nothing started; 130 interrupted, hardware left safe. User errors are one line on stderr,
+never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from rig import __version__
+from rig.errors import InputError, RigError
+
+EXIT_OK = 0
+EXIT_FAULT = 1
+EXIT_INVALID_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+# Each module `rig.cli.<name>` defines `register(subparsers)`, which adds its parser and sets
+# `handler=<callable(args) -> int>` as a default.
+COMMAND_MODULES: tuple[str, ...] = ("fit", "predict")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the rig's one-line error format (argparse already exits 2)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_INVALID_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full `rig` parser with every registered subcommand."""
+    parser = _Parser(
+        prog="rig",
+        description=(
+            "Automated slip trials on a deformable link of preloaded spherical joints: "
+            "run protocols on a real or simulated rig, fit mu_s*delta0 and joint capacities, "
+            "predict payloads, and replay MCAP logs."
+        ),
+        epilog="Run `rig COMMAND --help` for the options of one command.",
+    )
+    parser.add_argument("--version", action="version", version=f"rig {__version__}")
+    subparsers = parser.add_subparsers(title="commands", metavar="COMMAND", parser_class=_Parser)
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"rig.cli.{name}").register(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `rig` console script; returns the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    handler = getattr(args, "handler", None)
+    if handler is None:
+        parser.print_help(sys.stderr)
+        return EXIT_INVALID_INPUT
+    try:
+        return int(handler(args))
+    except InputError as exc:
+        print(f"rig: error: {exc}", file=sys.stderr)
+        return EXIT_INVALID_INPUT
+    except KeyboardInterrupt:
+        print("rig: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except RigError as exc:
+        print(f"rig: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_FAULT
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

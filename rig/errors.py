@@ -1,0 +1,53 @@
+"""The rig's error hierarchy: one root, subclasses that also inherit the matching builtin.
+
+Messages carry what an operator needs to act: units, limits, IDs and retry counts.
+"""
+
+from __future__ import annotations
+
+
+class RigError(Exception):
+    """Root of every error the rig raises on purpose."""
+
+
+class InputError(RigError, ValueError):
+    """Invalid user input (file, field, flag). The CLI exits 2 and nothing was started.
+
+    The message names the file, the field or row, and what is allowed.
+    """
+
+
+class ConfigError(InputError):
+    """A rig config or protocol file failed validation."""
+
+
+class RigTimeoutError(RigError, TimeoutError):
+    """A device did not answer within its bounded window."""
+
+
+class NotConnectedError(RigError, ConnectionError):
+    """A device is missing, unplugged, or was never connected."""
+
+
+class HandshakeError(NotConnectedError):
+    """Connected, but the devices found do not match the configuration."""
+
+
+class CommunicationError(RigError, IOError):
+    """Corrupt, short or mismatched replies that survived the allowed retries."""
+
+
+class HardwareFault(RigError):
+    """A device reported a fault (e.g. a latched Dynamixel hardware error)."""
+
+
+class StaleDataError(RigError, TimeoutError):
+    """A stream (e.g. the load cell) delivered no valid sample for longer than allowed."""
+
+
+class InterlockTripped(RigError):
+    """A safety interlock stopped the run; the hardware has been (or is being) made safe."""
+
+
+class LimitError(RigError, ValueError):
+    """A requested motion or load is outside configured limits; checked before anything moves."""

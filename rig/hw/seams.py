@@ -1,0 +1,152 @@
+"""The typed seams between the runner and the hardware.
+
+The runner sees hardware only through these `typing.Protocol`s and value types. Real drivers
+(dynamixel-sdk, pyserial) and simulated ones implement them; everything crossing them is in SI
+units (rad, rad/s, A, N, s) with epoch-nanosecond timestamps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+class OperatingMode(IntEnum):
+    """Dynamixel X-series Operating Mode (address 11)."""
+
+    CURRENT = 0  # torque (current) control; no position loop
+    VELOCITY = 1  # velocity control
+    POSITION = 3  # position control within Min/Max Position Limit, one turn
+    EXTENDED_POSITION = 4  # multi-turn position, +-256 rev
+    CURRENT_BASED_POSITION = 5  # multi-turn position with current capped at Goal Current
+    PWM = 16  # voltage (PWM) control
+
+
+@dataclass(frozen=True, slots=True)
+class ServoState:
+    """One servo's state read in a single bus transaction, in SI units."""
+
+    servo_id: int
+    position_rad: float
+    velocity_rad_s: float
+    current_a: float
+    hardware_error: int  # raw Hardware Error Status bits; 0 means healthy
+    moving: bool
+    time_ns: int  # epoch ns at which the read completed
+
+
+@dataclass(frozen=True, slots=True)
+class LoadCellSample:
+    """One load-cell reading: host receive time, the device's raw count and the calibrated force."""
+
+    time_ns: int  # epoch ns of receipt on the host (monotonic clock plus one epoch anchor)
+    raw: int  # ADC counts as sent by the device (or the indicator's value in its least digit)
+    force_n: float  # calibrated line tension
+    seq: int | None = None  # device sequence counter, when the format has one
+    device_time_us: int | None = None  # device clock, when the format has one
+
+
+@dataclass(frozen=True, slots=True)
+class ConfigurationReading:
+    """A measured link configuration and, after a slip, the joint that moved (1-based) if known."""
+
+    transforms: np.ndarray  # (J, 4, 4) pose of {i} in {i-1}, base to tip
+    time_ns: int
+    joint_angles_rad: tuple[float, ...] | None = None  # planar links only
+    slipped_joint: int | None = None
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """One clock for runner and world: real time on hardware, virtual time in simulation."""
+
+    def monotonic_ns(self) -> int:
+        """Nanoseconds on a clock that never goes backwards (for intervals and timeouts)."""
+        ...
+
+    def time_ns(self) -> int:
+        """Epoch nanoseconds (for log times): the monotonic clock plus one anchor per run."""
+        ...
+
+    def sleep(self, seconds: float) -> None:
+        """Wait; a virtual clock advances instead of waiting."""
+        ...
+
+
+@runtime_checkable
+class ServoBus(Protocol):
+    """A Dynamixel bus with one owner: connect, read state, command goals, shut down safely."""
+
+    def connect(self) -> None:
+        """Open the port, set the baud rate, and handshake every configured ID."""
+        ...
+
+    def read_states(self) -> dict[int, ServoState]:
+        """Sync-read the state of every configured servo."""
+        ...
+
+    def set_operating_mode(
+        self,
+        servo_id: int,
+        mode: OperatingMode,
+        *,
+        goal_current_a: float | None = None,
+        profile_velocity_rad_s: float | None = None,
+        profile_acceleration_rad_s2: float | None = None,
+    ) -> None:
+        """Switch mode (torque off while switching), then re-write goal current and profile."""
+        ...
+
+    def set_torque(self, servo_ids: Sequence[int], enabled: bool) -> None:
+        """Enable or disable torque on the given servos."""
+        ...
+
+    def write_goal_positions(self, goals_rad: Mapping[int, float]) -> None:
+        """Sync-write goal positions (rad, multi-turn in modes 4 and 5)."""
+        ...
+
+    def write_goal_currents(self, goals_a: Mapping[int, float]) -> None:
+        """Sync-write goal currents (A); in mode 5 this caps the torque."""
+        ...
+
+    def reboot(self, servo_id: int) -> None:
+        """Reboot one servo to clear a latched hardware error; bounded and counted."""
+        ...
+
+    def shutdown(self, release: Callable[[], None] | None = None) -> None:
+        """Run `release`, then torque off every servo, then close; re-raise the first error."""
+        ...
+
+
+@runtime_checkable
+class LoadCell(Protocol):
+    """A streaming load cell; `poll` never blocks."""
+
+    def open(self) -> None:
+        """Open the port and start receiving."""
+        ...
+
+    def poll(self) -> list[LoadCellSample]:
+        """Return the samples received since the last call (possibly none); never blocks.
+
+        Raises `rig.errors.StaleDataError` when no valid sample arrived for longer than the
+        configured stale timeout.
+        """
+        ...
+
+    def close(self) -> None:
+        """Stop receiving and close the port."""
+        ...
+
+
+@runtime_checkable
+class ConfigurationSource(Protocol):
+    """Where the measured link configuration comes from (simulator, file, operator, command)."""
+
+    def measure(self) -> ConfigurationReading:
+        """Measure the current configuration (with the source's noise)."""
+        ...

@@ -1,0 +1,1 @@
+"""MCAP logging: topic schemas, the queued writer and the tolerant reader."""

@@ -1,0 +1,1 @@
+"""Simulation: the virtual clock, the simulated world and the byte-level device emulators."""

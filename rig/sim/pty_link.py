@@ -1,0 +1,100 @@
+"""A pseudo-terminal that stands in for a serial device, reachable through a symlink.
+
+Used by `rig sim servos` and `rig sim loadcell`: the emulator owns the master side, a client
+opens the symlink with pyserial as if it were `/dev/ttyUSB0`. Hygiene (see notes/dynamixel.md):
+the slave is put in raw mode before any client opens it (else ECHO reflects the emulator's
+replies back to it) and kept open here so that a client's `close()` does not make the master's
+reads fail with EIO.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pty
+import signal
+import termios
+import tty
+from pathlib import Path
+from types import FrameType, TracebackType
+
+# termios speed constants -> baud rate in bit/s, for reading the client's configured speed.
+_SPEEDS: dict[int, int] = {
+    getattr(termios, f"B{b}"): b
+    for b in (
+        9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
+        1000000, 1152000, 1500000, 2000000, 2500000, 3000000, 3500000, 4000000,
+    )
+    if hasattr(termios, f"B{b}")
+}  # fmt: skip
+
+
+class PtyLink:
+    """A raw pty pair whose slave is symlinked at `link_path`; removes the link on close."""
+
+    def __init__(self, link_path: str | os.PathLike[str]) -> None:
+        self.link_path = Path(link_path)
+        self.master_fd, self.slave_fd = pty.openpty()
+        tty.setraw(self.slave_fd)
+        self.slave_name = os.ttyname(self.slave_fd)
+        if self.link_path.is_symlink() or self.link_path.exists():
+            if not self.link_path.is_symlink():
+                os.close(self.master_fd)
+                os.close(self.slave_fd)
+                raise FileExistsError(f"{self.link_path}: exists and is not a symlink; not replacing it")
+            self.link_path.unlink()
+        self.link_path.parent.mkdir(parents=True, exist_ok=True)
+        os.symlink(self.slave_name, self.link_path)
+        os.set_blocking(self.master_fd, False)
+
+    def client_baud(self) -> int | None:
+        """The baud rate the client configured on its side, or None if it is not a standard one."""
+        speed = termios.tcgetattr(self.slave_fd)[5]
+        return _SPEEDS.get(speed)
+
+    def read(self, max_bytes: int = 65536) -> bytes:
+        """Bytes the client wrote, without blocking (b'' when none)."""
+        try:
+            return os.read(self.master_fd, max_bytes)
+        except (BlockingIOError, InterruptedError):
+            return b""
+
+    def write(self, data: bytes) -> None:
+        """Send bytes to the client, all of them."""
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(self.master_fd, view)
+            except BlockingIOError:
+                continue
+            view = view[n:]
+
+    def close(self) -> None:
+        """Remove the symlink (if it is still ours) and close both ends."""
+        try:
+            if self.link_path.is_symlink() and os.readlink(self.link_path) == self.slave_name:
+                self.link_path.unlink()
+        finally:
+            for fd in (self.master_fd, self.slave_fd):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+
+    def __enter__(self) -> PtyLink:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+class StopFlag:
+    """Set by SIGTERM or SIGINT so that a serve loop can exit cleanly and remove its link."""
+
+    def __init__(self) -> None:
+        self.stopped = False
+        signal.signal(signal.SIGTERM, self._stop)
+        signal.signal(signal.SIGINT, self._stop)
+
+    def _stop(self, signum: int, frame: FrameType | None) -> None:
+        self.stopped = True
