@@ -1,0 +1,270 @@
+"""The rig config: which devices, on which ports, with which roles, limits and test article.
+
+A rig config is YAML (see `protocols/rigs/*.yaml`), validated on load: every error names the file,
+the field path and what is allowed. `kind: simulated` builds the byte-level simulated rig;
+`kind: hardware` opens real serial ports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rig.errors import ConfigError
+from rig.files import load_yaml_file
+from rig.validate import Section
+
+RIG_KINDS = ("simulated", "hardware")
+SERVO_ROLES = ("winch", "bender")
+SERVO_MODELS = ("XM430-W350", "XL430-W250")
+LOADCELL_FORMATS = ("rig-lc1", "indicator-st")
+SIM_PRESETS = ("link1", "link2")
+DEFAULT_RIG_CONFIG = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "simulated.yaml"
+STANDARD_BAUDS = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+
+
+@dataclass(frozen=True)
+class ServoSpec:
+    """One servo on the bus and what it does on the rig."""
+
+    servo_id: int
+    role: str
+    model: str
+
+
+@dataclass(frozen=True)
+class ServoBusConfig:
+    """The Dynamixel bus: port, baud rate, servos, retries."""
+
+    port: str
+    baud: int
+    servos: tuple[ServoSpec, ...]
+    retries: int
+    watchdog_ms: int
+
+    @property
+    def winch(self) -> ServoSpec:
+        """The servo with role `winch` (validation guarantees exactly one)."""
+        return next(s for s in self.servos if s.role == "winch")
+
+    @property
+    def benders(self) -> tuple[ServoSpec, ...]:
+        """The servos with role `bender`, in config order."""
+        return tuple(s for s in self.servos if s.role == "bender")
+
+
+@dataclass(frozen=True)
+class LoadCellConfig:
+    """The inline load cell: port, baud rate, line format, calibration file."""
+
+    port: str
+    baud: int
+    format: str
+    calibration_path: Path | None
+
+
+@dataclass(frozen=True)
+class RigLimits:
+    """Hard limits checked before anything moves and enforced by interlocks during a run."""
+
+    force_ceiling_n: float
+    winch_current_limit_a: float
+    stale_timeout_s: float
+    max_winch_travel_rev: float
+
+
+@dataclass(frozen=True)
+class ArticleConfig:
+    """The test article: geometry in the link-file format (straight configuration) and joint radius."""
+
+    joint_radius_m: float
+    segment_lengths_m: tuple[float, ...]
+    point_m: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    g: float
+
+    @property
+    def joint_count(self) -> int:
+        """Number of joints J (components are J + 1, the base included)."""
+        return len(self.segment_lengths_m)
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Simulated-world settings (only for `kind: simulated`)."""
+
+    preset: str
+    loadcell_rate_hz: float
+    noise_scale: float
+    torsion_weak_joint: int | None
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """A validated rig config."""
+
+    source: Path
+    text: str
+    name: str
+    kind: str
+    spool_radius_m: float
+    servos: ServoBusConfig
+    loadcell: LoadCellConfig
+    article: ArticleConfig
+    limits: RigLimits
+    simulation: SimulationConfig | None = field(default=None)
+
+    def as_metadata(self) -> dict[str, str]:
+        """A flat str->str summary for the MCAP `rig` metadata record."""
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "source": str(self.source),
+            "servo_port": self.servos.port,
+            "servo_baud": str(self.servos.baud),
+            "servos": ",".join(f"{s.servo_id}:{s.role}:{s.model}" for s in self.servos.servos),
+            "loadcell_port": self.loadcell.port,
+            "loadcell_format": self.loadcell.format,
+            "spool_radius_m": repr(self.spool_radius_m),
+            "joint_radius_m": repr(self.article.joint_radius_m),
+            "joints": str(self.article.joint_count),
+            "force_ceiling_n": repr(self.limits.force_ceiling_n),
+        }
+
+
+def load_rig_config(path: str | Path | None = None) -> RigConfig:
+    """Load and validate a rig config; the built-in simulated rig when `path` is None."""
+    p = Path(path) if path is not None else DEFAULT_RIG_CONFIG
+    data = load_yaml_file(p)
+    text = p.read_text(encoding="utf-8")
+    return parse_rig_config(data, source=str(p), text=text, base_dir=p.parent)
+
+
+def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path | None = None) -> RigConfig:
+    """Validate a parsed rig config mapping."""
+    top = Section(data, source)
+    top.reject_unknown(
+        ["name", "kind", "spool_radius_m", "servos", "loadcell", "article", "limits", "simulation"]
+    )
+    kind = top.string("kind", choices=RIG_KINDS)
+    servos = _servo_bus(top.section("servos"))
+    loadcell = _loadcell(top.section("loadcell"), base_dir or Path("."))
+    article = _article(top.section("article"))
+    limits = _limits(top.section("limits"))
+    simulation = None
+    if kind == "simulated":
+        simulation = _simulation(top.section("simulation", default={}), article)
+    elif top.has("simulation"):
+        raise top.error("simulation", "only allowed with kind: simulated")
+    return RigConfig(
+        source=Path(source),
+        text=text,
+        name=top.string("name", default=Path(source).stem),
+        kind=kind,
+        spool_radius_m=top.number("spool_radius_m", min_value=0.0, max_value=0.2, min_exclusive=True),
+        servos=servos,
+        loadcell=loadcell,
+        article=article,
+        limits=limits,
+        simulation=simulation,
+    )
+
+
+def _servo_bus(sec: Section) -> ServoBusConfig:
+    sec.reject_unknown(["port", "baud", "ids", "retries", "watchdog_ms"])
+    baud = sec.integer("baud", default=1_000_000)
+    if baud not in STANDARD_BAUDS:
+        raise sec.error("baud", f"{baud} is not a Dynamixel baud rate; allowed: {STANDARD_BAUDS}")
+    specs: list[ServoSpec] = []
+    for i, item in enumerate(sec.sequence("ids", min_length=1)):
+        entry = Section(item, sec.source, f"{sec.field('ids')}[{i}]")
+        entry.reject_unknown(["id", "role", "model"])
+        specs.append(
+            ServoSpec(
+                servo_id=entry.integer("id", min_value=0, max_value=252),
+                role=entry.string("role", choices=SERVO_ROLES),
+                model=entry.string("model", default="XM430-W350", choices=SERVO_MODELS),
+            )
+        )
+    ids = [s.servo_id for s in specs]
+    duplicates = sorted({i for i in ids if ids.count(i) > 1})
+    if duplicates:
+        raise sec.error("ids", f"duplicate servo id(s) {duplicates}; each id must appear once")
+    winches = [s for s in specs if s.role == "winch"]
+    if len(winches) != 1:
+        raise sec.error("ids", f"expected exactly one servo with role 'winch', found {len(winches)}")
+    if winches[0].model == "XL430-W250":
+        raise sec.error(
+            "ids", "the winch needs current-based position mode (5); XL430-W250 has no current control"
+        )
+    return ServoBusConfig(
+        port=sec.string("port"),
+        baud=baud,
+        servos=tuple(specs),
+        retries=sec.integer("retries", default=2, min_value=0, max_value=10),
+        watchdog_ms=sec.integer("watchdog_ms", default=0, min_value=0, max_value=127 * 20),
+    )
+
+
+def _loadcell(sec: Section, base_dir: Path) -> LoadCellConfig:
+    sec.reject_unknown(["port", "baud", "format", "calibration"])
+    calibration = sec.string("calibration", default="")
+    return LoadCellConfig(
+        port=sec.string("port"),
+        baud=sec.integer("baud", default=921_600, min_value=1200, max_value=4_000_000),
+        format=sec.string("format", default="rig-lc1", choices=LOADCELL_FORMATS),
+        calibration_path=(base_dir / calibration) if calibration else None,
+    )
+
+
+def _article(sec: Section) -> ArticleConfig:
+    sec.reject_unknown(["joint_radius_m", "segment_lengths_m", "load", "g"])
+    load = sec.section("load")
+    load.reject_unknown(["point_m", "direction"])
+    direction = load.numbers("direction", length=3)
+    if sum(d * d for d in direction) == 0.0:
+        raise load.error("direction", "the load direction is zero; allowed: any non-zero 3-vector")
+    return ArticleConfig(
+        joint_radius_m=sec.number("joint_radius_m", min_value=0.0, max_value=0.1, min_exclusive=True),
+        segment_lengths_m=tuple(
+            sec.numbers("segment_lengths_m", min_value=0.0, max_value=1.0, min_exclusive=True)
+        ),
+        point_m=tuple(load.numbers("point_m", length=3)),  # type: ignore[arg-type]
+        direction=tuple(direction),  # type: ignore[arg-type]
+        g=sec.number("g", default=9.8, min_value=0.0, max_value=100.0, min_exclusive=True),
+    )
+
+
+def _limits(sec: Section) -> RigLimits:
+    sec.reject_unknown(
+        ["force_ceiling_n", "winch_current_limit_a", "stale_timeout_s", "max_winch_travel_rev"]
+    )
+    return RigLimits(
+        force_ceiling_n=sec.number("force_ceiling_n", min_value=0.0, max_value=500.0, min_exclusive=True),
+        winch_current_limit_a=sec.number(
+            "winch_current_limit_a", min_value=0.0, max_value=3.2, min_exclusive=True
+        ),
+        stale_timeout_s=sec.number("stale_timeout_s", default=0.2, min_value=0.005, max_value=10.0),
+        max_winch_travel_rev=sec.number("max_winch_travel_rev", default=20.0, min_value=0.1, max_value=255.0),
+    )
+
+
+def _simulation(sec: Section, article: ArticleConfig) -> SimulationConfig:
+    sec.reject_unknown(["preset", "loadcell_rate_hz", "noise_scale", "torsion_weak_joint"])
+    weak = sec.raw("torsion_weak_joint", default=None)
+    if weak is not None:
+        weak = sec.integer("torsion_weak_joint", min_value=1, max_value=article.joint_count)
+    return SimulationConfig(
+        preset=sec.string("preset", default="link1", choices=SIM_PRESETS),
+        loadcell_rate_hz=sec.number("loadcell_rate_hz", default=1000.0, min_value=10.0, max_value=2000.0),
+        noise_scale=sec.number("noise_scale", default=1.0, min_value=0.0, max_value=10.0),
+        torsion_weak_joint=weak,
+    )
+
+
+def require_simulated(config: RigConfig) -> SimulationConfig:
+    """The simulation settings of a simulated rig (a ConfigError for a hardware rig)."""
+    if config.simulation is None:
+        raise ConfigError(f"{config.source}: kind: this command needs kind: simulated, got {config.kind}")
+    return config.simulation
