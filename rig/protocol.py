@@ -1,0 +1,339 @@
+"""Protocol files: what a run does, validated and expanded into a trial plan before anything moves.
+
+A protocol (YAML, `format: rig-protocol/1`, documented in `protocols/README.md`) names the slip
+detector settings, the ramp, protocol limits, and a list of blocks. A block is a joint-estimation
+series (distances x repeats, optionally shuffled) or a link-validation series (planar
+configurations). Each trial of a block runs the same template of steps (prompt, tare, bend,
+measure, ramp_until_slip, unload, reset, pause). Expansion is deterministic for a given seed, so a
+resumed run sees the same plan.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rig.errors import ConfigError
+from rig.files import load_yaml_file
+from rig.validate import Section
+
+PROTOCOL_FORMAT = "rig-protocol/1"
+BLOCK_KINDS = ("joint_estimation", "link_validation")
+STEP_KINDS = ("prompt", "tare", "bend", "measure", "ramp_until_slip", "unload", "reset", "pause")
+DEFAULT_STEPS: dict[str, tuple[str, ...]] = {
+    "joint_estimation": ("prompt", "tare", "ramp_until_slip", "unload", "pause"),
+    "link_validation": ("bend", "measure", "tare", "ramp_until_slip", "unload", "reset", "pause"),
+}
+DEFAULT_PROMPTS = {
+    "joint_estimation": "Hang the hook at {distance_m:.3f} m from joint {joint}, then confirm.",
+    "link_validation": "Check configuration {configuration} is set and the line is free, then confirm.",
+}
+
+
+@dataclass(frozen=True)
+class RampSettings:
+    """How the winch loads the line: fast to a fraction of the predicted slip load, then slow."""
+
+    fast_speed_rad_s: float
+    slow_speed_rad_s: float
+    fast_until_fraction: float
+    max_force_n: float
+    unload_speed_rad_s: float
+    hold_after_slip_s: float
+
+
+@dataclass(frozen=True)
+class StepSpec:
+    """One step of a trial's template."""
+
+    kind: str
+    text: str | None = None  # prompt text template
+    duration_s: float = 0.0  # pause length, tare settle time
+
+
+@dataclass(frozen=True)
+class TrialPlan:
+    """One planned trial; `trial_id` is its position in the whole run (1-based)."""
+
+    trial_id: int
+    block: int
+    kind: str
+    repeat: int
+    steps: tuple[StepSpec, ...]
+    joint: int | None = None  # joint under test (joint estimation)
+    distance_m: float | None = None
+    joint_angles_rad: tuple[float, ...] | None = None
+    configuration_index: int | None = None
+
+    def prompt_text(self, template: str) -> str:
+        """The operator prompt for this trial with its fields filled in."""
+        return template.format(
+            distance_m=self.distance_m if self.distance_m is not None else math.nan,
+            joint=self.joint,
+            configuration=self.configuration_index,
+            trial=self.trial_id,
+            repeat=self.repeat,
+        )
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """A validated protocol and its expanded trial plan."""
+
+    source: Path
+    text: str
+    name: str
+    description: str
+    detector: dict[str, float]
+    ramp: RampSettings
+    force_ceiling_n: float | None
+    step_timeout_margin_s: float
+    control_period_s: float
+    estimates_from: str | None  # "run" (earlier block of this protocol) or a file path
+    trials: tuple[TrialPlan, ...]
+
+    @property
+    def kinds(self) -> set[str]:
+        """The trial kinds the plan contains."""
+        return {t.kind for t in self.trials}
+
+    def as_metadata(self) -> dict[str, str]:
+        """A flat str->str summary for the MCAP `protocol` metadata record."""
+        return {
+            "name": self.name,
+            "source": str(self.source),
+            "format": PROTOCOL_FORMAT,
+            "trials": str(len(self.trials)),
+            "kinds": ",".join(sorted(self.kinds)),
+            "detector": ",".join(f"{k}={v!r}" for k, v in self.detector.items()),
+            "control_period_s": repr(self.control_period_s),
+        }
+
+
+def load_protocol(path: str | Path, *, seed: int = 0, joint_count: int | None = None) -> Protocol:
+    """Load, validate and expand a protocol file; `seed` drives shuffling."""
+    p = Path(path)
+    data = load_yaml_file(p)
+    return parse_protocol(
+        data,
+        source=str(p),
+        text=p.read_text(encoding="utf-8"),
+        seed=seed,
+        joint_count=joint_count,
+        base_dir=p.parent,
+    )
+
+
+def parse_protocol(
+    data: Any,
+    *,
+    source: str,
+    text: str = "",
+    seed: int = 0,
+    joint_count: int | None = None,
+    base_dir: Path | None = None,
+) -> Protocol:
+    """Validate a parsed protocol mapping and expand its blocks into trials."""
+    top = Section(data, source)
+    top.reject_unknown(
+        ["format", "name", "description", "detector", "ramp", "limits", "control_period_s", "blocks"]
+    )
+    fmt = top.string("format")
+    if fmt != PROTOCOL_FORMAT:
+        raise top.error("format", f"'{fmt}' is not supported; allowed: {PROTOCOL_FORMAT}")
+    detector = _detector(top.section("detector", default={}))
+    ramp = _ramp(top.section("ramp", default={}))
+    limits = top.section("limits", default={})
+    limits.reject_unknown(["force_ceiling_n", "step_timeout_margin_s"])
+    ceiling = limits.number("force_ceiling_n", default=None, min_value=0.0, min_exclusive=True)
+    if ceiling is not None and ramp.max_force_n >= ceiling:
+        raise top.error(
+            "ramp.max_force_n", f"{ramp.max_force_n} must be below limits.force_ceiling_n ({ceiling})"
+        )
+    rng = random.Random(seed)
+    trials: list[TrialPlan] = []
+    estimates_from: str | None = None
+    blocks = top.sequence("blocks", min_length=1)
+    for b, raw_block in enumerate(blocks):
+        block = Section(raw_block, source, f"blocks[{b}]")
+        kind = block.string("kind", choices=BLOCK_KINDS)
+        if kind == "joint_estimation":
+            trials += _joint_estimation_block(block, b, len(trials), rng, joint_count)
+        else:
+            trials += _link_validation_block(block, b, len(trials), joint_count)
+            source_of_estimates = block.string("estimates_from", default="run")
+            if source_of_estimates == "run":
+                if not any(t.kind == "joint_estimation" for t in trials):
+                    raise block.error(
+                        "estimates_from",
+                        "'run' needs a joint_estimation block earlier in this protocol; "
+                        "allowed: 'run' or the path of an estimates JSON file",
+                    )
+            else:
+                path = (base_dir or Path(".")) / source_of_estimates
+                if not path.is_file():
+                    raise block.error(
+                        "estimates_from", f"file {path} not found; allowed: 'run' or a JSON file"
+                    )
+                source_of_estimates = str(path)
+            if estimates_from not in (None, source_of_estimates):
+                raise block.error("estimates_from", "all link_validation blocks must use the same estimates")
+            estimates_from = source_of_estimates
+    return Protocol(
+        source=Path(source),
+        text=text,
+        name=top.string("name", default=Path(source).stem),
+        description=top.string("description", default=""),
+        detector=detector,
+        ramp=ramp,
+        force_ceiling_n=ceiling,
+        step_timeout_margin_s=limits.number(
+            "step_timeout_margin_s", default=5.0, min_value=0.1, max_value=600
+        ),
+        control_period_s=top.number("control_period_s", default=0.02, min_value=0.001, max_value=0.1),
+        estimates_from=estimates_from,
+        trials=tuple(trials),
+    )
+
+
+def _detector(sec: Section) -> dict[str, float]:
+    """Detector settings, validated by the model's own parameter type."""
+    from model.slip_detector import DetectorParams
+
+    try:
+        params = DetectorParams.from_mapping(dict(sec.data), source=f"{sec.source}: detector")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    return dict(params.to_mapping())
+
+
+def _ramp(sec: Section) -> RampSettings:
+    sec.reject_unknown(
+        [
+            "fast_speed_rad_s",
+            "slow_speed_rad_s",
+            "fast_until_fraction",
+            "max_force_n",
+            "unload_speed_rad_s",
+            "hold_after_slip_s",
+        ]
+    )
+    fast = sec.number("fast_speed_rad_s", default=1.0, min_value=0.0, max_value=20.0, min_exclusive=True)
+    slow = sec.number("slow_speed_rad_s", default=0.1, min_value=0.0, max_value=20.0, min_exclusive=True)
+    if slow > fast:
+        raise sec.error("slow_speed_rad_s", f"{slow} must not exceed fast_speed_rad_s ({fast})")
+    return RampSettings(
+        fast_speed_rad_s=fast,
+        slow_speed_rad_s=slow,
+        fast_until_fraction=sec.number("fast_until_fraction", default=0.7, min_value=0.0, max_value=0.95),
+        max_force_n=sec.number(
+            "max_force_n", default=40.0, min_value=0.0, max_value=500.0, min_exclusive=True
+        ),
+        unload_speed_rad_s=sec.number(
+            "unload_speed_rad_s", default=2.0, min_value=0.0, max_value=20.0, min_exclusive=True
+        ),
+        hold_after_slip_s=sec.number("hold_after_slip_s", default=0.2, min_value=0.0, max_value=10.0),
+    )
+
+
+def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
+    raw = block.sequence("steps", default=list(DEFAULT_STEPS[kind]), min_length=1)
+    steps: list[StepSpec] = []
+    for i, item in enumerate(raw):
+        if isinstance(item, str):
+            name, options = item, {}
+        elif isinstance(item, dict) and len(item) == 1:
+            name, options = next(iter(item.items()))
+            options = {} if options is None else options
+        else:
+            raise block.error(f"steps[{i}]", "expected a step name or a one-key mapping {name: options}")
+        field = f"steps[{i}]"
+        if name not in STEP_KINDS:
+            raise block.error(field, f"unknown step '{name}'; allowed: {', '.join(STEP_KINDS)}")
+        if name in ("bend", "reset", "measure") and kind != "link_validation":
+            raise block.error(field, f"step '{name}' needs kind: link_validation")
+        opts = Section(options, block.source, block.field(field))
+        if name == "prompt":
+            opts.reject_unknown(["text"])
+            steps.append(StepSpec("prompt", text=opts.string("text", default=DEFAULT_PROMPTS[kind])))
+        elif name == "pause":
+            opts.reject_unknown(["duration_s"])
+            steps.append(
+                StepSpec(
+                    "pause",
+                    duration_s=opts.number("duration_s", default=0.5, min_value=0.0, max_value=3600.0),
+                )
+            )
+        elif name == "tare":
+            opts.reject_unknown(["settle_s"])
+            steps.append(
+                StepSpec(
+                    "tare", duration_s=opts.number("settle_s", default=0.5, min_value=0.05, max_value=60.0)
+                )
+            )
+        else:
+            opts.reject_unknown([])
+            steps.append(StepSpec(name))
+    names = [s.kind for s in steps]
+    if names.count("ramp_until_slip") != 1:
+        raise block.error("steps", "exactly one 'ramp_until_slip' step is required per trial")
+    if "unload" not in names[names.index("ramp_until_slip") :]:
+        raise block.error(
+            "steps", "an 'unload' step must follow 'ramp_until_slip' (the line must be released)"
+        )
+    return tuple(steps)
+
+
+def _joint_estimation_block(
+    block: Section, b: int, offset: int, rng: random.Random, joint_count: int | None
+) -> list[TrialPlan]:
+    block.reject_unknown(["kind", "joint", "distances_m", "repeats", "shuffle", "steps"])
+    joint = block.integer("joint", default=1, min_value=1, max_value=joint_count)
+    distances = block.numbers("distances_m", min_value=0.0, max_value=2.0, min_exclusive=True)
+    repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
+    steps = _steps(block, "joint_estimation")
+    order = [(d, r) for r in range(1, repeats + 1) for d in distances]
+    if block.boolean("shuffle", default=False):
+        rng.shuffle(order)
+    return [
+        TrialPlan(
+            trial_id=offset + i + 1,
+            block=b,
+            kind="joint_estimation",
+            repeat=r,
+            steps=steps,
+            joint=joint,
+            distance_m=d,
+        )
+        for i, (d, r) in enumerate(order)
+    ]
+
+
+def _link_validation_block(block: Section, b: int, offset: int, joint_count: int | None) -> list[TrialPlan]:
+    block.reject_unknown(["kind", "configurations_deg", "repeats", "estimates_from", "steps"])
+    repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
+    steps = _steps(block, "link_validation")
+    configs = block.sequence("configurations_deg", min_length=1)
+    angles: list[tuple[float, ...]] = []
+    for c, raw in enumerate(configs):
+        entry = Section({"angles": raw}, block.source, f"{block.field('configurations_deg')}[{c}]")
+        values = entry.numbers("angles", length=joint_count, min_value=-90.0, max_value=90.0)
+        angles.append(tuple(math.radians(v) for v in values))
+    trials: list[TrialPlan] = []
+    for c, config in enumerate(angles):
+        for r in range(1, repeats + 1):
+            trials.append(
+                TrialPlan(
+                    trial_id=offset + len(trials) + 1,
+                    block=b,
+                    kind="link_validation",
+                    repeat=r,
+                    steps=steps,
+                    joint_angles_rad=config,
+                    configuration_index=c + 1,
+                )
+            )
+    return trials
