@@ -44,7 +44,7 @@ class CapacitySource:
     constant: CapacityConstant | None = None
 
     def describe(self) -> str:
-        """A short human-readable provenance, e.g. 'c·μsδ0·R³: R=0.01 m, μsδ0=1.6e+05 Pa, c=paper (5.4397)'."""
+        """Short provenance, e.g. 'c·μsδ0·R³: R=0.01 m, μsδ0=1.6e+05 Pa, c=paper (5.4397)'."""
         if self.kind == "capacity_nm":
             return "given"
         assert self.constant is not None
