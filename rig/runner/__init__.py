@@ -1,0 +1,1 @@
+"""The protocol runner: plan, state machine, interlocks, journal, and the trial loop."""
