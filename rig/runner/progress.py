@@ -1,0 +1,185 @@
+"""Progress for people: a bar with ETA and a live table on a TTY, plain lines otherwise, nothing with --json.
+
+All output goes to stderr, so stdout stays clean for `--json` and pipes.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any, Protocol
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+
+class ProgressReporter(Protocol):
+    """What the runner tells about its progress."""
+
+    def start(self, run_id: str, total: int, done: int) -> None:
+        """The run begins (or resumes with `done` trials already complete)."""
+        ...
+
+    def trial_started(self, trial_id: int, description: str) -> None:
+        """A trial begins."""
+        ...
+
+    def trial_finished(self, row: dict[str, Any], estimate_text: str) -> None:
+        """A trial ended; `row` has the trial's result, `estimate_text` the current estimate."""
+        ...
+
+    def message(self, text: str) -> None:
+        """A one-line event (interlock, prompt, warning)."""
+        ...
+
+    def stop(self) -> None:
+        """The run ended (whatever the reason)."""
+        ...
+
+
+class SilentProgress:
+    """For `--json`: says nothing."""
+
+    def start(self, run_id: str, total: int, done: int) -> None:
+        pass
+
+    def trial_started(self, trial_id: int, description: str) -> None:
+        pass
+
+    def trial_finished(self, row: dict[str, Any], estimate_text: str) -> None:
+        pass
+
+    def message(self, text: str) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+
+def _result_line(row: dict[str, Any]) -> str:
+    parts = [f"trial {row['trial_id']:>3}", f"{row['outcome']:<8}"]
+    if row.get("distance_m") is not None:
+        parts.append(f"l={row['distance_m']:.3f} m")
+    if row.get("configuration_index") is not None:
+        parts.append(f"config {row['configuration_index']}")
+    if row.get("peak_force_n") is not None:
+        parts.append(f"peak {row['peak_force_n']:.2f} N ({row['slip_mass_kg']:.3f} kg)")
+    if row.get("predicted_mass_kg") is not None:
+        parts.append(f"predicted {row['predicted_mass_kg']:.3f} kg")
+    if row.get("percentage_error") is not None:
+        parts.append(f"error {row['percentage_error']:.1f} %")
+    return "  ".join(parts)
+
+
+class PlainProgress:
+    """Not a TTY: one line per event, with elapsed wall time and an ETA."""
+
+    def __init__(self, stream: Any = None) -> None:
+        self.stream = stream or sys.stderr
+        self.total = 0
+        self.done = 0
+        self.started_at = time.monotonic()
+        self.done_at_start = 0
+
+    def _print(self, text: str) -> None:
+        print(text, file=self.stream, flush=True)
+
+    def start(self, run_id: str, total: int, done: int) -> None:
+        self.total, self.done, self.done_at_start = total, done, done
+        self.started_at = time.monotonic()
+        self._print(f"run {run_id}: {total} trials, {done} already done")
+
+    def trial_started(self, trial_id: int, description: str) -> None:
+        pass
+
+    def trial_finished(self, row: dict[str, Any], estimate_text: str) -> None:
+        self.done += 1
+        elapsed = time.monotonic() - self.started_at
+        rate = (self.done - self.done_at_start) / elapsed if elapsed > 0 else 0.0
+        eta = (self.total - self.done) / rate if rate > 0 else 0.0
+        self._print(f"[{self.done}/{self.total} eta {eta:5.0f} s] {_result_line(row)}  | {estimate_text}")
+
+    def message(self, text: str) -> None:
+        self._print(text)
+
+    def stop(self) -> None:
+        pass
+
+
+class LiveProgress:
+    """A TTY: a progress bar with ETA above a table of the latest trials and the current estimate."""
+
+    def __init__(self, rows_shown: int = 12) -> None:
+        self.console = Console(stderr=True)
+        self.progress = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("eta"),
+            TimeRemainingColumn(),
+            console=self.console,
+        )
+        self.rows: list[dict[str, Any]] = []
+        self.rows_shown = rows_shown
+        self.estimate_text = "no estimate yet"
+        self.task: Any = None
+        self.live: Live | None = None
+
+    def _render(self) -> Group:
+        table = Table(expand=False, title=self.estimate_text, title_justify="left")
+        for header in ("trial", "outcome", "distance / config", "peak N", "mass kg", "pred kg", "err %"):
+            table.add_column(header, justify="right")
+        for row in self.rows[-self.rows_shown :]:
+            where = (
+                f"{row['distance_m']:.3f} m"
+                if row.get("distance_m") is not None
+                else f"config {row.get('configuration_index')}"
+            )
+            table.add_row(
+                str(row["trial_id"]),
+                str(row["outcome"]),
+                where,
+                _fmt(row.get("peak_force_n"), ".2f"),
+                _fmt(row.get("slip_mass_kg"), ".3f"),
+                _fmt(row.get("predicted_mass_kg"), ".3f"),
+                _fmt(row.get("percentage_error"), ".1f"),
+            )
+        return Group(self.progress, table)
+
+    def start(self, run_id: str, total: int, done: int) -> None:
+        self.task = self.progress.add_task(f"run {run_id}", total=total, completed=done)
+        self.live = Live(self._render(), console=self.console, refresh_per_second=4, transient=False)
+        self.live.start()
+
+    def trial_started(self, trial_id: int, description: str) -> None:
+        self.progress.update(self.task, description=f"trial {trial_id}: {description}")
+
+    def trial_finished(self, row: dict[str, Any], estimate_text: str) -> None:
+        self.rows.append(row)
+        self.estimate_text = estimate_text
+        self.progress.advance(self.task)
+        if self.live is not None:
+            self.live.update(self._render())
+
+    def message(self, text: str) -> None:
+        self.console.print(text)
+
+    def stop(self) -> None:
+        if self.live is not None:
+            self.live.stop()
+            self.live = None
+
+
+def _fmt(value: Any, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def make_progress(json_output: bool) -> ProgressReporter:
+    """Silent for --json, live on a terminal, plain lines otherwise."""
+    if json_output:
+        return SilentProgress()
+    if sys.stderr.isatty():
+        return LiveProgress()
+    return PlainProgress()
