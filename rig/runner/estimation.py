@@ -1,0 +1,191 @@
+"""The run's estimates: the online joint-estimation fit, per-joint capacities, and predictions.
+
+Glue between the runner and `model/`: it feeds each finished trial into the pure step functions
+(`model.online_fit`, `model.joint_capacity_estimation`), predicts the next trial's slip load from
+the estimates **the rig itself made** (never from simulator truth), and renders the estimate as the
+`rig fit --json` keys for logs and output. Replaying the same results rebuilds the same state, which
+is how `--resume` restores it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from model.chain import planar_transforms, predict_slip
+from model.fit import SUMMARY_KEYS, capacity_from_fit, fit_summary_dict
+from model.joint_capacity_estimation import (
+    link_estimator_estimates,
+    link_estimator_init,
+    link_estimator_update,
+)
+from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
+from rig.errors import InputError
+from rig.rig_config import ArticleConfig
+
+
+class RunEstimator:
+    """Online estimates over one run (all invocations of it)."""
+
+    def __init__(
+        self,
+        article: ArticleConfig,
+        *,
+        level: float = 0.99,
+        constant: str = "paper",
+        prior_summary: dict[str, Any] | None = None,
+    ) -> None:
+        self.article = article
+        self.level = level
+        self.constant = constant
+        self.fit_state = online_fit_init()
+        self.link_state: Any = None
+        self._file_prior = prior_summary
+
+    # ---- predictions -------------------------------------------------------------------------
+    def summary(self) -> dict[str, Any] | None:
+        """The current joint-estimation fit as `rig fit --json` keys, or None before 2 trials."""
+        fit = online_fit_estimate(self.fit_state, self.level)
+        if fit is None:
+            return self._file_prior
+        capacity = capacity_from_fit(fit, self.article.joint_radius_m, self.constant, self.article.g)
+        return fit_summary_dict(fit, capacity)
+
+    def predict_joint_estimation_force_n(self, distance_m: float) -> float | None:
+        """Predicted slip tension at `distance_m` from the fit so far (None before 2 trials)."""
+        summary = self.summary()
+        if summary is None:
+            return None
+        return summary["capacity_nm"] / distance_m
+
+    def transforms_for(self, joint_angles_rad: Sequence[float]) -> np.ndarray:
+        """The link's (J, 4, 4) transforms at a planar configuration."""
+        return planar_transforms(
+            np.asarray(joint_angles_rad, float), np.asarray(self.article.segment_lengths_m)
+        )
+
+    def joint_capacities(self) -> dict[str, np.ndarray] | None:
+        """Per-joint capacity estimates with bounds, once a prior exists."""
+        state = self._link()
+        if state is None:
+            return None
+        est = link_estimator_estimates(state, self.level)
+        return {"capacity_nm": est.capacity_nm, "ci_lo_nm": est.ci_lo_nm, "ci_hi_nm": est.ci_hi_nm}
+
+    def predict_link(self, joint_angles_rad: Sequence[float]) -> dict[str, Any] | None:
+        """Predicted slip of the link at a measured configuration from the current estimates."""
+        caps = self.joint_capacities()
+        if caps is None:
+            return None
+        transforms = self.transforms_for(joint_angles_rad)
+        pred = predict_slip(
+            transforms,
+            caps["capacity_nm"],
+            np.asarray(self.article.point_m),
+            np.asarray(self.article.direction),
+            g=self.article.g,
+        )
+        return {
+            "slip_force_n": float(pred.slip_force_n),
+            "slip_mass_kg": float(pred.slip_mass_kg),
+            "first_slip_joint": int(pred.first_slip_joint),
+            "lever_arms_m": [float(v) for v in np.asarray(pred.lever_arms_m)[1:]],
+            "base_moment_nm": float(pred.base_moment_nm),
+        }
+
+    # ---- updates -----------------------------------------------------------------------------
+    def update_joint_estimation(self, distance_m: float, mass_kg: float) -> None:
+        """Add one joint-estimation slip (distance, slip mass)."""
+        self.fit_state = online_fit_update(self.fit_state, distance_m, mass_kg)
+
+    def update_link(
+        self, lever_arms_m: Sequence[float], peak_force_n: float, slipped_joint: int | None
+    ) -> None:
+        """Add one link-validation slip at the measured configuration's lever arms."""
+        state = self._link()
+        if state is None:
+            raise RuntimeError(
+                "link validation needs joint estimates first (a joint-estimation block or a file)"
+            )
+        self.link_state = link_estimator_update(
+            state, np.asarray(lever_arms_m, float), peak_force_n, slipped_joint
+        )
+
+    def replay(self, results: Sequence[dict[str, Any]]) -> None:
+        """Rebuild the state from journalled results, in order (used by --resume)."""
+        for r in results:
+            self.apply_result(r)
+
+    def apply_result(self, result: dict[str, Any]) -> None:
+        """Feed one finished trial's result (as journalled) into the estimators."""
+        if result.get("outcome") != "slip":
+            return
+        if result["kind"] == "joint_estimation":
+            self.update_joint_estimation(result["distance_m"], result["slip_mass_kg"])
+        else:
+            self.update_link(result["lever_arms_m"], result["peak_force_n"], result.get("slipped_joint"))
+
+    def _link(self) -> Any:
+        if self.link_state is None:
+            prior = self.summary()
+            if prior is None:
+                return None
+            lo, hi = prior["capacity_ci_nm"]
+            capacity = prior["capacity_nm"]
+            # The fit's 99 % bounds on the capacity, read as a log-normal prior for every joint.
+            z = 2.5758293035489004  # standard normal quantile at 0.995
+            sd_log = (math.log(hi) - math.log(lo)) / (2 * z) if lo > 0 and hi > lo else 0.5
+            sd_log = max(sd_log, 0.05)  # joints differ by ~10 %: never trust the shared fit more
+            joints = self.article.joint_count
+            self.link_state = link_estimator_init(np.full(joints, capacity), np.full(joints, sd_log))
+        return self.link_state
+
+    def estimate_message(self, trial_id: int) -> dict[str, Any]:
+        """The `/rig/estimate` payload after a trial: fit keys (null before 2 trials) and joints."""
+        summary = self.summary() or {}
+        message: dict[str, Any] = {"trial_id": trial_id}
+        for key in SUMMARY_KEYS:
+            message[key] = summary.get(key)
+        joints: list[dict[str, Any]] = []
+        caps = self.joint_capacities() if self.link_state is not None else None
+        if caps is not None:
+            for j in range(len(caps["capacity_nm"])):
+                joints.append(
+                    {
+                        "joint": j + 1,
+                        "capacity_nm": float(caps["capacity_nm"][j]),
+                        "ci_lo_nm": float(caps["ci_lo_nm"][j]),
+                        "ci_hi_nm": float(caps["ci_hi_nm"][j]),
+                    }
+                )
+        message["joints"] = joints
+        return message
+
+    def estimate_text(self) -> str:
+        """A one-line human summary of the current estimate."""
+        s = self.summary()
+        if s is None:
+            return "estimate: needs 2 slips"
+        lo, hi = s["capacity_ci_nm"]
+        return f"k={s['k']:.4f} kg·m  capacity={s['capacity_nm']:.3f} N·m [{lo:.3f}, {hi:.3f}] (n={s['n']})"
+
+
+def load_estimates_file(path: str | Path) -> dict[str, Any]:
+    """Read an estimates JSON (a `rig fit --json` object, or a run's `.estimates.json`)."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"{p}: cannot read estimates ({exc})") from None
+    summary = data.get("estimate", data) if isinstance(data, dict) else None
+    if not isinstance(summary, dict):
+        raise InputError(f"{p}: expected a JSON object with the `rig fit --json` keys")
+    for key in ("capacity_nm", "capacity_ci_nm", "k", "n"):
+        if key not in summary or summary[key] is None:
+            raise InputError(f"{p}: field '{key}' is missing; allowed: a `rig fit --json` object")
+    return summary
