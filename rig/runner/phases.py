@@ -2,26 +2,10 @@
 
 from __future__ import annotations
 
-from enum import StrEnum
+from rig.log.schemas import TrialPhase
 
-
-class Phase(StrEnum):
-    """What the rig is doing; logged on `/rig/trial/state` at every change."""
-
-    IDLE = "idle"
-    CONNECTING = "connecting"
-    TARING = "taring"
-    BENDING = "bending"
-    PROMPTING = "prompting"
-    RAMP_FAST = "ramp_fast"
-    RAMP_SLOW = "ramp_slow"
-    UNLOADING = "unloading"
-    RESETTING = "resetting"
-    PAUSING = "pausing"
-    DONE = "done"
-    ABORTED = "aborted"
-    FAULTED = "faulted"
-
+# The phase names are part of the MCAP contract (`/rig/trial/state`), so they live with the schemas.
+Phase = TrialPhase
 
 TERMINAL = frozenset({Phase.DONE, Phase.ABORTED, Phase.FAULTED})
 _ANY_ACTIVE = frozenset(Phase) - TERMINAL
