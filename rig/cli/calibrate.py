@@ -1,0 +1,203 @@
+"""`rig calibrate`: walk an operator through tare and a reference mass, then write the calibration JSON."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from rig.cli.output import emit_json, format_table
+from rig.errors import InputError
+from rig.hw.calibration import (
+    STANDARD_GRAVITY_M_S2,
+    Calibration,
+    CalibrationError,
+    CalibrationStep,
+    run_calibration,
+)
+from rig.hw.clock import SystemClock
+from rig.hw.loadcell import DEFAULT_BAUD, DEFAULT_STALE_TIMEOUT_S, SerialLoadCell
+from rig.hw.loadcell_formats import FORMATS
+from rig.hw.seams import Clock, LoadCell
+
+PromptFn = Callable[[CalibrationStep, str], None]
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add `rig calibrate`."""
+    parser = subparsers.add_parser(
+        "calibrate",
+        help="two-point load-cell calibration (tare + reference mass) written as JSON",
+        description=(
+            "Calibrate the line load cell: with no load, the mean raw count is the offset (tare); "
+            "with a reference mass hanging, factor = mass * g / (raw_ref - raw_zero). Prompts the "
+            "operator before each step, then writes --out atomically (Ctrl-C leaves no file). "
+            "--sim runs against the in-process simulated load cell, where the simulation hangs the mass."
+        ),
+    )
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--port", help="serial port or pyserial URL of the load cell (e.g. /dev/ttyUSB0)")
+    source.add_argument("--sim", action="store_true", help="use the in-process simulated load cell")
+    parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help=f"baud rate (default {DEFAULT_BAUD})")
+    parser.add_argument(
+        "--format", default="rig-lc1", choices=sorted(FORMATS), help="line format (default rig-lc1)"
+    )
+    parser.add_argument(
+        "--reference-kg", type=float, required=True, help="mass of the reference weight in kg"
+    )
+    parser.add_argument("--out", required=True, help="calibration JSON file to write")
+    parser.add_argument(
+        "--settle-s",
+        type=float,
+        default=2.0,
+        help="wait after each confirmation before averaging (default 2)",
+    )
+    parser.add_argument("--average-s", type=float, default=1.0, help="averaging window in s (default 1)")
+    parser.add_argument(
+        "--g",
+        type=float,
+        default=STANDARD_GRAVITY_M_S2,
+        help=f"local gravity in m/s^2 (default {STANDARD_GRAVITY_M_S2})",
+    )
+    parser.add_argument("--serial", default="", help="load cell serial number, stored in the file")
+    parser.add_argument(
+        "--temperature-c", type=float, default=None, help="ambient temperature, stored in the file"
+    )
+    parser.add_argument(
+        "--stale-timeout-s",
+        type=float,
+        default=DEFAULT_STALE_TIMEOUT_S,
+        help=f"fail when no sample arrives for this long (default {DEFAULT_STALE_TIMEOUT_S:g})",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="with --sim: random seed (default 0)")
+    parser.add_argument("--yes", action="store_true", help="do not wait for confirmations")
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    parser.set_defaults(handler=run)
+
+
+def validate_args(args: argparse.Namespace) -> None:
+    """Reject impossible values before touching any hardware."""
+    checks = [
+        ("--reference-kg", args.reference_kg, args.reference_kg > 0, "> 0"),
+        ("--settle-s", args.settle_s, 0 <= args.settle_s <= 600, "0-600"),
+        ("--average-s", args.average_s, 0 < args.average_s <= 600, "> 0 and <= 600"),
+        ("--g", args.g, 9.7 <= args.g <= 9.9, "9.7-9.9 (Earth's surface)"),
+        ("--stale-timeout-s", args.stale_timeout_s, args.stale_timeout_s > 0, "> 0"),
+    ]
+    for flag, value, ok, allowed in checks:
+        if not (ok and math.isfinite(value)):
+            raise InputError(f"{flag} {value}; allowed: {allowed}")
+    out = Path(args.out)
+    if out.is_dir():
+        raise InputError(f"--out {out}: is a directory; allowed: a file path")
+
+
+def operator_prompt(auto_confirm: bool, log: Callable[[str], None]) -> PromptFn:
+    """Prompt on the terminal and wait for Enter, or only log the prompt when auto-confirming."""
+
+    def prompt(step: CalibrationStep, message: str) -> None:
+        if auto_confirm:
+            log(f"{message} [auto-confirmed]")
+            return
+        try:
+            input(f"{message}\nPress Enter when ready (Ctrl-C aborts, nothing is written): ")
+        except EOFError:
+            raise CalibrationError(
+                "stdin closed before the operator confirmed; use --yes to auto-confirm"
+            ) from None
+
+    return prompt
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the calibration and write the file; returns the exit code."""
+    validate_args(args)
+
+    def log(message: str) -> None:
+        print(message, file=sys.stderr if args.json else sys.stdout, flush=True)
+
+    auto_confirm = args.yes or (args.sim and not sys.stdin.isatty())
+    prompt = operator_prompt(auto_confirm, log)
+    clock: Clock
+    load_cell: LoadCell
+    if args.sim:
+        load_cell, clock, prompt = _simulated(args, prompt)
+        port = "sim"
+    else:
+        clock = SystemClock()
+        load_cell = SerialLoadCell(
+            args.port,
+            baud=args.baud,
+            format_name=args.format,
+            stale_timeout_s=args.stale_timeout_s,
+            clock=clock,
+        )
+        port = args.port
+    log(f"load cell on {port} ({args.format}); reference {args.reference_kg:g} kg, g = {args.g:g} m/s^2")
+    load_cell.open()
+    try:
+        calibration = run_calibration(
+            load_cell,
+            prompt,
+            args.reference_kg,
+            args.settle_s,
+            clock=clock,
+            average_s=args.average_s,
+            g=args.g,
+            serial=args.serial,
+            format_name=args.format,
+            temperature_c=args.temperature_c,
+            progress_fn=log,
+        )
+    finally:
+        load_cell.close()
+    calibration.save(args.out)
+    _report(args, calibration)
+    return 0
+
+
+def _report(args: argparse.Namespace, calibration: Calibration) -> None:
+    noise_n = calibration.noise_n
+    if args.json:
+        emit_json({"out": str(args.out), **calibration.to_dict(), "noise_n": noise_n})
+        return
+    rows = [
+        ("factor", f"{calibration.factor_n_per_count:.6e}", "N/count"),
+        ("offset", f"{calibration.offset_counts:.1f}", "counts"),
+        ("noise at zero", f"{noise_n:.4g}" if noise_n is not None else "-", "N RMS"),
+        ("reference", f"{args.reference_kg:g} kg = {args.reference_kg * args.g:.4g}", "N"),
+    ]
+    print(format_table(["quantity", "value", "unit"], rows))
+    print(f"wrote {args.out}")
+
+
+def _simulated(args: argparse.Namespace, prompt: PromptFn) -> tuple[LoadCell, Clock, PromptFn]:
+    """The in-process emulator on a virtual clock; the prompts move the simulated mass."""
+    from rig.sim.clock import VirtualClock
+    from rig.sim.loadcell_emulator import LoadCellEmulator
+    from rig.sim.loadcell_profiles import StepTension
+    from rig.sim.loadcell_serial import SIM_PORT, in_process_serial_factory
+
+    clock = VirtualClock()
+    # The line starts with an unknown load on it: the operator has to take it off for the tare.
+    tension = StepTension(0.8)
+    emulator = LoadCellEmulator(
+        tension, format_name=args.format, baud=args.baud, seed=args.seed, start_ns=clock.monotonic_ns()
+    )
+    load_cell = SerialLoadCell(
+        SIM_PORT,
+        baud=args.baud,
+        format_name=args.format,
+        stale_timeout_s=args.stale_timeout_s,
+        clock=clock,
+        serial_factory=in_process_serial_factory(emulator, clock),
+    )
+
+    def sim_prompt(step: CalibrationStep, message: str) -> None:
+        prompt(step, message)
+        target_n = 0.0 if step is CalibrationStep.REMOVE_LOAD else args.reference_kg * args.g
+        tension.set(target_n, clock.monotonic_ns())
+
+    return load_cell, clock, sim_prompt

@@ -1,0 +1,247 @@
+"""The serial load-cell driver: implements the `LoadCell` seam over pyserial (or any port like it).
+
+`poll()` never blocks. On a real port (a `serial.SerialBase`) a background reader thread reads
+bytes as they arrive, stamps them on receipt with `clock.monotonic_ns()` (plus one epoch anchor
+taken at `open()`), decodes them and feeds a bounded queue that `poll()` drains. On any other
+port object (the in-process emulator, which lives in virtual time) `poll()` itself reads what is
+waiting, without a thread. Staleness is never papered over: when no valid sample has arrived for
+longer than `stale_timeout_s`, `poll()` raises `StaleDataError`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import serial
+
+from rig.errors import InputError, NotConnectedError, StaleDataError
+from rig.hw.calibration import Calibration
+from rig.hw.clock import SystemClock
+from rig.hw.loadcell_formats import LineDecoder, get_codec
+from rig.hw.seams import Clock, LoadCellSample
+
+DEFAULT_BAUD = 921600
+DEFAULT_STALE_TIMEOUT_S = 0.5
+DEFAULT_QUEUE_SAMPLES = 20_000  # 10 s at 2 kHz
+_READ_TIMEOUT_S = 0.05  # how often the reader thread checks for close()
+_READ_CHUNK_BYTES = 65536
+
+SerialFactory = Callable[..., Any]
+
+
+def default_serial_factory(port: str, baudrate: int, timeout: float | None) -> serial.SerialBase:
+    """Open with pyserial's `serial_for_url`: device paths and URLs such as `loop://` or `socket://host:port`."""
+    return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout)
+
+
+@dataclass(frozen=True, slots=True)
+class LoadCellStats:
+    """Counters of one driver since `open()`."""
+
+    bytes_received: int
+    lines_ok: int
+    corrupt_lines: int  # malformed or truncated lines
+    checksum_failures: int
+    bytes_discarded: int  # bytes not part of any valid line (garbage, broken lines, partial first line)
+    sequence_gaps: int  # places where the device's sequence counter skipped
+    missing_samples: int  # sequence numbers never received (gaps, broken lines, silences)
+    overload_lines: int  # valid lines the device flagged as overload
+    samples_dropped: int  # decoded samples lost because poll() was not called for too long (queue full)
+
+
+class SerialLoadCell:
+    """A streaming serial load cell; see the module docstring for threading and staleness."""
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baud: int = DEFAULT_BAUD,
+        format_name: str = "rig-lc1",
+        calibration: Calibration | None = None,
+        stale_timeout_s: float = DEFAULT_STALE_TIMEOUT_S,
+        clock: Clock | None = None,
+        serial_factory: SerialFactory | None = None,
+        reader: Literal["auto", "thread", "poll"] = "auto",
+        queue_samples: int = DEFAULT_QUEUE_SAMPLES,
+    ) -> None:
+        if not (stale_timeout_s > 0 and math.isfinite(stale_timeout_s)):
+            raise InputError(f"load cell stale_timeout_s: {stale_timeout_s}; allowed: > 0")
+        if reader not in ("auto", "thread", "poll"):
+            raise InputError(f"load cell reader: {reader!r}; allowed: auto, thread, poll")
+        get_codec(format_name)  # fail early on an unknown format
+        self.port = port
+        self.baud = baud
+        self.format_name = format_name
+        self.calibration = calibration
+        self.stale_timeout_s = stale_timeout_s
+        self.clock: Clock = clock or SystemClock()
+        self._serial_factory = serial_factory or default_serial_factory
+        self._reader_mode = reader
+        if queue_samples < 1:
+            raise InputError(f"load cell queue_samples: {queue_samples}; allowed: >= 1")
+        self._queue_samples = queue_samples
+        self._serial: Any = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._queue: deque[LoadCellSample] = deque(maxlen=queue_samples)
+        self._decoder = LineDecoder(get_codec(format_name))
+        self._samples_dropped = 0
+        self._reader_error: BaseException | None = None
+        self._anchor_ns = 0
+        self._last_valid_mono_ns = 0
+
+    # -- lifecycle --------------------------------------------------------------------------------
+    def open(self) -> None:
+        """Open the port, discard stale input, and start receiving."""
+        if self._serial is not None:
+            return
+        threaded = self._reader_mode == "thread"
+        ser = self._serial_factory(
+            port=self.port, baudrate=self.baud, timeout=_READ_TIMEOUT_S if threaded else 0
+        )
+        if self._reader_mode == "auto" and isinstance(ser, serial.SerialBase):
+            threaded = True
+            ser.timeout = _READ_TIMEOUT_S
+        ser.reset_input_buffer()
+        self._decoder = LineDecoder(self._decoder.codec)
+        self._queue.clear()
+        self._samples_dropped = 0
+        self._reader_error = None
+        self._anchor_ns = self.clock.time_ns() - self.clock.monotonic_ns()
+        self._last_valid_mono_ns = self.clock.monotonic_ns()  # staleness counts from open()
+        self._serial = ser
+        if threaded:
+            self._stop.clear()
+            self._thread = threading.Thread(
+                target=self._read_forever, name=f"loadcell-reader {self.port}", daemon=True
+            )
+            self._thread.start()
+
+    def close(self) -> None:
+        """Stop the reader and close the port (idempotent)."""
+        ser, self._serial = self._serial, None
+        if ser is None:
+            return
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            cancel = getattr(ser, "cancel_read", None)
+            if cancel is not None:
+                with contextlib.suppress(Exception):  # best effort: the join below bounds the wait
+                    cancel()
+            thread.join(timeout=2.0)
+        ser.close()
+
+    def __enter__(self) -> SerialLoadCell:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- reading ----------------------------------------------------------------------------------
+    def poll(self) -> list[LoadCellSample]:
+        """Samples received since the last call (possibly none); never blocks.
+
+        Raises `NotConnectedError` when the port is closed or failed, and `StaleDataError` when
+        no valid sample arrived for longer than `stale_timeout_s` and none is waiting.
+        """
+        ser = self._serial
+        if ser is None:
+            raise NotConnectedError(f"load cell {self.port}: not open")
+        if self._thread is None:
+            try:
+                waiting = ser.in_waiting
+                data = ser.read(waiting) if waiting else b""
+            except (OSError, serial.SerialException) as exc:
+                raise NotConnectedError(f"load cell {self.port}: reading failed: {exc}") from exc
+            if data:
+                self._ingest(data, self.clock.monotonic_ns())
+        with self._lock:
+            samples = list(self._queue)
+            self._queue.clear()
+        if samples:
+            return samples
+        if self._reader_error is not None:
+            raise NotConnectedError(f"load cell {self.port}: reading failed: {self._reader_error}")
+        age_s = self.last_sample_age_s
+        if age_s > self.stale_timeout_s:
+            raise StaleDataError(
+                f"load cell {self.port}: no valid sample for {age_s:.3f} s; limit {self.stale_timeout_s:g} s"
+            )
+        return samples
+
+    @property
+    def last_sample_age_s(self) -> float:
+        """Seconds since the last valid sample was received (since `open()` if none yet)."""
+        return (self.clock.monotonic_ns() - self._last_valid_mono_ns) / 1e9
+
+    @property
+    def is_stale(self) -> bool:
+        """No valid sample for longer than the stale timeout."""
+        return self.last_sample_age_s > self.stale_timeout_s
+
+    @property
+    def is_open(self) -> bool:
+        """Whether `open()` succeeded and `close()` has not been called."""
+        return self._serial is not None
+
+    def stats(self) -> LoadCellStats:
+        """A snapshot of the counters."""
+        with self._lock:
+            c = self._decoder.counts()
+            dropped = self._samples_dropped
+        return LoadCellStats(
+            c.bytes_received,
+            c.lines_ok,
+            c.corrupt_lines,
+            c.checksum_failures,
+            c.bytes_discarded,
+            c.sequence_gaps,
+            c.missing_samples,
+            c.overload_lines,
+            dropped,
+        )
+
+    def _ingest(self, data: bytes, receipt_mono_ns: int) -> None:
+        """Decode bytes received at `receipt_mono_ns` and queue their samples."""
+        time_ns = self._anchor_ns + receipt_mono_ns
+        cal = self.calibration
+        with self._lock:
+            lines = self._decoder.feed(data)
+            if not lines:
+                return
+            if cal is None:
+                nan = math.nan
+                samples = [LoadCellSample(time_ns, ln.raw, nan, ln.seq, ln.device_time_us) for ln in lines]
+            else:
+                factor, offset = cal.factor_n_per_count, cal.offset_counts
+                samples = [
+                    LoadCellSample(time_ns, ln.raw, (ln.raw - offset) * factor, ln.seq, ln.device_time_us)
+                    for ln in lines
+                ]
+            queue = self._queue
+            overflow = len(queue) + len(samples) - self._queue_samples
+            if overflow > 0:
+                self._samples_dropped += overflow  # the bounded deque drops the oldest
+            queue.extend(samples)
+            self._last_valid_mono_ns = receipt_mono_ns
+
+    def _read_forever(self) -> None:
+        ser, stop, clock = self._serial, self._stop, self.clock
+        try:
+            while not stop.is_set():
+                data = ser.read(max(1, min(ser.in_waiting, _READ_CHUNK_BYTES)))
+                if data:
+                    self._ingest(data, clock.monotonic_ns())
+        except Exception as exc:  # reported to the caller by poll()
+            if not stop.is_set():
+                self._reader_error = exc

@@ -1,0 +1,332 @@
+"""The byte-level load-cell emulator core: tension -> ADC counts -> lines of a format, with faults.
+
+Pure and transport-free: `lines_until(t_ns)` returns the lines of every sample whose time is at
+or before `t_ns` on the caller's monotonic clock, so the same core serves the in-process fake
+serial port (virtual time, `loadcell_serial.py`) and the pty process (real time,
+`loadcell_pty.py`). The tension comes from the world: a callable `tension_n(t_monotonic_ns)`.
+
+Signal chain (defaults: a 5 kg / 49 N S-beam cell at 2 mV/V and 5 V excitation into a 24-bit
+ADC with a +-20 mV input range, sampled at 1 kHz):
+    counts = offset + gain * tension + drift * t + N(0, noise), quantised, clamped to the ADC range
+gain 80 000 counts/N puts the rated 49 N at about half of full scale (saturation near 103 N);
+noise 400 counts RMS is about 5 mN, typical of a 24-bit converter run at 1 kSPS.
+
+Faults (per-line probabilities, scheduled silences, or one-shot injections for tests):
+garbage bytes before a line, a truncated line (its tail, terminator included, lost), a bad
+checksum, a sequence gap (samples taken but never sent), silence (cable unplugged: the device
+keeps sampling and counting, nothing is sent).
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from rig.errors import InputError
+from rig.hw.loadcell_formats import DeviceReading, IndicatorStCodec, LineCodec, get_codec
+
+MIN_RATE_HZ = 10.0
+MAX_RATE_HZ = 2000.0
+BITS_PER_BYTE = 10  # 8N1: start bit, 8 data bits, stop bit
+STANDARD_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
+                  1000000, 1152000, 1500000, 2000000, 2500000, 3000000, 3500000, 4000000)  # fmt: skip
+DEFAULT_BAUD = 921600
+_GARBAGE_ALPHABET = bytes(b for b in range(256) if b not in b"$\r\n")
+
+TensionSource = Callable[[int], float]
+
+
+@dataclass(frozen=True, slots=True)
+class SignalModel:
+    """How line tension becomes ADC counts."""
+
+    gain_counts_per_n: float = 80_000.0
+    offset_counts: float = 120_000.0  # bridge imbalance at zero load
+    drift_counts_per_s: float = 5.0  # slow thermal drift of the zero
+    noise_counts: float = 400.0  # Gaussian, RMS
+    quantisation_counts: int = 1  # ADC step after any internal decimation
+    adc_bits: int = 24  # two's complement range [-2**(bits-1), 2**(bits-1) - 1]
+
+    def __post_init__(self) -> None:
+        if self.gain_counts_per_n == 0:
+            raise InputError("load-cell gain_counts_per_n: 0; allowed: any non-zero number")
+        if self.noise_counts < 0:
+            raise InputError(f"load-cell noise_counts: {self.noise_counts}; allowed: >= 0")
+        if self.quantisation_counts < 1:
+            raise InputError(f"load-cell quantisation_counts: {self.quantisation_counts}; allowed: >= 1")
+        if not 8 <= self.adc_bits <= 32:
+            raise InputError(f"load-cell adc_bits: {self.adc_bits}; allowed: 8-32")
+
+    @property
+    def adc_min(self) -> int:
+        """Most negative count."""
+        return -(1 << (self.adc_bits - 1))
+
+    @property
+    def adc_max(self) -> int:
+        """Most positive count."""
+        return (1 << (self.adc_bits - 1)) - 1
+
+    def counts(self, tension_n: float, elapsed_s: float, noise_draw: float) -> int:
+        """ADC counts for a tension at `elapsed_s` since power-on; `noise_draw` is a N(0, 1) draw."""
+        value = (
+            self.offset_counts
+            + self.gain_counts_per_n * tension_n
+            + self.drift_counts_per_s * elapsed_s
+            + self.noise_counts * noise_draw
+        )
+        q = self.quantisation_counts
+        counts = round(value / q) * q
+        return min(max(counts, self.adc_min), self.adc_max)
+
+
+@dataclass(frozen=True, slots=True)
+class FaultPlan:
+    """Random faults per line and scheduled silences, as given on the command line."""
+
+    garbage_per_line: float = 0.0
+    truncate_per_line: float = 0.0
+    bad_checksum_per_line: float = 0.0
+    gap_per_line: float = 0.0
+    silences_s: tuple[tuple[float, float], ...] = ()  # (start after power-on, duration)
+    garbage_bytes_max: int = 16  # each garbage burst is 1..this many bytes
+    gap_samples_max: int = 5  # each gap drops 1..this many samples
+
+    def __post_init__(self) -> None:
+        for name in ("garbage_per_line", "truncate_per_line", "bad_checksum_per_line", "gap_per_line"):
+            p = getattr(self, name)
+            if not 0.0 <= p <= 1.0:
+                raise InputError(f"fault {name}: {p}; allowed: a probability 0-1")
+        for start_s, duration_s in self.silences_s:
+            if start_s < 0 or duration_s <= 0:
+                raise InputError(
+                    f"fault silence at {start_s} s for {duration_s} s; allowed: start >= 0, duration > 0"
+                )
+
+
+FAULT_KINDS = ("garbage", "truncate", "checksum", "gap", "silence")
+
+
+def parse_fault(spec: str, plan: FaultPlan) -> FaultPlan:
+    """Add one `--fault` spec to `plan`: KIND:PROBABILITY, or silence:START_S:DURATION_S."""
+    kind, _, rest = spec.partition(":")
+    try:
+        if kind == "silence":
+            start_text, _, duration_text = rest.partition(":")
+            silence = (float(start_text), float(duration_text))
+            return FaultPlan(**{**_fields(plan), "silences_s": (*plan.silences_s, silence)})
+        name = {
+            "garbage": "garbage_per_line",
+            "truncate": "truncate_per_line",
+            "checksum": "bad_checksum_per_line",
+            "gap": "gap_per_line",
+        }[kind]
+        return FaultPlan(**{**_fields(plan), name: float(rest)})
+    except (KeyError, ValueError):
+        raise InputError(
+            f"--fault {spec!r}; allowed: garbage|truncate|checksum|gap:PROBABILITY_PER_LINE "
+            "or silence:START_S:DURATION_S"
+        ) from None
+
+
+def _fields(plan: FaultPlan) -> dict[str, object]:
+    return {name: getattr(plan, name) for name in plan.__dataclass_fields__}
+
+
+@dataclass(slots=True)
+class EmulatorCounts:
+    """What the emulator did, for comparing with what the host counted."""
+
+    samples: int = 0  # samples taken (seq advanced)
+    lines_sent: int = 0  # intact lines sent
+    garbage_bytes: int = 0
+    truncated_lines: int = 0
+    bad_checksums: int = 0
+    gap_samples: int = 0  # samples dropped by sequence gaps
+    silenced_samples: int = 0
+    overload_lines: int = 0
+
+
+@dataclass(slots=True)
+class _Pending:
+    garbage_bytes: list[int] = field(default_factory=list)
+    truncate: int = 0
+    bad_checksum: int = 0
+    gap_samples: int = 0
+    silence_until_ns: int = -1
+
+
+class LoadCellEmulator:
+    """A streaming load cell: samples `tension_n` at `rate_hz` and encodes lines in `format_name`."""
+
+    def __init__(
+        self,
+        tension_n: TensionSource,
+        *,
+        format_name: str = "rig-lc1",
+        rate_hz: float = 1000.0,
+        baud: int = DEFAULT_BAUD,
+        signal: SignalModel | None = None,
+        faults: FaultPlan | None = None,
+        seed: int = 0,
+        start_ns: int = 0,
+        seq_start: int = 0,
+        device_time_start_us: int = 0,
+        indicator_g: float = 9.80665,
+    ) -> None:
+        if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
+            raise InputError(f"--rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
+        if baud not in STANDARD_BAUDS:
+            raise InputError(f"--baud {baud}; allowed: {', '.join(map(str, STANDARD_BAUDS))}")
+        self.codec: LineCodec = get_codec(format_name)
+        self.format_name = format_name
+        needed_baud = rate_hz * self.codec.max_line_bytes * BITS_PER_BYTE
+        if needed_baud > baud:
+            raise InputError(
+                f"--rate {rate_hz:g} Hz of {format_name} lines (up to {self.codec.max_line_bytes} bytes) "
+                f"needs >= {needed_baud:.0f} baud; --baud {baud}; allowed: a faster baud or a lower rate"
+            )
+        self.faults = faults or FaultPlan()
+        if not self.codec.has_checksum and self.faults.bad_checksum_per_line:
+            raise InputError(f"--fault checksum: format {format_name} has no checksum; allowed with rig-lc1")
+        if not self.codec.has_sequence and self.faults.gap_per_line:
+            raise InputError(
+                f"--fault gap: format {format_name} has no sequence counter; allowed with rig-lc1"
+            )
+        self.tension_n = tension_n
+        self.rate_hz = float(rate_hz)
+        self.baud = baud
+        self.signal = signal or SignalModel()
+        self.start_ns = start_ns
+        self.counts = EmulatorCounts()
+        self._rng = random.Random(seed)
+        self._k = 0  # index of the next sample
+        self._seq = seq_start
+        self._device_time_start_us = device_time_start_us
+        self._pending = _Pending()
+        self._silences_ns = sorted(
+            (start_ns + round(s * 1e9), start_ns + round((s + d) * 1e9)) for s, d in self.faults.silences_s
+        )
+        # indicator-st: the indicator shows kg through its own calibration, zeroed at power-on.
+        self._indicator = self.codec if isinstance(self.codec, IndicatorStCodec) else None
+        if self._indicator is not None:
+            digits_per_n = 10.0**self._indicator.decimals / indicator_g
+            self._display_per_count = digits_per_n / self.signal.gain_counts_per_n
+        self._recent_display: list[int] = []
+
+    # -- one-shot injections (tests) --------------------------------------------------------------
+    def inject_garbage(self, n_bytes: int) -> None:
+        """Send `n_bytes` random bytes (never `$`, CR or LF) before the next line."""
+        self._pending.garbage_bytes.append(n_bytes)
+
+    def inject_truncated(self, count: int = 1) -> None:
+        """Cut the next `count` lines short (their tail and terminator are lost)."""
+        self._pending.truncate += count
+
+    def inject_bad_checksum(self, count: int = 1) -> None:
+        """Send the next `count` lines with a wrong checksum."""
+        if not self.codec.has_checksum:
+            raise InputError(f"format {self.format_name} has no checksum to corrupt")
+        self._pending.bad_checksum += count
+
+    def inject_sequence_gap(self, n_samples: int) -> None:
+        """Drop the next `n_samples` samples (taken and counted by the device, never sent)."""
+        self._pending.gap_samples += n_samples
+
+    def inject_silence(self, duration_s: float, at_ns: int | None = None) -> None:
+        """Send nothing for `duration_s` from `at_ns` (default: the next sample), as if unplugged."""
+        start = self.sample_time_ns(self._k) if at_ns is None else at_ns
+        self._silences_ns.append((start, start + round(duration_s * 1e9)))
+        self._silences_ns.sort()
+
+    # -- sampling ---------------------------------------------------------------------------------
+    def sample_time_ns(self, k: int) -> int:
+        """Monotonic time of sample `k`."""
+        return self.start_ns + round(k * 1e9 / self.rate_hz)
+
+    @property
+    def next_sample_ns(self) -> int:
+        """When the next sample will be taken."""
+        return self.sample_time_ns(self._k)
+
+    def lines_until(self, t_ns: int) -> list[tuple[int, bytes]]:
+        """(sample time, bytes) for every sample taken at or before `t_ns` and not yet produced."""
+        out: list[tuple[int, bytes]] = []
+        while True:
+            t_sample = self.sample_time_ns(self._k)
+            if t_sample > t_ns:
+                return out
+            data = self._sample(t_sample)
+            if data:
+                out.append((t_sample, data))
+
+    def _silenced(self, t_ns: int) -> bool:
+        while self._silences_ns and self._silences_ns[0][1] <= t_ns:
+            self._silences_ns.pop(0)
+        return bool(self._silences_ns) and self._silences_ns[0][0] <= t_ns
+
+    def _sample(self, t_ns: int) -> bytes:
+        elapsed_s = (t_ns - self.start_ns) / 1e9
+        counts = self.signal.counts(self.tension_n(t_ns), elapsed_s, self._rng.gauss(0.0, 1.0))
+        seq = self._seq
+        device_time_us = self._device_time_start_us + (t_ns - self.start_ns) // 1000
+        self._k += 1
+        self._seq += 1
+        self.counts.samples += 1
+        reading = self._reading(counts, seq, device_time_us)
+        if self._silenced(t_ns):
+            self.counts.silenced_samples += 1
+            return b""
+        pending, faults, rng = self._pending, self.faults, self._rng
+        if pending.gap_samples:
+            pending.gap_samples -= 1
+            self.counts.gap_samples += 1
+            return b""
+        if faults.gap_per_line and rng.random() < faults.gap_per_line:
+            pending.gap_samples = rng.randint(1, faults.gap_samples_max) - 1
+            self.counts.gap_samples += 1
+            return b""
+        line = self.codec.encode(reading)
+        prefix = b""
+        garbage = pending.garbage_bytes
+        if faults.garbage_per_line and rng.random() < faults.garbage_per_line:
+            garbage.append(rng.randint(1, faults.garbage_bytes_max))
+        if garbage:
+            n = sum(garbage)
+            garbage.clear()
+            prefix = bytes(rng.choices(_GARBAGE_ALPHABET, k=n))
+            self.counts.garbage_bytes += n
+        if pending.truncate or (faults.truncate_per_line and rng.random() < faults.truncate_per_line):
+            pending.truncate = max(0, pending.truncate - 1)
+            self.counts.truncated_lines += 1
+            # Keep the header so the host can tell a truncated line from garbage; lose the terminator.
+            return prefix + line[: rng.randint(self.codec.header_bytes, len(line) - 3)]
+        if pending.bad_checksum or (
+            faults.bad_checksum_per_line and rng.random() < faults.bad_checksum_per_line
+        ):
+            pending.bad_checksum = max(0, pending.bad_checksum - 1)
+            self.counts.bad_checksums += 1
+            star = line.rindex(b"*")
+            wrong = int(line[star + 1 : star + 3], 16) ^ rng.randint(1, 255)
+            return prefix + line[: star + 1] + b"%02X" % wrong + line[star + 3 :]
+        self.counts.lines_sent += 1
+        if reading.overload:
+            self.counts.overload_lines += 1
+        return prefix + line
+
+    def _reading(self, counts: int, seq: int, device_time_us: int) -> DeviceReading:
+        indicator = self._indicator
+        if indicator is None:
+            return DeviceReading(counts, seq, device_time_us)
+        display = round((counts - self.signal.offset_counts) * self._display_per_count)
+        saturated = abs(display) > indicator.max_display_raw or counts in (
+            self.signal.adc_min,
+            self.signal.adc_max,
+        )
+        recent = self._recent_display
+        recent.append(display)
+        if len(recent) > 8:
+            del recent[0]
+        stable = max(recent) - min(recent) <= 2
+        return DeviceReading(display, seq, device_time_us, stable=stable, overload=saturated)

@@ -1,0 +1,82 @@
+"""The pty transport of the load-cell emulator: real time, meant to run in its own process.
+
+`serve_loadcell` writes each sample's line to the master side of a `PtyLink` as its sample time
+passes on `time.monotonic_ns`, until a `StopFlag` is set. Like a real device it never waits for
+the host: when nobody reads and the pty buffer is full, lines are lost (counted). When the client
+has configured a different baud rate than the device's, the client receives framing garbage, as
+it would on a real UART, so a wrong `--baud` shows up as corrupt data rather than silence.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from rig.sim.loadcell_emulator import LoadCellEmulator
+from rig.sim.pty_link import PtyLink, StopFlag
+
+MAX_SLEEP_S = 0.05  # bounds how late a stop request is noticed
+MIN_SLEEP_S = 0.0005
+
+
+@dataclass(slots=True)
+class ServeCounts:
+    """What the serve loop did."""
+
+    lines_written: int = 0
+    bytes_written: int = 0
+    bytes_dropped: int = 0  # pty buffer full: nobody was reading
+    wrong_baud_bytes: int = 0
+
+
+def scramble(data: bytes) -> bytes:
+    """What a receiver at the wrong baud rate makes of `data`: bytes with the high bit set, no lines."""
+    return bytes(((b * 37 + 11) & 0x7F) | 0x80 for b in data)
+
+
+def write_nonblocking(fd: int, data: bytes) -> int:
+    """Write as much of `data` as fits now; return the number of bytes written."""
+    written = 0
+    view = memoryview(data)
+    while written < len(data):
+        try:
+            n = os.write(fd, view[written:])
+        except (BlockingIOError, InterruptedError):
+            break
+        if n <= 0:
+            break
+        written += n
+    return written
+
+
+def serve_loadcell(
+    emulator: LoadCellEmulator,
+    link: PtyLink,
+    stop: StopFlag,
+    *,
+    monotonic_ns: Callable[[], int] = time.monotonic_ns,
+) -> ServeCounts:
+    """Stream `emulator`'s lines to `link` in real time until `stop.stopped`."""
+    counts = ServeCounts()
+    baud_checked_ns = 0
+    client_baud: int | None = None
+    while not stop.stopped:
+        now_ns = monotonic_ns()
+        if now_ns - baud_checked_ns > 100_000_000:
+            client_baud, baud_checked_ns = link.client_baud(), now_ns
+        lines = emulator.lines_until(now_ns)
+        if lines:
+            data = b"".join(chunk for _, chunk in lines)
+            if client_baud is not None and client_baud != emulator.baud:
+                data = scramble(data)
+                counts.wrong_baud_bytes += len(data)
+            n = write_nonblocking(link.master_fd, data)
+            counts.bytes_written += n
+            counts.bytes_dropped += len(data) - n
+            counts.lines_written += len(lines)
+        link.read()  # the device ignores commands; keep the host's writes from filling the pty
+        wait_s = (emulator.next_sample_ns - monotonic_ns()) / 1e9
+        time.sleep(min(MAX_SLEEP_S, max(MIN_SLEEP_S, wait_s)))
+    return counts

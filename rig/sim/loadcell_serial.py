@@ -1,0 +1,224 @@
+"""The in-process transport of the load-cell emulator: a pyserial-like port driven by a `VirtualClock`.
+
+No threads. Each clock advance makes the emulator sample every period up to "now" (so register
+the simulated world's `on_advance` listener first, and it has integrated to now when asked for a
+tension). Lines then cross a modelled UART at the port's baud rate (8N1), so a read in the middle
+of a line returns part of it, exactly as a real port does. Reads never wait and never advance
+time: only the clock's owner moves time. Bytes that arrive while the port is closed are lost;
+bytes beyond the receive buffer are dropped, like a full kernel tty buffer.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from rig.hw.calibration import STANDARD_GRAVITY_M_S2, Calibration, indicator_calibration
+from rig.hw.loadcell import SerialLoadCell
+from rig.hw.loadcell_formats import IndicatorStCodec
+from rig.sim.clock import VirtualClock
+from rig.sim.loadcell_emulator import BITS_PER_BYTE, FaultPlan, LoadCellEmulator, SignalModel, TensionSource
+
+DEFAULT_RX_BUFFER_BYTES = 65536
+SIM_PORT = "sim://loadcell"
+SIM_CALIBRATION_DATE = "2026-01-01T00:00:00+00:00"
+
+
+class InProcessLoadCellSerial:
+    """A pyserial-compatible port on an emulator: `read`, `readline`, `in_waiting`, `reset_input_buffer`..."""
+
+    def __init__(
+        self,
+        emulator: LoadCellEmulator,
+        clock: VirtualClock,
+        *,
+        port: str = SIM_PORT,
+        baudrate: int | None = None,
+        timeout: float | None = 0.0,
+        rx_buffer_bytes: int = DEFAULT_RX_BUFFER_BYTES,
+        do_not_open: bool = False,
+    ) -> None:
+        self.emulator = emulator
+        self.clock = clock
+        self.port = port
+        self.baudrate = emulator.baud if baudrate is None else baudrate
+        self.timeout = timeout
+        self.rx_buffer_bytes = rx_buffer_bytes
+        self.is_open = False
+        self.bytes_written = 0  # the device ignores host writes; counted for tests
+        self.rx_overflow_bytes = 0
+        self._byte_ns = BITS_PER_BYTE * 1e9 / emulator.baud
+        self._uart_free_ns = float(emulator.start_ns)
+        self._tx: deque[tuple[float, bytes]] = deque()  # (transmission start, bytes) per line
+        self._rx = bytearray()
+        self._last_ns = clock.monotonic_ns()
+        clock.on_advance(self._on_advance)
+        if not do_not_open:
+            self.open()
+
+    # -- device side ------------------------------------------------------------------------------
+    def _on_advance(self, now_ns: int) -> None:
+        for t_sample, data in self.emulator.lines_until(now_ns):
+            start = max(float(t_sample), self._uart_free_ns)
+            self._tx.append((start, data))
+            self._uart_free_ns = start + len(data) * self._byte_ns
+        self._arrive(now_ns)
+
+    def _arrive(self, now_ns: int) -> None:
+        """Move every byte fully transmitted by `now_ns` from the line into the receive buffer."""
+        tx, byte_ns = self._tx, self._byte_ns
+        while tx:
+            start, data = tx[0]
+            n_done = int((now_ns - start) / byte_ns)
+            if n_done <= 0:
+                break
+            if n_done >= len(data):
+                tx.popleft()
+                self._receive(data)
+            else:
+                tx[0] = (start + n_done * byte_ns, data[n_done:])
+                self._receive(data[:n_done])
+                break
+
+    def _receive(self, data: bytes) -> None:
+        if not self.is_open:
+            return
+        if self.baudrate != self.emulator.baud:
+            # A receiver at the wrong baud rate sees framing garbage, never the device's lines.
+            data = bytes((b * 37 + 11) & 0x7F | 0x80 for b in data)
+        room = self.rx_buffer_bytes - len(self._rx)
+        if len(data) > room:
+            self.rx_overflow_bytes += len(data) - room
+            data = data[:room]
+        self._rx += data
+
+    # -- pyserial surface -------------------------------------------------------------------------
+    def open(self) -> None:
+        """Start receiving (bytes sent while closed were lost)."""
+        self._arrive(self.clock.monotonic_ns())
+        self.is_open = True
+
+    def close(self) -> None:
+        """Stop receiving and drop buffered bytes."""
+        self.is_open = False
+        self._rx.clear()
+
+    @property
+    def in_waiting(self) -> int:
+        """Bytes received and not yet read."""
+        self._arrive(self.clock.monotonic_ns())
+        return len(self._rx)
+
+    def read(self, size: int = 1) -> bytes:
+        """Up to `size` bytes already received; never waits, whatever `timeout` says."""
+        if not self.is_open:
+            raise OSError(f"{self.port}: port not open")
+        self._arrive(self.clock.monotonic_ns())
+        data = bytes(self._rx[:size])
+        del self._rx[:size]
+        return data
+
+    def read_all(self) -> bytes:
+        """Every byte already received."""
+        return self.read(self.in_waiting)
+
+    def readline(self, size: int = -1) -> bytes:
+        """Bytes up to and including the next LF if one has been received, else what there is."""
+        self._arrive(self.clock.monotonic_ns())
+        end = self._rx.find(b"\n")
+        n = len(self._rx) if end < 0 else end + 1
+        if size >= 0:
+            n = min(n, size)
+        return self.read(n)
+
+    def reset_input_buffer(self) -> None:
+        """Discard received bytes (a line still on the wire keeps arriving, as on a real port)."""
+        self._arrive(self.clock.monotonic_ns())
+        self._rx.clear()
+
+    def write(self, data: bytes) -> int:
+        """The device has no commands; bytes are accepted and ignored."""
+        self.bytes_written += len(data)
+        return len(data)
+
+    def flush(self) -> None:
+        """Nothing to flush."""
+
+    def cancel_read(self) -> None:
+        """Reads never block, so there is nothing to cancel."""
+
+    def __enter__(self) -> InProcessLoadCellSerial:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def in_process_serial_factory(emulator: LoadCellEmulator, clock: VirtualClock) -> Callable[..., Any]:
+    """A `serial_factory` for `SerialLoadCell` that opens an in-process port on `emulator`."""
+
+    def factory(
+        port: str = SIM_PORT, baudrate: int | None = None, timeout: float | None = 0.0, **_: Any
+    ) -> Any:
+        return InProcessLoadCellSerial(emulator, clock, port=port, baudrate=baudrate, timeout=timeout)
+
+    return factory
+
+
+def simulated_load_cell(
+    tension_n: TensionSource,
+    clock: VirtualClock,
+    *,
+    format_name: str = "rig-lc1",
+    rate_hz: float = 1000.0,
+    calibration: Calibration | None = None,
+    signal: SignalModel | None = None,
+    faults: FaultPlan | None = None,
+    seed: int = 0,
+    stale_timeout_s: float = 0.5,
+) -> tuple[SerialLoadCell, LoadCellEmulator]:
+    """The real driver reading an in-process emulator of `tension_n` (not yet opened).
+
+    Without `calibration`, the driver uses the emulator's exact gain and offset, so `force_n`
+    tracks `tension_n` up to noise and drift.
+    """
+    emulator = LoadCellEmulator(
+        tension_n,
+        format_name=format_name,
+        rate_hz=rate_hz,
+        signal=signal,
+        faults=faults,
+        seed=seed,
+        start_ns=clock.monotonic_ns(),
+    )
+    if calibration is None:
+        calibration = ideal_calibration(emulator)
+    driver = SerialLoadCell(
+        SIM_PORT,
+        baud=emulator.baud,
+        format_name=format_name,
+        calibration=calibration,
+        stale_timeout_s=stale_timeout_s,
+        clock=clock,
+        serial_factory=in_process_serial_factory(emulator, clock),
+    )
+    return driver, emulator
+
+
+def ideal_calibration(emulator: LoadCellEmulator) -> Calibration:
+    """The calibration a perfect two-point procedure would find for `emulator` at power-on."""
+    codec = emulator.codec
+    if isinstance(codec, IndicatorStCodec):
+        return indicator_calibration("kg", codec.decimals, serial="sim", date=SIM_CALIBRATION_DATE)
+    signal = emulator.signal
+    return Calibration(
+        factor_n_per_count=1.0 / signal.gain_counts_per_n,
+        offset_counts=signal.offset_counts,
+        reference_mass_kg=None,
+        g=STANDARD_GRAVITY_M_S2,
+        date=SIM_CALIBRATION_DATE,
+        serial="sim",
+        format=emulator.format_name,
+        noise_counts=signal.noise_counts,
+    )
