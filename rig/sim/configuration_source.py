@@ -1,0 +1,71 @@
+"""The simulated configuration measurement (like the paper's RGB-D camera): truth plus noise.
+
+`SimConfigurationSource` implements `rig.hw.seams.ConfigurationSource` over a `SimWorld`. Each
+`measure()` returns the configuration of the article the line is hooked to (the link, or the
+single-joint specimen during joint estimation):
+
+* a planar configuration is reported as joint angles φ_i + N(0, σ_meas) each, and transforms built
+  from those noisy angles (`model.chain.planar_transforms`);
+* an out-of-plane configuration (after a slip under an out-of-plane load) is reported with
+  `joint_angles_rad = None` and each joint rotation perturbed by a random rotation whose rotation
+  vector is N(0, σ_meas² I₃);
+* `slipped_joint` names the joint of the most recent true slip since the previous `measure()`,
+  but only with probability `slipped_joint_report_probability` (else None, as when a camera cannot
+  tell which joint moved), so a consumer's "unknown joint" path is exercised.
+
+σ_meas and the report probability come from the world's preset (so the ground truth states them).
+Noise comes from the seeded streams `STREAM_MEASUREMENT` and `STREAM_SLIP_REPORT`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from model.chain import planar_transforms
+from rig.hw.seams import Clock, ConfigurationReading
+from rig.sim.article import rotation_about_axis
+from rig.sim.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
+from rig.sim.world import SimWorld
+
+
+class SimConfigurationSource:
+    """Measures a `SimWorld`'s configuration with noise; see the module docstring."""
+
+    def __init__(self, world: SimWorld, clock: Clock | None = None, *, seed: int | None = None) -> None:
+        self._world = world
+        self._clock = clock
+        stream_seed = world.seed if seed is None else seed
+        self._noise_rng = stream_rng(stream_seed, STREAM_MEASUREMENT)
+        self._report_rng = stream_rng(stream_seed, STREAM_SLIP_REPORT)
+        self.sigma_meas_rad = world.preset.sigma_meas_rad
+        self.report_probability = world.preset.slipped_joint_report_probability
+        self._slips_seen = len(world.slips)
+
+    def measure(self) -> ConfigurationReading:
+        """Measure the configuration with noise, and the joint that slipped since the last call if known."""
+        world = self._world
+        article = world.article
+        sigma = self.sigma_meas_rad
+        angles = article.planar_joint_angles()
+        if angles is not None:
+            noisy = np.asarray(angles) + self._noise_rng.normal(0.0, sigma, article.joint_count)
+            transforms = planar_transforms(noisy, np.asarray(article.transforms[:, 2, 3]))
+            noisy_angles: tuple[float, ...] | None = tuple(float(a) for a in noisy)
+        else:
+            transforms = article.transforms
+            for i in range(article.joint_count):
+                vector = self._noise_rng.normal(0.0, sigma, 3)
+                angle = float(np.linalg.norm(vector))
+                if angle > 0:
+                    transforms[i, :3, :3] = rotation_about_axis(vector / angle, angle) @ transforms[i, :3, :3]
+            noisy_angles = None
+
+        slipped: int | None = None
+        new_slips = world.slips[self._slips_seen :]
+        self._slips_seen = len(world.slips)
+        if new_slips and self._report_rng.random() < self.report_probability:
+            slipped = new_slips[-1].joint
+        time_ns = self._clock.time_ns() if self._clock is not None else world.now_ns
+        return ConfigurationReading(
+            transforms=transforms, time_ns=time_ns, joint_angles_rad=noisy_angles, slipped_joint=slipped
+        )

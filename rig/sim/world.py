@@ -1,0 +1,449 @@
+"""The simulated world: test article, winch line and bending fixture, integrated in virtual time.
+
+`SimWorld` couples the physics of the rig to the byte-level device emulators through two small,
+duck-typed hooks:
+
+* **Servo shafts** (`ShaftLike`): any object with `present_position_rad` (output shaft, multi-turn,
+  read each substep) and a settable `external_torque_nm`. The world reads the winch and, if there is
+  one, the bender, and writes the line's torque on the winch (−tension·r_drum, see `winch_line.py`).
+* **Device stepping**: `step_devices(t_ns)` (e.g. `EmulatedBus.advance_to`) lets the servos move
+  up to `t_ns` under the torque written at the previous substep.
+
+`advance_to(now_ns)` (registered as a `VirtualClock.on_advance` listener) integrates in fixed
+substeps (1 ms by default; the last one may be shorter so that the world ends exactly at `now`).
+Per substep, explicitly: the devices move; the bending fixture (if moving) updates the link; the
+line tension follows from the winch angle and the acting point's take-up; that tension is recorded
+(it is the tension *at* the substep's time); then friction acts: a joint whose criterion reaches its
+static capacity starts to slip and turns at `slip_rate_rad_s` until its moment falls to the
+kinetic level (`kinetic_ratio` × static), which slackens the line, and then sticks again, so a
+winch that keeps reeling makes the tension rise to the next slip (stick-slip); finally the winch's
+external torque is set from the tension after the slip motion.
+
+All times are the shared clock's monotonic nanoseconds. `tension_at(t_ns)` interpolates the recorded
+tension linearly over the last `history_s` seconds (the load-cell emulator's signal source).
+
+Trials: `begin_trial(kind, distance_m)` draws the capacities of this trial (each joint's true mean
+capacity times an independent factor N(1, sd²) clipped at ±3 sd) and, for joint estimation, sets up
+the **single-joint specimen**: one joint placed horizontally (its axis z along the base z, the line
+pulling along the preset's direction across it), the hook at distance l, so the lever arm is l. The
+specimen is re-levelled (straight) at the start of every such trial. Link-validation trials use the
+link in whatever configuration the fixture (or `set_configuration`) left it. Each slip is kept as a
+`SlipRecord`; `truth()` returns the ground truth as a JSON-serialisable dict.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from enum import StrEnum
+from typing import Any, Protocol
+
+import numpy as np
+
+from model.joint import mu_delta0_pa_from_capacity, resolve_constant
+from rig.sim.article import ChainArticle
+from rig.sim.article_presets import (
+    STREAM_BEND,
+    STREAM_TRIAL_CAPACITY,
+    SimPreset,
+    stream_rng,
+)
+from rig.sim.bending_fixture import BendingFixture
+from rig.sim.winch_line import WinchLine
+
+DEFAULT_SUBSTEP_NS = 1_000_000
+DEFAULT_HISTORY_S = 2.0
+BEND_UPDATE_NS = 50_000_000  # how often a moving fixture re-poses the link (each re-pose costs ~0.2 ms)
+MIN_CAPACITY_FACTOR = 0.05
+TORSION_CRITERION = "sqrt((|N_bend|/cap)^2 + (N_torsion/(torsion_ratio*cap))^2) > 1"
+TORSION_AXIS = "z axis of the joint's own frame {i} (the axis of component i)"
+
+
+class ShaftLike(Protocol):
+    """What the world needs of an emulated servo: its output-shaft angle and an external-torque input."""
+
+    present_position_rad: float
+    external_torque_nm: float
+
+
+class TrialKind(StrEnum):
+    """The two trial kinds of the paper."""
+
+    JOINT_ESTIMATION = "joint_estimation"  # V-A: single joint, load at distance l
+    LINK_VALIDATION = "link_validation"  # V-B: the bent link
+
+
+@dataclass(slots=True)
+class SlipRecord:
+    """One true slip: when, which joint (1-based), the tension it happened at, and how it ended."""
+
+    trial_index: int | None
+    setup: str  # "link" or "specimen"
+    joint: int
+    onset_ns: int
+    peak_tension_n: float  # recorded tension at the onset substep (the maximum before the drop)
+    threshold_n: float  # the exact static slip load of the configuration at onset
+    end_ns: int | None = None
+    tension_after_n: float | None = None
+    rotation_rad: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-serialisable copy."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TrialTruth:
+    """What was true for one trial: its capacities and the exact slip load at its start."""
+
+    index: int  # 1-based, in begin_trial order
+    kind: str
+    distance_m: float | None
+    start_ns: int
+    capacities_nm: tuple[float, ...]  # of the active setup (one entry for the specimen)
+    capacity_factors: tuple[float, ...]
+    slip_force_n: float  # static slip load of the configuration at begin_trial (inf: cannot slip)
+    slip_mass_kg: float
+    first_slip_joint: int  # 1-based, 0 if nothing can slip
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-serialisable copy (an infinite slip load becomes None)."""
+        out = asdict(self)
+        for key in ("slip_force_n", "slip_mass_kg"):
+            if not math.isfinite(out[key]):
+                out[key] = None
+        out["capacities_nm"] = list(self.capacities_nm)
+        out["capacity_factors"] = list(self.capacity_factors)
+        return out
+
+
+class SimWorld:
+    """The rig's physics in virtual time; see the module docstring."""
+
+    def __init__(
+        self,
+        preset: SimPreset,
+        winch: ShaftLike,
+        *,
+        bender: ShaftLike | None = None,
+        step_devices: Callable[[int], None] | None = None,
+        seed: int = 0,
+        start_ns: int = 0,
+        substep_ns: int = DEFAULT_SUBSTEP_NS,
+        history_s: float = DEFAULT_HISTORY_S,
+    ) -> None:
+        if not 10_000 <= substep_ns <= 10_000_000:
+            raise ValueError(f"substep_ns = {substep_ns}; allowed: 10_000..10_000_000 (10 µs..10 ms)")
+        if not history_s > 0:
+            raise ValueError(f"history_s = {history_s}; allowed: > 0")
+        self.preset = preset
+        self.seed = int(seed)
+        self._winch = winch
+        self._bender = bender
+        self._step_devices = step_devices
+        self._substep_ns = int(substep_ns)
+        self._now_ns = int(start_ns)
+        self._capacity_rng = stream_rng(seed, STREAM_TRIAL_CAPACITY)
+
+        self.link = ChainArticle(
+            preset.segment_lengths_m,
+            preset.point_m,
+            preset.direction_w,
+            preset.joint_capacities_nm,
+            torsion_weak_joint=preset.torsion_weak_joint,
+            torsion_ratio=preset.torsion_ratio,
+        )
+        self.specimen = ChainArticle(
+            (0.0,),
+            (0.0, 0.0, preset.joint_estimation_distances_m[0]),
+            preset.direction_w,
+            (preset.specimen_capacity_nm,),
+        )
+        self._article = self.link
+        self.line = WinchLine(
+            preset.drum_radius_m,
+            preset.line_stiffness_n_per_m,
+            preset.spring_stiffness_n_per_m,
+            slack_angle_rad=winch.present_position_rad + preset.winch_slack_rad,
+        )
+        self.fixture: BendingFixture | None = None
+        if bender is not None:
+            self.fixture = BendingFixture(
+                preset.joint_count,
+                rest_angle_rad=bender.present_position_rad,
+                travel_per_bend=preset.bender_travel_per_bend,
+                arrival_tolerance_rad=preset.bender_arrival_tolerance_rad,
+                sigma_bend_rad=preset.sigma_bend_rad,
+                rng=stream_rng(seed, STREAM_BEND),
+            )
+        self._last_bend_update_ns = self._now_ns
+
+        self.trials: list[TrialTruth] = []
+        self.slips: list[SlipRecord] = []
+        self._slip: SlipRecord | None = None
+
+        self._history_len = int(history_s * 1e9 / self._substep_ns) + 16
+        tension = self.line.tension_n(winch.present_position_rad, self._article.take_up_m)
+        self._times_ns: list[int] = [self._now_ns]
+        self._tensions_n: list[float] = [tension]
+        winch.external_torque_nm = self.line.winch_torque_nm(tension)
+
+    # --- state -------------------------------------------------------------------------------
+    @property
+    def now_ns(self) -> int:
+        """The time (monotonic ns) the world has been integrated to."""
+        return self._now_ns
+
+    @property
+    def tension_n(self) -> float:
+        """The most recently recorded line tension [N]."""
+        return self._tensions_n[-1]
+
+    @property
+    def setup(self) -> str:
+        """Which article the line is hooked to: 'link' or 'specimen'."""
+        return "link" if self._article is self.link else "specimen"
+
+    @property
+    def article(self) -> ChainArticle:
+        """The article the line is hooked to."""
+        return self._article
+
+    @property
+    def slipping(self) -> bool:
+        """True while a joint is sliding."""
+        return self._slip is not None
+
+    @property
+    def bending(self) -> bool:
+        """True while the bending fixture is moving (and holding the link)."""
+        return self.fixture is not None and self.fixture.moving
+
+    @property
+    def current_trial(self) -> TrialTruth | None:
+        """The trial begun last, if any."""
+        return self.trials[-1] if self.trials else None
+
+    # --- time --------------------------------------------------------------------------------
+    def advance_to(self, now_ns: int) -> None:
+        """Integrate from the world's time to `now_ns` (monotonic) in substeps; a no-op if not later."""
+        t_ns = self._now_ns
+        step_ns = self._substep_ns
+        while t_ns < now_ns:
+            t_ns = min(t_ns + step_ns, now_ns)
+            self._substep(t_ns)
+
+    def tension_at(self, t_ns: int) -> float:
+        """Line tension [N] at monotonic `t_ns`, linearly interpolated; later than the world: the last value.
+
+        Raises `ValueError` for a time older than the retained history (about `history_s`).
+        """
+        times = self._times_ns
+        if t_ns >= times[-1]:
+            return self._tensions_n[-1]
+        if t_ns < times[0]:
+            raise ValueError(f"t_ns = {t_ns} is older than the tension history (from {times[0]} ns)")
+        i = bisect.bisect_right(times, t_ns)
+        t0, t1 = times[i - 1], times[i]
+        f0, f1 = self._tensions_n[i - 1], self._tensions_n[i]
+        return f0 + (f1 - f0) * (t_ns - t0) / (t1 - t0)
+
+    def _substep(self, t_ns: int) -> None:
+        dt_s = (t_ns - self._now_ns) * 1e-9
+        if self._step_devices is not None:
+            self._step_devices(t_ns)
+        fixture = self.fixture
+        holding = False
+        if fixture is not None and fixture.moving:
+            self._follow_fixture(fixture, t_ns)
+            holding = fixture.moving and self._article is self.link
+        article = self._article
+        theta = self._winch.present_position_rad
+        tension = self.line.tension_n(theta, article.take_up_m)
+        self._record(t_ns, tension)
+        if not holding:
+            if self._slip is not None:
+                tension = self._slide(theta, tension, dt_s, t_ns)
+            elif tension > article.slip_threshold_n:
+                trial = self.trials[-1].index if self.trials else None
+                self._slip = SlipRecord(
+                    trial_index=trial,
+                    setup=self.setup,
+                    joint=article.governing_joint,
+                    onset_ns=t_ns,
+                    peak_tension_n=tension,
+                    threshold_n=article.slip_threshold_n,
+                )
+                self.slips.append(self._slip)
+                tension = self._slide(theta, tension, dt_s, t_ns)
+        self._winch.external_torque_nm = -tension * self.line.drum_radius_m
+        self._now_ns = t_ns
+
+    def _record(self, t_ns: int, tension_n: float) -> None:
+        times, tensions = self._times_ns, self._tensions_n
+        times.append(t_ns)
+        tensions.append(tension_n)
+        if len(times) > 2 * self._history_len:
+            drop = len(times) - self._history_len
+            del times[:drop]
+            del tensions[:drop]
+
+    def _slide(self, theta: float, tension: float, dt_s: float, t_ns: int) -> float:
+        """Advance the current slip by one substep; returns the tension after it."""
+        record = self._slip
+        assert record is not None
+        article = self._article
+        joint = record.joint
+        criterion = article.criterion_per_n(joint)
+        kinetic = self.preset.kinetic_ratio
+        if tension * criterion > kinetic:
+            axis, take_up_per_rad = article.slip_flow(joint)
+            if take_up_per_rad > 0:
+                # First-order rotation that brings the moment down to the kinetic level.
+                needed_rad = (tension - kinetic / criterion) / self.line.stiffness_n_per_m / take_up_per_rad
+                step_rad = min(needed_rad, self.preset.slip_rate_rad_s * dt_s)
+                article.rotate_joint(joint, axis, step_rad)
+                record.rotation_rad += step_rad
+                tension = self.line.tension_n(theta, article.take_up_m)
+                if step_rad < needed_rad:
+                    return tension
+        record.end_ns = t_ns
+        record.tension_after_n = tension
+        self._slip = None
+        return tension
+
+    def _end_slip(self) -> None:
+        if self._slip is not None:
+            self._slip.end_ns = self._now_ns
+            self._slip.tension_after_n = self.tension_n
+            self._slip = None
+
+    # --- bending -----------------------------------------------------------------------------
+    def _follow_fixture(self, fixture: BendingFixture, t_ns: int) -> None:
+        assert self._bender is not None
+        angles, arrived = fixture.update(self._bender.present_position_rad)
+        if angles is not None and (arrived or t_ns - self._last_bend_update_ns >= BEND_UPDATE_NS):
+            self.link.set_joint_angles(angles)
+            self._last_bend_update_ns = t_ns
+
+    def request_bend(self, joint_angles_rad: Sequence[float]) -> float:
+        """Ask the fixture for a planar configuration; returns the bender goal (rad) to command.
+
+        The link is held by the fixture until the bender arrives within tolerance of that goal.
+        """
+        return self._request(joint_angles_rad, reset=False)
+
+    def request_reset(self) -> float:
+        """Ask the fixture to return the link to straight; returns the bender goal (rad) to command."""
+        return self._request([0.0] * self.preset.joint_count, reset=True)
+
+    def _request(self, joint_angles_rad: Sequence[float], *, reset: bool) -> float:
+        if self.fixture is None or self._bender is None:
+            raise RuntimeError("this world has no bender servo; use set_configuration instead")
+        if self._article is self.link:
+            self._end_slip()
+        self._last_bend_update_ns = self._now_ns
+        return self.fixture.request(
+            joint_angles_rad, self.link.planar_joint_angles(), self._bender.present_position_rad, reset=reset
+        )
+
+    def set_configuration(self, joint_angles_rad: Sequence[float]) -> None:
+        """Place the link in a planar configuration at once, exactly (an operator, or a test)."""
+        if self._article is self.link:
+            self._end_slip()
+        self.link.set_joint_angles(joint_angles_rad)
+
+    # --- trials ------------------------------------------------------------------------------
+    def begin_trial(self, kind: TrialKind | str, distance_m: float | None = None) -> TrialTruth:
+        """Start a trial: draw its capacities; for joint estimation hook the specimen at `distance_m`."""
+        kind = TrialKind(kind)
+        self._end_slip()
+        preset = self.preset
+        if kind is TrialKind.JOINT_ESTIMATION:
+            if distance_m is None or not (math.isfinite(distance_m) and distance_m > 0):
+                raise ValueError(f"joint estimation needs distance_m > 0; got {distance_m!r}")
+            nominal = np.array([preset.specimen_capacity_nm])
+            self._article = self.specimen
+            self.specimen.set_joint_angles([0.0])
+            self.specimen.set_point((0.0, 0.0, float(distance_m)))
+        else:
+            if distance_m is not None:
+                raise ValueError("link validation takes no distance_m (the load point is the link's Q)")
+            nominal = np.asarray(preset.joint_capacities_nm)
+            self._article = self.link
+        draws = np.clip(self._capacity_rng.standard_normal(len(nominal)), -3.0, 3.0)
+        factors = np.maximum(1.0 + preset.per_trial_capacity_sd * draws, MIN_CAPACITY_FACTOR)
+        self._article.set_capacities(nominal * factors)
+        threshold = self._article.slip_threshold_n
+        trial = TrialTruth(
+            index=len(self.trials) + 1,
+            kind=kind.value,
+            distance_m=None if distance_m is None else float(distance_m),
+            start_ns=self._now_ns,
+            capacities_nm=self._article.capacities_nm,
+            capacity_factors=tuple(float(f) for f in factors),
+            slip_force_n=threshold,
+            slip_mass_kg=threshold / preset.g,
+            first_slip_joint=self._article.governing_joint,
+        )
+        self.trials.append(trial)
+        return trial
+
+    # --- ground truth ------------------------------------------------------------------------
+    def truth(self) -> dict[str, Any]:
+        """Ground truth for the final comparison (JSON-serialisable; the runner logs it as `sim_truth`)."""
+        p = self.preset
+        constant = resolve_constant(p.constant)
+
+        def joint_entry(capacity_nm: float) -> dict[str, float]:
+            return {
+                "capacity_nm": capacity_nm,
+                "k_kg_m": capacity_nm / p.g,
+                "mu_delta0_pa": float(mu_delta0_pa_from_capacity(capacity_nm, p.joint_radius_m, constant)),
+            }
+
+        return {
+            "preset": p.name,
+            "seed": self.seed,
+            "article_seed": p.seed,
+            "g": p.g,
+            "constant": {"name": constant.name, "c": constant.value},
+            "joint_radius_m": p.joint_radius_m,
+            "joints": [{"joint": i + 1, **joint_entry(cap)} for i, cap in enumerate(p.joint_capacities_nm)],
+            "specimen": joint_entry(p.specimen_capacity_nm),
+            "noise": {
+                "per_trial_capacity_sd": p.per_trial_capacity_sd,
+                "loadcell_noise_n": p.loadcell_noise_n,
+                "sigma_bend_rad": p.sigma_bend_rad,
+                "sigma_meas_rad": p.sigma_meas_rad,
+                "slipped_joint_report_probability": p.slipped_joint_report_probability,
+            },
+            "kinetic_ratio": p.kinetic_ratio,
+            "slip_rate_rad_s": p.slip_rate_rad_s if math.isfinite(p.slip_rate_rad_s) else None,
+            "torsion": None
+            if p.torsion_weak_joint is None
+            else {
+                "joint": p.torsion_weak_joint,
+                "torsion_ratio": p.torsion_ratio,
+                "axis": TORSION_AXIS,
+                "criterion": TORSION_CRITERION,
+            },
+            "geometry": {
+                "segment_lengths_m": list(p.segment_lengths_m),
+                "point_m": list(p.point_m),
+                "direction_w": list(p.unit_direction_w),
+                "joint_estimation_distances_m": list(p.joint_estimation_distances_m),
+            },
+            "line": {
+                "drum_radius_m": p.drum_radius_m,
+                "line_stiffness_n_per_m": p.line_stiffness_n_per_m,
+                "spring_stiffness_n_per_m": p.spring_stiffness_n_per_m,
+                "effective_stiffness_n_per_m": self.line.stiffness_n_per_m,
+                "winch_slack_rad": p.winch_slack_rad,
+            },
+            "substep_ns": self._substep_ns,
+            "trials": [t.as_dict() for t in self.trials],
+            "slips": [s.as_dict() for s in self.slips],
+        }
