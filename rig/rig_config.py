@@ -109,6 +109,7 @@ class RigConfig:
     name: str
     kind: str
     spool_radius_m: float
+    line_stiffness_n_per_m: float
     servos: ServoBusConfig
     loadcell: LoadCellConfig
     article: ArticleConfig
@@ -145,7 +146,17 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
     """Validate a parsed rig config mapping."""
     top = Section(data, source)
     top.reject_unknown(
-        ["name", "kind", "spool_radius_m", "servos", "loadcell", "article", "limits", "simulation"]
+        [
+            "name",
+            "kind",
+            "spool_radius_m",
+            "line_stiffness_n_per_m",
+            "servos",
+            "loadcell",
+            "article",
+            "limits",
+            "simulation",
+        ]
     )
     kind = top.string("kind", choices=RIG_KINDS)
     servos = _servo_bus(top.section("servos"))
@@ -163,6 +174,9 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
         name=top.string("name", default=Path(source).stem),
         kind=kind,
         spool_radius_m=top.number("spool_radius_m", min_value=0.0, max_value=0.2, min_exclusive=True),
+        line_stiffness_n_per_m=top.number(
+            "line_stiffness_n_per_m", default=2000.0, min_value=1.0, max_value=1e7
+        ),
         servos=servos,
         loadcell=loadcell,
         article=article,

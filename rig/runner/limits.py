@@ -1,0 +1,149 @@
+"""Limit checks before anything moves, and the `--dry-run` plan with its estimated duration.
+
+`check_limits` raises `InputError` (exit 2, nothing started) when a protocol asks for more than
+the rig allows. `plan_summary` describes what a run would do: trials, the checks and their
+numbers, and an estimated duration from the ramp speeds and the nominal line stiffness.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from rig.errors import InputError
+from rig.protocol import Protocol, TrialPlan
+from rig.rig_config import RigConfig
+
+# Winch output torque per ampere used for limit checks (XM430-W350: ~4.1 N·m stall at ~2.3 A).
+WINCH_TORQUE_CONSTANT_NM_PER_A = 1.78
+
+
+@dataclass(frozen=True)
+class LimitCheck:
+    """One check: what, the value, the limit, and whether it passed."""
+
+    name: str
+    value: str
+    limit: str
+    ok: bool
+
+
+def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
+    """Every check, passed or not."""
+    limits = config.limits
+    ceiling = limits.force_ceiling_n
+    checks = []
+    if protocol.force_ceiling_n is not None:
+        checks.append(
+            LimitCheck(
+                "protocol force ceiling <= rig force ceiling",
+                f"{protocol.force_ceiling_n:.1f} N",
+                f"{ceiling:.1f} N",
+                protocol.force_ceiling_n <= ceiling,
+            )
+        )
+        ceiling = min(ceiling, protocol.force_ceiling_n)
+    ramp = protocol.ramp
+    checks.append(
+        LimitCheck(
+            "ramp max force < force ceiling",
+            f"{ramp.max_force_n:.1f} N",
+            f"{ceiling:.1f} N",
+            ramp.max_force_n < ceiling,
+        )
+    )
+    stall_force = WINCH_TORQUE_CONSTANT_NM_PER_A * limits.winch_current_limit_a / config.spool_radius_m
+    checks.append(
+        LimitCheck(
+            "winch stall tension (current limit) >= ramp max force",
+            f"{stall_force:.1f} N",
+            f"{ramp.max_force_n:.1f} N",
+            stall_force >= ramp.max_force_n,
+        )
+    )
+    travel_rev = ramp.max_force_n / (config.line_stiffness_n_per_m * config.spool_radius_m) / (2 * math.pi)
+    checks.append(
+        LimitCheck(
+            "winch travel to reach max force (nominal stiffness) <= travel limit",
+            f"{travel_rev:.2f} rev",
+            f"{limits.max_winch_travel_rev:.2f} rev",
+            travel_rev <= limits.max_winch_travel_rev,
+        )
+    )
+    for trial in protocol.trials:
+        if trial.joint is not None and trial.joint > config.article.joint_count:
+            checks.append(
+                LimitCheck(
+                    f"trial {trial.trial_id}: joint exists",
+                    str(trial.joint),
+                    str(config.article.joint_count),
+                    False,
+                )
+            )
+    return checks
+
+
+def check_limits(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
+    """Raise InputError naming the first failed check; return all checks when they pass."""
+    checks = limit_checks(protocol, config)
+    failed = [c for c in checks if not c.ok]
+    if failed:
+        c = failed[0]
+        raise InputError(
+            f"{protocol.source}: limit check failed: {c.name}: {c.value} vs limit {c.limit} "
+            f"(rig {config.source})"
+        )
+    return checks
+
+
+def estimated_trial_s(
+    trial: TrialPlan, protocol: Protocol, config: RigConfig, typical_force_n: float
+) -> float:
+    """Rough duration of one trial: tare, ramps, unload, pauses, bending (no operator time)."""
+    ramp = protocol.ramp
+    k_ang = config.line_stiffness_n_per_m * config.spool_radius_m  # N per rad of winch
+    fast_n = ramp.fast_until_fraction * typical_force_n
+    seconds = fast_n / (k_ang * ramp.fast_speed_rad_s) + (typical_force_n - fast_n) / (
+        k_ang * ramp.slow_speed_rad_s
+    )
+    seconds += typical_force_n / (k_ang * ramp.unload_speed_rad_s) + ramp.hold_after_slip_s
+    for step in trial.steps:
+        if step.kind in ("pause", "tare"):
+            seconds += step.duration_s
+        elif step.kind in ("bend", "reset"):
+            seconds += 1.0
+    return seconds
+
+
+def plan_summary(protocol: Protocol, config: RigConfig) -> dict[str, Any]:
+    """The dry-run description: trials, checks and estimated duration."""
+    checks = limit_checks(protocol, config)
+    typical = 0.5 * protocol.ramp.max_force_n
+    durations = [estimated_trial_s(t, protocol, config, typical) for t in protocol.trials]
+    return {
+        "protocol": protocol.name,
+        "rig": config.name,
+        "rig_kind": config.kind,
+        "trials": [
+            {
+                "trial_id": t.trial_id,
+                "kind": t.kind,
+                "repeat": t.repeat,
+                "joint": t.joint,
+                "distance_m": t.distance_m,
+                "configuration_index": t.configuration_index,
+                "joint_angles_deg": [round(math.degrees(a), 3) for a in t.joint_angles_rad]
+                if t.joint_angles_rad
+                else None,
+                "steps": [s.kind for s in t.steps],
+            }
+            for t in protocol.trials
+        ],
+        "limit_checks": [{"check": c.name, "value": c.value, "limit": c.limit, "ok": c.ok} for c in checks],
+        "estimated_duration_s": sum(durations),
+        "duration_assumption": (
+            f"slip at {typical:.1f} N in every trial, nominal line stiffness "
+            f"{config.line_stiffness_n_per_m:g} N/m, no operator time"
+        ),
+    }
