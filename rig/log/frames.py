@@ -1,0 +1,221 @@
+"""JSON payloads to columns: batches of one topic's messages become Arrow tables, then a DataFrame.
+
+Payloads are decoded a batch at a time (joined with newlines and parsed by `pyarrow.json`), never
+one dict per message, so memory stays near the size of the columns. Fields of rig topics get the
+Arrow types their JSON Schema implies (so a column keeps its dtype even when a batch has only
+nulls); fields nobody declared are inferred. A batch that pyarrow cannot parse is decoded row by
+row with `json.loads` instead, and rows that are not JSON objects are dropped with a warning.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.json as pa_json
+
+from rig.log import schemas
+
+DEFAULT_BATCH_SIZE = 100_000
+TIME_COLUMNS = ("log_time_ns", "publish_time_ns")
+
+
+def _arrow_type(schema: Mapping[str, Any]) -> pa.DataType | None:
+    """The Arrow type a JSON Schema fragment implies, or None to let pyarrow infer it."""
+    if "oneOf" in schema and all(isinstance(alt.get("const"), int) for alt in schema["oneOf"]):
+        return pa.int64()
+    types = {t for t in schemas.json_types(schema) if t != "null"}
+    if len(types) != 1:
+        return None
+    (kind,) = types
+    if kind == "integer":
+        return pa.int64()
+    if kind == "number":
+        return pa.float64()
+    if kind == "string":
+        return pa.string()
+    if kind == "boolean":
+        return pa.bool_()
+    if kind == "array":
+        item = _arrow_type(schema.get("items", {}))
+        return None if item is None else pa.list_(item)
+    if kind == "object" and schema.get("additionalProperties", True) is False and schema.get("properties"):
+        fields = [(name, _arrow_type(sub)) for name, sub in schema["properties"].items()]
+        if any(t is None for _, t in fields):
+            return None
+        return pa.struct(fields)
+    if kind == "object" and schema.get("title") == "time":
+        return pa.struct([("sec", pa.int64()), ("nsec", pa.int64())])
+    return None
+
+
+def arrow_schema(topic: str) -> pa.Schema | None:
+    """Explicit Arrow types for the declared fields of a rig topic (None for other topics)."""
+    spec = schemas.TOPICS.get(topic)
+    if spec is None:
+        return None
+    fields = []
+    for name, sub in spec.schema["properties"].items():
+        arrow_type = _arrow_type(sub)
+        if arrow_type is not None:
+            fields.append(pa.field(name, arrow_type))
+    return pa.schema(fields)
+
+
+class TopicBatches:
+    """One topic's messages: raw payloads pending decode, and the Arrow tables decoded so far.
+
+    The reader appends to `payloads`, `log_times` and `publish_times` directly (hot loop) and
+    calls `decode_pending()` once `len(payloads)` reaches the batch size.
+    """
+
+    def __init__(self, topic: str, batch_size: int = DEFAULT_BATCH_SIZE) -> None:
+        self.topic = topic
+        self.batch_size = batch_size
+        self.payloads: list[bytes] = []
+        self.log_times: list[int] = []
+        self.publish_times: list[int] = []
+        self.tables: list[pa.Table] = []
+        self.warnings: list[str] = []
+        self._explicit = arrow_schema(topic)
+
+    def decode_pending(self) -> None:
+        """Decode the pending payloads into one Arrow table."""
+        if not self.payloads:
+            return
+        payloads, log_times, publish_times = self.payloads, self.log_times, self.publish_times
+        self.payloads, self.log_times, self.publish_times = [], [], []
+        table, kept = self._decode(payloads)
+        if kept is not None:
+            log_times = [log_times[i] for i in kept]
+            publish_times = [publish_times[i] for i in kept]
+        times = [pa.array(log_times, pa.int64()), pa.array(publish_times, pa.int64())]
+        names = [n if n not in TIME_COLUMNS else f"payload.{n}" for n in table.column_names]
+        self.tables.append(pa.Table.from_arrays([*times, *table.columns], names=[*TIME_COLUMNS, *names]))
+
+    def _decode(self, payloads: list[bytes]) -> tuple[pa.Table, list[int] | None]:
+        """Columns of the payloads, and the indices kept when some rows had to be dropped."""
+        text = b"\n".join(payloads)
+        parse = pa_json.ParseOptions(explicit_schema=self._explicit, unexpected_field_behavior="infer")
+        read = pa_json.ReadOptions(block_size=max(len(text) + 1, 1 << 20))
+        try:
+            table = pa_json.read_json(pa.py_buffer(text), read_options=read, parse_options=parse)
+            if table.num_rows == len(payloads):
+                return table, None
+            problem = f"{table.num_rows} rows from {len(payloads)} payloads"
+        except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError) as error:
+            problem = str(error).splitlines()[0]
+        return self._decode_rows(payloads, problem)
+
+    def _decode_rows(self, payloads: list[bytes], problem: str) -> tuple[pa.Table, list[int]]:
+        rows: list[dict[str, Any]] = []
+        kept: list[int] = []
+        for i, payload in enumerate(payloads):
+            try:
+                row = json.loads(payload)
+            except ValueError:
+                continue
+            if isinstance(row, dict):
+                rows.append(row)
+                kept.append(i)
+        dropped = len(payloads) - len(rows)
+        note = f"; {dropped} messages were not JSON objects and were dropped" if dropped else ""
+        self.warnings.append(
+            f"{self.topic}: a batch did not parse as columns ({problem}); decoded row by row{note}"
+        )
+        columns: dict[str, list[Any]] = {}
+        for n, row in enumerate(rows):
+            for key in row:
+                columns.setdefault(key, [None] * n)
+            for key, values in columns.items():
+                values.append(row.get(key))
+        arrays = []
+        for key, values in columns.items():
+            explicit = (
+                self._explicit.field(key).type if self._explicit and key in self._explicit.names else None
+            )
+            arrays.append(_array_or_json_text(values, explicit))
+        return pa.Table.from_arrays(arrays, names=list(columns)) if columns else pa.table({}), kept
+
+    def frame(self) -> pd.DataFrame:
+        """All messages of the topic as a DataFrame sorted by log time (stable)."""
+        self.decode_pending()
+        tables, self.tables = self.tables, []
+        if not tables:
+            return empty_frame(self.topic)
+        try:
+            table = pa.concat_tables(tables, promote_options="permissive")
+        except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError) as error:
+            self.warnings.append(
+                f"{self.topic}: columns changed type between batches ({error}); combined in pandas"
+            )
+            frames = [table_to_frame(t, nullable_integer_fields(self.topic)) for t in tables]
+            return _sorted(pd.concat(frames))
+        return table_to_frame(table, nullable_integer_fields(self.topic))
+
+
+def _array_or_json_text(values: list[Any], explicit: pa.DataType | None) -> pa.Array:
+    """An Arrow array of the values; values of mixed kinds become their JSON text."""
+    for arrow_type in (explicit, None):
+        try:
+            return pa.array(values, type=arrow_type)
+        except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, OverflowError):
+            continue
+    return pa.array([None if v is None else json.dumps(v) for v in values], type=pa.string())
+
+
+def _flatten(table: pa.Table) -> pa.Table:
+    while any(pa.types.is_struct(field.type) for field in table.schema):
+        table = table.flatten()
+    return table
+
+
+def nullable_integer_fields(topic: str) -> frozenset[str]:
+    """Top-level fields of a rig topic declared `["integer", "null"]`."""
+    spec = schemas.TOPICS.get(topic)
+    if spec is None:
+        return frozenset()
+    return frozenset(
+        name
+        for name, sub in spec.schema["properties"].items()
+        if {"integer", "null"} <= set(schemas.json_types(sub))
+    )
+
+
+def table_to_frame(table: pa.Table, nullable: frozenset[str] = frozenset()) -> pd.DataFrame:
+    """A DataFrame indexed by UTC log time: `{sec, nsec}` and other objects flattened to `a.b` columns.
+
+    Integer columns with nulls, and those named in `nullable`, become pandas' nullable `Int64`
+    (so the dtype does not depend on the data and epoch nanoseconds stay exact).
+    """
+    table = _flatten(table)
+    log_times = table.column("log_time_ns").to_numpy()
+    if log_times.size > 1 and bool((np.diff(log_times) < 0).any()):
+        table = table.take(pa.array(np.argsort(log_times, kind="stable")))
+    frame = table.to_pandas()
+    for field in table.schema:
+        column = table.column(field.name)
+        if pa.types.is_integer(field.type) and (column.null_count > 0 or field.name in nullable):
+            values = column.fill_null(0).to_numpy()
+            mask = column.is_null().to_numpy(zero_copy_only=False)
+            frame[field.name] = pd.arrays.IntegerArray(values.astype(np.int64), mask)
+    frame.index = pd.DatetimeIndex(
+        pd.to_datetime(frame["log_time_ns"].to_numpy(), unit="ns", utc=True), name="log_time"
+    )
+    return frame
+
+
+def _sorted(frame: pd.DataFrame) -> pd.DataFrame:
+    order = np.argsort(frame["log_time_ns"].to_numpy(), kind="stable")
+    return frame.iloc[order]
+
+
+def empty_frame(topic: str) -> pd.DataFrame:
+    """The empty DataFrame of a topic with no messages (declared columns for rig topics)."""
+    explicit = arrow_schema(topic)
+    fields = [pa.field(n, pa.int64()) for n in TIME_COLUMNS] + (list(explicit) if explicit else [])
+    return table_to_frame(pa.schema(fields).empty_table(), nullable_integer_fields(topic))
