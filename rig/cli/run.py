@@ -1,0 +1,221 @@
+"""`rig run PROTOCOL`: run automated slip trials, log them to MCAP, refit the model after every trial."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from rig.cli.output import emit_json, format_table
+from rig.errors import InputError
+from rig.protocol import load_protocol
+from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.runner.limits import check_limits, plan_summary
+from rig.runner.progress import make_progress
+from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
+from rig.runner.safety import terminate_as_interrupt
+
+DESCRIPTION = """\
+Run a protocol of automated slip trials. The winch (a Dynamixel servo in current-based position
+mode) reels the line until a joint slips; the slip detector finds the peak tension; after every
+trial the model is refitted (joint estimation: k, mu_s*delta0 and the capacity with 99 % bounds;
+link validation: prediction before the trial, error after it, per-joint capacities).
+
+Without --rig the built-in simulated rig is used: the real drivers talk byte for byte to
+emulated servos and an emulated load cell, in virtual time (as fast as the CPU allows).
+
+Everything is logged to OUT/RUN_ID.mcap; OUT/RUN_ID.journal.json lets `--resume RUN_ID` finish
+an interrupted run without repeating or losing a trial. Every way out of a run releases the line
+tension and then turns torque off.
+
+exit codes: 0 done; 1 stopped by a fault or an interlock (hardware left safe); 2 invalid input
+(nothing started); 130 interrupted (hardware left safe).
+"""
+
+EXAMPLES = """\
+examples:
+  rig run protocols/joint_estimation.yaml                 # simulated rig, virtual time
+  rig run protocols/link_validation.yaml --seed 3 --json
+  rig run protocols/smoke.yaml --dry-run                  # plan, limit checks, duration
+  rig run protocols/joint_estimation.yaml --rig protocols/rigs/my-lab.yaml
+  rig run protocols/joint_estimation.yaml --resume 20261121T101500-joint_estimation
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add `rig run`."""
+    p = subparsers.add_parser(
+        "run",
+        help="run a protocol of slip trials (default: on the built-in simulated rig)",
+        description=DESCRIPTION,
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("protocol", type=Path, metavar="PROTOCOL", help="protocol YAML (see protocols/README.md)")
+    p.add_argument(
+        "--rig",
+        type=Path,
+        default=None,
+        metavar="CONFIG",
+        help=f"rig config YAML (default: the simulated rig, {DEFAULT_RIG_CONFIG.name})",
+    )
+    p.add_argument(
+        "--out", type=Path, default=Path("logs"), metavar="DIR", help="where logs go (default: logs/)"
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, metavar="N", help="seed for shuffling and the simulator (default 0)"
+    )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="simulation in real time instead of virtual time (e.g. to watch it)",
+    )
+    p.add_argument(
+        "--run-id", default=None, metavar="ID", help="name of the run (default: UTC time + protocol name)"
+    )
+    p.add_argument(
+        "--dry-run", action="store_true", help="print the plan, limit checks and duration; move nothing"
+    )
+    p.add_argument(
+        "--resume", default=None, metavar="ID", help="continue run ID (in the same --out) where it stopped"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handle `rig run`."""
+    if args.seed < 0:
+        raise InputError(f"--seed {args.seed}: allowed: an integer >= 0")
+    if args.resume and args.run_id:
+        raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
+    if args.dry_run:
+        return _dry_run(args)
+    request = RunRequest(
+        protocol_path=args.protocol,
+        rig_path=args.rig,
+        out_dir=args.out,
+        seed=args.seed,
+        realtime=args.realtime,
+        run_id=args.run_id,
+        resume=args.resume,
+    )
+    prepared = prepare_run(request)  # validates everything; InputError -> exit 2, nothing started
+    session = _session(prepared.config, prepared.journal.seed, args.realtime)
+    terminate_as_interrupt()
+    report = execute_run(prepared, session, make_progress(args.json))
+    if args.json:
+        emit_json(report.as_json())
+    else:
+        print(_summary(report), file=sys.stderr if report.exit_code else sys.stdout)
+    return report.exit_code
+
+
+def _session(config: Any, seed: int, realtime: bool) -> Any:
+    if config.kind == "hardware":  # hardware always runs in real time
+        from rig.hw.hardware_rig import hardware_session
+
+        return hardware_session(config)
+    from rig.sim.simulated_rig import simulated_session
+
+    return simulated_session(config, seed=seed, realtime=realtime)
+
+
+def _dry_run(args: argparse.Namespace) -> int:
+    config = load_rig_config(args.rig)
+    protocol = load_protocol(args.protocol, seed=args.seed, joint_count=config.article.joint_count)
+    check_limits(protocol, config)
+    plan = plan_summary(protocol, config)
+    if args.json:
+        emit_json(plan)
+        return 0
+    rows = []
+    for t in plan["trials"]:
+        where = (
+            f"{t['distance_m']:.3f} m"
+            if t["distance_m"] is not None
+            else f"config {t['configuration_index']}"
+        )
+        rows.append([t["trial_id"], t["kind"], where, t["repeat"], " ".join(t["steps"])])
+    print(f"protocol {plan['protocol']} on rig {plan['rig']} ({plan['rig_kind']}): {len(rows)} trials\n")
+    print(format_table(["trial", "kind", "distance / config", "repeat", "steps"], rows))
+    print("\nlimit checks:")
+    print(
+        format_table(
+            ["check", "value", "limit", "ok"],
+            [[c["check"], c["value"], c["limit"], "yes" if c["ok"] else "NO"] for c in plan["limit_checks"]],
+        )
+    )
+    minutes = plan["estimated_duration_s"] / 60
+    print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan['duration_assumption']})")
+    print("dry run: nothing was moved")
+    return 0
+
+
+def _summary(report: RunReport) -> str:
+    lines = [f"run {report.run_id}: {report.completed}/{report.planned} trials done; log {report.log}"]
+    if report.aborted:
+        lines.append(f"STOPPED: {report.reason} (hardware left safe; `--resume {report.run_id}` continues)")
+    est = report.estimate
+    if est is not None:
+        lo, hi = est["k_ci"]
+        clo, chi = est["capacity_ci_nm"]
+        mlo, mhi = est["mu_delta0_ci_pa"]
+        lines.append(
+            format_table(
+                ["quantity", "estimate", f"{est['level'] * 100:g} % bounds", "unit"],
+                [
+                    ["k", est["k"], f"[{lo:.5g}, {hi:.5g}]", "kg·m"],
+                    ["capacity N_max", est["capacity_nm"], f"[{clo:.5g}, {chi:.5g}]", "N·m"],
+                    [
+                        f"mu_s·delta0 (c={est['constant']})",
+                        est["mu_delta0_pa"],
+                        f"[{mlo:.5g}, {mhi:.5g}]",
+                        "Pa",
+                    ],
+                    ["RMSE", est["rmse"], "", "kg"],
+                    ["R²", est["r2"], "", ""],
+                    ["n", est["n"], "", "trials"],
+                ],
+            )
+        )
+    if report.joints:
+        lines.append(
+            format_table(
+                ["joint", "capacity N·m", "lower", "upper"],
+                [[j["joint"], j["capacity_nm"], j["ci_lo_nm"], j["ci_hi_nm"]] for j in report.joints],
+            )
+        )
+    pe = report.percentage_errors
+    if pe is not None:
+        lines.append(_percentage_text(pe))
+    if report.truth is not None:
+        lines.append(_truth_text(report.truth, est))
+    return "\n\n".join(lines)
+
+
+def _percentage_text(pe: dict[str, Any]) -> str:
+    parts = [f"link validation: {len(pe['percentage_errors'])} predictions"]
+    parts.append(f"percentage error mean {pe['mean_pct']:.2f} % ± {pe['std_pct']:.2f} %")
+    for threshold, share in pe.get("share_below_pct", {}).items():
+        parts.append(f"{share * 100:.1f} % of errors below {threshold} %")
+    return "; ".join(parts)
+
+
+def _truth_text(truth: dict[str, Any], est: dict[str, Any] | None) -> str:
+    k = truth.get("k")
+    text = "simulator truth:"
+    if k is not None:
+        text += f" k = {k:.5g} kg·m"
+        if est is not None:
+            lo, hi = est["k_ci"]
+            inside = "inside" if lo <= k <= hi else "OUTSIDE"
+            text += f" ({inside} the bounds; estimate off by {(est['k'] - k) / k * 100:+.2f} %)"
+    caps = truth.get("capacity_nm")
+    if isinstance(caps, list):
+        text += " joint capacities " + ", ".join(f"{c:.3f}" for c in caps) + " N·m"
+    elif caps is not None and not math.isnan(caps):
+        text += f", capacity {caps:.4f} N·m"
+    return text

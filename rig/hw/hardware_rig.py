@@ -1,0 +1,59 @@
+"""Build a `RigSession` for a real rig from its config: servo bus, load cell, operator, real time.
+
+Nothing is opened here; the runner connects inside its safety `try`, so a failure while
+connecting still ends in the safe state.
+"""
+
+from __future__ import annotations
+
+from rig.errors import InputError
+from rig.hw.calibration import Calibration
+from rig.hw.clock import SystemClock
+from rig.hw.loadcell import SerialLoadCell
+from rig.hw.servo_bus import DynamixelServoBus
+from rig.rig_config import RigConfig
+from rig.runner.limits import WINCH_TORQUE_CONSTANT_NM_PER_A
+from rig.runner.session import ConsoleOperator, ManualBending, RigSession
+
+
+def hardware_session(config: RigConfig) -> RigSession:
+    """A session on the serial ports named in a `kind: hardware` rig config."""
+    if config.kind != "hardware":
+        raise InputError(f"{config.source}: kind: expected hardware, got {config.kind}")
+    cal_path = config.loadcell.calibration_path
+    if cal_path is None:
+        raise InputError(
+            f"{config.source}: loadcell.calibration: a hardware rig needs a calibration file; "
+            "make one with `rig calibrate`"
+        )
+    calibration = Calibration.load(cal_path)
+    clock = SystemClock()
+    servos = DynamixelServoBus(
+        config.servos.port,
+        config.servos.baud,
+        config.servos.servos,
+        clock,
+        retries=config.servos.retries,
+        bus_watchdog_ms=config.servos.watchdog_ms,
+    )
+    load_cell = SerialLoadCell(
+        config.loadcell.port,
+        baud=config.loadcell.baud,
+        format_name=config.loadcell.format,
+        calibration=calibration,
+        stale_timeout_s=config.limits.stale_timeout_s,
+        clock=clock,
+    )
+    return RigSession(
+        kind="hardware",
+        clock=clock,
+        servos=servos,
+        load_cell=load_cell,
+        operator=ConsoleOperator(),
+        fixture=ManualBending(),
+        configuration=None,
+        winch_id=config.servos.winch.servo_id,
+        roles={s.servo_id: s.role for s in config.servos.servos},
+        torque_constant_nm_per_a=WINCH_TORQUE_CONSTANT_NM_PER_A,
+        attachments=[(cal_path.name, "application/json", cal_path.read_bytes())],
+    )
