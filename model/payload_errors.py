@@ -75,7 +75,7 @@ def _vector(name: str, values: ArrayLike) -> NDArray[np.float64]:
         raise ValueError(f"{name}: shape {array.shape}; allowed: a one-dimensional sequence")
     bad = np.flatnonzero(~np.isfinite(array))
     if bad.size:
-        raise ValueError(f"{name}[{bad[0]}] = {array[bad[0]]!r}; allowed: finite")
+        raise ValueError(f"{name}[{bad[0]}] = {float(array[bad[0]])!r}; allowed: finite")
     return array
 
 
@@ -117,7 +117,7 @@ def payload_error_stats(
     nonpositive = np.flatnonzero(measured <= 0)
     if nonpositive.size:
         i = nonpositive[0]
-        raise ValueError(f"measured_kg[{i}] = {measured[i]!r}; allowed: > 0 kg (a percentage needs it)")
+        raise ValueError(f"measured_kg[{i}] = {float(measured[i])!r}; allowed: > 0 kg")
     pct_t = _thresholds("pct_thresholds", pct_thresholds)
     abs_t = _thresholds("abs_thresholds_kg", abs_thresholds_kg)
 
