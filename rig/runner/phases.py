@@ -12,7 +12,7 @@ _ANY_ACTIVE = frozenset(Phase) - TERMINAL
 
 # Every active phase may end in ABORTED or FAULTED; these are the forward transitions.
 _ALLOWED: dict[Phase, frozenset[Phase]] = {
-    Phase.IDLE: frozenset({Phase.CONNECTING}),
+    Phase.IDLE: frozenset(_ANY_ACTIVE),
     Phase.CONNECTING: frozenset({Phase.IDLE}),
     Phase.TARING: frozenset(_ANY_ACTIVE),
     Phase.BENDING: frozenset(_ANY_ACTIVE),

@@ -1,0 +1,171 @@
+"""The built-in simulated rig: the real drivers on byte-level emulators, coupled to the simulated world.
+
+Assembly, in the order time flows on every clock advance:
+
+1. `SimWorld.advance_to` (a `VirtualClock` listener) integrates the physics in 1 ms substeps; each
+   substep first lets the emulated servos move (`EmulatedBus.advance_to`), then computes the line
+   tension from the winch angle, detects and applies slips, and writes the winch's load torque.
+2. The emulated load cell (another listener, registered later) turns `SimWorld.tension_at` into
+   `rig-lc1` lines at its sample rate, which the real `SerialLoadCell` driver parses.
+3. The real `DynamixelServoBus` talks Protocol 2.0 to the emulated bus through `SimPortHandler`
+   (dynamixel-sdk unchanged), so the winch's position, current and faults come back over the wire.
+
+The simulated operator confirms prompts at once; placing the hook (joint estimation) or starting a
+validation trial is done at trial start through `SimWorld.begin_trial`, which also draws the
+trial's capacity variation. Bending goes through the bender servo and the world's fixture.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from rig.errors import ConfigError
+from rig.hw.servo_bus import DynamixelServoBus
+from rig.protocol import TrialPlan
+from rig.rig_config import RigConfig, require_simulated
+from rig.runner.limits import WINCH_TORQUE_CONSTANT_NM_PER_A
+from rig.runner.session import RigSession
+from rig.sim.article_presets import make_preset
+from rig.sim.clock import VirtualClock
+from rig.sim.configuration_source import SimConfigurationSource
+from rig.sim.dxl.bus import EmulatedBus
+from rig.sim.dxl.inprocess import SimPortHandler
+from rig.sim.loadcell_emulator import SignalModel
+from rig.sim.loadcell_serial import simulated_load_cell
+from rig.sim.world import SimWorld
+
+
+class PacedVirtualClock(VirtualClock):
+    """Virtual time that also waits in real time when it sleeps (`rig run --realtime`)."""
+
+    def sleep(self, seconds: float) -> None:
+        """Wait for real, then advance."""
+        if seconds > 0:
+            time.sleep(seconds)
+        super().sleep(seconds)
+
+
+class SimOperator:
+    """Confirms every prompt at once; the physical action happens in `SimWorld.begin_trial`."""
+
+    def __init__(self) -> None:
+        self.prompts: list[str] = []
+
+    def confirm(self, text: str, trial: TrialPlan | None) -> None:
+        """Record the prompt and return."""
+        self.prompts.append(text)
+
+
+class SimBendingFixture:
+    """Bender goals from the world's fixture (one bender servo; see rig/sim/bending_fixture.py)."""
+
+    def __init__(self, world: SimWorld, bender_id: int) -> None:
+        self.world = world
+        self.bender_id = bender_id
+
+    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
+        """Ask the fixture for the configuration; command this bender goal."""
+        return {self.bender_id: self.world.request_bend(joint_angles_rad)}
+
+    def home_goals(self) -> dict[int, float]:
+        """Ask the fixture to straighten the link."""
+        return {self.bender_id: self.world.request_reset()}
+
+
+def simulated_session(config: RigConfig, *, seed: int = 0, realtime: bool = False) -> RigSession:
+    """The simulated rig of a `kind: simulated` config, seeded; nothing is connected yet."""
+    sim = require_simulated(config)
+    article = config.article
+    try:
+        preset = make_preset(
+            sim.preset,
+            seed,
+            noise_scale=sim.noise_scale,
+            torsion_weak_joint=sim.torsion_weak_joint,
+            segment_lengths_m=article.segment_lengths_m,
+            point_m=article.point_m,
+            direction_w=article.direction,
+            joint_radius_m=article.joint_radius_m,
+            drum_radius_m=config.spool_radius_m,
+            g=article.g,
+        )
+    except ValueError as exc:
+        raise ConfigError(f"{config.source}: simulation/article: {exc}") from None
+    clock: VirtualClock = PacedVirtualClock() if realtime else VirtualClock()
+    winch_spec = config.servos.winch
+    benders = config.servos.benders
+    ids = [s.servo_id for s in config.servos.servos]
+    bus = EmulatedBus.with_servos(clock, ids=ids, model=winch_spec.model, baud=config.servos.baud)
+    bender = bus.servo(benders[0].servo_id) if benders else None
+    world = SimWorld(
+        preset,
+        bus.servo(winch_spec.servo_id),
+        bender=bender,
+        step_devices=bus.advance_to,
+        seed=seed,
+        start_ns=clock.monotonic_ns(),
+    )
+    clock.on_advance(world.advance_to)
+    gain = SignalModel().gain_counts_per_n
+    load_cell, _emulator = simulated_load_cell(
+        world.tension_at,
+        clock,
+        format_name=config.loadcell.format,
+        rate_hz=sim.loadcell_rate_hz,
+        signal=SignalModel(noise_counts=preset.loadcell_noise_n * gain),
+        seed=seed,
+        stale_timeout_s=config.limits.stale_timeout_s,
+    )
+    servos = DynamixelServoBus(
+        config.servos.port,
+        config.servos.baud,
+        config.servos.servos,
+        clock,
+        retries=config.servos.retries,
+        port_factory=lambda name: SimPortHandler(bus, clock, name),
+    )
+
+    def begin_trial(trial: TrialPlan) -> None:
+        if trial.kind == "joint_estimation":
+            world.begin_trial("joint_estimation", distance_m=trial.distance_m, joint=trial.joint)
+        else:
+            world.begin_trial("link_validation")
+
+    def truth() -> dict[str, Any]:
+        full = world.truth()
+        joints = full["joints"]
+        estimated = joints[0]
+        return {
+            "k": estimated["k_kg_m"],
+            "capacity_nm": estimated["capacity_nm"],
+            "mu_delta0_pa": estimated["mu_delta0_pa"],
+            "estimated_joint": 1,
+            "joint_capacities_nm": [j["capacity_nm"] for j in joints],
+            "world": full,
+        }
+
+    return RigSession(
+        kind="simulated",
+        clock=clock,
+        servos=servos,
+        load_cell=load_cell,
+        operator=SimOperator(),
+        fixture=SimBendingFixture(world, benders[0].servo_id) if benders else _NoFixture(),
+        configuration=SimConfigurationSource(world, clock, seed=seed),
+        winch_id=winch_spec.servo_id,
+        roles={s.servo_id: s.role for s in config.servos.servos},
+        torque_constant_nm_per_a=WINCH_TORQUE_CONSTANT_NM_PER_A,
+        begin_trial=begin_trial,
+        truth=truth,
+    )
+
+
+class _NoFixture:
+    """A simulated rig without a bender: link validation would need manual bending, refused here."""
+
+    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
+        raise ConfigError("the simulated rig has no bender servo; add one with role: bender")
+
+    def home_goals(self) -> dict[int, float]:
+        raise ConfigError("the simulated rig has no bender servo; add one with role: bender")
