@@ -94,7 +94,7 @@ class SimPreset:
     # Sensors.
     sigma_meas_rad: float = math.radians(0.4)  # configuration measurement noise per joint angle
     slipped_joint_report_probability: float = 0.8  # chance the configuration source names the joint
-    loadcell_noise_n: float = 0.03  # for the load-cell emulator; the world's tension is noise-free
+    loadcell_noise_n: float = 0.005  # RMS, for the load-cell emulator (its default); the world is noise-free
 
     def __post_init__(self) -> None:
         """Check shapes and ranges; a `ValueError` names the field and what is allowed."""

@@ -101,6 +101,7 @@ class TrialTruth:
     index: int  # 1-based, in begin_trial order
     kind: str
     distance_m: float | None
+    specimen_joint: int | None  # joint estimation: the link joint used as the specimen (None: nominal)
     start_ns: int
     capacities_nm: tuple[float, ...]  # of the active setup (one entry for the specimen)
     capacity_factors: tuple[float, ...]
@@ -142,7 +143,7 @@ class SimWorld:
         self.seed = int(seed)
         self._winch = winch
         self._bender = bender
-        self._step_devices = step_devices
+        self.step_devices = step_devices
         self._substep_ns = int(substep_ns)
         self._now_ns = int(start_ns)
         self._capacity_rng = stream_rng(seed, STREAM_TRIAL_CAPACITY)
@@ -221,6 +222,10 @@ class SimWorld:
         """True while the bending fixture is moving (and holding the link)."""
         return self.fixture is not None and self.fixture.moving
 
+    def taut_winch_angle_rad(self) -> float:
+        """The winch angle at which the line becomes taut in the present configuration (tests, scripts)."""
+        return self.line.slack_angle_rad + self._article.take_up_m / self.line.drum_radius_m
+
     @property
     def current_trial(self) -> TrialTruth | None:
         """The trial begun last, if any."""
@@ -252,8 +257,8 @@ class SimWorld:
 
     def _substep(self, t_ns: int) -> None:
         dt_s = (t_ns - self._now_ns) * 1e-9
-        if self._step_devices is not None:
-            self._step_devices(t_ns)
+        if self.step_devices is not None:
+            self.step_devices(t_ns)
         fixture = self.fixture
         holding = False
         if fixture is not None and fixture.moving:
@@ -356,21 +361,34 @@ class SimWorld:
         self.link.set_joint_angles(joint_angles_rad)
 
     # --- trials ------------------------------------------------------------------------------
-    def begin_trial(self, kind: TrialKind | str, distance_m: float | None = None) -> TrialTruth:
-        """Start a trial: draw its capacities; for joint estimation hook the specimen at `distance_m`."""
+    def begin_trial(
+        self, kind: TrialKind | str, distance_m: float | None = None, joint: int | None = None
+    ) -> TrialTruth:
+        """Start a trial: draw its capacities; for joint estimation hook the specimen at `distance_m`.
+
+        For joint estimation, `joint` (1-based) makes the specimen that joint of the link (its true
+        mean capacity); without it the specimen is the preset's nominal joint.
+        """
         kind = TrialKind(kind)
         self._end_slip()
         preset = self.preset
         if kind is TrialKind.JOINT_ESTIMATION:
             if distance_m is None or not (math.isfinite(distance_m) and distance_m > 0):
                 raise ValueError(f"joint estimation needs distance_m > 0; got {distance_m!r}")
-            nominal = np.array([preset.specimen_capacity_nm])
+            if joint is None:
+                nominal = np.array([preset.specimen_capacity_nm])
+            elif 1 <= joint <= preset.joint_count:
+                nominal = np.array([preset.joint_capacities_nm[joint - 1]])
+            else:
+                raise ValueError(f"joint = {joint}; allowed: 1..{preset.joint_count} or None")
             self._article = self.specimen
             self.specimen.set_joint_angles([0.0])
             self.specimen.set_point((0.0, 0.0, float(distance_m)))
         else:
-            if distance_m is not None:
-                raise ValueError("link validation takes no distance_m (the load point is the link's Q)")
+            if distance_m is not None or joint is not None:
+                raise ValueError(
+                    "link validation takes no distance_m or joint (the load point is the link's Q)"
+                )
             nominal = np.asarray(preset.joint_capacities_nm)
             self._article = self.link
         draws = np.clip(self._capacity_rng.standard_normal(len(nominal)), -3.0, 3.0)
@@ -381,6 +399,7 @@ class SimWorld:
             index=len(self.trials) + 1,
             kind=kind.value,
             distance_m=None if distance_m is None else float(distance_m),
+            specimen_joint=joint,
             start_ns=self._now_ns,
             capacities_nm=self._article.capacities_nm,
             capacity_factors=tuple(float(f) for f in factors),
@@ -447,3 +466,23 @@ class SimWorld:
             "trials": [t.as_dict() for t in self.trials],
             "slips": [s.as_dict() for s in self.slips],
         }
+
+
+class WorldBendingFixture:
+    """The runner's `BendingFixture` seam (rig.runner.session) over a world with one bender servo.
+
+    `bend_goals` asks the world's fixture for the configuration and returns the goal to command;
+    the world holds the link until the bender gets there.
+    """
+
+    def __init__(self, world: SimWorld, bender_id: int) -> None:
+        self._world = world
+        self._bender_id = bender_id
+
+    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
+        """{bender id: goal [rad]} that sets `joint_angles_rad` (plus the fixture's placement error)."""
+        return {self._bender_id: self._world.request_bend(joint_angles_rad)}
+
+    def home_goals(self) -> dict[int, float]:
+        """{bender id: goal [rad]} of the straight link."""
+        return {self._bender_id: self._world.request_reset()}
