@@ -9,6 +9,7 @@ import time
 from rig.hw.loadcell_formats import FORMATS
 from rig.sim.loadcell_emulator import DEFAULT_BAUD, FaultPlan, LoadCellEmulator, SignalModel, parse_fault
 from rig.sim.loadcell_profiles import parse_profile
+from rig.sim.loadcell_pty import serve_loadcell
 from rig.sim.pty_link import PtyLink, StopFlag
 
 
@@ -99,8 +100,6 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         start_ns=start_ns,
     )
-    from rig.sim.loadcell_pty import serve_loadcell
-
     stop = StopFlag()
     with PtyLink(args.link) as link:
         print(

@@ -37,6 +37,11 @@ _GARBAGE_ALPHABET = bytes(b for b in range(256) if b not in b"$\r\n")
 TensionSource = Callable[[int], float]
 
 
+def wrong_baud_garbage(data: bytes) -> bytes:
+    """What a receiver at the wrong baud rate makes of `data`: high-bit bytes, never a line or terminator."""
+    return bytes(((b * 37 + 11) & 0x7F) | 0x80 for b in data)
+
+
 @dataclass(frozen=True, slots=True)
 class SignalModel:
     """How line tension becomes ADC counts."""

@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from rig.sim.loadcell_emulator import LoadCellEmulator
+from rig.sim.loadcell_emulator import LoadCellEmulator, wrong_baud_garbage
 from rig.sim.pty_link import PtyLink, StopFlag
 
 MAX_SLEEP_S = 0.05  # bounds how late a stop request is noticed
@@ -29,11 +29,6 @@ class ServeCounts:
     bytes_written: int = 0
     bytes_dropped: int = 0  # pty buffer full: nobody was reading
     wrong_baud_bytes: int = 0
-
-
-def scramble(data: bytes) -> bytes:
-    """What a receiver at the wrong baud rate makes of `data`: bytes with the high bit set, no lines."""
-    return bytes(((b * 37 + 11) & 0x7F) | 0x80 for b in data)
 
 
 def write_nonblocking(fd: int, data: bytes) -> int:
@@ -60,17 +55,14 @@ def serve_loadcell(
 ) -> ServeCounts:
     """Stream `emulator`'s lines to `link` in real time until `stop.stopped`."""
     counts = ServeCounts()
-    baud_checked_ns = 0
-    client_baud: int | None = None
     while not stop.stopped:
         now_ns = monotonic_ns()
-        if now_ns - baud_checked_ns > 100_000_000:
-            client_baud, baud_checked_ns = link.client_baud(), now_ns
+        client_baud = link.client_baud()  # one tcgetattr: cheap enough to follow the client closely
         lines = emulator.lines_until(now_ns)
         if lines:
             data = b"".join(chunk for _, chunk in lines)
             if client_baud is not None and client_baud != emulator.baud:
-                data = scramble(data)
+                data = wrong_baud_garbage(data)
                 counts.wrong_baud_bytes += len(data)
             n = write_nonblocking(link.master_fd, data)
             counts.bytes_written += n

@@ -18,7 +18,14 @@ from rig.hw.calibration import STANDARD_GRAVITY_M_S2, Calibration, indicator_cal
 from rig.hw.loadcell import SerialLoadCell
 from rig.hw.loadcell_formats import IndicatorStCodec
 from rig.sim.clock import VirtualClock
-from rig.sim.loadcell_emulator import BITS_PER_BYTE, FaultPlan, LoadCellEmulator, SignalModel, TensionSource
+from rig.sim.loadcell_emulator import (
+    BITS_PER_BYTE,
+    FaultPlan,
+    LoadCellEmulator,
+    SignalModel,
+    TensionSource,
+    wrong_baud_garbage,
+)
 
 DEFAULT_RX_BUFFER_BYTES = 65536
 SIM_PORT = "sim://loadcell"
@@ -86,7 +93,7 @@ class InProcessLoadCellSerial:
             return
         if self.baudrate != self.emulator.baud:
             # A receiver at the wrong baud rate sees framing garbage, never the device's lines.
-            data = bytes((b * 37 + 11) & 0x7F | 0x80 for b in data)
+            data = wrong_baud_garbage(data)
         room = self.rx_buffer_bytes - len(self._rx)
         if len(data) > room:
             self.rx_overflow_bytes += len(data) - room

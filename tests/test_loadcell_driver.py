@@ -1,0 +1,261 @@
+"""The pyserial load-cell driver against the in-process emulator (virtual time) and pyserial's loop://."""
+
+import math
+import statistics
+import time
+
+import pytest
+import serial
+
+from rig.errors import InputError, NotConnectedError, StaleDataError
+from rig.hw.calibration import indicator_calibration
+from rig.hw.loadcell import SerialLoadCell
+from rig.hw.loadcell_formats import DeviceReading, RigLc1Codec
+from rig.hw.seams import LoadCell
+from rig.sim.clock import VirtualClock
+from rig.sim.loadcell_emulator import FaultPlan, LoadCellEmulator, SignalModel
+from rig.sim.loadcell_profiles import ConstantTension, SawtoothTension
+from rig.sim.loadcell_serial import in_process_serial_factory, simulated_load_cell
+
+
+def run_for(load_cell, clock, seconds, step_s=0.01):
+    samples = []
+    for _ in range(round(seconds / step_s)):
+        clock.sleep(step_s)
+        samples += load_cell.poll()
+    return samples
+
+
+def test_driver_implements_the_seam_and_reads_calibrated_force():
+    clock = VirtualClock()
+    driver, emulator = simulated_load_cell(SawtoothTension(peak_n=20.0, period_s=2.0), clock, rate_hz=500)
+    assert isinstance(driver, LoadCell)
+    with driver:
+        samples = run_for(driver, clock, 2.0)
+    assert len(samples) == emulator.counts.samples - 1  # the last line is still on the wire
+    assert [s.seq for s in samples] == list(range(len(samples)))
+    assert samples[100].device_time_us == 200_000
+    truth = SawtoothTension(peak_n=20.0, period_s=2.0)
+    errors = [s.force_n - truth(round(s.device_time_us * 1000)) for s in samples]
+    assert statistics.fmean(errors) == pytest.approx(0.0, abs=0.002)  # drift 5 counts/s -> < 0.2 mN
+    assert statistics.pstdev(errors) == pytest.approx(400 / 80_000, rel=0.1)  # the noise, 5 mN
+    # Receipt stamps: epoch anchor + virtual monotonic time of the poll that read the line.
+    assert all(s.time_ns % 10_000_000 == 0 for s in samples)
+    assert samples[0].time_ns == clock.time_ns() - clock.monotonic_ns() + 10_000_000
+    assert max(s.force_n for s in samples) == pytest.approx(20.0, abs=0.1)
+    stats = driver.stats()
+    assert (stats.lines_ok, stats.corrupt_lines, stats.checksum_failures, stats.missing_samples) == (
+        len(samples),
+        0,
+        0,
+        0,
+    )
+
+
+def test_every_injected_fault_is_counted_by_the_driver():
+    clock = VirtualClock()
+    driver, emulator = simulated_load_cell(ConstantTension(5.0), clock, rate_hz=1000, seed=5)
+    driver.open()
+    run_for(driver, clock, 0.1)
+    emulator.inject_garbage(40)
+    emulator.inject_truncated(3)
+    emulator.inject_bad_checksum(2)
+    emulator.inject_sequence_gap(7)
+    run_for(driver, clock, 0.1)
+    emulator.inject_silence(0.2)
+    run_for(driver, clock, 0.4)  # 0.2 s silence < 0.5 s stale timeout: no error
+    stats = driver.stats()
+    assert stats.corrupt_lines == 3
+    assert stats.checksum_failures == 2
+    # The dropped, truncated and corrupted samples are consecutive: one gap of 12, then the silence's.
+    assert stats.sequence_gaps == 2
+    assert stats.missing_samples == 3 + 2 + 7 + 200
+    assert stats.bytes_discarded >= 40 + 3 + 2 * 20
+    assert stats.lines_ok == emulator.counts.lines_sent - 1  # last line still on the wire
+    assert stats.samples_dropped == 0
+
+
+def test_random_faults_from_a_plan_match_emulator_counts():
+    clock = VirtualClock()
+    plan = FaultPlan(
+        garbage_per_line=0.01, truncate_per_line=0.01, bad_checksum_per_line=0.01, gap_per_line=0.005
+    )
+    driver, emulator = simulated_load_cell(SawtoothTension(), clock, rate_hz=2000, faults=plan, seed=2)
+    with driver:
+        samples = run_for(driver, clock, 3.0)
+    stats, sent = driver.stats(), emulator.counts
+    assert stats.corrupt_lines == sent.truncated_lines > 0
+    assert stats.checksum_failures == sent.bad_checksums > 0
+    assert len(samples) == stats.lines_ok
+    assert stats.missing_samples == sent.truncated_lines + sent.bad_checksums + sent.gap_samples
+
+
+def test_stale_error_within_the_timeout_after_silence_then_recovery():
+    clock = VirtualClock()
+    driver, emulator = simulated_load_cell(ConstantTension(1.0), clock, rate_hz=1000, stale_timeout_s=0.25)
+    driver.open()
+    received = run_for(driver, clock, 0.5)
+    emulator.inject_silence(1.0)
+    silence_start_ns = emulator.next_sample_ns
+    raised_at_ns = None
+    for _ in range(200):
+        clock.sleep(0.01)
+        try:
+            received += driver.poll()
+        except StaleDataError as exc:
+            raised_at_ns = clock.monotonic_ns()
+            message = str(exc)
+            break
+    assert raised_at_ns is not None
+    # Ages count from the receipt of the last sample, at the poll that read it.
+    last_receipt_ns = received[-1].time_ns - (clock.time_ns() - clock.monotonic_ns())
+    assert last_receipt_ns >= silence_start_ns - 1_000_000
+    assert 0.25 < (raised_at_ns - last_receipt_ns) / 1e9 <= 0.25 + 0.01  # within one poll period of the limit
+    assert "limit 0.25 s" in message and "no valid sample for 0.2" in message
+    assert driver.is_stale and driver.last_sample_age_s > 0.25
+    with pytest.raises(StaleDataError):
+        driver.poll()  # keeps raising while stale: never papered over
+    clock.advance_to_ns(silence_start_ns + 1_000_000_000 + 5_000_000)
+    resumed = driver.poll()
+    assert resumed and not driver.is_stale
+    assert driver.stats().missing_samples == 1000
+
+
+def test_stale_when_nothing_ever_arrives_at_the_wrong_baud():
+    clock = VirtualClock()
+    emulator = LoadCellEmulator(ConstantTension(0.0), baud=921600, start_ns=0)
+    driver = SerialLoadCell(
+        "sim",
+        baud=460800,
+        clock=clock,
+        stale_timeout_s=0.3,
+        serial_factory=in_process_serial_factory(emulator, clock),
+    )
+    driver.open()
+    assert run_for(driver, clock, 0.3) == []
+    clock.sleep(0.02)
+    with pytest.raises(StaleDataError, match=r"no valid sample for 0\.32"):
+        driver.poll()
+    stats = driver.stats()
+    assert stats.lines_ok == 0 and stats.bytes_discarded > 0
+
+
+def test_sequence_and_device_time_kept_as_sent_across_wraps():
+    clock = VirtualClock()
+    emulator = LoadCellEmulator(
+        ConstantTension(0.0), rate_hz=1000, seq_start=65530, device_time_start_us=(1 << 32) - 3000, start_ns=0
+    )
+    driver = SerialLoadCell("sim", clock=clock, serial_factory=in_process_serial_factory(emulator, clock))
+    driver.open()
+    samples = run_for(driver, clock, 0.02)
+    assert [s.seq for s in samples[:8]] == [65530, 65531, 65532, 65533, 65534, 65535, 0, 1]
+    assert [s.device_time_us for s in samples[:5]] == [
+        (1 << 32) - 3000,
+        (1 << 32) - 2000,
+        (1 << 32) - 1000,
+        0,
+        1000,
+    ]
+    assert math.isnan(samples[0].force_n)  # no calibration: raw only
+    assert driver.stats().missing_samples == 0
+
+
+def test_indicator_format_through_the_driver():
+    clock = VirtualClock()
+    g = 9.80665
+    driver, _ = simulated_load_cell(
+        ConstantTension(1.23 * g),
+        clock,
+        format_name="indicator-st",
+        rate_hz=50,
+        signal=SignalModel(noise_counts=0.0, drift_counts_per_s=0.0),
+    )
+    assert driver.calibration == indicator_calibration("kg", 2, serial="sim", date=driver.calibration.date)
+    with driver:
+        samples = run_for(driver, clock, 1.0)
+    assert len(samples) >= 45
+    assert all(s.raw == 123 and s.seq is None and s.device_time_us is None for s in samples)
+    assert samples[-1].force_n == pytest.approx(1.23 * g)
+    assert driver.stats().missing_samples == 0
+
+
+def test_queue_bound_drops_oldest_and_counts():
+    clock = VirtualClock()
+    emulator = LoadCellEmulator(ConstantTension(0.0), rate_hz=1000, start_ns=0)
+    driver = SerialLoadCell(
+        "sim",
+        clock=clock,
+        queue_samples=100,
+        stale_timeout_s=10.0,
+        serial_factory=in_process_serial_factory(emulator, clock),
+    )
+    driver.open()
+    clock.sleep(0.5)  # ~500 lines waiting in the port buffer, read in one poll
+    samples = driver.poll()
+    assert len(samples) == 100
+    assert driver.stats().samples_dropped == driver.stats().lines_ok - 100 > 300
+    assert samples[-1].seq == driver.stats().lines_ok - 1  # newest kept
+
+
+def test_not_open_bad_parameters_and_failing_port():
+    driver = SerialLoadCell("sim", clock=VirtualClock())
+    with pytest.raises(NotConnectedError, match="not open"):
+        driver.poll()
+    for kwargs, match in [
+        ({"stale_timeout_s": 0}, "stale_timeout_s"),
+        ({"format_name": "x"}, "allowed"),
+        ({"reader": "async"}, "reader"),
+        ({"queue_samples": 0}, "queue_samples"),
+    ]:
+        with pytest.raises(InputError, match=match):
+            SerialLoadCell("sim", **kwargs)
+
+    class Unplugged:
+        def __init__(self, **_):
+            pass
+
+        in_waiting = property(lambda self: (_ for _ in ()).throw(OSError(5, "Input/output error")))
+
+        def reset_input_buffer(self):
+            pass
+
+        def close(self):
+            pass
+
+    driver = SerialLoadCell("/dev/ttyUSB9", clock=VirtualClock(), serial_factory=Unplugged)
+    driver.open()
+    with pytest.raises(NotConnectedError, match="Input/output error"):
+        driver.poll()
+    driver.close()
+    driver.close()  # idempotent
+
+
+def test_threaded_reader_on_pyserial_loop_url_real_time():
+    """A real pyserial object (loop://) selects the reader thread; stale detection in real time."""
+    ports = []
+
+    def factory(port, baudrate, timeout):
+        ser = serial.serial_for_url(port, baudrate=baudrate, timeout=timeout)
+        ports.append(ser)
+        return ser
+
+    codec = RigLc1Codec()
+    driver = SerialLoadCell(
+        "loop://", stale_timeout_s=0.2, serial_factory=factory, calibration=indicator_calibration("N", 0)
+    )
+    with driver:
+        assert driver._thread is not None and driver._thread.is_alive()
+        ports[0].write(b"".join(codec.encode(DeviceReading(k, k, 1000 * k)) for k in range(50)))
+        samples, deadline = [], time.monotonic() + 5.0
+        while len(samples) < 50 and time.monotonic() < deadline:
+            samples += driver.poll()
+            time.sleep(0.01)
+        assert [s.raw for s in samples] == list(range(50))
+        assert samples[7].force_n == 7.0
+        last_receipt_ns = samples[-1].time_ns
+        with pytest.raises(StaleDataError):
+            while time.monotonic() < deadline:
+                driver.poll()
+                time.sleep(0.01)
+        assert 0.2 < (driver.clock.time_ns() - last_receipt_ns) / 1e9 < 1.0
+    assert driver._thread is None and not ports[0].is_open

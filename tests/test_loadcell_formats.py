@@ -1,0 +1,218 @@
+"""Line formats: golden lines, round trips, and the decoder's resynchronisation and counters."""
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from rig.errors import InputError
+from rig.hw.loadcell_formats import (
+    ChecksumError,
+    DeviceReading,
+    IndicatorStCodec,
+    LineDecoder,
+    LineError,
+    RigLc1Codec,
+    get_codec,
+    nmea_checksum,
+)
+
+LC1 = RigLc1Codec()
+IND = IndicatorStCodec()
+
+
+def test_rig_lc1_golden_line_checksum_worked_by_hand():
+    # body "LC,7,1000,-42": XOR of its bytes, step by step:
+    # L 0x4C; ^C 0x43 -> 0x0F; ^, 0x2C -> 0x23; ^7 0x37 -> 0x14; ^, -> 0x38; ^1 0x31 -> 0x09;
+    # ^0 0x30 -> 0x39; ^0 -> 0x09; ^0 -> 0x39; ^, -> 0x15; ^- 0x2D -> 0x38; ^4 0x34 -> 0x0C; ^2 0x32 -> 0x3E
+    assert nmea_checksum(b"LC,7,1000,-42") == 0x3E
+    assert LC1.encode(DeviceReading(raw=-42, seq=7, device_time_us=1000)) == b"$LC,7,1000,-42*3E\r\n"
+    assert LC1.decode(b"$LC,7,1000,-42*3E\r") == (-42, 7, 1000, True, False, False, None, 0)
+    assert LC1.decode(b"$LC,7,1000,-42*3e").raw == -42  # lower-case hex and a bare LF are accepted
+
+
+def test_rig_lc1_wraps_seq_and_device_time_on_encode():
+    line = LC1.encode(DeviceReading(raw=5, seq=65536 + 3, device_time_us=(1 << 32) + 9))
+    assert line.startswith(b"$LC,3,9,5*")
+
+
+@pytest.mark.parametrize(
+    "line",
+    [
+        b"$LC,7,1000,-42*3F",  # wrong checksum
+        b"$LC,7,1000,-43*3E",  # a flipped digit
+    ],
+)
+def test_rig_lc1_checksum_failures(line):
+    with pytest.raises(ChecksumError):
+        LC1.decode(line)
+
+
+@pytest.mark.parametrize(
+    "line",
+    [
+        b"$LC,7,1000",  # truncated
+        b"$LC,7,1000,-42",  # no checksum
+        b"$LC,7,1000,4x2*3E",
+        b"LC,7,1000,-42*3E",  # no $
+        b"$LC,70000,1000,-42*" + b"%02X" % nmea_checksum(b"LC,70000,1000,-42"),  # seq > 65535
+        b"$LC,7,4294967296,1*" + b"%02X" % nmea_checksum(b"LC,7,4294967296,1"),  # t_us >= 2**32
+    ],
+)
+def test_rig_lc1_malformed_lines(line):
+    with pytest.raises(LineError) as exc:
+        LC1.decode(line)
+    assert not isinstance(exc.value, ChecksumError)
+
+
+@given(
+    raw=st.integers(-(1 << 31), (1 << 31) - 1),
+    seq=st.integers(0, 65535),
+    t_us=st.integers(0, (1 << 32) - 1),
+)
+def test_rig_lc1_round_trip(raw, seq, t_us):
+    line = LC1.encode(DeviceReading(raw, seq, t_us))
+    assert len(line) <= LC1.max_line_bytes
+    decoded = LC1.decode(line[:-1])
+    assert (decoded.raw, decoded.seq, decoded.device_time_us) == (raw, seq, t_us)
+
+
+def test_indicator_golden_lines():
+    assert IND.encode(DeviceReading(123)) == b"ST,GS,+0001.23kg\r\n"
+    assert IND.encode(DeviceReading(-5, stable=False, net=True)) == b"US,NT,-0000.05kg\r\n"
+    assert IND.encode(DeviceReading(10**9)) == b"OL,GS,+9999.99kg\r\n"  # clamped and flagged
+    d = IND.decode(b"ST,GS,+0001.23kg\r")
+    assert (d.raw, d.seq, d.device_time_us, d.stable, d.overload, d.net, d.unit, d.decimals) == (
+        123,
+        None,
+        None,
+        True,
+        False,
+        False,
+        "kg",
+        2,
+    )
+    d = IND.decode(b"OL,NT,-  12.5 lb")
+    assert (d.raw, d.overload, d.net, d.unit, d.decimals) == (-125, True, True, "lb", 1)
+    assert IndicatorStCodec(decimals=0, unit="N").encode(DeviceReading(42)) == b"ST,GS,+0000042N\r\n"
+
+
+@pytest.mark.parametrize(
+    "line", [b"ST,GS,+0001.23", b"XX,GS,+0001.23kg", b"ST,GS,+00.1.23kg", b"ST,GS,+   .   kg"]
+)
+def test_indicator_malformed(line):
+    with pytest.raises(LineError):
+        IND.decode(line)
+
+
+@given(raw=st.integers(-999999, 999999), stable=st.booleans(), net=st.booleans())
+def test_indicator_round_trip(raw, stable, net):
+    decoded = IND.decode(IND.encode(DeviceReading(raw, stable=stable, net=net))[:-1])
+    assert (decoded.raw, decoded.stable, decoded.net, decoded.decimals, decoded.unit) == (
+        raw,
+        stable,
+        net,
+        2,
+        "kg",
+    )
+
+
+def test_registry_rejects_unknown_format():
+    assert get_codec("rig-lc1").name == "rig-lc1"
+    with pytest.raises(InputError, match="allowed: indicator-st, rig-lc1"):
+        get_codec("nmea")
+
+
+def lc1_lines(n, start_seq=0):
+    return [LC1.encode(DeviceReading(1000 + k, (start_seq + k) % 65536, 1000 * k)) for k in range(n)]
+
+
+def test_decoder_resyncs_after_garbage_without_counting_a_corrupt_line():
+    lines = lc1_lines(3)
+    garbage = b"\x00\xff\x13 noise"
+    decoder = LineDecoder(LC1)
+    out = decoder.feed(lines[0] + garbage + lines[1] + lines[2])
+    assert [d.seq for d in out] == [0, 1, 2]
+    c = decoder.counts()
+    assert (c.lines_ok, c.corrupt_lines, c.checksum_failures, c.bytes_discarded) == (3, 0, 0, len(garbage))
+
+
+def test_decoder_counts_truncated_line_glued_to_the_next():
+    lines = lc1_lines(3)
+    stream = lines[0] + lines[1][:9] + lines[2]  # line 1 lost its tail and terminator
+    decoder = LineDecoder(LC1)
+    out = decoder.feed(stream)
+    assert [d.seq for d in out] == [0, 2]
+    c = decoder.counts()
+    assert (c.corrupt_lines, c.bytes_discarded, c.sequence_gaps, c.missing_samples) == (1, 9, 1, 1)
+
+
+def test_decoder_counts_checksum_failure_and_terminated_short_line():
+    lines = lc1_lines(4)
+    bad = lines[1].replace(lines[1][-4:-2], b"00" if lines[1][-4:-2] != b"00" else b"01")
+    decoder = LineDecoder(LC1)
+    out = decoder.feed(lines[0] + bad + b"$LC,2,20\r\n" + lines[3])
+    assert [d.seq for d in out] == [0, 3]
+    c = decoder.counts()
+    assert (c.checksum_failures, c.corrupt_lines, c.missing_samples, c.sequence_gaps) == (1, 1, 2, 1)
+    assert c.bytes_discarded == len(bad) + len(b"$LC,2,20\r\n")
+
+
+def test_decoder_sequence_gap_across_16_bit_wrap():
+    lines = lc1_lines(6, start_seq=65533)  # 65533, 65534, 65535, 0, 1, 2
+    decoder = LineDecoder(LC1)
+    out = decoder.feed(lines[0] + lines[1] + lines[4] + lines[5])  # 65535 and 0 missing
+    assert [d.seq for d in out] == [65533, 65534, 1, 2]
+    c = decoder.counts()
+    assert (c.sequence_gaps, c.missing_samples) == (1, 2)
+    decoder2 = LineDecoder(LC1)
+    decoder2.feed(b"".join(lines))
+    assert decoder2.counts().missing_samples == 0  # a plain wrap is not a gap
+
+
+def test_decoder_handles_lines_split_at_every_byte():
+    stream = b"".join(lc1_lines(5))
+    decoder = LineDecoder(LC1)
+    out = []
+    for i in range(len(stream)):
+        out += decoder.feed(stream[i : i + 1])
+    assert [d.raw for d in out] == [1000, 1001, 1002, 1003, 1004]
+    assert decoder.pending_bytes == 0 and decoder.counts().bytes_discarded == 0
+
+
+def test_decoder_drops_overlong_unterminated_garbage_but_keeps_a_following_line_start():
+    decoder = LineDecoder(LC1)
+    assert decoder.feed(b"x" * 500) == []
+    assert decoder.pending_bytes <= decoder.max_line_bytes
+    line = lc1_lines(1)[0]
+    assert [d.raw for d in decoder.feed(b"y" * 100 + line)] == [1000]
+    c = decoder.counts()
+    assert c.bytes_discarded == 600 and c.corrupt_lines == 0
+
+
+def test_indicator_decoder_resyncs_and_counts_truncated_line():
+    a, b = IND.encode(DeviceReading(100)), IND.encode(DeviceReading(-250, stable=False))
+    decoder = LineDecoder(IND)
+    out = decoder.feed(b"\x01\x02" + a + a[:9] + b + b"OL,GS,+9999.99kg\r\n")
+    assert [(d.raw, d.stable, d.overload) for d in out] == [
+        (100, True, False),
+        (-250, False, False),
+        (999999, False, True),
+    ]
+    c = decoder.counts()
+    assert (c.corrupt_lines, c.bytes_discarded, c.overload_lines, c.sequence_gaps) == (1, 2 + 9, 1, 0)
+
+
+@given(st.lists(st.one_of(st.sampled_from(lc1_lines(4)), st.binary(max_size=40)), max_size=30), st.data())
+def test_decoder_accounts_for_every_byte(chunks, data):
+    stream = b"".join(chunks)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
+    decoder = LineDecoder(LC1)
+    out = []
+    for lo, hi in zip([0, *cuts], [*cuts, len(stream)], strict=True):
+        out += decoder.feed(stream[lo:hi])
+    ok_bytes = sum(len(LC1.encode(DeviceReading(d.raw, d.seq, d.device_time_us))) for d in out)
+    c = decoder.counts()
+    assert c.bytes_received == len(stream)
+    # Every valid line is counted with CRLF; a line received with a bare LF would be one byte shorter.
+    assert c.bytes_received == ok_bytes + c.bytes_discarded + decoder.pending_bytes
+    assert c.lines_ok == len(out)
