@@ -16,12 +16,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from rig.hw.control_table import ControlTable, table_for_model
-from rig.hw.seams import Clock
 from rig.sim.dxl import protocol as p
 from rig.sim.dxl.faults import ReplyFaults
 from rig.sim.dxl.servo import Result, Servo
+
+if TYPE_CHECKING:  # seams pulls in numpy; the pty server process does not need it
+    from rig.hw.seams import Clock
 
 BITS_PER_BYTE = 10
 _READ_INSTRUCTIONS = (p.SYNC_READ, p.BULK_READ, p.FAST_SYNC_READ, p.FAST_BULK_READ)

@@ -1,0 +1,74 @@
+"""Serve an `EmulatedBus` on a pty in real time: the byte-for-byte path through pyserial and the real SDK.
+
+Meant to run in its own process (`rig sim servos`): the SDK busy-spins a core while it waits, and
+a reply must land inside its ~34 ms window, so the loop is lean: `poll` on the master fd, feed what
+arrived to the bus with the monotonic time, write the replies. By default replies are written as
+soon as they are computed (a pty does not throttle bytes, so pacing them by the simulated wire time
+would only add latency); `wire_timing=True` holds each reply until its simulated due time. Injected
+reply delays are always honoured. The client's baud rate is read from the pty on every chunk;
+servos at another rate (or a non-standard client rate) stay silent, so baud scans are testable.
+"""
+
+from __future__ import annotations
+
+import heapq
+import select
+import time
+from dataclasses import dataclass
+
+from rig.sim.dxl.bus import EmulatedBus
+from rig.sim.pty_link import PtyLink, StopFlag
+
+IDLE_POLL_MS = 50  # how often the loop looks at the stop flag when nothing happens
+
+
+@dataclass(slots=True)
+class ServeStats:
+    """Counters of one serve session."""
+
+    bytes_in: int = 0
+    bytes_out: int = 0
+    replies: int = 0
+    chunks_ignored_for_baud: int = 0
+
+
+def serve(bus: EmulatedBus, link: PtyLink, stop: StopFlag, *, wire_timing: bool = False) -> ServeStats:
+    """Answer the client on `link` until `stop.stopped`; returns the counters."""
+    stats = ServeStats()
+    poller = select.poll()
+    poller.register(link.master_fd, select.POLLIN)
+    pending: list[tuple[int, int, bytes]] = []  # (monotonic due ns, seq, bytes)
+    seq = 0
+    monotonic_ns = time.monotonic_ns
+    while not stop.stopped:
+        wait_ms = max(0, (pending[0][0] - monotonic_ns()) // 1_000_000) if pending else IDLE_POLL_MS
+        events = poller.poll(wait_ms)
+        if events:
+            data = link.read()
+            if data:
+                now = monotonic_ns()
+                stats.bytes_in += len(data)
+                baud = link.client_baud()
+                if baud is None:
+                    stats.chunks_ignored_for_baud += 1
+                else:
+                    bus.baud = baud
+                    for reply in bus.feed(data, now):
+                        due = reply.due_ns if wire_timing else now + reply.extra_delay_ns
+                        if due <= now and not pending:
+                            link.write(reply.data)
+                            stats.bytes_out += len(reply.data)
+                            stats.replies += 1
+                        else:
+                            seq += 1
+                            heapq.heappush(pending, (due, seq, reply.data))
+            elif events[0][1] & (select.POLLHUP | select.POLLERR):
+                time.sleep(0.001)  # no client side open; do not spin
+        if pending:
+            now = monotonic_ns()
+            while pending and pending[0][0] <= now:
+                out = heapq.heappop(pending)[2]
+                link.write(out)
+                stats.bytes_out += len(out)
+                stats.replies += 1
+    return stats
