@@ -158,18 +158,21 @@ def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
 
 
 def _origins_and_point(transforms: FloatArray, point_m: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Joint origins o_0..o_J (..., J+1, 3) and Q in the world (..., 3), without full 4x4 products."""
+    """Joint origins o_0..o_J (..., J+1, 3) and Q in the world (..., 3).
+
+    Each joint's transforms are first copied into a contiguous slab: numpy's batched matmul is
+    several times faster on those than on the strided views `transforms[..., i, :, :]`.
+    """
     n_joints = transforms.shape[-3]
     batch = np.broadcast_shapes(transforms.shape[:-3], point_m.shape[:-1])
-    rotation = np.broadcast_to(np.eye(3), (*transforms.shape[:-3], 3, 3))
-    origins = np.zeros((*transforms.shape[:-3], n_joints + 1, 3))
-    for i in range(n_joints):
-        origins[..., i + 1, :] = origins[..., i, :] + np.einsum(
-            "...jk,...k->...j", rotation, transforms[..., i, :3, 3]
-        )
-        rotation = rotation @ transforms[..., i, :3, :3]
-    point_w = origins[..., n_joints, :] + np.einsum("...jk,...k->...j", rotation, point_m)
-    return np.broadcast_to(origins, (*batch, n_joints + 1, 3)), point_w
+    origins = np.zeros((n_joints + 1, *transforms.shape[:-3], 3))
+    pose = np.ascontiguousarray(transforms[..., 0, :, :])
+    origins[1] = pose[..., :3, 3]
+    for i in range(1, n_joints):
+        pose = pose @ np.ascontiguousarray(transforms[..., i, :, :])
+        origins[i + 1] = pose[..., :3, 3]
+    point_w = origins[n_joints] + np.einsum("...jk,...k->...j", pose[..., :3, :3], point_m)
+    return np.broadcast_to(np.moveaxis(origins, 0, -2), (*batch, n_joints + 1, 3)), point_w
 
 
 def joint_moments_recursive(transforms: ArrayLike, point_m: ArrayLike, force_w: ArrayLike) -> FloatArray:
