@@ -9,7 +9,9 @@ the configurations (`transforms (..., J, 4, 4)`), the capacities `(..., J)`, the
 and the forces or directions `(..., 3)`. Per-joint outputs have J+1 entries, index 0 being the
 base origin o_0 (not a joint) and index i joint i, so joint numbers index them directly.
 
-SI units; no I/O.
+The statics functions trust their transforms to be rigid motions (checking every matrix of a
+large batch would cost more than the statics); validate untrusted input with `check_rigid_motion`,
+as the link-file parser does. SI units; no I/O.
 """
 
 from __future__ import annotations
