@@ -1,0 +1,77 @@
+"""Rig logs read in the official TypeScript reader (@mcap/core), run with node from tests/ts_reader.
+
+Skipped unless `tests/ts_reader/node_modules` exists (`npm ci --prefix tests/ts_reader`).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from rig.log import schemas as S
+from rig.log.examples import example_payloads
+from rig.log.reader import read_run
+from rig.log.writer import RunLogger
+
+TS_READER = Path(__file__).parent / "ts_reader"
+T0_NS = 1_767_225_600_000_000_000
+MS = 1_000_000
+
+pytestmark = pytest.mark.skipif(
+    shutil.which("node") is None or not (TS_READER / "node_modules" / "@mcap" / "core").is_dir(),
+    reason="needs node and `npm ci --prefix tests/ts_reader`",
+)
+
+
+def ts_read(path: Path, *args: str) -> dict:
+    done = subprocess.run(
+        ["node", str(TS_READER / "read.mjs"), str(path), *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=TS_READER,
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
+@pytest.fixture(scope="module")
+def rig_log(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("ts") / "run.mcap"
+    with RunLogger(path, flush_interval_s=3600, strict=True) as log:
+        log.add_metadata("session", {"seed": "1"})
+        log.add_metadata("protocol", {"name": "demo"})
+        log.add_attachment("protocol.yaml", "application/yaml", b"trials: []\n", log_time_ns=T0_NS)
+        for topic, payload in example_payloads(T0_NS).items():
+            log.log(topic, T0_NS, payload)
+        for i in range(4000):
+            log.log(S.LOADCELL, T0_NS + i * MS, S.loadcell_sample(raw=i, force_n=i * 1e-3, seq=i))
+            if (i + 1) % 1000 == 0:
+                log.flush()
+    return path
+
+
+def test_finished_rig_log_reads_in_the_indexed_typescript_reader(rig_log):
+    found = ts_read(rig_log)
+    assert found["reader"] == "McapIndexedReader" and found["library"].startswith("rig-logger/")
+    ours = read_run(rig_log)
+    assert {topic: entry["count"] for topic, entry in found["topics"].items()} == ours.message_counts
+    assert {topic: entry["schema"] for topic, entry in found["topics"].items()} == {
+        topic: S.TOPICS[topic].schema_name for topic in S.TOPICS
+    }
+    assert found["metadata"] == ["session", "protocol"] and found["attachments"] == ["protocol.yaml"]
+
+
+def test_crashed_copy_streams_its_complete_chunks_in_typescript(rig_log, tmp_path):
+    data = rig_log.read_bytes()
+    copy = tmp_path / "cut.mcap"
+    copy.write_bytes(data[: int(len(data) * 0.7)])
+    found = ts_read(copy, "--stream")
+    assert found["complete"] is False
+    ours = read_run(copy)
+    assert {topic: entry["count"] for topic, entry in found["topics"].items()} == ours.message_counts
+    assert 1000 <= ours.message_counts[S.LOADCELL] < 4000
