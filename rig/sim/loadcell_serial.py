@@ -163,12 +163,20 @@ class InProcessLoadCellSerial:
 
 
 def in_process_serial_factory(emulator: LoadCellEmulator, clock: VirtualClock) -> Callable[..., Any]:
-    """A `serial_factory` for `SerialLoadCell` that opens an in-process port on `emulator`."""
+    """A `serial_factory` for `SerialLoadCell`: opens (and re-opens) one in-process port on `emulator`."""
+    ports: list[InProcessLoadCellSerial] = []
 
     def factory(
         port: str = SIM_PORT, baudrate: int | None = None, timeout: float | None = 0.0, **_: Any
-    ) -> Any:
-        return InProcessLoadCellSerial(emulator, clock, port=port, baudrate=baudrate, timeout=timeout)
+    ) -> InProcessLoadCellSerial:
+        if not ports:
+            ports.append(InProcessLoadCellSerial(emulator, clock, port=port, baudrate=baudrate, timeout=timeout))
+            return ports[0]
+        ser = ports[0]  # the device is plugged in once; a re-open uses the same wire
+        ser.port, ser.timeout = port, timeout
+        ser.baudrate = emulator.baud if baudrate is None else baudrate
+        ser.open()
+        return ser
 
     return factory
 
