@@ -170,8 +170,9 @@ def in_process_serial_factory(emulator: LoadCellEmulator, clock: VirtualClock) -
         port: str = SIM_PORT, baudrate: int | None = None, timeout: float | None = 0.0, **_: Any
     ) -> InProcessLoadCellSerial:
         if not ports:
-            ports.append(InProcessLoadCellSerial(emulator, clock, port=port, baudrate=baudrate, timeout=timeout))
-            return ports[0]
+            ser = InProcessLoadCellSerial(emulator, clock, port=port, baudrate=baudrate, timeout=timeout)
+            ports.append(ser)
+            return ser
         ser = ports[0]  # the device is plugged in once; a re-open uses the same wire
         ser.port, ser.timeout = port, timeout
         ser.baudrate = emulator.baud if baudrate is None else baudrate
