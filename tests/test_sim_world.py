@@ -44,7 +44,7 @@ def strong(preset: SimPreset) -> SimPreset:
 
 
 def test_tension_follows_winch_angle_and_line_stiffness() -> None:
-    preset = strong(make_preset("link1", seed=3))
+    preset = replace(strong(make_preset("link1", seed=3)), spring_stiffness_n_per_m=1000.0)
     shaft = ScriptedShaft(position_rad=1.0)
     world = SimWorld(preset, shaft)
     slack = 1.0 + preset.winch_slack_rad
@@ -129,8 +129,9 @@ def test_stick_slip_drops_to_the_kinetic_level_then_rises_again() -> None:
     world.set_configuration([0.3, -0.2, 0.1, 0.0, 0.2, -0.1, 0.0, 0.1])
     world.begin_trial("link_validation")
     first = ramp_until_first_slip(world, shaft, 0.5)
-    world.advance_to(world.now_ns + 400 * MS)
-    assert first.end_ns is not None and first.end_ns > first.onset_ns
+    # Reeling on at 0.5 rad/s (25 N/s) the tension regains the ~1.4 N drop in about 55 ms.
+    world.advance_to(world.now_ns + 70 * MS)
+    assert first.end_ns is not None and first.end_ns >= first.onset_ns
     # The slip relieves the line to about the kinetic ratio of the peak (geometry moves it a little).
     assert first.tension_after_n / first.peak_tension_n == pytest.approx(preset.kinetic_ratio, abs=0.01)
     assert first.rotation_rad > 0
@@ -194,7 +195,8 @@ def test_joint_estimation_specimen_slips_at_capacity_over_distance() -> None:
         world.advance_to(world.now_ns + MS)
         record = ramp_until_first_slip(world, shaft, 2.0)
         assert record.setup == "specimen" and record.joint == 1
-        assert record.peak_tension_n == pytest.approx(trial.slip_force_n, abs=0.02)
+        ramp_n_per_substep = world.line.stiffness_n_per_m * preset.drum_radius_m * 2.0 * 1e-3
+        assert trial.slip_force_n <= record.peak_tension_n <= trial.slip_force_n + ramp_n_per_substep
     # A named joint of the link as the specimen carries that joint's true capacity.
     trial = world.begin_trial("joint_estimation", distance_m=0.1, joint=3)
     assert trial.specimen_joint == 3

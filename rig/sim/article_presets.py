@@ -28,8 +28,10 @@ Where the numbers come from (MODEL.md §4 and the paper's text; its Tables I-III
   `benchmarks/calibrate_sim_noise.py` measures it (see benchmarks/README.md).
 * **Kinetic ratio** 0.8: after a slip the joint turns until its moment is 80 % of the static
   capacity.
-* **Winch and line.** Drum radius 0.01 m; a braided line of 5000 N/m in series with a 1000 N/m
-  spring (effective 833 N/m), so 1 rad of winch rotation adds about 8.3 N.
+* **Winch and line.** Drum radius 0.01 m and a braided line of 5000 N/m, so 1 rad of winch rotation
+  adds 50 N. No spring by default (`spring_stiffness_n_per_m` adds one in series): with a soft
+  spring, the ~50 N slips at the shortest joint-estimation distances need centimetres of take-up to
+  relax, i.e. the specimen turns by tens of degrees per slip and the lever arm itself changes.
 """
 
 from __future__ import annotations
@@ -85,7 +87,7 @@ class SimPreset:
     # Winch, line and spring (winch angle increasing = reeling in).
     drum_radius_m: float = 0.01
     line_stiffness_n_per_m: float = 5000.0
-    spring_stiffness_n_per_m: float | None = 1000.0  # None: no spring in the line
+    spring_stiffness_n_per_m: float | None = None  # None: no spring in the line
     winch_slack_rad: float = 0.5  # reel-in from the winch's starting angle before the line is taut
     # Bending fixture.
     bender_travel_per_bend: float = 2.0  # bender shaft rad per rad of total requested |bend|
