@@ -162,6 +162,8 @@ class ProfiledActuator:
             state.profile_done = rv == goal_v
             desired = rv
         else:
+            # Error against the reference *before* this step, so that steps of any length converge.
+            err = state.ref_position_rad - state.position_rad
             if not state.profile_done or state.ref_position_rad != cmd.goal_position_rad:
                 ref, rv, done = profile_step(
                     state.ref_position_rad,
@@ -172,10 +174,13 @@ class ProfiledActuator:
                     dt_s,
                 )
                 state.ref_position_rad, state.ref_velocity_rad_s, state.profile_done = ref, rv, done
-            err = state.ref_position_rad - state.position_rad
             desired = state.ref_velocity_rad_s + p.position_gain_per_s * err
             desired = max(-p.no_load_speed_rad_s, min(p.no_load_speed_rad_s, desired))
-            if state.profile_done and abs(err) < 1e-4 and not state.saturated:
+            if (
+                state.profile_done
+                and abs(state.ref_position_rad - state.position_rad) < 1e-4
+                and not state.saturated
+            ):
                 # Settled: hold exactly at the reference, balancing the load.
                 desired = 0.0
                 state.position_rad = state.ref_position_rad

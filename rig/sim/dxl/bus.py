@@ -194,13 +194,14 @@ class EmulatedBus:
             return []
         out = []
         for servo in self._listening(target, now_ns):
-            reply_id = servo.servo_id  # an ID change is answered with the old ID
+            # An ID change is answered with the old ID, and a Status Return Level change under the old level.
+            reply_id, answers = servo.servo_id, servo.replies_to(instruction)
             if instruction in _BROADCAST_ONLY:
                 servo.note_traffic(now_ns)
                 result: Result | None = Result(p.ERR_INSTRUCTION)
             else:
                 result = servo.execute(instruction, params, now_ns)
-            if result is not None and servo.replies_to(instruction):
+            if result is not None and answers:
                 out.append(self._status(servo, result, reply_id))
         return out
 

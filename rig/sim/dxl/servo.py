@@ -22,9 +22,10 @@ Semantics (notes/dynamixel.md; *assumption* where the manual is silent):
   Current Limit; switching to mode 3 folds the multi-turn count into one turn. Torque on: Goal
   Position = Present Position. Reboot (and factory reset): the reply goes out first, then the servo
   is deaf for `boot_time_s`; then RAM is reset, Hardware Error Status cleared, multi-turn lost.
-* Overload (0x20): latches when |current| stays at >= 95 % of the Current Limit (XL430: of the
-  stall current) for `overload_time_s` (default 1.5 s). Mode 5's lower Goal Current cap stalls the
-  servo without tripping it. A latched error whose bit is in Shutdown (63) turns torque off.
+* Overload (0x20): latches when |current| stays at >= 95 % of the lower of the Current Limit and
+  the stall current (XL430: the stall current) for `overload_time_s` (default 1.5 s). Mode 5's
+  lower Goal Current cap stalls the servo without tripping it. A latched error whose bit is in
+  Shutdown (63) turns torque off.
 * External torque: the simulated world sets `external_torque_nm` (signed, about the output shaft,
   physical direction) and reads `present_position_rad` etc. back; see `rig.sim.dxl.actuator`.
 """
@@ -325,15 +326,10 @@ class Servo:
             self._now_ns = now_ns
             self._at_limit_ns = 0
             return
-        overload_cap_nm = (
-            (
-                self._get("Current Limit") * ct.CURRENT_UNIT_A
-                if self._has_current
-                else self.motor.stall_current_a
-            )
-            * self.motor.torque_constant_nm_per_a
-            * OVERLOAD_FRACTION
-        )
+        limit_a = self.motor.stall_current_a
+        if self._has_current:
+            limit_a = min(limit_a, self._get("Current Limit") * ct.CURRENT_UNIT_A)
+        overload_cap_nm = limit_a * self.motor.torque_constant_nm_per_a * OVERLOAD_FRACTION
         tau_ext = self.external_torque_nm
         while t < now_ns:
             dt_ns = min(MAX_STEP_NS, now_ns - t)
