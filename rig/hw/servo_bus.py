@@ -53,6 +53,9 @@ from dynamixel_sdk import (
     BROADCAST_ID,
     COMM_RX_TIMEOUT,
     COMM_SUCCESS,
+    INST_PING,
+    INST_READ,
+    INST_WRITE,
     PacketHandler,
     PortHandler,
 )
@@ -97,9 +100,10 @@ POSITION_MODES = (
 )
 MULTI_TURN_GOAL_LIMIT_PULSES = 1_048_575  # modes 4 and 5: +-256 rev
 
-# Fields of the per-cycle state block, in the order they appear in the control table.
-STATE_FIELDS = ("Moving", "Present Current", "Present Velocity", "Present Position")
-XL_LOAD_FIELD = "Present Load"  # XL430 has Present Load (0.1 %) where XM430 has Present Current
+# Fields that bound the per-cycle state block (122..135); every X430 model has them.
+STATE_FIELDS = ("Moving", "Present Velocity", "Present Position")
+# Inside the block where the model has it; XL430 reports Present Load (0.1 %) there instead.
+CURRENT_FIELD = "Present Current"
 
 
 class ServoSpecLike(Protocol):
@@ -177,6 +181,7 @@ class _Servo:
     min_position_raw: int = 0
     max_position_raw: int = 4095
     hardware_error: int = 0
+    current_offset: int | None = None  # of Present Current in the state block; None: not reported
 
     @property
     def label(self) -> str:
@@ -303,7 +308,6 @@ class DynamixelServoBus:
         self._block_length = 0
         self._offsets: dict[str, int] = {}
         self._state_ids: list[int] = list(self._servos)
-        self._has_current = True
 
     # ------------------------------------------------------------------ properties
 
@@ -443,25 +447,24 @@ class DynamixelServoBus:
             self._use_fast_read = self._fast_sync_read_option
 
     def _decide_state_block(self) -> None:
+        """One block, Moving(122) .. Present Position(132..135), with the same layout on every servo."""
         layouts = set()
         for servo in self._servos.values():
-            names = [n for n in STATE_FIELDS if _field(servo.table, n) is not None]
-            if "Present Current" not in names and _field(servo.table, XL_LOAD_FIELD) is not None:
-                names.append(XL_LOAD_FIELD)
-            fields = [_require(servo.table, n) for n in names]
+            fields = [_require(servo.table, n) for n in STATE_FIELDS]
             start = min(f.address for f in fields)
-            end = max(f.address + f.size for f in fields)
-            layouts.add((start, end, tuple((f.name, f.address) for f in fields)))
+            end = max(f.end for f in fields)
+            layouts.add((start, end, tuple((f.name, f.address - start) for f in fields)))
+            current = _field(servo.table, CURRENT_FIELD)
+            servo.current_offset = current.address - start if current is not None else None
         if len(layouts) != 1:
             raise HandshakeError(
                 f"servos on {self.port_name} have different state-block layouts; "
                 "one sync read needs one layout"
             )
-        (start, end, named), *_ = layouts
+        ((start, end, offsets),) = layouts
         self._block_start = start
         self._block_length = end - start
-        self._offsets = {name: address - start for name, address in named}
-        self._has_current = "Present Current" in self._offsets
+        self._offsets = dict(offsets)
 
     def _configure(self, servo: _Servo) -> None:
         """Return Delay Time 0, Status Return Level 2, watchdog; read what later calls rely on."""
@@ -505,16 +508,24 @@ class DynamixelServoBus:
         turn that into `HardwareFault`. XL430 servos report no current: `current_a` is NaN.
         """
         self._require_connected()
-        if self._use_fast_read:
-            errs_and_data = self._run("fast sync read of the servo state", self._fast_sync_read_once)
-            self._stats.fast_sync_reads += 1
-        else:
-            errs_and_data = self._run("sync read of the servo state", self._sync_read_once)
-            self._stats.sync_reads += 1
+        try:
+            if self._use_fast_read:
+                errs_and_data = self._run("fast sync read of the servo state", self._fast_sync_read_once)
+                self._stats.fast_sync_reads += 1
+            else:
+                errs_and_data = self._run("sync read of the servo state", self._sync_read_once)
+                self._stats.sync_reads += 1
+        except (RigTimeoutError, CommunicationError) as exc:
+            if isinstance(exc, InstructionRejected):
+                raise
+            silent = self._silent_servos()
+            if not silent:
+                raise
+            # A silent servo garbles a fast sync read (COMM_RX_CORRUPT); the cause is a timeout.
+            raise RigTimeoutError(f"{exc}; not answering a ping: {', '.join(silent)}") from exc
         time_ns = self._clock.time_ns()
         off = self._offsets
-        o_moving = off.get("Moving")
-        o_current = off.get("Present Current")
+        o_moving = off["Moving"]
         o_velocity = off["Present Velocity"]
         o_position = off["Present Position"]
         states: dict[int, ServoState] = {}
@@ -527,6 +538,7 @@ class DynamixelServoBus:
                     servo.torque_enabled = False  # a latched error drops torque
             else:
                 servo.hardware_error = 0
+            o_current = servo.current_offset
             current_a = (
                 int.from_bytes(data[o_current : o_current + 2], "little", signed=True) * units.CURRENT_UNIT_A
                 if o_current is not None
@@ -540,10 +552,24 @@ class DynamixelServoBus:
                 * units.RAD_S_PER_VELOCITY_UNIT,
                 current_a=current_a,
                 hardware_error=servo.hardware_error,
-                moving=bool(data[o_moving]) if o_moving is not None else False,
+                moving=bool(data[o_moving]),
                 time_ns=time_ns,
             )
         return states
+
+    def _silent_servos(self) -> list[str]:
+        """After a failed group read: ping each servo once to name the ones that are gone."""
+        silent = []
+        for servo_id, servo in self._servos.items():
+            self._stats.attempts += 1
+            try:
+                with self._transaction():
+                    _, result, _ = self._sdk_unchecked(self._ph.ping, self._port, servo_id)
+            except CommunicationError:
+                continue
+            if result == COMM_RX_TIMEOUT:
+                silent.append(servo.label)
+        return silent
 
     def raise_for_hardware_errors(self, states: Mapping[int, ServoState]) -> None:
         """Raise `ServoHardwareFault` for the first state with a non-zero hardware error."""
@@ -1107,13 +1133,41 @@ class DynamixelServoBus:
         if alerts == "raise" and bits:
             raise hardware_fault(servo.spec.servo_id, servo.spec.role, bits, context)
 
+    def _unicast(
+        self, servo_id: int, instruction: int, params: Sequence[int], reply_params: int
+    ) -> tuple[int, bytes]:
+        """One instruction to one servo and its status: (ERR byte, params).
+
+        Built on the SDK's `txRxPacket`, which matches a reply by ID only; the reply's LEN is
+        checked here against what this instruction's status must carry, so a late status meant
+        for an earlier instruction (e.g. a param-less write status arriving during a 1-byte read,
+        which the SDK's `read1ByteTxRx` would return its CRC byte for) is caught and retried.
+        A refusal (non-zero error number) may carry no params and is returned as is.
+        """
+        packet = [0] * (10 + len(params))
+        packet[4] = servo_id
+        packet[5] = (len(params) + 3) & 0xFF
+        packet[6] = (len(params) + 3) >> 8
+        packet[7] = instruction
+        packet[8 : 8 + len(params)] = params
+        reply, result, err = self._sdk(self._ph.txRxPacket, self._port, packet)
+        if result != COMM_SUCCESS:
+            raise _AttemptFailed(comm_result_name(result), timeout=result == COMM_RX_TIMEOUT)
+        self._retry_on_crc_error(servo_id, err)
+        length = reply[5] | (reply[6] << 8)
+        if err & ERROR_NUMBER_MASK and length == 4:
+            return err, b""
+        if length != reply_params + 4:
+            raise _AttemptFailed(
+                f"status with {length - 4} params where {reply_params} were due (a late reply?)",
+                timeout=False,
+            )
+        return err, bytes(reply[9 : 9 + reply_params])
+
     def _ping(self, servo_id: int) -> int:
         def attempt() -> int:
-            model_number, result, err = self._sdk(self._ph.ping, self._port, servo_id)
-            if result != COMM_SUCCESS:
-                raise _AttemptFailed(comm_result_name(result), timeout=result == COMM_RX_TIMEOUT)
-            self._check_error_number(servo_id, err)
-            return model_number
+            _, data = self._unicast(servo_id, INST_PING, (), 3)
+            return data[0] | (data[1] << 8)
 
         return self._run(f"ping of servo {servo_id}", attempt)
 
@@ -1121,35 +1175,45 @@ class DynamixelServoBus:
         """Read one named field (signed fields decoded); check the Alert bit per `alerts`."""
         field = _require(servo.table, name)
         servo_id = servo.spec.servo_id
+        params = (field.address & 0xFF, field.address >> 8, field.size & 0xFF, field.size >> 8)
 
         def attempt() -> tuple[int, int]:
-            data, result, err = self._sdk(self._ph.readTxRx, self._port, servo_id, field.address, field.size)
-            if result != COMM_SUCCESS:
-                raise _AttemptFailed(comm_result_name(result), timeout=result == COMM_RX_TIMEOUT)
-            self._check_error_number(servo_id, err)
-            if len(data) != field.size:  # a param-less status, e.g. a late write reply
-                raise _AttemptFailed(f"{len(data)} data bytes, expected {field.size}", timeout=False)
-            return units.from_le_bytes(data, 0, field.size, field.signed), err
+            err, data = self._unicast(servo_id, INST_READ, params, field.size)
+            if err & ERROR_NUMBER_MASK:
+                return 0, err  # reported after the alert check
+            return int.from_bytes(data, "little", signed=field.signed), err
 
         value, err = self._run(f"read of {name} from {servo.label}", attempt)
-        self._handle_alert(servo, err, alerts, f"read of {name}")
+        self._after_reply(servo, err, alerts, f"read of {name}")
         return value
 
     def _write(self, servo: _Servo, name: str, value: int, *, alerts: str = "raise") -> None:
         """Write one named field and wait for the servo's status (confirmed write)."""
         field = _require(servo.table, name)
         servo_id = servo.spec.servo_id
-        data = units.to_le_bytes(value, field.size)
+        params = [field.address & 0xFF, field.address >> 8, *units.to_le_bytes(value, field.size)]
 
         def attempt() -> int:
-            result, err = self._sdk(self._ph.writeTxRx, self._port, servo_id, field.address, field.size, data)
-            if result != COMM_SUCCESS:
-                raise _AttemptFailed(comm_result_name(result), timeout=result == COMM_RX_TIMEOUT)
-            self._check_error_number(servo_id, err)
+            err, _ = self._unicast(servo_id, INST_WRITE, params, 0)
             return err
 
         err = self._run(f"write of {name}={value} to {servo.label}", attempt)
-        self._handle_alert(servo, err, alerts, f"write of {name}")
+        self._after_reply(servo, err, alerts, f"write of {name}={value}")
+
+    def _retry_on_crc_error(self, servo_id: int, err: int) -> None:
+        if err & ERROR_NUMBER_MASK == ERRNUM_CRC:  # the instruction was garbled on the way
+            label = self._servos[servo_id].label if servo_id in self._servos else f"servo {servo_id}"
+            raise _AttemptFailed(f"{label} reported a CRC error in the instruction", timeout=False)
+
+    def _after_reply(self, servo: _Servo, err: int, alerts: str, context: str) -> None:
+        """Alert bit first (a faulted servo refuses torque with Result Fail), then the error number."""
+        self._handle_alert(servo, err, alerts, context)
+        number = err & ERROR_NUMBER_MASK
+        if number:
+            self._stats.failures += 1
+            raise InstructionRejected(
+                f"{servo.label} rejected the {context}: {error_number_name(err)}", servo.spec.servo_id, number
+            )
 
 
 @dataclass(frozen=True, slots=True)
