@@ -1,0 +1,289 @@
+"""`rig fit DATA.csv`: the joint-estimation fit m = k/l with bounds, and the capacity and μs·δ0 it implies."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import difflib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from model.fit import (
+    DEFAULT_G,
+    DEFAULT_LEVEL,
+    CapacityEstimate,
+    InverseFit,
+    capacity_from_fit,
+    fit_inverse_distance,
+    fit_summary_dict,
+)
+from model.joint import CapacityConstant, resolve_constant
+from rig.cli.output import emit_json, format_table
+from rig.errors import InputError
+
+DISTANCE_COLUMN = "distance_m"
+MASS_COLUMN = "mass_kg"
+FORCE_COLUMN = "force_n"
+ALLOWED_COLUMNS = (DISTANCE_COLUMN, MASS_COLUMN, FORCE_COLUMN)
+ALLOWED_COLUMNS_TEXT = "distance_m and mass_kg (or force_n instead of mass_kg)"
+
+DESCRIPTION = """\
+Fit the joint-estimation data (MODEL.md §4): slip masses m_s hung at distances l_s from a joint
+follow m_s = k / l_s. One-parameter least squares through the origin in 1/l, with MATLAB cftool
+conventions (dfe = n - 1, bounds k ± t_{(1+level)/2, n-1}·se). From k: the joint capacity
+N_max = k·g [N·m] and mu_s·delta0 = k·g / (c·R³) [Pa].
+
+DATA.csv has a header line and one row per slip trial:
+
+  # lines starting with '#' are comments
+  distance_m,mass_kg
+  0.05,3.21
+  0.06,2.70
+
+Columns: distance_m [m, > 0] and mass_kg [kg, >= 0]; or force_n [N, >= 0] instead of mass_kg
+(the peak tension, converted with --g). Other columns are ignored. Example:
+protocols/example_fit.csv.
+"""
+
+EPILOG = """\
+The constant c (MODEL.md §2): 'paper' = 5.4397 as printed in the paper (default, so mu_s·delta0
+compares with it), 'derived' = pi² from the sphere integrals, or a positive number. c changes
+mu_s·delta0 only; the capacity k·g does not depend on it.
+
+JSON (--json): n, k, k_ci, sse, sst, r2, rmse, dfe, se, level, constant, c, radius_m,
+mu_delta0_pa, mu_delta0_ci_pa, capacity_nm, capacity_ci_nm. r2 is null when all masses are equal.
+Exit codes: 0 done, 2 invalid input (one line on stderr naming the file, row and column).
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add `rig fit`."""
+    parser = subparsers.add_parser(
+        "fit",
+        help="fit m = k/l to joint-estimation data; joint capacity and mu_s*delta0 with bounds",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("data", metavar="DATA.csv", help="CSV with distance_m and mass_kg (or force_n)")
+    parser.add_argument("--radius-m", required=True, metavar="R", help="ball radius R of the joint [m], > 0")
+    parser.add_argument(
+        "--constant",
+        default="paper",
+        metavar="C",
+        help="c in N_max = c·mu_s·delta0·R³: paper (5.4397, default), derived (pi²) or a positive number",
+    )
+    parser.add_argument(
+        "--level",
+        default=str(DEFAULT_LEVEL),
+        metavar="P",
+        help=f"confidence level of the bounds, in (0, 1) (default {DEFAULT_LEVEL})",
+    )
+    parser.add_argument(
+        "--g", default=str(DEFAULT_G), metavar="G", help=f"gravity [m/s²], > 0 (default {DEFAULT_G})"
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="print one JSON object on stdout and nothing else"
+    )
+    parser.set_defaults(handler=run)
+
+
+def _number_option(flag: str, text: str, allowed: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"{flag} {text!r} is not a number; allowed: {allowed}") from None
+    return value
+
+
+def _options(args: argparse.Namespace) -> tuple[float, CapacityConstant, float, float]:
+    radius = _number_option("--radius-m", args.radius_m, "a finite number > 0 [m]")
+    if not (math.isfinite(radius) and radius > 0):
+        raise InputError(f"--radius-m {args.radius_m}: allowed: a finite number > 0 [m], e.g. 0.01")
+    level = _number_option("--level", args.level, "a number in the open interval (0, 1)")
+    if not (0.0 < level < 1.0):
+        raise InputError(f"--level {args.level}: allowed: a number in the open interval (0, 1), e.g. 0.99")
+    g = _number_option("--g", args.g, "a finite number > 0 [m/s²]")
+    if not (math.isfinite(g) and g > 0):
+        raise InputError(f"--g {args.g}: allowed: a finite number > 0 [m/s²], e.g. 9.8")
+    spec: str | float = args.constant
+    with contextlib.suppress(ValueError):
+        spec = float(args.constant)  # a number; else a name for resolve_constant
+    try:
+        constant = resolve_constant(spec)
+    except ValueError:
+        raise InputError(
+            f"--constant {args.constant!r}: allowed: paper (5.4397), derived (pi²) or a finite number > 0"
+        ) from None
+    return radius, constant, level, g
+
+
+@dataclass(frozen=True)
+class FitData:
+    """Pairs read from a fit CSV, with where each came from (for messages)."""
+
+    distances_m: tuple[float, ...]
+    masses_kg: tuple[float, ...]
+    mass_source: str  # the column the masses came from
+
+
+def _header_error(path: Path, line: int, names: list[str], missing: str) -> InputError:
+    unknown = [n for n in names if n and n not in ALLOWED_COLUMNS]
+    hint = ""
+    for name in unknown:
+        close = difflib.get_close_matches(name, ALLOWED_COLUMNS, n=1, cutoff=0.6)
+        if close and close[0] in missing:
+            hint = f" Did you mean {close[0]!r} instead of {name!r}?"
+            break
+    found = ", ".join(repr(n) for n in names) or "none"
+    return InputError(
+        f"{path}: line {line}: missing column {missing} (found {found}).{hint} "
+        f"Allowed columns: {ALLOWED_COLUMNS_TEXT}; others are ignored"
+    )
+
+
+def _cell_value(path: Path, where: str, column: str, cell: str) -> float:
+    text = cell.strip()
+    try:
+        value = float(text)
+    except ValueError:
+        shown = repr(text) if text else "an empty cell"
+        raise InputError(
+            f"{path}: {where}: column {column!r}: {shown} is not a number; allowed: a decimal number"
+        ) from None
+    if not math.isfinite(value):
+        raise InputError(f"{path}: {where}: column {column!r}: {text!r}; allowed: a finite number")
+    return value
+
+
+def read_fit_csv(path: str | Path, g: float = DEFAULT_G) -> FitData:
+    """Read (distance, mass) pairs from a fit CSV; `force_n` is converted to mass with `g`.
+
+    Raises InputError naming the file, the line and data row, the column and what is allowed.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a directory; allowed: a CSV file") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not UTF-8 text; allowed: a CSV file") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+
+    reader = csv.reader(text.splitlines(keepends=True))
+    header: list[str] | None = None
+    header_line = 0
+    distance_index = mass_index = -1
+    mass_column = MASS_COLUMN
+    distances: list[float] = []
+    masses: list[float] = []
+    try:
+        for row in reader:
+            line = reader.line_num
+            if not row or all(not cell.strip() for cell in row) or row[0].lstrip().startswith("#"):
+                continue
+            if header is None:
+                header = [cell.strip() for cell in row]
+                header_line = line
+                duplicates = sorted({n for n in header if n and header.count(n) > 1})
+                if duplicates:
+                    raise InputError(
+                        f"{p}: line {line}: column {duplicates[0]!r} appears twice; allowed: once"
+                    )
+                if DISTANCE_COLUMN not in header:
+                    raise _header_error(p, line, header, repr(DISTANCE_COLUMN))
+                has_mass, has_force = MASS_COLUMN in header, FORCE_COLUMN in header
+                if has_mass and has_force:
+                    raise InputError(
+                        f"{p}: line {line}: both 'mass_kg' and 'force_n' columns; allowed: one of them"
+                    )
+                if not (has_mass or has_force):
+                    raise _header_error(p, line, header, f"{MASS_COLUMN!r} or {FORCE_COLUMN!r}")
+                mass_column = MASS_COLUMN if has_mass else FORCE_COLUMN
+                distance_index = header.index(DISTANCE_COLUMN)
+                mass_index = header.index(mass_column)
+                continue
+            where = f"data row {len(distances) + 1} (line {line})"
+            if len(row) != len(header):
+                raise InputError(
+                    f"{p}: {where}: {len(row)} fields but the header (line {header_line}) has {len(header)}; "
+                    "allowed: one field per column"
+                )
+            distance = _cell_value(p, where, DISTANCE_COLUMN, row[distance_index])
+            if distance <= 0:
+                raise InputError(f"{p}: {where}: column 'distance_m': {distance!r}; allowed: > 0 m")
+            value = _cell_value(p, where, mass_column, row[mass_index])
+            if value < 0:
+                unit = "kg" if mass_column == MASS_COLUMN else "N"
+                raise InputError(f"{p}: {where}: column {mass_column!r}: {value!r}; allowed: >= 0 {unit}")
+            distances.append(distance)
+            masses.append(value if mass_column == MASS_COLUMN else value / g)
+    except csv.Error as exc:
+        raise InputError(f"{p}: line {reader.line_num}: malformed CSV ({exc})") from None
+
+    if header is None:
+        raise InputError(
+            f"{p}: the file is empty; allowed: a header line naming {ALLOWED_COLUMNS_TEXT}, "
+            "then one row per trial"
+        )
+    if len(distances) < 2:
+        raise InputError(
+            f"{p}: {len(distances)} data row(s) after the header; allowed: at least 2 (distance, mass) rows"
+        )
+    return FitData(tuple(distances), tuple(masses), mass_column)
+
+
+def _bounds(pair: tuple[float, float]) -> str:
+    return f"[{pair[0]:.6g}, {pair[1]:.6g}]"
+
+
+def human_report(path: Path, data: FitData, fit: InverseFit, capacity: CapacityEstimate) -> str:
+    """The readable summary `rig fit` prints without --json."""
+    level_pct = f"{100 * fit.level:g} %"
+    r2 = "undefined (all masses equal)" if math.isnan(fit.r2) else f"{fit.r2:.6g}"
+    rows: list[list[Any]] = [
+        ["k", fit.k, _bounds(fit.k_ci), "kg·m"],
+        ["SSE", fit.sse, "", "kg²"],
+        ["SST", fit.sst, "", "kg²"],
+        ["R²", r2, "", ""],
+        ["RMSE", fit.rmse, "", "kg"],
+        ["dfe", fit.dfe, "", ""],
+        ["se(k)", fit.se, "", "kg·m"],
+        [f"t({(1 + fit.level) / 2:g}, {fit.dfe})", fit.t, "", ""],
+        ["mu_s·delta0", capacity.mu_delta0_pa, _bounds(capacity.mu_delta0_ci_pa), "Pa"],
+        ["capacity N_max", capacity.capacity_nm, _bounds(capacity.capacity_ci_nm), "N·m"],
+    ]
+    source = "" if data.mass_source == MASS_COLUMN else f" (masses from force_n / g, g = {capacity.g:g} m/s²)"
+    lines = [
+        f"{path}: {fit.n} points{source}; fit m = k / l through the origin (MATLAB cftool conventions)",
+        "",
+        format_table(["quantity", "value", f"{level_pct} bounds", "unit"], rows),
+        "",
+        f"constant c = {capacity.c:.8g} ({capacity.constant}); R = {capacity.radius_m:g} m; "
+        f"g = {capacity.g:g} m/s²",
+        "capacity = k·g does not depend on c; mu_s·delta0 = k·g / (c·R³) does.",
+    ]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Read the CSV, fit, print the table or the JSON object."""
+    radius, constant, level, g = _options(args)
+    path = Path(args.data)
+    data = read_fit_csv(path, g=g)
+    try:
+        fit = fit_inverse_distance(data.distances_m, data.masses_kg, level=level)
+        capacity = capacity_from_fit(fit, radius, constant, g)
+    except ValueError as exc:  # every input was checked above; this keeps any residue one line
+        raise InputError(f"{path}: {exc}") from None
+    if args.json:
+        emit_json(fit_summary_dict(fit, capacity))
+    else:
+        print(human_report(path, data, fit, capacity))
+    return 0

@@ -1,0 +1,230 @@
+"""`rig fit DATA.csv`: JSON contract, agreement with an independent fit, human output, bad input."""
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from rig.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+RIG = Path(sys.executable).with_name("rig")
+DESIGN_KEYS = [
+    "n", "k", "k_ci", "sse", "sst", "r2", "rmse", "dfe", "se", "level", "constant", "c", "radius_m",
+    "mu_delta0_pa", "mu_delta0_ci_pa", "capacity_nm", "capacity_ci_nm",
+]  # fmt: skip
+
+
+def write_csv(tmp_path, text, name="data.csv"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def run_json(capsys, *argv):
+    code = main(["fit", *map(str, argv), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert err == ""
+    return json.loads(out)
+
+
+def independent(distances, masses, level, radius, c, g):
+    """numpy lstsq on the column 1/l and scipy's t: no code shared with model.fit."""
+    x = 1.0 / np.asarray(distances)
+    m = np.asarray(masses)
+    (k,), *_ = np.linalg.lstsq(x[:, None], m, rcond=None)
+    res = m - k * x
+    sse = float(res @ res)
+    sst = float(((m - m.mean()) ** 2).sum())
+    dfe = len(m) - 1
+    rmse = math.sqrt(sse / dfe)
+    se = rmse / math.sqrt(float(x @ x))
+    t = stats.t.ppf((1 + level) / 2, dfe)
+    k_ci = [k - t * se, k + t * se]
+    scale = g / (c * radius**3)
+    return {
+        "n": len(m), "k": k, "k_ci": k_ci, "sse": sse, "sst": sst, "r2": 1 - sse / sst, "rmse": rmse,
+        "dfe": dfe, "se": se, "level": level, "radius_m": radius, "mu_delta0_pa": k * scale,
+        "mu_delta0_ci_pa": [v * scale for v in k_ci], "capacity_nm": k * g,
+        "capacity_ci_nm": [v * g for v in k_ci],
+    }  # fmt: skip
+
+
+def assert_matches(summary, ref, rel=1e-9):
+    for key, expected in ref.items():
+        assert summary[key] == pytest.approx(expected, rel=rel), key
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_json_agrees_with_an_independent_fit(tmp_path, capsys, seed):
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(2, 30))
+    distances = rng.uniform(0.03, 0.5, n)
+    masses = np.abs(0.2 / distances + rng.normal(0, 0.1, n))
+    use_force = seed % 2 == 1
+    g = 9.81 if use_force else 9.8
+    values = masses * g if use_force else masses
+    column = "force_n" if use_force else "mass_kg"
+    rows = "".join(
+        f"{float(d)!r},{float(v)!r},trial-{i}\n"
+        for i, (d, v) in enumerate(zip(distances, values, strict=True))
+    )
+    path = write_csv(tmp_path, f"distance_m,{column},note\n{rows}")
+    level = [0.9, 0.95, 0.99][seed % 3]
+    constant, c = [("paper", 5.4397), ("derived", math.pi**2), ("7.5", 7.5)][seed % 3]
+    summary = run_json(capsys, path, "--radius-m", 0.012, "--constant", constant, "--level", level, "--g", g)
+    assert list(summary) == DESIGN_KEYS
+    ref_masses = values / g if use_force else masses
+    assert_matches(summary, independent(distances, ref_masses, level, 0.012, c, g))
+    assert summary["constant"] == {"paper": "paper", "derived": "derived"}.get(constant, "custom")
+    assert summary["c"] == pytest.approx(c, rel=1e-15)
+
+
+def test_model_vector_9_through_the_cli(tmp_path, capsys):
+    path = write_csv(tmp_path, "distance_m,mass_kg\n0.1,1.7\n0.2,0.78\n0.4,0.41\n0.5,0.33\n")
+    summary = run_json(capsys, path, "--radius-m", "0.01", "--constant", "derived")
+    assert summary["k"] == pytest.approx(0.16698706, rel=1e-6)
+    assert summary["sse"] == pytest.approx(0.00399723, rel=1e-6)
+    assert summary["sst"] == pytest.approx(1.1833, rel=1e-6)
+    assert summary["r2"] == pytest.approx(0.99662197, rel=1e-6)
+    assert summary["rmse"] == pytest.approx(0.03650218, rel=1e-6)
+    assert summary["se"] == pytest.approx(0.00313870, rel=1e-6)
+    assert summary["k_ci"] == pytest.approx([0.14865418, 0.18531994], rel=1e-6)
+    assert summary["dfe"] == 3 and summary["n"] == 4 and summary["level"] == 0.99
+
+
+def test_subprocess_of_the_installed_console_script(tmp_path):
+    example = REPO / "protocols" / "example_fit.csv"
+    proc = subprocess.run(
+        [str(RIG), "fit", str(example), "--radius-m", "0.01", "--json"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert list(summary) == DESIGN_KEYS
+    rows = [line.split(",") for line in example.read_text().splitlines() if line and line[0].isdigit()]
+    distances = [float(r[0]) for r in rows]
+    masses = [float(r[1]) for r in rows]
+    assert_matches(summary, independent(distances, masses, 0.99, 0.01, 5.4397, 9.8))
+    assert summary["constant"] == "paper"
+
+
+def test_all_equal_masses_print_null_r2(tmp_path, capsys):
+    path = write_csv(tmp_path, "distance_m,mass_kg\n0.1,0.5\n0.2,0.5\n0.3,0.5\n")
+    summary = run_json(capsys, path, "--radius-m", "0.01")
+    assert summary["r2"] is None and summary["sst"] == 0.0
+    assert main(["fit", str(path), "--radius-m", "0.01"]) == 0
+    assert "undefined (all masses equal)" in capsys.readouterr().out
+
+
+def test_human_output_is_a_table_with_units(tmp_path, capsys):
+    code = main(["fit", str(REPO / "protocols" / "example_fit.csv"), "--radius-m", "0.01"])
+    out = capsys.readouterr().out
+    assert code == 0
+    for needle in ("kg·m", "kg²", "R²", "RMSE", "dfe", "se(k)", "Pa", "N·m", "99 % bounds", "(paper)",
+                   "t(0.995, 7)", "c = 5.4397"):  # fmt: skip
+        assert needle in out, needle
+    k_line = next(line for line in out.splitlines() if line.startswith("k "))
+    assert "[" in k_line and "kg·m" in k_line
+
+
+def test_comments_blank_lines_bom_and_spaces_are_accepted(tmp_path, capsys):
+    text = "\ufeff# rig 2 joint 3\n\n distance_m , mass_kg \n# repeat\n0.1, 1.7\n\n0.2 ,0.78\n0.4,0.41\n"
+    text += "0.5,0.33\n"
+    summary = run_json(capsys, write_csv(tmp_path, text), "--radius-m", "0.01")
+    assert summary["n"] == 4 and summary["k"] == pytest.approx(0.16698706, rel=1e-6)
+
+
+BAD_FILES = [
+    ("empty", "", "data.csv: the file is empty; allowed: a header line naming distance_m and mass_kg"),
+    ("comments-only", "# nothing\n\n", "the file is empty"),
+    ("misspelt-distance", "distanse_m,mass_kg\n0.1,1\n0.2,0.5\n",
+     "data.csv: line 1: missing column 'distance_m' (found 'distanse_m', 'mass_kg'). Did you mean "
+     "'distance_m' instead of 'distanse_m'? Allowed columns: distance_m and mass_kg (or force_n"),
+    ("misspelt-mass", "distance_m,mass_kgs\n0.1,1\n0.2,0.5\n",
+     "missing column 'mass_kg' or 'force_n' (found 'distance_m', 'mass_kgs'). Did you mean 'mass_kg'"),
+    ("no-mass", "distance_m,weight\n0.1,1\n0.2,0.5\n",
+     "missing column 'mass_kg' or 'force_n' (found 'distance_m', 'weight'). Allowed"),
+    ("both", "distance_m,mass_kg,force_n\n0.1,1,9.8\n0.2,0.5,4.9\n", "both 'mass_kg' and 'force_n'"),
+    ("duplicate", "distance_m,mass_kg,mass_kg\n0.1,1,1\n0.2,0.5,0.5\n", "column 'mass_kg' appears twice"),
+    ("non-numeric", "distance_m,mass_kg\n0.1,1\n0.2,abc\n",
+     "data.csv: data row 2 (line 3): column 'mass_kg': 'abc' is not a number; allowed: a decimal number"),
+    ("empty-cell", "# c\ndistance_m,mass_kg\n0.1,1\n,0.5\n",
+     "data row 2 (line 4): column 'distance_m': an empty cell is not a number"),
+    ("zero-distance", "distance_m,mass_kg\n0.1,1\n0,0.5\n",
+     "data row 2 (line 3): column 'distance_m': 0.0; allowed: > 0 m"),
+    ("negative-distance", "distance_m,mass_kg\n-0.1,1\n0.2,0.5\n",
+     "data row 1 (line 2): column 'distance_m': -0.1"),
+    ("nan", "distance_m,mass_kg\n0.1,nan\n0.2,0.5\n", "column 'mass_kg': 'nan'; allowed: a finite number"),
+    ("negative-force", "distance_m,force_n\n0.1,-1\n0.2,0.5\n", "column 'force_n': -1.0; allowed: >= 0 N"),
+    ("one-row", "distance_m,mass_kg\n0.1,1\n",
+     "data.csv: 1 data row(s) after the header; allowed: at least 2"),
+    ("ragged", "distance_m,mass_kg\n0.1,1\n0.2,0.5,7\n",
+     "data row 2 (line 3): 3 fields but the header (line 1) has 2"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("text", "message"), [b[1:] for b in BAD_FILES], ids=[b[0] for b in BAD_FILES])
+def test_bad_files_exit_2_with_one_line(tmp_path, capsys, text, message):
+    path = write_csv(tmp_path, text)
+    code = main(["fit", str(path), "--radius-m", "0.01", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert out == ""
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert message in err, err
+    assert str(path) in err
+
+
+BAD_OPTIONS = [
+    ("radius-zero", ["--radius-m", "0"], "--radius-m 0: allowed: a finite number > 0 [m]"),
+    ("radius-negative", ["--radius-m", "-0.01"], "--radius-m -0.01: allowed"),
+    ("radius-text", ["--radius-m", "big"], "--radius-m 'big' is not a number"),
+    ("level-1", ["--radius-m", "0.01", "--level", "1"],
+     "--level 1: allowed: a number in the open interval (0, 1)"),
+    ("level-99", ["--radius-m", "0.01", "--level", "99"], "--level 99"),
+    ("constant", ["--radius-m", "0.01", "--constant", "papr"],
+     "--constant 'papr': allowed: paper (5.4397), derived"),
+    ("constant-negative", ["--radius-m", "0.01", "--constant", "-3"], "--constant '-3'"),
+    ("g", ["--radius-m", "0.01", "--g", "0"], "--g 0: allowed: a finite number > 0"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("options", "message"), [b[1:] for b in BAD_OPTIONS], ids=[b[0] for b in BAD_OPTIONS]
+)
+def test_bad_options_exit_2_with_one_line(tmp_path, capsys, options, message):
+    path = write_csv(tmp_path, "distance_m,mass_kg\n0.1,1.7\n0.2,0.78\n")
+    code = main(["fit", str(path), *options])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert message in err, err
+
+
+def test_missing_file_and_missing_radius(tmp_path, capsys):
+    assert main(["fit", str(tmp_path / "nope.csv"), "--radius-m", "0.01"]) == 2
+    assert "nope.csv: file not found" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as excinfo:
+        main(["fit", str(tmp_path / "nope.csv")])
+    assert excinfo.value.code == 2
+    assert "--radius-m" in capsys.readouterr().err
+
+
+def test_subprocess_bad_input_has_no_traceback(tmp_path):
+    path = write_csv(tmp_path, "distance_m,mass_kg\n0.1,1\n0,0.5\n")
+    proc = subprocess.run(
+        [str(RIG), "fit", str(path), "--radius-m", "0.01"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.startswith("rig: error: ") and proc.stderr.count("\n") == 1
