@@ -28,6 +28,12 @@ from model.online_fit import online_fit_estimate, online_fit_init, online_fit_up
 from rig.errors import InputError
 from rig.rig_config import ArticleConfig
 
+# Standard normal quantile at 0.995: the fit's 99 % bounds span +-Z_995 standard deviations.
+Z_995 = 2.5758293035489004
+# How much the joints of one link are taken to differ from the joint that was fitted (log sd):
+# the paper assumed identical joints; 10 % is the spread a hand-made link plausibly has.
+BETWEEN_JOINT_SD_LOG = 0.10
+
 
 class RunEstimator:
     """Online estimates over one run (all invocations of it)."""
@@ -137,10 +143,10 @@ class RunEstimator:
                 return None
             lo, hi = prior["capacity_ci_nm"]
             capacity = prior["capacity_nm"]
-            # The fit's 99 % bounds on the capacity, read as a log-normal prior for every joint.
-            z = 2.5758293035489004  # standard normal quantile at 0.995
-            sd_log = (math.log(hi) - math.log(lo)) / (2 * z) if lo > 0 and hi > lo else 0.5
-            sd_log = max(sd_log, 0.05)  # joints differ by ~10 %: never trust the shared fit more
+            # The fit's bounds on the capacity read as a log-normal spread, widened by the spread
+            # between joints of one link: the fit measured one joint and the link has several.
+            fit_sd = (math.log(hi) - math.log(lo)) / (2 * Z_995) if 0 < lo < hi else 0.5
+            sd_log = math.hypot(fit_sd, BETWEEN_JOINT_SD_LOG)
             joints = self.article.joint_count
             self.link_state = link_estimator_init(np.full(joints, capacity), np.full(joints, sd_log))
         return self.link_state

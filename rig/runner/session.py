@@ -79,3 +79,6 @@ class RigSession:
     truth: Callable[[], dict[str, Any]] | None = None
     attachments: list[tuple[str, str, bytes]] = field(default_factory=list)  # (name, media type, data)
     close: Callable[[], None] = field(default=lambda: None)
+    sim_devices: dict[str, Any] | None = (
+        None  # simulation only: emulators and world, for tests and fault injection
+    )

@@ -357,7 +357,12 @@ class TrialRunner:
         deadline = self.clock.monotonic_ns() + round(timeout_s * 1e9)
 
         fast = self.force_n < switch_n
-        self._phase(Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, "ramp_until_slip")
+        # The detector sees exactly the samples received from this instant on, which is also the
+        # log time of the phase change, so `rig replay` can feed it the very same samples.
+        ramp_start_ns = self.clock.time_ns()
+        self._phase(
+            Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, "ramp_until_slip", ramp_start_ns
+        )
         servos.set_profile(winch, velocity_rad_s=ramp.fast_speed_rad_s if fast else ramp.slow_speed_rad_s)
         servos.write_goal_positions({winch: target})
         self._command(winch, "goal_position", target, "rad")
@@ -368,6 +373,8 @@ class TrialRunner:
         while event is None:
             self._tick()
             for t_ns, force in self.tick_samples:
+                if t_ns < ramp_start_ns:
+                    continue
                 peak_n = max(peak_n, force)
                 state, fired = detector_step(params, state, t_ns, force)
                 if fired is not None and self._confirmed_by_winch(fired):
@@ -585,11 +592,13 @@ class TrialRunner:
             schemas.servo_command(servo_id=servo_id, role=role, command=command, value=value, unit=unit),
         )
 
-    def _phase(self, phase: Phase, trial_id: int | None, step: str | None = None) -> None:
+    def _phase(
+        self, phase: Phase, trial_id: int | None, step: str | None = None, at_ns: int | None = None
+    ) -> None:
         if self.phases.to(phase):
             self.log.log(
                 schemas.TRIAL_STATE,
-                self.clock.time_ns(),
+                self.clock.time_ns() if at_ns is None else at_ns,
                 schemas.trial_state(trial_id=trial_id, phase=phase, step=step),
             )
 

@@ -108,7 +108,7 @@ def simulated_session(config: RigConfig, *, seed: int = 0, realtime: bool = Fals
     )
     clock.on_advance(world.advance_to)
     gain = SignalModel().gain_counts_per_n
-    load_cell, _emulator = simulated_load_cell(
+    load_cell, loadcell_emulator = simulated_load_cell(
         world.tension_at,
         clock,
         format_name=config.loadcell.format,
@@ -158,6 +158,7 @@ def simulated_session(config: RigConfig, *, seed: int = 0, realtime: bool = Fals
         torque_constant_nm_per_a=WINCH_TORQUE_CONSTANT_NM_PER_A,
         begin_trial=begin_trial,
         truth=truth,
+        sim_devices={"bus": bus, "world": world, "loadcell_emulator": loadcell_emulator},
     )
 
 

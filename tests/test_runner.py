@@ -1,0 +1,278 @@
+"""The protocol runner on the built-in simulated rig: results, safety, interlocks, resume."""
+
+from __future__ import annotations
+
+import json
+import math
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from model.fit import SUMMARY_KEYS
+from rig.cli import main
+from rig.errors import InputError
+from rig.protocol import TrialPlan
+from rig.rig_config import load_rig_config
+from rig.runner.journal import RunJournal
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunRequest, execute_run, prepare_run
+from rig.sim.simulated_rig import simulated_session
+
+PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
+
+
+def write_protocol(tmp_path: Path, body: str, name: str = "p.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(body))
+    return path
+
+
+QUICK = """\
+format: rig-protocol/1
+name: quick
+detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
+ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
+limits: {force_ceiling_n: 75.0}
+blocks:
+  - kind: joint_estimation
+    joint: 1
+    distances_m: [0.12, 0.2, 0.25]
+    repeats: 1
+    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
+"""
+
+
+def run_api(tmp_path: Path, protocol: Path, *, run_id: str = "r1", resume: str | None = None, patch=None):
+    request = RunRequest(
+        protocol_path=protocol, rig_path=None, out_dir=tmp_path / "out", seed=3,
+        run_id=None if resume else run_id, resume=resume,
+    )  # fmt: skip
+    prepared = prepare_run(request)
+    session = simulated_session(prepared.config, seed=prepared.journal.seed)
+    if patch is not None:
+        patch(session)
+    report = execute_run(prepared, session, SilentProgress())
+    return report, session
+
+
+def assert_safe(session) -> None:
+    """The line is released (winch back near its zero-tension angle) and every servo is torque-off."""
+    bus = session.sim_devices["bus"]
+    for servo in bus.servos:
+        assert not servo.torque_enabled, f"servo {servo.servo_id} left with torque on"
+    assert session.sim_devices["world"].tension_n < 1.0
+
+
+def test_smoke_run_json(tmp_path, capsys):
+    code = main(["run", str(PROTOCOLS / "smoke.yaml"), "--out", str(tmp_path), "--json", "--run-id", "s1"])
+    out = capsys.readouterr().out
+    assert code == 0
+    report = json.loads(out)
+    assert report["run_id"] == "s1" and report["completed"] == 2 and not report["aborted"]
+    assert Path(report["log"]).is_file() and report["logs"] == [report["log"]]
+    assert list(report["estimate"]) == list(SUMMARY_KEYS)
+    assert report["estimate"]["n"] == 2
+    for key in ("k", "capacity_nm", "mu_delta0_pa"):
+        assert report["truth"][key] > 0
+    for trial in report["trials"]:
+        assert trial["outcome"] == "slip"
+        assert trial["peak_force_n"] == pytest.approx(trial["slip_mass_kg"] * 9.8)
+    journal = RunJournal.load(tmp_path / "s1.journal.json")
+    assert journal.status == "completed" and journal.completed_ids == {1, 2}
+
+
+def test_joint_estimation_recovers_the_true_capacity(tmp_path):
+    report, session = run_api(tmp_path, write_protocol(tmp_path, QUICK))
+    assert report.exit_code == 0 and report.completed == 3
+    truth = report.truth
+    # Three slips with the preset's trial-to-trial scatter (sd 8.5 %): within 15 % of the hidden k.
+    assert report.estimate["k"] == pytest.approx(truth["k"], rel=0.15)
+    lo, hi = report.estimate["k_ci"]
+    assert lo < truth["k"] < hi
+    assert_safe(session)
+    # The third trial was planned from the fit of the first two: a prediction within 3 scatter sd.
+    third = report.trials[2]
+    assert report.trials[0]["predicted_mass_kg"] is None
+    assert third["predicted_mass_kg"] == pytest.approx(third["slip_mass_kg"], rel=0.3)
+
+
+def test_dry_run_moves_nothing_and_writes_nothing(tmp_path, capsys):
+    code = main(["run", str(PROTOCOLS / "joint_estimation.yaml"), "--dry-run", "--out", str(tmp_path / "o")])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "24 trials" in out and "estimated duration" in out and "limit checks" in out
+    assert not (tmp_path / "o").exists()
+    assert main(["run", str(PROTOCOLS / "link_validation.yaml"), "--dry-run", "--json"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert len(plan["trials"]) == 37 and all(c["ok"] for c in plan["limit_checks"])
+    assert plan["estimated_duration_s"] > 0
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        (lambda t: t.replace("drop_fraction: 0.15", "drop_fracton: 0.15"), "drop_fracton"),
+        (
+            lambda t: t.replace("distances_m: [0.12, 0.2, 0.25]", "distances_m: [0.12, -0.2]"),
+            "distances_m[1]",
+        ),
+        (lambda t: t.replace("max_force_n: 70.0", "max_force_n: 80.0"), "max_force_n"),
+        (lambda t: t.replace("rig-protocol/1", "rig-protocol/9"), "format"),
+        (lambda t: t.replace("ramp_until_slip, unload]", "ramp_until_slip]"), "unload"),
+        (lambda t: t.replace("joint: 1", "joint: 12"), "joint"),
+    ],
+    ids=[
+        "misspelt-detector-field",
+        "negative-distance",
+        "max-force-above-ceiling",
+        "format",
+        "no-unload",
+        "joint",
+    ],
+)
+def test_bad_protocol_exits_2_and_starts_nothing(tmp_path, capsys, edit, needle):
+    path = write_protocol(tmp_path, edit(QUICK))
+    code = main(["run", str(path), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "Traceback" not in err and err.count("\n") == 1
+    assert needle in err and str(path) in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_limit_check_against_the_rig_exits_2(tmp_path, capsys):
+    path = write_protocol(tmp_path, QUICK.replace("force_ceiling_n: 75.0", "force_ceiling_n: 95.0"))
+    assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert "limit check failed" in capsys.readouterr().err
+
+
+def test_force_ceiling_interlock_stops_safely(tmp_path):
+    # A fast ramp straight to a low ceiling: the tension overshoots the ceiling within one tick.
+    body = (
+        QUICK.replace("arm_threshold_n: 2.0", "arm_threshold_n: 9.5")
+        .replace("fast_speed_rad_s: 1.0", "fast_speed_rad_s: 15.0")
+        .replace("max_force_n: 70.0", "max_force_n: 9.8")
+        .replace("force_ceiling_n: 75.0", "force_ceiling_n: 10.0")
+    )
+    report, session = run_api(tmp_path, write_protocol(tmp_path, body))
+    assert report.exit_code == 1 and report.aborted
+    assert "above the ceiling" in report.reason
+    assert_safe(session)
+    assert RunJournal.load(tmp_path / "out" / "r1.journal.json").status == "faulted"
+
+
+def test_stale_load_cell_stops_safely(tmp_path):
+    def unplug_during_first_ramp(session):
+        session.sim_devices["loadcell_emulator"].inject_silence(5.0, at_ns=3_000_000_000)
+
+    report, session = run_api(tmp_path, write_protocol(tmp_path, QUICK), patch=unplug_during_first_ramp)
+    assert report.exit_code == 1
+    assert "StaleDataError" in report.reason
+    assert_safe(session)
+
+
+def test_servo_hardware_error_stops_safely(tmp_path):
+    def overload_after_first_trial(session):
+        world = session.sim_devices["world"]
+        bus = session.sim_devices["bus"]
+        original = session.begin_trial
+
+        def begin(trial: TrialPlan) -> None:
+            if trial.trial_id == 2:
+                bus.set_hardware_error(1, 0x20)
+            original(trial)
+
+        session.begin_trial = begin
+        assert world is not None
+
+    report, session = run_api(tmp_path, write_protocol(tmp_path, QUICK), patch=overload_after_first_trial)
+    assert report.exit_code == 1 and report.completed == 1
+    assert "overload" in report.reason
+    assert_safe(session)
+
+
+def test_interrupt_then_resume_completes_without_repeats(tmp_path):
+    protocol = write_protocol(tmp_path, QUICK)
+
+    def interrupt_at_trial_2(session):
+        class Operator:
+            def confirm(self, text, trial):
+                if trial is not None and trial.trial_id == 2:
+                    raise KeyboardInterrupt
+
+        session.operator = Operator()
+
+    report, session = run_api(tmp_path, protocol, patch=interrupt_at_trial_2)
+    assert report.exit_code == 130 and report.completed == 1
+    assert_safe(session)
+    assert RunJournal.load(tmp_path / "out" / "r1.journal.json").status == "interrupted"
+
+    resumed, session2 = run_api(tmp_path, protocol, resume="r1")
+    assert resumed.exit_code == 0
+    ids = [t["trial_id"] for t in resumed.trials]
+    assert ids == [1, 2, 3]
+    assert len(resumed.logs) == 2 and resumed.logs[1].endswith("r1.part2.mcap")
+    assert resumed.estimate["n"] == 3
+    assert_safe(session2)
+    with pytest.raises(InputError, match="already completed"):
+        run_api(tmp_path, protocol, resume="r1")
+
+
+def test_resume_refuses_an_edited_protocol(tmp_path):
+    protocol = write_protocol(tmp_path, QUICK)
+
+    def stop_early(session):
+        class Operator:
+            def confirm(self, text, trial):
+                raise KeyboardInterrupt
+
+        session.operator = Operator()
+
+    run_api(tmp_path, protocol, patch=stop_early)
+    protocol.write_text(QUICK.replace("repeats: 1", "repeats: 2"))
+    with pytest.raises(InputError, match="changed since run r1 started"):
+        run_api(tmp_path, protocol, resume="r1")
+
+
+def test_link_validation_predicts_from_the_rigs_own_estimates(tmp_path):
+    body = """\
+    format: rig-protocol/1
+    detector: {arm_threshold_n: 1.0, drop_fraction: 0.15}
+    ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
+    limits: {force_ceiling_n: 75.0}
+    blocks:
+      - kind: joint_estimation
+        distances_m: [0.1, 0.2]
+        steps: [{tare: {settle_s: 0.1}}, ramp_until_slip, unload]
+      - kind: link_validation
+        estimates_from: run
+        configurations_deg:
+          - [5, 5, 5, 5, 5, 5, 5, 5]
+          - [10, -10, 10, -10, 10, -10, 10, -10]
+        steps: [bend, measure, {tare: {settle_s: 0.1}}, ramp_until_slip, unload, reset]
+    """
+    report, session = run_api(tmp_path, write_protocol(tmp_path, body))
+    assert report.exit_code == 0 and report.completed == 4
+    estimation = [t for t in report.trials if t["kind"] == "joint_estimation"]
+    validation = [t for t in report.trials if t["kind"] == "link_validation"]
+    for trial in validation:
+        assert trial["predicted_mass_kg"] is not None and len(trial["lever_arms_m"]) == 8
+        assert abs(trial["percentage_error"]) < 60
+    # The first prediction comes from the rig's own two-point fit (every joint's prior is the
+    # fitted capacity), never from the simulator's truth: f* = capacity / largest lever arm.
+    fitted_capacity = sum(
+        t["peak_force_n"] * t["distance_m"] / t["distance_m"] ** 2 for t in estimation
+    ) / sum(1 / t["distance_m"] ** 2 for t in estimation)
+    first = validation[0]
+    expected_force = fitted_capacity / max(first["lever_arms_m"])
+    assert first["predicted_force_n"] == pytest.approx(expected_force, rel=2e-3)
+    pe = report.percentage_errors
+    assert pe["n"] == 2 and math.isfinite(pe["mean_pct"])
+    assert len(report.joints) == 8
+    assert_safe(session)
+
+
+def test_rig_config_defaults_to_the_simulated_rig():
+    config = load_rig_config(None)
+    assert config.kind == "simulated" and config.article.joint_count == 8
