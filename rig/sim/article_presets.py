@@ -182,14 +182,14 @@ _LINKS = {
         joints=8,
         segment_m=0.03,
         distances_m=tuple(float(x) for x in np.linspace(0.03, 0.25, 8)),
-        per_trial_capacity_sd=0.05,
+        per_trial_capacity_sd=0.085,
     ),
     "link2": _LinkSpec(
         k_kg_m=PAPER_K_LINK2_KG_M,
         joints=10,
         segment_m=0.03,
         distances_m=tuple(float(x) for x in np.linspace(0.035, 0.30, 10)),
-        per_trial_capacity_sd=0.038,
+        per_trial_capacity_sd=0.059,
     ),
 }
 
