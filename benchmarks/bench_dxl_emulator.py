@@ -1,0 +1,280 @@
+"""Benchmark of the Dynamixel emulator through the real dynamixel_sdk.
+
+pty (subprocess `rig.cli.sim_servos`): N sync reads of 3 servos (Present Current..Position, 10 bytes),
+reply latency p50/p99/max and the number of failed transactions; compared with a canned responder
+(a subprocess that answers every request with precomputed bytes, like a byte-stub mock) in the same run.
+In-process (`SimPortHandler`): sync-read transactions per second and virtual-vs-wall time ratio,
+compared with the SDK on a fake serial port that returns the same canned bytes.
+`--soak N`: N mixed transactions (ping, read, write, sync/bulk/fast read) over the pty; exit 1 on any failure.
+
+    .venv/bin/python benchmarks/bench_dxl_emulator.py [--reads 5000] [--soak 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import select
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from dynamixel_sdk import (
+    COMM_SUCCESS,
+    GroupBulkRead,
+    GroupSyncRead,
+    PacketHandler,
+    PortHandler,
+)
+
+from rig.sim.clock import VirtualClock
+from rig.sim.dxl import protocol as p
+from rig.sim.dxl.bus import EmulatedBus
+from rig.sim.dxl.inprocess import SimPortHandler
+
+IDS = (1, 2, 3)
+ADDR, LENGTH = 126, 10  # Present Current, Velocity, Position
+BAUD = 1_000_000
+
+
+def canned_replies() -> tuple[bytes, bytes]:
+    """The sync-read request the SDK sends and the three status packets that answer it."""
+    request = p.build_instruction(
+        p.BROADCAST_ID, p.SYNC_READ, bytes((ADDR, 0, LENGTH, 0, *IDS)), stuffed=False
+    )
+    reply = b"".join(p.build_status(i, 0, bytes(LENGTH)) for i in IDS)
+    return request, reply
+
+
+def serve_canned(link: str) -> None:
+    """Child mode: answer every complete packet with the canned reply, nothing else."""
+    from rig.sim.pty_link import PtyLink, StopFlag
+
+    _, reply = canned_replies()
+    stop = StopFlag()
+    with PtyLink(link) as pty:
+        print(f"PTY {pty.slave_name} LINK {link}", flush=True)
+        framer = p.Framer()
+        poller = select.poll()
+        poller.register(pty.master_fd, select.POLLIN)
+        while not stop.stopped:
+            if poller.poll(50):
+                for _ in framer.feed(pty.read(), time.monotonic_ns()):
+                    pty.write(reply)
+
+
+def start(cmd: list[str]) -> tuple[subprocess.Popen[str], str]:
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], 10)
+    line = proc.stdout.readline() if ready else ""  # type: ignore[union-attr]
+    words = line.split()
+    if len(words) != 4 or words[0] != "PTY":
+        proc.kill()
+        raise RuntimeError(f"server did not start: {line!r}")
+    return proc, words[3]
+
+
+def stop(proc: subprocess.Popen[str]) -> None:
+    proc.terminate()
+    try:
+        proc.wait(5)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(5)
+
+
+def sync_read_latencies(link: str, n: int) -> tuple[list[float], int]:
+    port = PortHandler(link)
+    assert port.openPort() and port.setBaudRate(BAUD)
+    ph = PacketHandler(2.0)
+    group = GroupSyncRead(port, ph, ADDR, LENGTH)
+    for i in IDS:
+        group.addParam(i)
+    latencies: list[float] = []
+    failures = 0
+    for _ in range(200):  # warm-up
+        group.txRxPacket()
+    for _ in range(n):
+        t0 = time.perf_counter_ns()
+        result = group.txRxPacket()
+        latencies.append((time.perf_counter_ns() - t0) / 1e6)
+        if result != COMM_SUCCESS:
+            failures += 1
+    port.closePort()
+    return latencies, failures
+
+
+def summary(latencies: list[float]) -> dict[str, float]:
+    s = sorted(latencies)
+    return {
+        "p50_ms": statistics.median(s),
+        "p99_ms": s[int(0.99 * (len(s) - 1))],
+        "max_ms": s[-1],
+    }
+
+
+def bench_pty(n: int, tmp: str) -> None:
+    emu, link = start(
+        [
+            sys.executable,
+            "-m",
+            "rig.cli.sim_servos",
+            "--ids",
+            "1,2,3",
+            "--baud",
+            str(BAUD),
+            "--link",
+            f"{tmp}/emu",
+        ]
+    )
+    try:
+        emu_lat, emu_fail = sync_read_latencies(link, n)
+    finally:
+        stop(emu)
+    canned, link = start([sys.executable, __file__, "--serve-canned", f"{tmp}/canned"])
+    try:
+        can_lat, can_fail = sync_read_latencies(link, n)
+    finally:
+        stop(canned)
+    e, c = summary(emu_lat), summary(can_lat)
+    print(f"pty, {n} sync reads of {len(IDS)} servos x {LENGTH} bytes at {BAUD} baud, wall time per call:")
+    for name, stats, fails in (("emulator", e, emu_fail), ("canned  ", c, can_fail)):
+        print(
+            f"  {name} : p50 {stats['p50_ms']:.3f} ms  p99 {stats['p99_ms']:.3f} ms  "
+            f"max {stats['max_ms']:.3f} ms  failures {fails}"
+        )
+    print(
+        f"  ratio emulator/canned: p50 {e['p50_ms'] / c['p50_ms']:.2f}  p99 {e['p99_ms'] / c['p99_ms']:.2f}"
+    )
+
+
+class CannedSerial:
+    """A fake serial port that answers the sync-read request with canned bytes (no emulator)."""
+
+    def __init__(self) -> None:
+        self.request, self.reply = canned_replies()
+        self.rx = bytearray()
+        self.is_open = True
+
+    def write(self, data: list[int]) -> int:
+        if bytes(data) == self.request:
+            self.rx += self.reply
+        return len(data)
+
+    def read(self, size: int = 1) -> bytes:
+        out = bytes(self.rx[:size])
+        del self.rx[:size]
+        return out
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.rx)
+
+    def reset_input_buffer(self) -> None:
+        self.rx.clear()
+
+    def close(self) -> None:
+        self.is_open = False
+
+
+class CannedPortHandler(PortHandler):
+    def setupPort(self, cflag_baud: int) -> bool:
+        self.ser = CannedSerial()
+        self.is_open = True
+        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+        return True
+
+
+def bench_inprocess(n: int) -> None:
+    clock = VirtualClock()
+    bus = EmulatedBus.with_servos(clock, ids=IDS)
+    clock.on_advance(bus.advance_to)
+    runs = {}
+    for name, port in (("emulator", SimPortHandler(bus, clock)), ("canned", CannedPortHandler("canned"))):
+        assert port.openPort() and port.setBaudRate(BAUD)
+        ph = PacketHandler(2.0)
+        group = GroupSyncRead(port, ph, ADDR, LENGTH)
+        for i in IDS:
+            group.addParam(i)
+        v0, t0 = clock.monotonic_ns(), time.perf_counter_ns()
+        failures = sum(group.txRxPacket() != COMM_SUCCESS for _ in range(n))
+        wall_s = (time.perf_counter_ns() - t0) / 1e9
+        runs[name] = (n / wall_s, (clock.monotonic_ns() - v0) / 1e9 / wall_s, failures)
+    (emu_tps, ratio, emu_fail), (can_tps, _, can_fail) = runs["emulator"], runs["canned"]
+    print(f"in-process, {n} sync reads of {len(IDS)} servos x {LENGTH} bytes:")
+    print(f"  emulator : {emu_tps:,.0f} transactions/s, virtual/wall time {ratio:.1f}x, failures {emu_fail}")
+    print(f"  canned   : {can_tps:,.0f} transactions/s, failures {can_fail}")
+    print(f"  ratio emulator/canned throughput: {emu_tps / can_tps:.2f}")
+
+
+def soak(n: int, tmp: str) -> int:
+    emu, link = start(
+        [
+            sys.executable,
+            "-m",
+            "rig.cli.sim_servos",
+            "--ids",
+            "1,2,3",
+            "--baud",
+            str(BAUD),
+            "--link",
+            f"{tmp}/soak",
+        ]
+    )
+    failures: dict[str, int] = {}
+    try:
+        port = PortHandler(link)
+        assert port.openPort() and port.setBaudRate(BAUD)
+        ph = PacketHandler(2.0)
+        sr = GroupSyncRead(port, ph, ADDR, LENGTH)
+        br = GroupBulkRead(port, ph)
+        for i in IDS:
+            sr.addParam(i)
+        br.addParam(1, 132, 4)
+        br.addParam(2, 64, 1)
+        br.addParam(3, 0, 2)
+        steps = [
+            ("ping", lambda k: ph.ping(port, IDS[k % 3])[1]),
+            ("read4", lambda k: ph.read4ByteTxRx(port, IDS[k % 3], 132)[1]),
+            ("write1", lambda k: ph.write1ByteTxRx(port, IDS[k % 3], 65, k & 1)[0]),
+            ("sync_read", lambda k: sr.txRxPacket()),
+            ("bulk_read", lambda k: br.txRxPacket()),
+            ("fast_sync_read", lambda k: sr.fastSyncRead()),
+        ]
+        t0 = time.perf_counter()
+        for k in range(n):
+            name, call = steps[k % len(steps)]
+            if call(k) != COMM_SUCCESS:
+                failures[name] = failures.get(name, 0) + 1
+        elapsed = time.perf_counter() - t0
+        port.closePort()
+    finally:
+        stop(emu)
+    total = sum(failures.values())
+    print(f"soak over pty: {n} mixed transactions in {elapsed:.2f} s, failures {total} {failures or ''}")
+    return 1 if total else 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--reads", type=int, default=5000)
+    parser.add_argument("--inprocess", type=int, default=20000)
+    parser.add_argument("--soak", type=int, default=0, help="also run N mixed transactions over the pty")
+    parser.add_argument("--serve-canned", metavar="LINK", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.serve_canned:
+        serve_canned(args.serve_canned)
+        return 0
+    print(f"host: {os.cpu_count()} cpus, load average {os.getloadavg()[0]:.2f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        bench_pty(args.reads, tmp)
+        bench_inprocess(args.inprocess)
+        return soak(args.soak, tmp) if args.soak else 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    sys.exit(main())
