@@ -1,0 +1,71 @@
+"""`rig scan` and `rig ports`: the real CLI against `rig sim servos` on a pty (real time, a few seconds)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from dxl_fixtures import dxl_server  # noqa: F401  (fixture)
+
+from rig.cli import main
+
+
+def test_scan_finds_emulated_servos_at_their_baud_only(dxl_server, capsys):  # noqa: F811
+    server = dxl_server(ids=[3, 1], baud=57_600)
+    assert main(["scan", "--port", server.link, "--json"]) == 0  # default: 57600 and 1000000
+    out = json.loads(capsys.readouterr().out)
+    assert out == {
+        "port": server.link,
+        "servos": [
+            {"id": 1, "model_number": 1020, "model": "XM430-W350", "firmware": 48, "baud": 57_600},
+            {"id": 3, "model_number": 1020, "model": "XM430-W350", "firmware": 48, "baud": 57_600},
+        ],
+    }
+
+
+def test_scan_at_1m_prints_a_table(dxl_server, capsys):  # noqa: F811
+    server = dxl_server(ids=[5], baud=1_000_000, model="XL430-W250", extra_args=["--firmware", "44"])
+    assert main(["scan", "--port", server.link, "--baud", "1000000"]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert lines[0].split() == ["id", "model", "model", "number", "firmware", "baud"]
+    assert lines[2].split() == ["5", "XL430-W250", "1060", "44", "1000000"]
+    assert "1 servo(s) at 1000000 baud" in lines[-1]
+
+
+def test_scan_with_nothing_answering(dxl_server, capsys):  # noqa: F811
+    server = dxl_server(ids=[1], baud=57_600)
+    assert main(["scan", "--port", server.link, "--baud", "1000000", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"port": server.link, "servos": []}
+
+
+def test_scan_of_a_missing_port_exits_2_naming_it(tmp_path, capsys):
+    missing = tmp_path / "ttyUSB9"
+    assert main(["scan", "--port", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert str(missing) in err and "no such serial port" in err
+    assert "Traceback" not in err
+
+
+def test_scan_rejects_a_baud_the_sdk_cannot_set(tmp_path, capsys):
+    assert main(["scan", "--port", str(tmp_path), "--baud", "4500000"]) == 2
+    assert "--baud 4500000" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("as_json", [True, False], ids=["json", "text"])
+def test_ports_lists_serial_ports(capsys, as_json):
+    from serial.tools import list_ports
+
+    expected = sorted(p.device for p in list_ports.comports())
+    assert main(["ports", *(["--json"] if as_json else [])]) == 0
+    out = capsys.readouterr().out
+    if as_json:
+        ports = json.loads(out)["ports"]
+        assert [p["device"] for p in ports] == expected
+        assert all(set(p) == {"device", "description", "hwid", "vid", "pid", "serial_number", "manufacturer"}
+                   for p in ports)  # fmt: skip
+    else:
+        for device in expected:
+            assert device in out
+        if not expected:
+            assert "no serial ports found" in out
