@@ -64,8 +64,12 @@ TORSION_AXIS = "z axis of the joint's own frame {i} (the axis of component i)"
 class ShaftLike(Protocol):
     """What the world needs of an emulated servo: its output-shaft angle and an external-torque input."""
 
-    present_position_rad: float
-    external_torque_nm: float
+    external_torque_nm: float  # set by the world each substep [N·m, physical direction]
+
+    @property
+    def present_position_rad(self) -> float:
+        """Output-shaft angle [rad], multi-turn, physical direction."""
+        ...
 
 
 class TrialKind(StrEnum):
