@@ -25,7 +25,8 @@ tension linearly over the last `history_s` seconds (the load-cell emulator's sig
 Trials: `begin_trial(kind, distance_m)` draws the capacities of this trial (each joint's true mean
 capacity times an independent factor N(1, sd²) clipped at ±3 sd) and, for joint estimation, sets up
 the **single-joint specimen**: one joint placed horizontally (its axis z along the base z, the line
-pulling along the preset's direction across it), the hook at distance l, so the lever arm is l. The
+pulling across it along the preset's direction without its z part), the hook at distance l, so the
+lever arm is l. The
 specimen is re-levelled (straight) at the start of every such trial. Link-validation trials use the
 link in whatever configuration the fixture (or `set_configuration`) left it. Each slip is kept as a
 `SlipRecord`; `truth()` returns the ground truth as a JSON-serialisable dict.
@@ -59,6 +60,17 @@ BEND_UPDATE_NS = 50_000_000  # how often a moving fixture re-poses the link (eac
 MIN_CAPACITY_FACTOR = 0.05
 TORSION_CRITERION = "sqrt((|N_bend|/cap)^2 + (N_torsion/(torsion_ratio*cap))^2) > 1"
 TORSION_AXIS = "z axis of the joint's own frame {i} (the axis of component i)"
+
+
+def specimen_direction(direction_w: Sequence[float]) -> tuple[float, float, float]:
+    """The line direction across the horizontal specimen: `direction_w` without its z component.
+
+    The specimen's axis is the base z axis, so this makes its lever arm exactly the hook distance;
+    a direction along z (which could not load the specimen) falls back to (0, -1, 0).
+    """
+    x, y = float(direction_w[0]), float(direction_w[1])
+    norm = math.hypot(x, y)
+    return (x / norm, y / norm, 0.0) if norm > 1e-12 else (0.0, -1.0, 0.0)
 
 
 class ShaftLike(Protocol):
@@ -163,7 +175,7 @@ class SimWorld:
         self.specimen = ChainArticle(
             (0.0,),
             (0.0, 0.0, preset.joint_estimation_distances_m[0]),
-            preset.direction_w,
+            specimen_direction(preset.direction_w),
             (preset.specimen_capacity_nm,),
         )
         self._article = self.link
