@@ -132,7 +132,7 @@ def check_pair(distance_m: float, mass_kg: float, where: str = "") -> tuple[floa
     return distance, mass
 
 
-@lru_cache(maxsize=256)
+@lru_cache(maxsize=4096)
 def t_quantile(level: float, dfe: int) -> float:
     """Two-sided Student-t quantile t_{(1+level)/2, dfe}, as MATLAB `confint` uses."""
     return float(stats.t.ppf(0.5 * (1.0 + level), dfe))
