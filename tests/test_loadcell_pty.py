@@ -77,7 +77,7 @@ def test_rig_lc1_over_pyserial_then_sigterm_removes_link(tmp_path):
             assert isinstance(driver._serial, serial.Serial)  # real pyserial, reader thread
             samples = read_for(driver, 1.5)
         stats = driver.stats()
-        assert 1200 <= len(samples) <= 1600
+        assert 1000 <= len(samples) <= 1700  # 1.5 s at 1 kHz, with slack for a loaded machine
         seqs = [s.seq for s in samples]
         assert all(b == (a + 1) % 65536 for a, b in itertools.pairwise(seqs))
         assert (stats.corrupt_lines, stats.checksum_failures, stats.missing_samples) == (0, 0, 0)
@@ -98,7 +98,7 @@ def test_indicator_format_over_pyserial_and_sigint(tmp_path):
         )
         with driver:
             samples = read_for(driver, 1.0)
-        assert 80 <= len(samples) <= 110
+        assert 60 <= len(samples) <= 130
         assert all(s.seq is None and s.device_time_us is None for s in samples)
         assert {s.raw for s in samples} <= {124, 125, 126}  # 12.2583 N = 1.25 kg
         assert samples[-1].force_n == pytest.approx(12.2583, abs=0.02)
@@ -144,7 +144,7 @@ def test_staleness_in_real_time_after_silence(tmp_path):
             time.sleep(0.01)
         assert raised_ns is not None and received
         age_s = (raised_ns - received[-1].time_ns) / 1e9
-        assert 0.25 < age_s < 0.25 + 0.25  # one poll period, plus scheduling on a shared machine
+        assert 0.25 < age_s < 0.25 + 0.5  # one poll period, plus scheduling on a shared machine
         resumed = []
         while not resumed and time.monotonic() < deadline:
             try:
@@ -156,16 +156,16 @@ def test_staleness_in_real_time_after_silence(tmp_path):
     assert 900 <= missing <= 1100  # the 1 s silence at 1 kHz, nothing else
 
 
-def test_bad_flags_exit_2_without_creating_the_link(tmp_path):
+def test_bad_flags_exit_2_without_creating_the_link(tmp_path, capsys):
+    from rig.cli import main
+
     link = tmp_path / "lc"
     for args in (
         ["--rate", "5000"],
         ["--fault", "loud:1"],
         ["--format", "indicator-st", "--fault", "gap:0.1"],
     ):
-        proc = subprocess.run(
-            [*RIG, "sim", "loadcell", "--link", str(link), *args], capture_output=True, text=True, timeout=60
-        )
-        assert proc.returncode == 2, proc.stderr
-        assert "allowed" in proc.stderr and "Traceback" not in proc.stderr
+        assert main(["sim", "loadcell", "--link", str(link), *args]) == 2
+        err = capsys.readouterr().err
+        assert "allowed" in err and "Traceback" not in err
         assert not os.path.lexists(link)
