@@ -795,7 +795,13 @@ class DynamixelServoBus:
         self._require_connected()
         servo = self._servo(servo_id)
         velocity_raw, acceleration_raw = self._profile_units(servo, velocity_rad_s, acceleration_rad_s2)
-        self._write_ram_settings(servo, servo.goal_current_raw, velocity_raw, acceleration_raw)
+        # Only what was given is written (the runner calls this per ramp step).
+        if acceleration_rad_s2 is not None:
+            self._write(servo, "Profile Acceleration", acceleration_raw)
+            servo.profile_acceleration_raw = acceleration_raw
+        if velocity_rad_s is not None:
+            self._write(servo, "Profile Velocity", velocity_raw)
+            servo.profile_velocity_raw = velocity_raw
 
     def set_current_limit(self, servo_id: int, current_limit_a: float) -> None:
         """Write Current Limit (EEPROM: torque is turned off for the write and restored after)."""
