@@ -969,7 +969,9 @@ class DynamixelServoBus:
 
         Keeps going when a step fails (every servo gets its torque-off attempt), defers Ctrl-C while
         torquing off, and re-raises the first error (later ones are attached as notes).
-        Idempotent: a second call does nothing.
+        Idempotent: a second call does nothing. Unlike every other method it may also run while a
+        transaction was cut short (e.g. from a signal handler): making the rig safe comes first,
+        and the SDK clears the input buffer before each instruction anyway.
         """
         if self._shut_down:
             return
