@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import random
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from rig.errors import InputError
 from rig.hw.loadcell_formats import DeviceReading, IndicatorStCodec, LineCodec, get_codec
@@ -120,23 +120,19 @@ def parse_fault(spec: str, plan: FaultPlan) -> FaultPlan:
         if kind == "silence":
             start_text, _, duration_text = rest.partition(":")
             silence = (float(start_text), float(duration_text))
-            return FaultPlan(**{**_fields(plan), "silences_s": (*plan.silences_s, silence)})
+            return replace(plan, silences_s=(*plan.silences_s, silence))
         name = {
             "garbage": "garbage_per_line",
             "truncate": "truncate_per_line",
             "checksum": "bad_checksum_per_line",
             "gap": "gap_per_line",
         }[kind]
-        return FaultPlan(**{**_fields(plan), name: float(rest)})
+        return replace(plan, **{name: float(rest)})
     except (KeyError, ValueError):
         raise InputError(
             f"--fault {spec!r}; allowed: garbage|truncate|checksum|gap:PROBABILITY_PER_LINE "
             "or silence:START_S:DURATION_S"
         ) from None
-
-
-def _fields(plan: FaultPlan) -> dict[str, object]:
-    return {name: getattr(plan, name) for name in plan.__dataclass_fields__}
 
 
 @dataclass(slots=True)
