@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from model.chain import planar_transforms, predict_slip
 from model.fit import SUMMARY_KEYS, capacity_from_fit, fit_summary_dict
@@ -28,8 +29,6 @@ from model.online_fit import online_fit_estimate, online_fit_init, online_fit_up
 from rig.errors import InputError
 from rig.rig_config import ArticleConfig
 
-# Standard normal quantile at 0.995: the fit's 99 % bounds span +-Z_995 standard deviations.
-Z_995 = 2.5758293035489004
 # How much the joints of one link are taken to differ from the joint that was fitted (log sd):
 # the paper assumed identical joints; 10 % is the spread a hand-made link plausibly has.
 BETWEEN_JOINT_SD_LOG = 0.10
@@ -145,7 +144,8 @@ class RunEstimator:
             capacity = prior["capacity_nm"]
             # The fit's bounds on the capacity read as a log-normal spread, widened by the spread
             # between joints of one link: the fit measured one joint and the link has several.
-            fit_sd = (math.log(hi) - math.log(lo)) / (2 * Z_995) if 0 < lo < hi else 0.5
+            z = float(stats.norm.ppf(0.5 + prior.get("level", 0.99) / 2))
+            fit_sd = (math.log(hi) - math.log(lo)) / (2 * z) if 0 < lo < hi else 0.5
             sd_log = math.hypot(fit_sd, BETWEEN_JOINT_SD_LOG)
             joints = self.article.joint_count
             self.link_state = link_estimator_init(np.full(joints, capacity), np.full(joints, sd_log))

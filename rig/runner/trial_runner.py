@@ -377,9 +377,11 @@ class TrialRunner:
                     continue
                 peak_n = max(peak_n, force)
                 state, fired = detector_step(params, state, t_ns, force)
-                if fired is not None and self._confirmed_by_winch(fired):
-                    event = fired
-                    break
+                if fired is not None:
+                    if self._confirmed_by_winch(fired):
+                        event = fired
+                        break
+                    state = detector_init(params)  # not a slip: start over, so a real one is seen
             if event is not None:
                 break
             if fast and self.force_n >= switch_n:

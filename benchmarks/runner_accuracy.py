@@ -1,0 +1,79 @@
+"""Statistical behaviour of `rig run` on the simulated rig over many seeds (the issue's acceptance checks).
+
+* joint estimation: how often the 99 % bounds on k cover the simulator's true k, and how far the
+  estimate is from it;
+* link validation: the share of percentage errors below 15 % (paper: 80.4 %), mean and sd.
+
+    .venv/bin/python benchmarks/runner_accuracy.py [--seeds 20] [--link-seeds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+from pathlib import Path
+
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunRequest, execute_run, prepare_run
+from rig.sim.simulated_rig import simulated_session
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run(protocol: str, seed: int, out: Path):
+    request = RunRequest(
+        protocol_path=ROOT / "protocols" / protocol,
+        rig_path=None,
+        out_dir=out,
+        seed=seed,
+        run_id=f"{Path(protocol).stem}-{seed}",
+    )
+    prepared = prepare_run(request)
+    return execute_run(prepared, simulated_session(prepared.config, seed=seed), SilentProgress())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=20, help="joint-estimation runs")
+    parser.add_argument("--link-seeds", type=int, default=5, help="link-validation runs")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        covered, errors, rmses = 0, [], []
+        for seed in range(args.seeds):
+            report = run("joint_estimation.yaml", seed, out)
+            est, k_true = report.estimate, report.truth["k"]
+            lo, hi = est["k_ci"]
+            covered += lo <= k_true <= hi
+            errors.append((est["k"] - k_true) / k_true * 100)
+            rmses.append(est["rmse"])
+        print(f"joint estimation, {args.seeds} seeds (24 trials each):")
+        print(f"  99 % bounds cover the true k in {covered}/{args.seeds} runs")
+        print(
+            f"  estimate error: mean {statistics.mean(errors):+.2f} %, mean |error| "
+            f"{statistics.mean(abs(e) for e in errors):.2f} %, max |error| {max(abs(e) for e in errors):.2f} %"
+        )
+        print(f"  RMSE: median {statistics.median(rmses):.3f} kg (paper 0.126 kg)")
+        shares, means, stds, all_pct = [], [], [], []
+        for seed in range(args.link_seeds):
+            report = run("link_validation.yaml", seed, out)
+            pe = report.percentage_errors
+            shares.append(pe["share_below_pct"]["15"])
+            means.append(pe["mean_pct"])
+            stds.append(pe["std_pct"])
+            all_pct += pe["percentage_errors"]
+        print(f"link validation, {args.link_seeds} seeds (21 configurations each):")
+        print(
+            f"  share of percentage errors below 15 % per run: {', '.join(f'{s * 100:.1f} %' for s in shares)}"
+        )
+        pooled = sum(p < 15 for p in all_pct) / len(all_pct)
+        print(f"  pooled: {pooled * 100:.1f} % of {len(all_pct)} errors below 15 % (paper: 80.4 %)")
+        print(
+            f"  mean percentage error per run: {', '.join(f'{m:.2f}' for m in means)} % "
+            f"(sd {', '.join(f'{s:.2f}' for s in stds)}) (paper: 9.53 +- 6.73 and 12.5 +- 10.5)"
+        )
+
+
+if __name__ == "__main__":
+    main()
