@@ -33,6 +33,7 @@ Semantics (notes/dynamixel.md; *assumption* where the manual is silent):
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 
 from rig.hw import control_table as ct
@@ -49,6 +50,15 @@ _INDIRECT_DATA_RANGES = tuple(
     (data_base, data_base + count, addr_base) for addr_base, data_base, count, _ in ct.INDIRECT_ADDRESS_BLOCKS
 )
 _LOW_INDIRECT = min(r[0] for r in _INDIRECT_DATA_RANGES)
+
+
+# Realtime Tick (120) .. Present Input Voltage (144), contiguous in every X430 table.
+_PRESENT_BLOCK = struct.Struct("<HBBhhiiiiH")
+
+
+def _clamp(value: int, bits: int) -> int:
+    limit = 1 << (bits - 1)
+    return max(-limit, min(limit - 1, value))
 
 
 @dataclass(frozen=True, slots=True)
@@ -368,43 +378,46 @@ class Servo:
 
     # ----- present values ---------------------------------------------------------------------------------
     def _refresh_present(self, now_ns: int) -> None:
+        """Write the Present/trajectory/status registers (120-146) from the motion state at `now_ns`."""
         self.advance_to(now_ns)
-        s, mem = self.state, self._mem
+        s = self.state
         direction = self._direction()
-        kt = self.motor.torque_constant_nm_per_a
-
-        def put(addr: int, size: int, value: int) -> None:
-            mem[addr : addr + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
-
-        tau = direction * s.motor_torque_nm
-        pwm = round(885 * max(-1.0, min(1.0, tau / self.motor.stall_torque_nm))) if self.torque_enabled else 0
-        put(124, 2, pwm)
+        torque_on = self.torque_enabled
+        tau_fraction = max(-1.0, min(1.0, direction * s.motor_torque_nm / self.motor.stall_torque_nm))
+        pwm = round(885 * tau_fraction) if torque_on else 0
         if self._has_current:
-            put(126, 2, round(tau / kt / ct.CURRENT_UNIT_A))
+            current = round(
+                direction * s.motor_torque_nm / self.motor.torque_constant_nm_per_a / ct.CURRENT_UNIT_A
+            )
         else:
-            put(126, 2, round(1000 * max(-1.0, min(1.0, tau / self.motor.stall_torque_nm))))
-        velocity_units = round(direction * s.velocity_rad_s / ct.RAD_S_PER_VELOCITY_UNIT)
-        put(128, 4, velocity_units)
+            current = round(1000 * tau_fraction)  # XL430 Present Load, 0.1 % of stall torque
+        velocity = round(direction * s.velocity_rad_s / ct.RAD_S_PER_VELOCITY_UNIT)
         present = self._pulses_from_rad(s.position_rad)
-        put(132, 4, present)
-        put(136, 4, round(direction * s.ref_velocity_rad_s / ct.RAD_S_PER_VELOCITY_UNIT))
-        put(140, 4, self._pulses_from_rad(s.ref_position_rad))
-        put(120, 2, (now_ns // 1_000_000) % 32768)
-        moving = abs(velocity_units) > self._get("Moving Threshold")
-        mem[122] = 1 if moving else 0
         status = 0
-        if self.torque_enabled:
-            goal = self._get("Goal Position")
-            if s.profile_done and abs(goal - present) <= 1:
+        if torque_on:
+            if s.profile_done and abs(self._get("Goal Position") - present) <= 1:
                 status |= 0x01
             if not s.profile_done:
                 status |= 0x02
             if s.saturated:
                 status |= 0x08
-            prof_v, prof_a = self._get("Profile Velocity"), self._get("Profile Acceleration")
-            status |= 0x30 if prof_a else (0x10 if prof_v else 0x00)
-        mem[123] = status
-        put(144, 2, round(self.supply_voltage_v / ct.VOLTAGE_UNIT_V))
+            status |= (
+                0x30 if self._get("Profile Acceleration") else (0x10 if self._get("Profile Velocity") else 0)
+            )
+        _PRESENT_BLOCK.pack_into(
+            self._mem,
+            120,
+            (now_ns // 1_000_000) % 32768,
+            1 if abs(velocity) > self._get("Moving Threshold") else 0,
+            status,
+            pwm,
+            _clamp(current, 16),
+            _clamp(velocity, 32),
+            _clamp(present, 32),
+            _clamp(round(direction * s.ref_velocity_rad_s / ct.RAD_S_PER_VELOCITY_UNIT), 32),
+            _clamp(self._pulses_from_rad(s.ref_position_rad), 32),
+            round(self.supply_voltage_v / ct.VOLTAGE_UNIT_V),
+        )
 
     # ----- instructions -----------------------------------------------------------------------------------
     def ping(self) -> Result:
