@@ -188,6 +188,10 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
             line_stiffness_n_per_m=config.line_stiffness_n_per_m,
         )
         outcome = runner.run(prepared.remaining)
+        if session.truth is not None:  # at the end, so it includes every trial's hidden draws
+            logger.add_metadata(
+                "sim_truth", {"json": json.dumps(session.truth(detail=True), allow_nan=False)}
+            )
     finally:
         progress.stop()
         logger.finish()
@@ -235,8 +239,6 @@ def _write_metadata(logger: RunLogger, prepared: PreparedRun, session: RigSessio
     )
     logger.add_metadata("protocol", prepared.protocol.as_metadata())
     logger.add_metadata("rig", prepared.config.as_metadata())
-    if session.truth is not None:
-        logger.add_metadata("sim_truth", {"json": json.dumps(session.truth(), allow_nan=False)})
     logger.add_attachment(prepared.protocol.source.name, "application/yaml", prepared.protocol.text.encode())
     logger.add_attachment(prepared.config.source.name, "application/yaml", prepared.config.text.encode())
     for name, media_type, data in session.attachments:

@@ -132,8 +132,10 @@ def simulated_session(config: RigConfig, *, seed: int = 0, realtime: bool = Fals
         else:
             world.begin_trial("link_validation")
 
-    def truth() -> dict[str, Any]:
+    def truth(detail: bool = False) -> dict[str, Any]:
         full = world.truth()
+        if not detail:  # the per-trial draws and slip records go to the log only
+            full = {k: v for k, v in full.items() if k not in ("trials", "slips")}
         joints = full["joints"]
         estimated = joints[0]
         return {
