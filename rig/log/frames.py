@@ -196,16 +196,26 @@ def table_to_frame(table: pa.Table, nullable: frozenset[str] = frozenset()) -> p
     log_times = table.column("log_time_ns").to_numpy()
     if log_times.size > 1 and bool((np.diff(log_times) < 0).any()):
         table = table.take(pa.array(np.argsort(log_times, kind="stable")))
-    frame = table.to_pandas()
+    index = pd.DatetimeIndex(
+        pd.to_datetime(table.column("log_time_ns").to_numpy(), unit="ns", utc=True), name="log_time"
+    )
+    order = table.column_names
+    integer_columns: dict[str, pd.api.extensions.ExtensionArray] = {}
     for field in table.schema:
         column = table.column(field.name)
         if pa.types.is_integer(field.type) and (column.null_count > 0 or field.name in nullable):
-            values = column.fill_null(0).to_numpy()
+            values = column.fill_null(0).to_numpy().astype(np.int64, copy=False)
             mask = column.is_null().to_numpy(zero_copy_only=False)
-            frame[field.name] = pd.arrays.IntegerArray(values.astype(np.int64), mask)
-    frame.index = pd.DatetimeIndex(
-        pd.to_datetime(frame["log_time_ns"].to_numpy(), unit="ns", utc=True), name="log_time"
-    )
+            integer_columns[field.name] = pd.arrays.IntegerArray(values, mask)
+    if integer_columns:
+        table = table.drop_columns(list(integer_columns))
+    # self_destruct frees each Arrow column once converted (callers hand over their last reference)
+    frame = table.to_pandas(self_destruct=True, split_blocks=True)
+    del table
+    for name, values in integer_columns.items():
+        frame[name] = values
+    frame = frame[order]
+    frame.index = index
     return frame
 
 

@@ -35,7 +35,7 @@ from rig.log import schemas
 LIBRARY = f"rig-logger/{rig.__version__} mcap-python/{MCAP_VERSION}"
 DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes; periodic flushes usually close chunks first
 DEFAULT_FLUSH_INTERVAL_S = 1.0
-DEFAULT_MAX_PENDING = 1_000_000  # queued messages before log() applies back-pressure
+DEFAULT_MAX_PENDING = 100_000  # queued messages (~80 s of rig data) before log() applies back-pressure
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 _STRICT_ENV = "RIG_LOG_STRICT"
 

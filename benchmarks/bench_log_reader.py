@@ -1,0 +1,143 @@
+"""Replay speed and memory: read_run into a DataFrame against a bare linear StreamReader pass.
+
+Writes a log of 1,000,000 load-cell messages (RunLogger, as the rig writes it) in a temp dir, then runs
+each variant in a fresh subprocess, so that the RSS high-water mark (ru_maxrss) is the variant's own:
+  bare_stream   mcap StreamReader(f).records, json.loads of every Message into per-field lists
+  bare_indexed  make_reader(f).iter_messages() (log-time order), json.loads into per-field lists
+  read_run      rig.log.reader.read_run(path).topic("/rig/loadcell"): a DataFrame indexed by time
+
+Run: .venv/bin/python benchmarks/bench_log_reader.py [--messages 1000000] [--repeats 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+T0_NS = 1_767_225_600_000_000_000
+MS = 1_000_000
+VARIANTS = ("bare_stream", "bare_indexed", "read_run")
+# The parent stays small (stdlib only): Linux keeps ru_maxrss across fork and exec, so a child's
+# figure would otherwise start from the parent's high-water mark.
+
+
+def generate(path: Path, n: int) -> None:
+    from rig.log import schemas as S
+    from rig.log.writer import RunLogger
+
+    with RunLogger(path) as log:
+        for i in range(n):
+            payload = S.loadcell_sample(raw=100_000 + (i * 37) % 5000, force_n=1.5 + (i % 997) * 1e-3, seq=i)
+            log.log(S.LOADCELL, T0_NS + i * MS, payload)
+
+
+def _columns_append(columns: dict[str, list], data: bytes) -> None:
+    for key, value in json.loads(data).items():
+        columns.setdefault(key, []).append(value)
+
+
+def run_variant(name: str, path: Path) -> dict[str, float]:
+    start = time.perf_counter()
+    if name == "bare_stream":
+        from mcap.records import Message
+        from mcap.stream_reader import StreamReader
+
+        columns: dict[str, list] = {}
+        log_times: list[int] = []
+        with open(path, "rb") as f:
+            for record in StreamReader(f).records:
+                if isinstance(record, Message):
+                    log_times.append(record.log_time)
+                    _columns_append(columns, record.data)
+        count = len(log_times)
+    elif name == "bare_indexed":
+        from mcap.reader import make_reader
+
+        columns = {}
+        log_times = []
+        with open(path, "rb") as f:
+            for _schema, _channel, message in make_reader(f).iter_messages():
+                log_times.append(message.log_time)
+                _columns_append(columns, message.data)
+        count = len(log_times)
+    elif name == "read_run":
+        from rig.log.reader import read_run
+
+        frame = read_run(path).topic("/rig/loadcell")
+        count = len(frame)
+    else:
+        raise SystemExit(f"unknown variant {name}")
+    elapsed = time.perf_counter() - start
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {"seconds": elapsed, "messages": count, "peak_rss_mb": peak_mb}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--messages", type=int, default=1_000_000)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--variant", choices=(*VARIANTS, "generate", "imports"), help=argparse.SUPPRESS)
+    parser.add_argument("--file", type=Path, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.variant == "generate":
+        generate(args.file, args.messages)
+        return
+    if args.variant == "imports":
+        import mcap.reader  # noqa: F401
+        import pandas  # noqa: F401
+        import pyarrow.json  # noqa: F401
+
+        import rig.log.reader  # noqa: F401
+
+        print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+        return
+    if args.variant:  # child process: one variant, JSON on stdout
+        print(json.dumps(run_variant(args.variant, args.file)))
+        return
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "bench.mcap"
+        start = time.perf_counter()
+        child = [sys.executable, __file__, "--file", str(path), "--messages", str(args.messages)]
+        subprocess.run([*child, "--variant", "generate"], check=True, timeout=900)
+        size_mb = path.stat().st_size / 1e6
+        print(f"generated {args.messages} messages, {size_mb:.1f} MB in {time.perf_counter() - start:.1f} s")
+        imports = subprocess.run(
+            [*child, "--variant", "imports"], capture_output=True, text=True, check=True, timeout=120
+        )
+        import_mb = float(imports.stdout)
+        print(f"peak RSS of a child that only imports mcap, pandas, pyarrow, rig.log: {import_mb:.0f} MB")
+        best: dict[str, dict[str, float]] = {}
+        for _ in range(args.repeats):
+            for name in VARIANTS:
+                done = subprocess.run(
+                    [*child, "--variant", name],
+                    capture_output=True,
+                    text=True,
+                    check=True,
+                    timeout=600,
+                )
+                result = json.loads(done.stdout)
+                if result["messages"] != args.messages:
+                    raise SystemExit(f"{name} read {result['messages']} messages, expected {args.messages}")
+                if name not in best or result["seconds"] < best[name]["seconds"]:
+                    best[name] = {
+                        **result,
+                        "peak_rss_mb": max(result["peak_rss_mb"], best.get(name, result)["peak_rss_mb"]),
+                    }
+    print(f"best of {args.repeats}; peak RSS is the largest seen")
+    print(f"{'variant':<13} {'seconds':>8} {'msg/s':>9} {'peak RSS MB':>12}")
+    for name, r in best.items():
+        print(f"{name:<13} {r['seconds']:8.2f} {r['messages'] / r['seconds']:9.0f} {r['peak_rss_mb']:12.0f}")
+    ratio = best["read_run"]["seconds"] / best["bare_stream"]["seconds"]
+    print(f"ratio read_run / bare_stream time: {ratio:.2f}x (target <= 1.5x)")
+
+
+if __name__ == "__main__":
+    main()
