@@ -21,6 +21,7 @@ from rig.hw.clock import SystemClock
 from rig.hw.loadcell import DEFAULT_BAUD, DEFAULT_STALE_TIMEOUT_S, SerialLoadCell
 from rig.hw.loadcell_formats import FORMATS
 from rig.hw.seams import Clock, LoadCell
+from rig.rig_config import load_rig_config
 
 PromptFn = Callable[[CalibrationStep, str], None]
 
@@ -40,6 +41,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--port", help="serial port or pyserial URL of the load cell (e.g. /dev/ttyUSB0)")
     source.add_argument("--sim", action="store_true", help="use the in-process simulated load cell")
+    source.add_argument(
+        "--rig",
+        type=Path,
+        metavar="CONFIG",
+        help="take port, baud, format (and --out: loadcell.calibration) from a hardware rig config",
+    )
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help=f"baud rate (default {DEFAULT_BAUD})")
     parser.add_argument(
         "--format", default="rig-lc1", choices=sorted(FORMATS), help="line format (default rig-lc1)"
@@ -47,7 +54,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     parser.add_argument(
         "--reference-kg", type=float, required=True, help="mass of the reference weight in kg"
     )
-    parser.add_argument("--out", required=True, help="calibration JSON file to write")
+    parser.add_argument(
+        "--out", default=None, help="calibration JSON file to write (required unless --rig names one)"
+    )
     parser.add_argument(
         "--settle-s",
         type=float,
@@ -77,8 +86,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     parser.set_defaults(handler=run)
 
 
+def apply_rig_config(args: argparse.Namespace) -> None:
+    """With --rig, fill the load-cell port, baud, format and output file from the rig config."""
+    if getattr(args, "rig", None) is None:
+        return
+    config = load_rig_config(args.rig)
+    if config.kind != "hardware":
+        raise InputError(f"{args.rig}: kind: {config.kind}; --rig needs a hardware rig (use --sim to try it)")
+    args.port = config.loadcell.port
+    args.baud = config.loadcell.baud
+    args.format = config.loadcell.format
+    if args.out is None:
+        if config.loadcell.calibration_path is None:
+            raise InputError(f"{args.rig}: loadcell.calibration is not set; give --out")
+        args.out = str(config.loadcell.calibration_path)
+
+
 def validate_args(args: argparse.Namespace) -> None:
     """Reject impossible values before touching any hardware."""
+    apply_rig_config(args)
+    if args.out is None:
+        raise InputError("--out: required (the calibration JSON file to write)")
     checks = [
         ("--reference-kg", args.reference_kg, args.reference_kg > 0, "> 0"),
         ("--settle-s", args.settle_s, 0 <= args.settle_s <= 600, "0-600"),

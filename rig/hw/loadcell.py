@@ -104,9 +104,15 @@ class SerialLoadCell:
         if self._serial is not None:
             return
         threaded = self._reader_mode == "thread"
-        ser = self._serial_factory(
-            port=self.port, baudrate=self.baud, timeout=_READ_TIMEOUT_S if threaded else 0
-        )
+        try:
+            ser = self._serial_factory(
+                port=self.port, baudrate=self.baud, timeout=_READ_TIMEOUT_S if threaded else 0
+            )
+        except (serial.SerialException, OSError) as exc:
+            raise NotConnectedError(
+                f"load cell on {self.port} at {self.baud} baud: cannot open the port ({exc}); "
+                "check the cable and `rig ports`"
+            ) from None
         if self._reader_mode == "auto" and isinstance(ser, serial.SerialBase):
             threaded = True
             ser.timeout = _READ_TIMEOUT_S
