@@ -123,6 +123,7 @@ class Servo:
         self._at_limit_ns = 0
         self._last_rx_ns = now_ns
         self._cmd = ActuatorCommand()
+        self._settled: tuple[ActuatorCommand, float, float] | None = None  # see _integrate
         self._update_command()
 
     # ----- register access -------------------------------------------------------------------------------
@@ -336,6 +337,17 @@ class Servo:
             self._now_ns = now_ns
             self._at_limit_ns = 0
             return
+        settled = self._settled
+        if (
+            settled is not None
+            and settled[0] is cmd
+            and settled[1] == self.external_torque_nm
+            and settled[2] == state.position_rad
+        ):
+            # Holding still under an unchanged load and command: the quasi-static step is at a
+            # fixed point, so integrating would change nothing (the bender idles most of a run).
+            self._now_ns = now_ns
+            return
         limit_a = self.motor.stall_current_a
         if self._has_current:
             limit_a = min(limit_a, self._get("Current Limit") * ct.CURRENT_UNIT_A)
@@ -355,6 +367,8 @@ class Servo:
             else:
                 self._at_limit_ns = 0
         self._now_ns = now_ns
+        at_rest = state.velocity_rad_s == 0.0 and state.profile_done and not state.saturated
+        self._settled = (cmd, tau_ext, state.position_rad) if at_rest and self._at_limit_ns == 0 else None
 
     def _check_watchdog(self, now_ns: int) -> None:
         wd = self._mem[98]
