@@ -1,0 +1,210 @@
+"""Re-detection: the slip detector run again over each trial's logged load-cell samples.
+
+The runner initialises the detector at the trial's ramp start (the log time of its first
+`ramp_fast`/`ramp_slow` phase) and feeds it every `/rig/loadcell` sample logged at or after that
+time, in log order, until an event fires that the winch confirms. Replay feeds `detect_slips` the
+same samples, from the ramp start to the start of the trial's `unloading` phase (or the trial's end),
+and picks the event:
+
+* with the logged parameters, the first event whose detection time is the logged one: a first
+  event the runner rejected (winch backing off) latched the detector exactly as it did live, so the
+  events after it are the live ones. The event must then equal the logged one field by field;
+  anything else is a mismatch, reported.
+* with other parameters (`--detector k=v ...`), the first event the winch confirms, judged as the
+  runner does from the latest logged winch state at or before the event (velocity > -0.05 rad/s and
+  no hardware error). That state is the one the runner read in the same control tick up to the
+  tick's timing, so this reproduces the runner's choice in all but contrived cases.
+
+Overrides are validated like protocol fields: an unknown name or a bad value is an `InputError`
+naming it and its allowed range.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from model.slip_detector import DetectorParams, SlipEvent, detect_slips
+from rig.analysis.trials import LoggedSlip, TrialRecord
+from rig.errors import InputError
+from rig.log import schemas
+
+WINCH_BACKING_OFF_RAD_S = -0.05  # the runner's `_confirmed_by_winch` threshold
+
+MATCH = "match"
+MISMATCH = "mismatch"
+CHANGED = "changed"
+NO_SAMPLES = "no_samples"
+
+
+@dataclass(frozen=True)
+class Redetection:
+    """The outcome of re-detecting one trial.
+
+    `status`: `match` (the re-detected event, or its absence, equals what was logged), `mismatch`
+    (it should have and does not: logged parameters), `changed` (it differs, as parameters given on
+    the command line may make it), `no_samples` (no ramp window or no samples in it).
+    """
+
+    trial_id: int
+    status: str
+    event: SlipEvent | None
+    logged: LoggedSlip | None
+    samples: int
+    detail: str
+
+
+def validate_overrides(assignments: Sequence[str]) -> None:
+    """Check `key=value` overrides against the detector's fields (InputError naming the bad one)."""
+    if not assignments:
+        return
+    try:
+        DetectorParams().with_overrides(assignments, source="--detector")
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+
+
+def detector_params(
+    logged: Mapping[str, Any] | None, overrides: Sequence[str], source: str
+) -> DetectorParams:
+    """The logged detector parameters (defaults if none were logged) with `overrides` applied."""
+    try:
+        base = DetectorParams.from_mapping(dict(logged or {}), source=source)
+    except ValueError as exc:
+        raise InputError(f"logged detector parameters: {exc}") from None
+    if not overrides:
+        return base
+    try:
+        return base.with_overrides(overrides, source="--detector")
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+
+
+def _same_event(event: SlipEvent, logged: LoggedSlip) -> list[str]:
+    """Fields in which a re-detected event differs from the logged one (empty: identical)."""
+    differences = []
+    for name in (
+        "onset_time_ns",
+        "detection_time_ns",
+        "peak_time_ns",
+        "peak_force_n",
+        "force_after_n",
+        "drop_fraction",
+        "trigger",
+    ):
+        mine, theirs = getattr(event, name), getattr(logged, name)
+        if mine != theirs:
+            differences.append(f"{name} {mine!r} vs logged {theirs!r}")
+    return differences
+
+
+class _WinchStates:
+    """Latest logged winch state at a time, for the runner's confirmation rule."""
+
+    def __init__(self, states: pd.DataFrame) -> None:
+        if states.empty or "role" not in states.columns:
+            self.times = np.zeros(0, np.int64)
+            return
+        winch = states[states["role"] == "winch"]
+        self.times = winch["log_time_ns"].to_numpy(np.int64)
+        self.velocity = winch["velocity_rad_s"].to_numpy(float)
+        self.error = winch["hardware_error"].to_numpy(np.int64)
+
+    def confirms(self, time_ns: int) -> bool:
+        i = int(np.searchsorted(self.times, time_ns, side="right")) - 1
+        if i < 0:
+            return True  # nothing logged: no evidence of backing off
+        return bool(self.velocity[i] > WINCH_BACKING_OFF_RAD_S and self.error[i] == 0)
+
+
+def redetect_trials(
+    records: Sequence[TrialRecord], params: DetectorParams, *, exact: bool
+) -> list[Redetection]:
+    """Re-detect every trial; `exact` when `params` are the logged ones (see the module docstring)."""
+    out: list[Redetection] = []
+    samples_by_part: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    winch_by_part: dict[int, _WinchStates] = {}
+    for record in records:
+        key = id(record.part)
+        if key not in samples_by_part:
+            loadcell = record.part.log.topic(schemas.LOADCELL)
+            samples_by_part[key] = (
+                loadcell["log_time_ns"].to_numpy(np.int64),
+                loadcell["force_n"].to_numpy(float),
+            )
+            winch_by_part[key] = _WinchStates(record.part.log.topic(schemas.SERVO_STATE))
+        times, forces = samples_by_part[key]
+        out.append(_redetect_one(record, times, forces, winch_by_part[key], params, exact))
+    return out
+
+
+def _redetect_one(
+    record: TrialRecord,
+    times: np.ndarray,
+    forces: np.ndarray,
+    winch: _WinchStates,
+    params: DetectorParams,
+    exact: bool,
+) -> Redetection:
+    logged = record.slip
+    if record.ramp_start_ns is None:
+        return Redetection(
+            record.trial_id, NO_SAMPLES, None, logged, 0, "no ramp phase logged for this trial"
+        )
+    end_ns = record.unloading_ns if record.unloading_ns is not None else int(record.result["end_time_ns"])
+    lo = int(np.searchsorted(times, record.ramp_start_ns, side="left"))
+    hi = int(np.searchsorted(times, end_ns, side="left"))
+    if hi <= lo:
+        return Redetection(record.trial_id, NO_SAMPLES, None, logged, 0, "no load-cell samples in the ramp")
+    events = detect_slips(params, times[lo:hi].tolist(), forces[lo:hi].tolist())
+    count = hi - lo
+    if exact:
+        if logged is None:
+            if not events:
+                return Redetection(record.trial_id, MATCH, None, None, count, "no slip, as logged")
+            first = events[0]
+            return Redetection(
+                record.trial_id, MISMATCH, first, None, count,
+                f"re-detected a slip at {first.peak_force_n:.4g} N that the run did not log",
+            )  # fmt: skip
+        chosen = next((e for e in events if e.detection_time_ns == logged.detection_time_ns), None)
+        if chosen is None:
+            detail = (
+                f"no re-detected event at the logged detection time ({len(events)} events)"
+                if events
+                else "no event re-detected"
+            )
+            return Redetection(
+                record.trial_id, MISMATCH, events[0] if events else None, logged, count, detail
+            )
+        differences = _same_event(chosen, logged)
+        if differences:
+            return Redetection(record.trial_id, MISMATCH, chosen, logged, count, "; ".join(differences))
+        return Redetection(record.trial_id, MATCH, chosen, logged, count, "identical to the logged event")
+    chosen = next((e for e in events if winch.confirms(e.detection_time_ns)), None)
+    if chosen is None and logged is None:
+        return Redetection(record.trial_id, MATCH, None, None, count, "no slip, as logged")
+    if chosen is None:
+        return Redetection(record.trial_id, CHANGED, None, logged, count, "no event with these parameters")
+    if logged is not None and not _same_event(chosen, logged):
+        return Redetection(record.trial_id, MATCH, chosen, logged, count, "identical to the logged event")
+    if logged is None:
+        return Redetection(
+            record.trial_id,
+            CHANGED,
+            chosen,
+            None,
+            count,
+            f"a slip at {chosen.peak_force_n:.4g} N, none logged",
+        )
+    shift = chosen.peak_force_n - logged.peak_force_n
+    delay_s = (chosen.detection_time_ns - logged.detection_time_ns) / 1e9
+    return Redetection(
+        record.trial_id, CHANGED, chosen, logged, count,
+        f"peak {chosen.peak_force_n:.4g} N ({shift:+.3g} N vs logged), detected {delay_s:+.3f} s, "
+        f"force after {chosen.force_after_n:.4g} N",
+    )  # fmt: skip

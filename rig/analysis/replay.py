@@ -1,0 +1,238 @@
+"""`rig replay` without the CLI: read a run's logs, rebuild its trials, re-detect, refit, compare.
+
+`replay(paths, detector_overrides)` returns a `ReplayResult` holding the trial table, the three
+estimates (offline refit of the logged results, the last online estimate, the refit of re-detected
+peaks), the re-detection outcome per trial, and for link-validation runs the Table IV and Table V
+statistics. `ReplayResult.as_json()` is the `rig replay --json` object.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from model.fit import SUMMARY_KEYS
+from model.slip_detector import DetectorParams
+from rig.analysis import redetect as rd
+from rig.analysis.refit import (
+    base_moments,
+    compare_estimates,
+    joint_estimation_pairs,
+    payload_errors,
+    refit,
+)
+from rig.analysis.runlog import (
+    LogPart,
+    RunSettings,
+    detector_from_slips,
+    read_parts,
+    require_some_data,
+    run_settings,
+)
+from rig.analysis.trials import TrialRecord, records_json, trial_records, trial_table
+from rig.log import schemas
+
+
+@dataclass
+class ReplayResult:
+    """Everything `rig replay` found in a run (see the module docstring)."""
+
+    parts: list[LogPart]
+    settings: RunSettings
+    records: list[TrialRecord]
+    table: pd.DataFrame
+    estimates: list[dict[str, Any]]  # the logged /rig/estimate messages, in run order
+    estimate: dict[str, Any] | None
+    online_estimate: dict[str, Any] | None
+    redetected_estimate: dict[str, Any] | None
+    agreement: dict[str, Any]
+    detector: DetectorParams
+    detector_overrides: list[str]
+    redetections: list[rd.Redetection]
+    percentage_errors: dict[str, Any] | None
+    base_moments: dict[str, Any] | None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def files(self) -> list[Path]:
+        """The files read, in run order."""
+        return [p.path for p in self.parts]
+
+    @property
+    def complete(self) -> bool:
+        """Every file finished and undamaged."""
+        return bool(self.parts) and all(p.log.complete for p in self.parts)
+
+    @property
+    def has_link_validation(self) -> bool:
+        """Whether the run has link-validation trials."""
+        return bool((self.table["kind"] == "link_validation").any())
+
+    def redetection_summary(self) -> dict[str, Any]:
+        """Matches and mismatches of re-detection against the logged events."""
+        by_status: dict[str, int] = {}
+        for r in self.redetections:
+            by_status[r.status] = by_status.get(r.status, 0) + 1
+        return {
+            "detector": self.detector.to_mapping(),
+            "source": "command line" if self.detector_overrides else self.settings.detector_source,
+            "overrides": list(self.detector_overrides),
+            "trials": len(self.redetections),
+            "matches": by_status.get(rd.MATCH, 0),
+            "mismatches": [
+                {"trial_id": r.trial_id, "status": r.status, "detail": r.detail}
+                for r in self.redetections
+                if r.status != rd.MATCH
+            ],
+            "by_status": by_status,
+            "exact": not self.detector_overrides,
+        }
+
+    def as_json(self) -> dict[str, Any]:
+        """The `rig replay --json` object."""
+        out: dict[str, Any] = {
+            "files": [str(p) for p in self.files],
+            "complete": self.complete,
+            "warnings": list(self.warnings),
+            "run_id": self.settings.run_id,
+            "protocol": self.settings.protocol_name,
+            "trials": records_json(self.table),
+            "estimate": self.estimate,
+            "online_estimate": self.online_estimate,
+            "online_agreement": self.agreement,
+            "redetected_estimate": self.redetected_estimate,
+            "redetection": self.redetection_summary(),
+        }
+        if self.has_link_validation:
+            out["percentage_errors"] = self.percentage_errors
+            out["base_moments"] = self.base_moments
+            joints = self.final_joint_estimates()
+            out["joints"] = joints
+        if self.settings.truth is not None:
+            out["truth"] = self.settings.truth
+        return out
+
+    def final_joint_estimates(self) -> list[dict[str, Any]]:
+        """The last logged per-joint capacity estimates (link validation), or []."""
+        return list(self.estimates[-1]["joints"]) if self.estimates else []
+
+
+def replay(
+    paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    detector_overrides: Sequence[str] = (),
+) -> ReplayResult:
+    """Replay a run's MCAP logs (files or directories); see the module docstring.
+
+    Raises InputError for missing or non-MCAP files, bad detector overrides or files with no rig data.
+    """
+    overrides = list(detector_overrides)
+    rd.validate_overrides(overrides)
+    parts = read_parts(paths)
+    require_some_data(parts)
+    warnings: list[str] = []
+    settings = run_settings(parts, warnings)
+    if settings.detector is None:
+        settings.detector = detector_from_slips(parts)
+        if settings.detector is not None:
+            settings.detector_source = "slip events"
+        else:
+            warnings.append("no detector parameters logged; re-detection uses the detector's defaults")
+    params = rd.detector_params(settings.detector, overrides, settings.detector_source)
+
+    records = trial_records(parts, warnings)
+    estimates = _logged_estimates(parts)
+    online = _online_estimate(estimates)
+    level = online["level"] if online and online.get("level") else settings.level
+    constant = online["constant"] if online and online.get("constant") else settings.constant
+    radius = online["radius_m"] if online and online.get("radius_m") else settings.radius_m
+    if settings.radius_m is None and radius is None:
+        warnings.append("joint radius unknown (no rig metadata): no fit")
+
+    redetections = rd.redetect_trials(records, params, exact=not overrides)
+    for record, found in zip(records, redetections, strict=True):
+        event = found.event
+        record.extra = {
+            "redetection": found.status,
+            "redetected_peak_force_n": event.peak_force_n if event else None,
+            "redetected_slip_mass_kg": event.peak_force_n / settings.g if event else None,
+            "redetected_peak_time_ns": event.peak_time_ns if event else None,
+            "redetected_detection_time_ns": event.detection_time_ns if event else None,
+        }
+        if found.status == rd.MISMATCH:
+            warnings.append(
+                f"re-detection of trial {found.trial_id} does not reproduce the log: {found.detail}"
+            )
+    table = trial_table(records, settings)
+
+    fit_settings = {"level": level, "constant": constant, "radius_m": radius, "g": settings.g}
+    distances, masses, _ = joint_estimation_pairs(table)
+    estimate = refit(distances, masses, **fit_settings)
+    re_distances, re_masses, _ = joint_estimation_pairs(table, "redetected_slip_mass_kg")
+    redetected_estimate = refit(re_distances, re_masses, **fit_settings)
+    agreement = compare_estimates(estimate, online)
+    if agreement["compared"] and not agreement["agree"]:
+        warnings.append(
+            "the offline refit differs from the last online estimate in "
+            f"{', '.join(agreement['differing'])} (max relative difference "
+            f"{agreement['max_relative_difference']:.3g})"
+        )
+
+    all_warnings = [w for part in parts for w in part.log.warnings] + warnings
+    return ReplayResult(
+        parts=parts,
+        settings=settings,
+        records=records,
+        table=table,
+        estimates=estimates,
+        estimate=estimate,
+        online_estimate=online,
+        redetected_estimate=redetected_estimate,
+        agreement=agreement,
+        detector=params,
+        detector_overrides=overrides,
+        redetections=redetections,
+        percentage_errors=payload_errors(table),
+        base_moments=base_moments(table),
+        warnings=list(dict.fromkeys(all_warnings)),
+    )
+
+
+def _plain(value: Any) -> Any:
+    if value is None or value is pd.NA:
+        return None
+    if isinstance(value, np.ndarray):
+        return [_plain(v) for v in value.tolist()]
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and value != value:
+        return None
+    return value
+
+
+def _logged_estimates(parts: Sequence[LogPart]) -> list[dict[str, Any]]:
+    """Every `/rig/estimate` message of the run (fit keys, trial_id, joints, part), in run order."""
+    rows = []
+    for part in parts:
+        frame = part.log.topic(schemas.ESTIMATE)
+        for _, message in frame.iterrows():
+            row = {key: _plain(message.get(key)) for key in ("trial_id", *SUMMARY_KEYS, "joints")}
+            row["joints"] = [{k: _plain(v) for k, v in dict(j).items()} for j in (row.get("joints") or [])]
+            row["part"] = part.name
+            row["log_time_ns"] = int(message["log_time_ns"])
+            rows.append(row)
+    return rows
+
+
+def _online_estimate(estimates: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The last logged online estimate with a fit, as `rig fit --json` keys (None if none has one)."""
+    if not estimates or not estimates[-1]["n"]:
+        return None
+    return {key: estimates[-1][key] for key in SUMMARY_KEYS}

@@ -1,0 +1,310 @@
+"""The trial table: one row per finished trial, rebuilt from `/rig/trial/result`, and its files.
+
+Each `/rig/trial/result` message becomes a `TrialRecord` that also keeps where the trial's samples
+are: the part (file) it was logged in, the log time at which its ramp began (the first `ramp_fast`
+or `ramp_slow` phase of the trial, which is the instant from which the live detector was fed), the
+start of its `unloading` phase, and the `/rig/slip` event the runner logged for it.
+
+`trial_table(records, ...)` turns the records into a DataFrame with a fixed set of columns (units in
+the names; nullable integer columns as `Int64`), which `write_trial_table` exports as CSV and
+Parquet and `load_trial_table` reads back with the same dtypes.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from model.chain import lever_arms_m, planar_transforms
+from rig.analysis.runlog import LogPart, RunSettings
+from rig.errors import InputError
+from rig.log import schemas
+
+RAMP_PHASES = (schemas.TrialPhase.RAMP_FAST.value, schemas.TrialPhase.RAMP_SLOW.value)
+UNLOADING_PHASE = schemas.TrialPhase.UNLOADING.value
+
+# Column -> dtype of the trial table (joint angle columns `joint_angle_<i>_rad` are added per joint).
+TRIAL_COLUMNS: dict[str, str] = {
+    "trial_id": "Int64",
+    "kind": "string",
+    "part": "string",
+    "repeat": "Int64",
+    "joint": "Int64",
+    "configuration_index": "Int64",
+    "distance_m": "float64",
+    "outcome": "string",
+    "peak_force_n": "float64",
+    "slip_mass_kg": "float64",
+    "predicted_mass_kg": "float64",
+    "percentage_error_pct": "float64",
+    "slipped_joint": "Int64",
+    "base_lever_arm_m": "float64",
+    "base_moment_nm": "float64",
+    "start_time_ns": "Int64",
+    "end_time_ns": "Int64",
+    "ramp_start_ns": "Int64",
+    "slip_peak_time_ns": "Int64",
+    "slip_detection_time_ns": "Int64",
+    "redetection": "string",
+    "redetected_peak_force_n": "float64",
+    "redetected_slip_mass_kg": "float64",
+    "redetected_peak_time_ns": "Int64",
+    "redetected_detection_time_ns": "Int64",
+}
+ANGLE_COLUMN = re.compile(r"^joint_angle_(\d+)_rad$")
+
+
+@dataclass(frozen=True)
+class LoggedSlip:
+    """The `/rig/slip` event the runner logged for a trial."""
+
+    onset_time_ns: int
+    detection_time_ns: int
+    peak_time_ns: int
+    peak_force_n: float
+    force_after_n: float
+    drop_fraction: float
+    trigger: str
+
+
+@dataclass
+class TrialRecord:
+    """One finished trial: its logged result and where its samples are."""
+
+    part: LogPart
+    result: dict[str, Any]
+    ramp_start_ns: int | None
+    unloading_ns: int | None
+    slip: LoggedSlip | None
+    joint_angles_rad: tuple[float, ...] | None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def trial_id(self) -> int:
+        """The trial's id (1-based position in the protocol's plan)."""
+        return int(self.result["trial_id"])
+
+    @property
+    def kind(self) -> str:
+        """joint_estimation or link_validation."""
+        return str(self.result["kind"])
+
+    @property
+    def slipped(self) -> bool:
+        """Whether the runner recorded a slip."""
+        return self.result.get("outcome") == "slip"
+
+
+def _value(row: pd.Series, name: str) -> Any:
+    """A cell as a plain Python value (None for missing)."""
+    if name not in row.index:
+        return None
+    value = row[name]
+    if value is None or value is pd.NA:
+        return None
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRecord]:
+    """Every `/rig/trial/result` of the run, in part order then log time; duplicates warned and dropped."""
+    records: list[TrialRecord] = []
+    seen: dict[int, str] = {}
+    for part in parts:
+        results = part.log.topic(schemas.TRIAL_RESULT)
+        states = part.log.topic(schemas.TRIAL_STATE)
+        slips = part.log.topic(schemas.SLIP)
+        for _, row in results.iterrows():
+            result = {name: _value(row, name) for name in row.index}
+            trial_id = int(result["trial_id"])
+            if trial_id in seen:
+                warnings.append(
+                    f"{part.name}: trial {trial_id} has a second result (first in {seen[trial_id]}); "
+                    "the first is kept"
+                )
+                continue
+            seen[trial_id] = part.name
+            start = int(result["start_time_ns"])
+            end = int(result["end_time_ns"])
+            ramp_start, unloading = _ramp_window(states, trial_id, start, end)
+            slip = _logged_slip(slips, trial_id, start, end)
+            angles = result.get("configuration.joint_angles_rad")
+            records.append(
+                TrialRecord(
+                    part=part,
+                    result=result,
+                    ramp_start_ns=ramp_start,
+                    unloading_ns=unloading,
+                    slip=slip,
+                    joint_angles_rad=tuple(float(a) for a in angles) if angles is not None else None,
+                )
+            )
+            if result.get("outcome") == "slip" and slip is None:
+                warnings.append(f"{part.name}: trial {trial_id}: outcome slip but no /rig/slip event logged")
+    return records
+
+
+def _ramp_window(
+    states: pd.DataFrame, trial_id: int, start_ns: int, end_ns: int
+) -> tuple[int | None, int | None]:
+    """Log times of the trial's first ramp phase and of its unloading phase after it (None if absent)."""
+    if states.empty:
+        return None, None
+    times = states["log_time_ns"].to_numpy()
+    mine = (
+        (states["trial_id"] == trial_id).fillna(False).to_numpy(bool)
+        & (times >= start_ns)
+        & (times <= end_ns)
+    )
+    phases = states["phase"].to_numpy(object)
+    ramp_idx = np.flatnonzero(mine & np.isin(phases, RAMP_PHASES))
+    if ramp_idx.size == 0:
+        return None, None
+    ramp_start = int(times[ramp_idx[0]])
+    unload_idx = np.flatnonzero(mine & (phases == UNLOADING_PHASE) & (times >= ramp_start))
+    return ramp_start, int(times[unload_idx[0]]) if unload_idx.size else None
+
+
+def _logged_slip(slips: pd.DataFrame, trial_id: int, start_ns: int, end_ns: int) -> LoggedSlip | None:
+    if slips.empty:
+        return None
+    times = slips["detection_time_ns"].to_numpy()
+    mine = np.flatnonzero(
+        (slips["trial_id"] == trial_id).to_numpy(bool) & (times >= start_ns) & (times <= end_ns)
+    )
+    if mine.size == 0:
+        return None
+    row = slips.iloc[mine[0]]
+    return LoggedSlip(
+        onset_time_ns=int(row["onset_time_ns"]),
+        detection_time_ns=int(row["detection_time_ns"]),
+        peak_time_ns=int(row["peak_time_ns"]),
+        peak_force_n=float(row["peak_force_n"]),
+        force_after_n=float(row["force_after_n"]),
+        drop_fraction=float(row["drop_fraction"]),
+        trigger=str(row["trigger"]),
+    )
+
+
+def base_lever_arm_m(settings: RunSettings, joint_angles_rad: Sequence[float]) -> float | None:
+    """Lever arm of the line about the base origin at a planar configuration (None without geometry)."""
+    article = settings.article
+    if article is None or len(joint_angles_rad) != article.joint_count:
+        return None
+    transforms = planar_transforms(np.asarray(joint_angles_rad, float), np.asarray(article.segment_lengths_m))
+    arms = lever_arms_m(transforms, np.asarray(article.point_m), np.asarray(article.direction))
+    return float(arms[0])
+
+
+def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.DataFrame:
+    """The trial table (columns `TRIAL_COLUMNS` plus one `joint_angle_<i>_rad` per joint)."""
+    joints = max((len(r.joint_angles_rad or ()) for r in records), default=0)
+    rows: list[dict[str, Any]] = []
+    for record in records:
+        r = record.result
+        plan = settings.plans.get(record.trial_id)
+        peak = r.get("peak_force_n")
+        slip_mass = r.get("slip_mass_kg")
+        predicted = r.get("predicted_mass_kg")
+        pct = None
+        if record.slipped and predicted is not None and slip_mass:
+            pct = (predicted - slip_mass) / slip_mass * 100.0
+        base_arm = base_lever_arm_m(settings, record.joint_angles_rad) if record.joint_angles_rad else None
+        base_moment = (
+            peak * base_arm if (record.slipped and peak is not None and base_arm is not None) else None
+        )
+        row: dict[str, Any] = {
+            "trial_id": record.trial_id,
+            "kind": record.kind,
+            "part": record.part.name,
+            "repeat": r.get("repeat"),
+            "joint": plan.joint if plan is not None else None,
+            "configuration_index": plan.configuration_index if plan is not None else None,
+            "distance_m": r.get("distance_m"),
+            "outcome": r.get("outcome"),
+            "peak_force_n": peak,
+            "slip_mass_kg": slip_mass,
+            "predicted_mass_kg": predicted,
+            "percentage_error_pct": pct,
+            "slipped_joint": r.get("slipped_joint"),
+            "base_lever_arm_m": base_arm,
+            "base_moment_nm": base_moment,
+            "start_time_ns": r.get("start_time_ns"),
+            "end_time_ns": r.get("end_time_ns"),
+            "ramp_start_ns": record.ramp_start_ns,
+            "slip_peak_time_ns": record.slip.peak_time_ns if record.slip else None,
+            "slip_detection_time_ns": record.slip.detection_time_ns if record.slip else None,
+        }
+        row.update(record.extra)
+        for j in range(joints):
+            angles = record.joint_angles_rad
+            row[f"joint_angle_{j + 1}_rad"] = angles[j] if angles is not None and j < len(angles) else None
+        rows.append(row)
+    columns = {**TRIAL_COLUMNS, **{f"joint_angle_{j + 1}_rad": "float64" for j in range(joints)}}
+    frame = pd.DataFrame(rows, columns=list(columns))
+    return _with_dtypes(frame)
+
+
+def _with_dtypes(frame: pd.DataFrame) -> pd.DataFrame:
+    out = frame.copy()
+    for column in out.columns:
+        dtype = TRIAL_COLUMNS.get(column) or ("float64" if ANGLE_COLUMN.match(column) else None)
+        if dtype is None:
+            continue
+        if dtype == "float64":
+            out[column] = pd.to_numeric(out[column], errors="coerce").astype("float64")
+        elif dtype == "Int64":
+            out[column] = pd.array([None if _missing(v) else int(v) for v in out[column]], dtype="Int64")
+        else:
+            out[column] = out[column].astype("string")
+    return out.reset_index(drop=True)
+
+
+def _missing(value: Any) -> bool:
+    return value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value))
+
+
+def write_trial_table(frame: pd.DataFrame, directory: Path, stem: str = "trials") -> list[Path]:
+    """Write `<stem>.csv` and `<stem>.parquet` into `directory`; returns the paths."""
+    csv_path = directory / f"{stem}.csv"
+    parquet_path = directory / f"{stem}.parquet"
+    frame.to_csv(csv_path, index=False)
+    frame.to_parquet(parquet_path, index=False, engine="pyarrow")
+    return [csv_path, parquet_path]
+
+
+def load_trial_table(path: str | Path) -> pd.DataFrame:
+    """Read a trial table written by `write_trial_table` (CSV or Parquet) with its dtypes."""
+    p = Path(path)
+    try:
+        if p.suffix == ".parquet":
+            frame = pd.read_parquet(p, engine="pyarrow")
+        else:
+            frame = pd.read_csv(p, float_precision="round_trip", keep_default_na=True)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{p}: cannot read the trial table ({exc})") from None
+    return _with_dtypes(frame)
+
+
+def records_json(frame: pd.DataFrame) -> list[dict[str, Any]]:
+    """The table as a list of plain dicts (None for missing, floats exact); joint angles in one list."""
+    angle_columns = sorted(
+        (c for c in frame.columns if ANGLE_COLUMN.match(c)), key=lambda c: int(c.split("_")[2])
+    )
+    out = []
+    for _, series in frame.iterrows():
+        row = {name: _value(series, name) for name in frame.columns if name not in angle_columns}
+        angles = [_value(series, c) for c in angle_columns]
+        row["joint_angles_rad"] = angles if any(a is not None for a in angles) else None
+        out.append(row)
+    return out
