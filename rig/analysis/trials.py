@@ -251,22 +251,29 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
             row[f"joint_angle_{j + 1}_rad"] = angles[j] if angles is not None and j < len(angles) else None
         rows.append(row)
     columns = {**TRIAL_COLUMNS, **{f"joint_angle_{j + 1}_rad": "float64" for j in range(joints)}}
-    frame = pd.DataFrame(rows, columns=list(columns))
-    return _with_dtypes(frame)
+    # Column by column from the plain values: a DataFrame built from rows would turn an integer
+    # column with a gap into float64 and round its epoch nanoseconds.
+    frame = pd.DataFrame(
+        {name: _column([row.get(name) for row in rows], dtype) for name, dtype in columns.items()}
+    )
+    return frame.reset_index(drop=True)
+
+
+def _column(values: list[Any], dtype: str) -> pd.api.extensions.ExtensionArray | np.ndarray:
+    if dtype == "Int64":
+        return pd.array([None if _missing(v) else int(v) for v in values], dtype="Int64")
+    if dtype == "float64":
+        return np.array([np.nan if _missing(v) else float(v) for v in values], dtype=float)
+    return pd.array([None if _missing(v) else str(v) for v in values], dtype="string")
 
 
 def _with_dtypes(frame: pd.DataFrame) -> pd.DataFrame:
+    """The table's dtypes applied to a frame read back from a file (integers read as int64 or Int64)."""
     out = frame.copy()
     for column in out.columns:
         dtype = TRIAL_COLUMNS.get(column) or ("float64" if ANGLE_COLUMN.match(column) else None)
-        if dtype is None:
-            continue
-        if dtype == "float64":
-            out[column] = pd.to_numeric(out[column], errors="coerce").astype("float64")
-        elif dtype == "Int64":
-            out[column] = pd.array([None if _missing(v) else int(v) for v in out[column]], dtype="Int64")
-        else:
-            out[column] = out[column].astype("string")
+        if dtype is not None:
+            out[column] = _column(out[column].tolist(), dtype)
     return out.reset_index(drop=True)
 
 
@@ -290,7 +297,7 @@ def load_trial_table(path: str | Path) -> pd.DataFrame:
         if p.suffix == ".parquet":
             frame = pd.read_parquet(p, engine="pyarrow")
         else:
-            frame = pd.read_csv(p, float_precision="round_trip", keep_default_na=True)
+            frame = pd.read_csv(p, dtype={n: "Int64" for n, t in TRIAL_COLUMNS.items() if t == "Int64"})
     except (OSError, ValueError) as exc:
         raise InputError(f"{p}: cannot read the trial table ({exc})") from None
     return _with_dtypes(frame)
