@@ -22,7 +22,7 @@ EXIT_INTERRUPTED = 130
 
 # Each module `rig.cli.<name>` defines `register(subparsers)`, which adds its parser and sets
 # `handler=<callable(args) -> int>` as a default.
-COMMAND_MODULES: tuple[str, ...] = ("run", "fit", "predict", "sim", "scan", "ports", "calibrate")
+COMMAND_MODULES: tuple[str, ...] = ("run", "fit", "predict", "sim", "scan", "ports", "calibrate", "replay")
 
 
 class _Parser(argparse.ArgumentParser):
