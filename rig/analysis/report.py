@@ -33,7 +33,6 @@ from model.fit import t_quantile
 from rig.analysis import summary
 from rig.analysis.replay import ReplayResult
 from rig.analysis.trials import write_trial_table
-from rig.cli.output import _jsonable
 from rig.errors import InputError
 from rig.log import schemas
 
@@ -97,10 +96,21 @@ def _write_all(result: ReplayResult, out: Path) -> list[str]:
         figures[name] = caption
     table_files = write_trial_table(result.table, out)
     (out / "replay.json").write_text(
-        json.dumps(_jsonable(result.as_json()), allow_nan=False, indent=1) + "\n", encoding="utf-8"
+        json.dumps(_strict_json(result.as_json()), allow_nan=False, indent=1) + "\n", encoding="utf-8"
     )
     (out / "report.md").write_text(_markdown(result, figures, skipped), encoding="utf-8")
     return ["report.md", "replay.json", *figures, *(p.name for p in table_files)]
+
+
+def _strict_json(value: Any) -> Any:
+    """Plain JSON values: tuples as lists, NaN and infinities as null."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _strict_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_strict_json(v) for v in value]
+    return value
 
 
 # ---------------------------------------------------------------------------------------------

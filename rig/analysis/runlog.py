@@ -107,6 +107,9 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
     for part in parts:
         for name, values in part.log.metadata.items():
             metadata.setdefault(name, values)
+    run_ids = {p.log.metadata.get("session", {}).get("run_id") for p in parts} - {None}
+    if len(run_ids) > 1:
+        warnings.append(f"the files belong to different runs ({', '.join(sorted(run_ids))}); combined anyway")
     session = metadata.get("session", {})
     protocol_meta = metadata.get("protocol", {})
     rig_meta = metadata.get("rig", {})
