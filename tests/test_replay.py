@@ -66,7 +66,9 @@ def _run(out: Path, protocol: Path, run_id: str, *, resume: bool = False, operat
         run_id=None if resume else run_id, resume=run_id if resume else None,
     )  # fmt: skip
     prepared = prepare_run(request)
-    session = simulated_session(prepared.config, seed=prepared.journal.seed)
+    session = simulated_session(
+        prepared.config, seed=prepared.journal.seed, invocation=prepared.journal.invocations + 1
+    )
     if operator is not None:
         session.operator = operator
     return execute_run(prepared, session, SilentProgress())

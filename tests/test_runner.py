@@ -49,7 +49,9 @@ def run_api(tmp_path: Path, protocol: Path, *, run_id: str = "r1", resume: str |
         run_id=None if resume else run_id, resume=resume,
     )  # fmt: skip
     prepared = prepare_run(request)
-    session = simulated_session(prepared.config, seed=prepared.journal.seed)
+    session = simulated_session(
+        prepared.config, seed=prepared.journal.seed, invocation=prepared.journal.invocations + 1
+    )
     if patch is not None:
         patch(session)
     report = execute_run(prepared, session, SilentProgress())
@@ -213,6 +215,8 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path):
     ids = [t["trial_id"] for t in resumed.trials]
     assert ids == [1, 2, 3]
     assert len(resumed.logs) == 2 and resumed.logs[1].endswith("r1.part2.mcap")
+    # The resumed part's virtual time starts after the first part's: the logs never overlap.
+    assert resumed.trials[1]["start_time_ns"] > resumed.trials[0]["end_time_ns"]
     assert resumed.estimate["n"] == 3
     assert_safe(session2)
     with pytest.raises(InputError, match="already completed"):

@@ -103,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume,
     )
     prepared = prepare_run(request)  # validates everything; InputError -> exit 2, nothing started
-    session = _session(prepared.config, prepared.journal.seed, args.realtime)
+    session = _session(
+        prepared.config, prepared.journal.seed, args.realtime, prepared.journal.invocations + 1
+    )
     terminate_as_interrupt()
     report = execute_run(prepared, session, make_progress(args.json))
     if args.json:
@@ -113,14 +115,14 @@ def run(args: argparse.Namespace) -> int:
     return report.exit_code
 
 
-def _session(config: Any, seed: int, realtime: bool) -> Any:
+def _session(config: Any, seed: int, realtime: bool, invocation: int) -> Any:
     if config.kind == "hardware":  # hardware always runs in real time
         from rig.hw.hardware_rig import hardware_session
 
         return hardware_session(config)
     from rig.sim.simulated_rig import simulated_session
 
-    return simulated_session(config, seed=seed, realtime=realtime)
+    return simulated_session(config, seed=seed, realtime=realtime, invocation=invocation)
 
 
 def _dry_run(args: argparse.Namespace) -> int:

@@ -27,7 +27,7 @@ from rig.rig_config import RigConfig, require_simulated
 from rig.runner.limits import WINCH_TORQUE_CONSTANT_NM_PER_A
 from rig.runner.session import RigSession
 from rig.sim.article_presets import make_preset
-from rig.sim.clock import VirtualClock
+from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.configuration_source import SimConfigurationSource
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
@@ -73,8 +73,18 @@ class SimBendingFixture:
         return {self.bender_id: self.world.request_reset()}
 
 
-def simulated_session(config: RigConfig, *, seed: int = 0, realtime: bool = False) -> RigSession:
-    """The simulated rig of a `kind: simulated` config, seeded; nothing is connected yet."""
+# Each invocation of a run (the first, then every --resume) starts its virtual clock a day after
+# the previous one, so the parts of a resumed run never overlap in log time.
+VIRTUAL_DAY_NS = 86_400 * 1_000_000_000
+
+
+def simulated_session(
+    config: RigConfig, *, seed: int = 0, realtime: bool = False, invocation: int = 1
+) -> RigSession:
+    """The simulated rig of a `kind: simulated` config, seeded; nothing is connected yet.
+
+    `invocation` (1 for a new run, 2 for its first resume, ...) sets the start of virtual time.
+    """
     sim = require_simulated(config)
     article = config.article
     try:
@@ -92,7 +102,8 @@ def simulated_session(config: RigConfig, *, seed: int = 0, realtime: bool = Fals
         )
     except ValueError as exc:
         raise ConfigError(f"{config.source}: simulation/article: {exc}") from None
-    clock: VirtualClock = PacedVirtualClock() if realtime else VirtualClock()
+    epoch_ns = DEFAULT_EPOCH_NS + (invocation - 1) * VIRTUAL_DAY_NS
+    clock: VirtualClock = PacedVirtualClock(epoch_ns) if realtime else VirtualClock(epoch_ns)
     winch_spec = config.servos.winch
     benders = config.servos.benders
     ids = [s.servo_id for s in config.servos.servos]
