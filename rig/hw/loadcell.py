@@ -23,6 +23,7 @@ import serial
 from rig.errors import InputError, NotConnectedError, StaleDataError
 from rig.hw.calibration import Calibration
 from rig.hw.clock import SystemClock
+from rig.hw.device_time import DeviceClockMapper
 from rig.hw.loadcell_formats import LineDecoder, get_codec
 from rig.hw.seams import Clock, LoadCellSample
 
@@ -93,6 +94,7 @@ class SerialLoadCell:
         self._lock = threading.Lock()
         self._queue: deque[LoadCellSample] = deque(maxlen=queue_samples)
         self._decoder = LineDecoder(get_codec(format_name))
+        self._device_clock = DeviceClockMapper()
         self._samples_dropped = 0
         self._reader_error: BaseException | None = None
         self._anchor_ns = 0
@@ -118,6 +120,7 @@ class SerialLoadCell:
             ser.timeout = _READ_TIMEOUT_S
         ser.reset_input_buffer()
         self._decoder = LineDecoder(self._decoder.codec)
+        self._device_clock.reset()
         self._queue.clear()
         self._samples_dropped = 0
         self._reader_error = None
@@ -225,13 +228,23 @@ class SerialLoadCell:
             lines = self._decoder.feed(data)
             if not lines:
                 return
+            when = self._device_clock.sample_time_ns
             if cal is None:
                 nan = math.nan
-                samples = [LoadCellSample(time_ns, ln.raw, nan, ln.seq, ln.device_time_us) for ln in lines]
+                samples = [
+                    LoadCellSample(when(ln.device_time_us, time_ns), ln.raw, nan, ln.seq, ln.device_time_us)
+                    for ln in lines
+                ]
             else:
                 factor, offset = cal.factor_n_per_count, cal.offset_counts
                 samples = [
-                    LoadCellSample(time_ns, ln.raw, (ln.raw - offset) * factor, ln.seq, ln.device_time_us)
+                    LoadCellSample(
+                        when(ln.device_time_us, time_ns),
+                        ln.raw,
+                        (ln.raw - offset) * factor,
+                        ln.seq,
+                        ln.device_time_us,
+                    )
                     for ln in lines
                 ]
             queue = self._queue

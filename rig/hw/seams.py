@@ -43,7 +43,7 @@ class ServoState:
 class LoadCellSample:
     """One load-cell reading: host receive time, the device's raw count and the calibrated force."""
 
-    time_ns: int  # epoch ns of receipt on the host (monotonic clock plus one epoch anchor)
+    time_ns: int  # epoch ns of sampling: the device clock mapped onto the host's, else receipt time
     raw: int  # ADC counts as sent by the device (or the indicator's value in its least digit)
     force_n: float  # calibrated line tension
     seq: int | None = None  # device sequence counter, when the format has one
