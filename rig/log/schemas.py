@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from typing import Any
 
+from model.fit import SUMMARY_KEYS
 from rig.hw.seams import LoadCellSample, ServoState
 
 MESSAGE_ENCODING = "json"
@@ -81,25 +82,7 @@ SERVO_COMMANDS = (
 )
 TRIAL_KINDS = ("joint_estimation", "link_validation")
 TRIAL_OUTCOMES = ("slip", "no_slip", "aborted", "fault")
-FIT_KEYS = (
-    "n",
-    "k",
-    "k_ci",
-    "sse",
-    "sst",
-    "r2",
-    "rmse",
-    "dfe",
-    "se",
-    "level",
-    "constant",
-    "c",
-    "radius_m",
-    "mu_delta0_pa",
-    "mu_delta0_ci_pa",
-    "capacity_nm",
-    "capacity_ci_nm",
-)
+FIT_KEYS = SUMMARY_KEYS  # the `rig fit --json` keys, defined with the fit itself
 _FIT_INTEGER_KEYS = frozenset({"n", "dfe"})
 _FIT_INTERVAL_KEYS = frozenset({"k_ci", "mu_delta0_ci_pa", "capacity_ci_nm"})
 
