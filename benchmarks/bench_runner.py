@@ -47,7 +47,8 @@ def main() -> None:
             rig_s, wall_s, trials, log_bytes = one_run(args.protocol, seed, Path(tmp))
             ratios.append(rig_s / wall_s)
             print(
-                f"{seed:>4} {trials:>6} {rig_s:>8.1f} {wall_s:>7.2f} {rig_s / wall_s:>14.1f}x {log_bytes / 1e6:>7.2f}"
+                f"{seed:>4} {trials:>6} {rig_s:>8.1f} {wall_s:>7.2f} {rig_s / wall_s:>14.1f}x "
+                f"{log_bytes / 1e6:>7.2f}"
             )
     ratios.sort()
     print(f"median speed: {ratios[len(ratios) // 2]:.1f}x real time (target >= 50x)")

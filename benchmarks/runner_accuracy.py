@@ -52,7 +52,8 @@ def main() -> None:
         print(f"  99 % bounds cover the true k in {covered}/{args.seeds} runs")
         print(
             f"  estimate error: mean {statistics.mean(errors):+.2f} %, mean |error| "
-            f"{statistics.mean(abs(e) for e in errors):.2f} %, max |error| {max(abs(e) for e in errors):.2f} %"
+            f"{statistics.mean(abs(e) for e in errors):.2f} %, "
+            f"max |error| {max(abs(e) for e in errors):.2f} %"
         )
         print(f"  RMSE: median {statistics.median(rmses):.3f} kg (paper 0.126 kg)")
         shares, means, stds, all_pct = [], [], [], []
@@ -65,7 +66,8 @@ def main() -> None:
             all_pct += pe["percentage_errors"]
         print(f"link validation, {args.link_seeds} seeds (21 configurations each):")
         print(
-            f"  share of percentage errors below 15 % per run: {', '.join(f'{s * 100:.1f} %' for s in shares)}"
+            "  share of percentage errors below 15 % per run: "
+            + ", ".join(f"{s * 100:.1f} %" for s in shares)
         )
         pooled = sum(p < 15 for p in all_pct) / len(all_pct)
         print(f"  pooled: {pooled * 100:.1f} % of {len(all_pct)} errors below 15 % (paper: 80.4 %)")
