@@ -17,6 +17,7 @@ trial's capacity variation. Bending goes through the bender servo and the world'
 
 from __future__ import annotations
 
+import json
 import time
 from typing import Any
 
@@ -172,7 +173,13 @@ def simulated_session(
         begin_trial=begin_trial,
         truth=truth,
         sim_devices={"bus": bus, "world": world, "loadcell_emulator": loadcell_emulator},
+        attachments=[("loadcell-calibration.json", "application/json", _calibration_json(load_cell))],
     )
+
+
+def _calibration_json(load_cell: Any) -> bytes:
+    """The simulated cell's calibration as the JSON file a real rig would attach."""
+    return (json.dumps(load_cell.calibration.to_dict(), indent=2, allow_nan=False) + "\n").encode()
 
 
 class _NoFixture:
