@@ -30,7 +30,6 @@ from typing import Any, Final
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import stats
 
 from model.joint import CapacityConstant, mu_delta0_pa_from_capacity, resolve_constant
 
@@ -135,6 +134,8 @@ def check_pair(distance_m: float, mass_kg: float, where: str = "") -> tuple[floa
 @lru_cache(maxsize=4096)
 def t_quantile(level: float, dfe: int) -> float:
     """Two-sided Student-t quantile t_{(1+level)/2, dfe}, as MATLAB `confint` uses."""
+    from scipy import stats  # imported on first use: it costs ~1 s, and `rig --help` needs none of it
+
     return float(stats.t.ppf(0.5 * (1.0 + level), dfe))
 
 

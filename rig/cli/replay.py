@@ -3,18 +3,12 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from rig.analysis.redetect import validate_overrides
-from rig.analysis.replay import ReplayResult, replay
-from rig.analysis.report import check_report_dir, write_report
-from rig.analysis.summary import (
-    base_moments_table,
-    estimates_table,
-    payload_errors_table,
-    trials_table,
-)
 from rig.cli.output import emit_json, format_table
+
+if TYPE_CHECKING:
+    from rig.analysis.replay import ReplayResult
 
 DESCRIPTION = """\
 Replay a run's MCAP log(s): rebuild the trial table from /rig/trial/result, run the slip detector
@@ -70,6 +64,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here, not at the top: pandas and matplotlib cost a second that `rig --help` should not pay.
+    from rig.analysis.redetect import validate_overrides
+    from rig.analysis.replay import replay
+    from rig.analysis.report import check_report_dir, write_report
+
     """Handle `rig replay`; returns the exit code."""
     validate_overrides(args.detector)
     if args.report is not None:
@@ -89,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _text(result: ReplayResult) -> str:
+    from rig.analysis.summary import base_moments_table, estimates_table, payload_errors_table, trials_table
+
     s = result.settings
     lines = [
         f"run {s.run_id or '(unknown)'}  protocol {s.protocol_name or '(unknown)'}  "

@@ -6,16 +6,15 @@ import argparse
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.protocol import load_protocol
 from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
-from rig.runner.limits import check_limits, plan_summary
-from rig.runner.progress import make_progress
-from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
-from rig.runner.safety import terminate_as_interrupt
+
+if TYPE_CHECKING:
+    from rig.runner.run import RunReport
 
 DESCRIPTION = """\
 Run a protocol of automated slip trials. The winch (a Dynamixel servo in current-based position
@@ -87,6 +86,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
+    # The runner is imported here, not at the top, so that `rig --help` stays quick.
+    from rig.runner.progress import make_progress
+    from rig.runner.run import RunRequest, execute_run, prepare_run
+    from rig.runner.safety import terminate_as_interrupt
+
     if args.seed < 0:
         raise InputError(f"--seed {args.seed}: allowed: an integer >= 0")
     if args.resume and args.run_id:
@@ -126,6 +130,8 @@ def _session(config: Any, seed: int, realtime: bool, invocation: int) -> Any:
 
 
 def _dry_run(args: argparse.Namespace) -> int:
+    from rig.runner.limits import check_limits, plan_summary
+
     config = load_rig_config(args.rig)
     protocol = load_protocol(args.protocol, seed=args.seed, joint_count=config.article.joint_count)
     check_limits(protocol, config)

@@ -13,10 +13,10 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from model.chain import planar_transforms, predict_slip
 from model.fit import SUMMARY_KEYS, capacity_from_fit, fit_summary_dict
@@ -144,7 +144,7 @@ class RunEstimator:
             capacity = prior["capacity_nm"]
             # The fit's bounds on the capacity read as a log-normal spread, widened by the spread
             # between joints of one link: the fit measured one joint and the link has several.
-            z = float(stats.norm.ppf(0.5 + prior.get("level", 0.99) / 2))
+            z = NormalDist().inv_cdf(0.5 + prior.get("level", 0.99) / 2)
             fit_sd = (math.log(hi) - math.log(lo)) / (2 * z) if 0 < lo < hi else 0.5
             sd_log = math.hypot(fit_sd, BETWEEN_JOINT_SD_LOG)
             joints = self.article.joint_count
