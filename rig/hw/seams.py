@@ -105,6 +105,16 @@ class ServoBus(Protocol):
         """Enable or disable torque on the given servos."""
         ...
 
+    def set_profile(
+        self, servo_id: int, velocity_rad_s: float | None = None, acceleration_rad_s2: float | None = None
+    ) -> None:
+        """Write Profile Velocity / Acceleration (None keeps the value in force)."""
+        ...
+
+    def set_current_limit(self, servo_id: int, current_limit_a: float) -> None:
+        """Write Current Limit (EEPROM: with torque off for the write)."""
+        ...
+
     def write_goal_positions(self, goals_rad: Mapping[int, float]) -> None:
         """Sync-write goal positions (rad, multi-turn in modes 4 and 5)."""
         ...

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from rig.errors import InputError
-from rig.hw.seams import Clock, ConfigurationSource, LoadCell
+from rig.hw.seams import Clock, ConfigurationSource, LoadCell, ServoBus
 from rig.protocol import TrialPlan
 
 
@@ -67,7 +67,7 @@ class RigSession:
 
     kind: str  # "simulated" or "hardware"
     clock: Clock
-    servos: Any  # rig.hw.servo_bus.DynamixelServoBus (implements rig.hw.seams.ServoBus)
+    servos: ServoBus  # e.g. rig.hw.servo_bus.DynamixelServoBus
     load_cell: LoadCell
     operator: Operator
     fixture: BendingFixture
