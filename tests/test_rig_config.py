@@ -1,0 +1,52 @@
+"""Rig config validation: every bad field is named with what is allowed; the shipped configs load."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from rig.errors import ConfigError, InputError
+from rig.rig_config import load_rig_config
+
+RIGS = Path(__file__).resolve().parent.parent / "protocols" / "rigs"
+
+
+def test_shipped_configs_load():
+    sim = load_rig_config(RIGS / "simulated.yaml")
+    assert sim.kind == "simulated" and sim.servos.winch.servo_id == 1 and sim.article.joint_count == 8
+    hw = load_rig_config(RIGS / "hardware.example.yaml")
+    assert hw.kind == "hardware" and hw.servos.watchdog_ms == 500
+    assert hw.loadcell.calibration_path == RIGS / "loadcell-cal.json"
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "needle"),
+    [
+        ("baud: 1000000", "baud: 12345", "servos.baud"),
+        ("role: winch", "role: wench", "servos.ids[0].role"),
+        ("{id: 2, role: bender", "{id: 1, role: bender", "duplicate servo id"),
+        ("kind: simulated", "kind: simulted", "kind"),
+        ("spool_radius_m: 0.01", "spool_radius_m: -0.01", "spool_radius_m"),
+        ("format: rig-lc1", "format: nmea", "loadcell.format"),
+        ("direction: [0, -1, 0]", "direction: [0, 0, 0]", "load.direction"),
+        ("stale_timeout_s: 0.2", "stale_timout_s: 0.2", "stale_timout_s"),
+        ("preset: link1", "preset: link9", "simulation.preset"),
+    ],
+)
+def test_bad_field_is_named(tmp_path, old, new, needle):
+    text = (RIGS / "simulated.yaml").read_text()
+    assert old in text
+    path = tmp_path / "rig.yaml"
+    path.write_text(text.replace(old, new))
+    with pytest.raises(ConfigError) as exc:
+        load_rig_config(path)
+    message = str(exc.value)
+    assert str(path) in message and needle in message and "\n" not in message
+
+
+def test_malformed_yaml_names_the_line(tmp_path):
+    path = tmp_path / "rig.yaml"
+    path.write_text("kind: [simulated\n")
+    with pytest.raises(InputError, match=r"rig.yaml: malformed YAML at line"):
+        load_rig_config(path)
