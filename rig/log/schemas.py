@@ -501,6 +501,15 @@ def loadcell_sample(
     *, raw: int, force_n: float, seq: int | None = None, device_time_us: int | None = None
 ) -> dict[str, Any]:
     """A `/rig/loadcell` payload."""
+    if (
+        type(raw) is int
+        and type(force_n) is float
+        and math.isfinite(force_n)
+        and (seq is None or type(seq) is int)
+        and (device_time_us is None or type(device_time_us) is int)
+    ):
+        # The common case (1 kHz from the driver): already the exact types the checks below produce.
+        return {"seq": seq, "raw": raw, "force_n": force_n, "device_time_us": device_time_us}
     return {
         "seq": _int_or_none(seq, "seq"),
         "raw": _int(raw, "raw"),

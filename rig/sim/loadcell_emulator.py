@@ -83,7 +83,8 @@ class SignalModel:
         )
         q = self.quantisation_counts
         counts = round(value / q) * q
-        return min(max(counts, self.adc_min), self.adc_max)
+        half_range = 1 << (self.adc_bits - 1)  # adc_max + 1 == -adc_min, without two property calls
+        return min(max(counts, -half_range), half_range - 1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -268,18 +269,23 @@ class LoadCellEmulator:
         return bool(self._silences_ns) and self._silences_ns[0][0] <= t_ns
 
     def _sample(self, t_ns: int) -> bytes:
-        elapsed_s = (t_ns - self.start_ns) / 1e9
-        counts = self.signal.counts(self.tension_n(t_ns), elapsed_s, self._rng.gauss(0.0, 1.0))
+        elapsed_ns = t_ns - self.start_ns
+        rng = self._rng
+        counts = self.signal.counts(self.tension_n(t_ns), elapsed_ns / 1e9, rng.gauss(0.0, 1.0))
         seq = self._seq
-        device_time_us = self._device_time_start_us + (t_ns - self.start_ns) // 1000
+        device_time_us = self._device_time_start_us + elapsed_ns // 1000
         self._k += 1
         self._seq += 1
-        self.counts.samples += 1
-        reading = self._reading(counts, seq, device_time_us)
-        if self._silenced(t_ns):
-            self.counts.silenced_samples += 1
+        tally = self.counts
+        tally.samples += 1
+        if self._indicator is None:
+            reading = DeviceReading(counts, seq, device_time_us)
+        else:
+            reading = self._reading(counts, seq, device_time_us)
+        if self._silences_ns and self._silenced(t_ns):
+            tally.silenced_samples += 1
             return b""
-        pending, faults, rng = self._pending, self.faults, self._rng
+        pending, faults = self._pending, self.faults
         if pending.gap_samples:
             pending.gap_samples -= 1
             self.counts.gap_samples += 1
