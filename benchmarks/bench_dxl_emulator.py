@@ -77,6 +77,12 @@ def start(cmd: list[str]) -> tuple[subprocess.Popen[str], str]:
     return proc, words[3]
 
 
+def start_emulator(link_path: str) -> tuple[subprocess.Popen[str], str]:
+    """`rig sim servos` with three XM430-W350 at BAUD, in its own process."""
+    cmd = [sys.executable, "-m", "rig.cli.sim_servos", "--ids", "1,2,3", "--baud", str(BAUD)]
+    return start([*cmd, "--link", link_path])
+
+
 def stop(proc: subprocess.Popen[str]) -> None:
     proc.terminate()
     try:
@@ -117,19 +123,7 @@ def summary(latencies: list[float]) -> dict[str, float]:
 
 
 def bench_pty(n: int, tmp: str) -> None:
-    emu, link = start(
-        [
-            sys.executable,
-            "-m",
-            "rig.cli.sim_servos",
-            "--ids",
-            "1,2,3",
-            "--baud",
-            str(BAUD),
-            "--link",
-            f"{tmp}/emu",
-        ]
-    )
+    emu, link = start_emulator(f"{tmp}/emu")
     try:
         emu_lat, emu_fail = sync_read_latencies(link, n)
     finally:
@@ -211,19 +205,7 @@ def bench_inprocess(n: int) -> None:
 
 
 def soak(n: int, tmp: str) -> int:
-    emu, link = start(
-        [
-            sys.executable,
-            "-m",
-            "rig.cli.sim_servos",
-            "--ids",
-            "1,2,3",
-            "--baud",
-            str(BAUD),
-            "--link",
-            f"{tmp}/soak",
-        ]
-    )
+    emu, link = start_emulator(f"{tmp}/soak")
     failures: dict[str, int] = {}
     try:
         port = PortHandler(link)
