@@ -12,7 +12,6 @@ from rig.hw.clock import SystemClock
 from rig.hw.loadcell import SerialLoadCell
 from rig.hw.servo_bus import DynamixelServoBus
 from rig.rig_config import RigConfig
-from rig.runner.limits import WINCH_TORQUE_CONSTANT_NM_PER_A
 from rig.runner.session import ConsoleOperator, ManualBending, RigSession
 
 
@@ -54,6 +53,5 @@ def hardware_session(config: RigConfig) -> RigSession:
         configuration=None,
         winch_id=config.servos.winch.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
-        torque_constant_nm_per_a=WINCH_TORQUE_CONSTANT_NM_PER_A,
         attachments=[(cal_path.name, "application/json", cal_path.read_bytes())],
     )

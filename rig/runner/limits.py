@@ -12,11 +12,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from rig.errors import InputError
+from rig.hw.control_table import table_for_model
 from rig.protocol import Protocol, TrialPlan
 from rig.rig_config import RigConfig
-
-# Winch output torque per ampere used for limit checks (XM430-W350: ~4.1 N·m stall at ~2.3 A).
-WINCH_TORQUE_CONSTANT_NM_PER_A = 1.78
 
 
 @dataclass(frozen=True)
@@ -53,7 +51,8 @@ def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
             ramp.max_force_n < ceiling,
         )
     )
-    stall_force = WINCH_TORQUE_CONSTANT_NM_PER_A * limits.winch_current_limit_a / config.spool_radius_m
+    torque_per_a = table_for_model(config.servos.winch.model).torque_constant_nm_per_a
+    stall_force = torque_per_a * limits.winch_current_limit_a / config.spool_radius_m
     checks.append(
         LimitCheck(
             "winch stall tension (current limit) >= ramp max force",

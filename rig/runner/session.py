@@ -74,7 +74,6 @@ class RigSession:
     configuration: ConfigurationSource | None
     winch_id: int
     roles: dict[int, str]
-    torque_constant_nm_per_a: float  # winch output torque per ampere, for limit checks
     begin_trial: Callable[[TrialPlan], None] = field(default=lambda trial: None)
     truth: Callable[..., dict[str, Any]] | None = None  # truth(detail=False): simulation only
     attachments: list[tuple[str, str, bytes]] = field(default_factory=list)  # (name, media type, data)

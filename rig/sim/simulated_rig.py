@@ -25,7 +25,6 @@ from rig.errors import ConfigError
 from rig.hw.servo_bus import DynamixelServoBus
 from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, require_simulated
-from rig.runner.limits import WINCH_TORQUE_CONSTANT_NM_PER_A
 from rig.runner.session import RigSession
 from rig.sim.article_presets import make_preset
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
@@ -169,7 +168,6 @@ def simulated_session(
         configuration=SimConfigurationSource(world, clock, seed=seed),
         winch_id=winch_spec.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
-        torque_constant_nm_per_a=WINCH_TORQUE_CONSTANT_NM_PER_A,
         begin_trial=begin_trial,
         truth=truth,
         sim_devices={"bus": bus, "world": world, "loadcell_emulator": loadcell_emulator},
