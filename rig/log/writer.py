@@ -1,56 +1,54 @@
-"""The run logger: a queued MCAP writer whose compression and file I/O run on their own thread.
+"""The run logger: a batched MCAP writer whose encoding, compression and file I/O run in a child process.
 
 The acquisition loop calls `RunLogger.log(topic, log_time_ns, payload)`, which only timestamps the
-call (publish time) and enqueues; JSON serialization, chunking, zstd and writes happen on the
-writer thread. The thread closes the open chunk (flush) about every second of log time or wall
-time and whenever the runner asks (`flush()`, after every trial), so a crash loses at most that
-much. An error on the writer thread is never lost: it is re-raised as `LogWriteError` by the next
-call into the logger, or by `finish()`.
+call (publish time) and appends to a batch; batches go over a pipe to the writer process
+(`rig.log.writer_process`), which does the JSON serialization, chunking, zstd and writes without
+sharing the acquisition loop's GIL. A batch is sent when it holds `BATCH_MESSAGES` messages or spans
+`BATCH_LOG_TIME_NS` of log time, and before every flush, metadata, attachment and finish. The writer
+process closes the open chunk (flush) about every second of log time or wall time and whenever the
+runner asks (`flush()`, after every trial), so a crash loses at most that much; if this process
+dies, the writer process leaves the file unfinished with every flushed chunk in it. An error in the
+writer process is never lost: it is re-raised as `LogWriteError` by the next call into the logger,
+or by `finish()`.
 """
 
 from __future__ import annotations
 
 import atexit
 import contextlib
-import json
+import itertools
 import operator
 import os
-import queue
+import pickle
+import subprocess
+import sys
 import threading
 import time
 import weakref
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from mcap.writer import CompressionType, Writer
 from mcap.writer import __version__ as MCAP_VERSION
 
 import rig
 from rig.errors import RigError, RigTimeoutError
 from rig.hw.seams import Clock
 from rig.log import schemas
+from rig.log.writer_process import COMPRESSION
 
 LIBRARY = f"rig-logger/{rig.__version__} mcap-python/{MCAP_VERSION}"
 DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes; periodic flushes usually close chunks first
 DEFAULT_FLUSH_INTERVAL_S = 1.0
 DEFAULT_MAX_PENDING = 100_000  # queued messages (~80 s of rig data) before log() applies back-pressure
-_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+BATCH_MESSAGES = 256  # messages per pipe write (fewer when max_pending is small)
+BATCH_LOG_TIME_NS = 50_000_000  # a batch spans at most this much log time
 _STRICT_ENV = "RIG_LOG_STRICT"
 
 
 class LogWriteError(RigError):
-    """The writer thread could not serialize or write something; the message says what."""
-
-
-@dataclass
-class _Control:
-    """A request to the writer thread, processed in order with the messages."""
-
-    op: str  # "flush", "metadata", "attachment", "finish"
-    args: tuple[Any, ...] = ()
-    done: threading.Event = field(default_factory=threading.Event)
+    """The writer process could not serialize or write something; the message says what."""
 
 
 _live_loggers: weakref.WeakSet[RunLogger] = weakref.WeakSet()
@@ -64,7 +62,7 @@ def _finish_live_loggers() -> None:  # pragma: no cover - runs at interpreter ex
 
 
 class RunLogger:
-    """Log rig topics to one MCAP file from any thread; the writing happens on a dedicated thread.
+    """Log rig topics to one MCAP file from any thread; the writing happens in a child process.
 
     :param path: the file to create; an existing file is never overwritten (`FileExistsError`).
     :param clock: where publish times come from (`clock.time_ns()` at enqueue); the system clock
@@ -88,42 +86,68 @@ class RunLogger:
         strict: bool | None = None,
         max_pending: int = DEFAULT_MAX_PENDING,
     ) -> None:
-        if compression not in _COMPRESSION:
-            raise ValueError(f"compression: {compression!r} not allowed; allowed: {', '.join(_COMPRESSION)}")
+        if compression not in COMPRESSION:
+            raise ValueError(f"compression: {compression!r} not allowed; allowed: {', '.join(COMPRESSION)}")
         if chunk_size <= 0 or flush_interval_s <= 0 or max_pending <= 0:
             raise ValueError("chunk_size, flush_interval_s and max_pending must be positive")
         self.path = Path(path)
         self._now_ns: Callable[[], int] = clock.time_ns if clock is not None else time.time_ns
         self._strict = os.environ.get(_STRICT_ENV) == "1" if strict is None else strict
-        self._flush_interval_ns = round(flush_interval_s * 1e9)
         self._max_pending = max_pending
-        self._queue: queue.SimpleQueue[tuple[str, int, int, Mapping[str, Any]] | _Control] = (
-            queue.SimpleQueue()
-        )
-        self._errors: list[BaseException] = []  # appended by the writer thread, popped by callers
-        self._fatal: BaseException | None = None  # the writer thread stopped writing
+        self._batch_limit = max(1, min(BATCH_MESSAGES, max_pending // 2))
+        self._batch: list[tuple[str, int, int, Mapping[str, Any]]] = []
+        self._batch_start_ns = 0
+        self._sent = 0  # messages sent to the writer process
+        self._written = 0  # messages the writer process has handled (reader thread)
+        self._progress = threading.Condition()
+        self._tokens = itertools.count(1)
+        self._done: dict[int, threading.Event] = {}  # request token -> set when answered
+        self._errors: list[BaseException] = []  # appended by the reader thread, popped by callers
+        self._fatal: BaseException | None = None  # the writer process stopped writing
+        self._send_lock = threading.Lock()
         self._finish_lock = threading.Lock()
         self._finished = False
-        self.messages_logged = 0  # enqueued by log()
+        self.messages_logged = 0  # accepted by log()
 
-        self._file = open(self.path, "xb")  # noqa: SIM115 - closed by the writer thread
+        file_fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
+        request_read, request_write = os.pipe()
+        reply_read, reply_write = os.pipe()
+        child_fds = (request_read, reply_write, file_fd)
         try:
-            self._writer = Writer(self._file, chunk_size=chunk_size, compression=_COMPRESSION[compression])
-            self._writer.start(profile="", library=LIBRARY)
-            self._file.flush()
+            self._process = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "rig.log.writer_process",
+                    *(str(fd) for fd in child_fds),
+                    LIBRARY,
+                    str(chunk_size),
+                    compression,
+                    str(round(flush_interval_s * 1e9)),
+                ],
+                pass_fds=child_fds,
+                stdin=subprocess.DEVNULL,
+                close_fds=True,
+            )
         except BaseException:
-            self._file.close()
+            for fd in (request_write, reply_read):
+                os.close(fd)
             raise
-        self._channels: dict[str, int] = {}  # topic -> channel id; writer thread only
-        self._sequences: dict[int, int] = {}
-        self._thread = threading.Thread(target=self._run, name=f"rig-logger {self.path.name}", daemon=True)
-        self._thread.start()
+        finally:
+            for fd in child_fds:
+                os.close(fd)
+        self._requests = Connection(request_write, readable=False)
+        self._replies = Connection(reply_read, writable=False)
+        self._reader = threading.Thread(
+            target=self._read_replies, name=f"rig-logger {self.path.name}", daemon=True
+        )
+        self._reader.start()
         _live_loggers.add(self)
 
     # -- caller side -------------------------------------------------------------------------
 
     def log(self, topic: str, log_time_ns: int, payload: Mapping[str, Any]) -> None:
-        """Enqueue one message; never waits on compression or I/O.
+        """Enqueue one message; never waits on encoding, compression or I/O (unless back-pressure).
 
         `log_time_ns` is the epoch time of sampling. `payload` must not be changed afterwards (the
         builders in `rig.log.schemas` return fresh dicts).
@@ -138,10 +162,15 @@ class RunLogger:
             log_time_ns = operator.index(log_time_ns)  # numpy ints are fine, floats are not
         if self._strict:
             schemas.check_payload(topic, payload)
-        self._queue.put((topic, log_time_ns, self._now_ns(), payload))
+        batch = self._batch
+        if not batch:
+            self._batch_start_ns = log_time_ns
+        batch.append((topic, log_time_ns, self._now_ns(), payload))
         self.messages_logged += 1
-        if self._queue.qsize() > self._max_pending:
-            self._wait_for_drain()
+        if len(batch) >= self._batch_limit or log_time_ns - self._batch_start_ns >= BATCH_LOG_TIME_NS:
+            self._send_batch()
+            if self._sent - self._written + self._batch_limit > self._max_pending:
+                self._wait_for_drain()
 
     def flush(self, *, wait: bool = True, fsync: bool = False, timeout_s: float = 30.0) -> None:
         """Close the open chunk and flush the file; with `wait`, return once that is done.
@@ -149,10 +178,10 @@ class RunLogger:
         With `fsync` the data also reaches the disk (survives a power loss).
         """
         self._check_open("flush")
-        request = _Control("flush", (fsync,))
-        self._queue.put(request)
+        token, done = self._new_request()
+        self._send(("flush", token, fsync))
         if wait:
-            self._wait(request, timeout_s, "flush")
+            self._wait(done, timeout_s, "flush")
         if self._errors or self._fatal is not None:
             self._raise_errors()
 
@@ -162,7 +191,7 @@ class RunLogger:
         bad = [k for k, v in data.items() if not isinstance(k, str) or not isinstance(v, str)]
         if bad:
             raise TypeError(f"metadata {name!r}: keys and values must be strings; bad keys: {bad}")
-        self._queue.put(_Control("metadata", (str(name), dict(data))))
+        self._send(("metadata", str(name), dict(data)))
 
     def add_attachment(
         self,
@@ -177,21 +206,23 @@ class RunLogger:
         self._check_open("add_attachment")
         log_ns = self._now_ns() if log_time_ns is None else operator.index(log_time_ns)
         args = (operator.index(create_time_ns), log_ns, str(name), str(media_type), bytes(data))
-        self._queue.put(_Control("attachment", args))
+        self._send(("attachment", args))
 
     def finish(self, timeout_s: float = 60.0) -> None:
         """Write everything queued, the summary and the footer, and close the file. Idempotent.
 
-        Raises the first writer-thread error not yet reported.
+        Raises the first writer-process error not yet reported.
         """
         with self._finish_lock:
             if not self._finished:
                 self._finished = True
-                request = _Control("finish")
-                self._queue.put(request)
-                self._wait(request, timeout_s, "finish")
-                self._thread.join(timeout_s)
-                _live_loggers.discard(self)
+                try:
+                    token, done = self._new_request()
+                    self._send(("finish", token))
+                    self._wait(done, timeout_s, "finish")
+                finally:
+                    self._close_pipes(timeout_s)
+                    _live_loggers.discard(self)
         if self._errors or self._fatal is not None:
             self._raise_errors()
 
@@ -209,8 +240,8 @@ class RunLogger:
 
     @property
     def pending(self) -> int:
-        """Messages and requests queued but not yet written."""
-        return self._queue.qsize()
+        """Messages logged but not yet handled by the writer process."""
+        return len(self._batch) + self._sent - self._written
 
     def _check_open(self, what: str) -> None:
         if self._errors or self._fatal is not None:
@@ -225,115 +256,101 @@ class RunLogger:
         if self._fatal is not None:
             raise LogWriteError(f"{self.path}: the logger stopped writing: {self._fatal!r}") from self._fatal
 
-    def _wait(self, request: _Control, timeout_s: float, what: str) -> None:
-        if not request.done.wait(timeout_s):
+    def _new_request(self) -> tuple[int, threading.Event]:
+        token = next(self._tokens)
+        done = self._done[token] = threading.Event()
+        if self._fatal is not None or not self._reader.is_alive():
+            done.set()  # nobody will answer
+        return token, done
+
+    def _send_batch(self) -> None:
+        """Send the pending batch (caller holds no lock; `_send` serializes pipe writes)."""
+        if self._batch:
+            batch, self._batch = self._batch, []
+            self._send(("batch", batch), count=len(batch))
+
+    def _send(self, request: tuple[Any, ...], *, count: int = 0) -> None:
+        """Send any pending batch, then `request`; a dead writer process becomes the fatal error."""
+        with self._send_lock:
+            if request[0] != "batch" and self._batch:
+                batch, self._batch = self._batch, []
+                self._write_request(("batch", batch), len(batch))
+            self._write_request(request, count)
+
+    def _write_request(self, request: tuple[Any, ...], count: int) -> None:
+        if self._fatal is not None:
+            if request[0] in ("flush", "finish"):
+                self._release(request[1])
+            return
+        data = pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL)
+        self._sent += count
+        try:
+            self._requests.send_bytes(data)
+        except OSError as error:  # the writer process is gone
+            self._set_fatal(LogWriteError(f"the writer process ended ({error})"))
+
+    def _wait(self, done: threading.Event, timeout_s: float, what: str) -> None:
+        if not done.wait(timeout_s):
             raise RigTimeoutError(
                 f"{self.path}: {what} not done after {timeout_s:g} s ({self.pending} queued)"
             )
 
     def _wait_for_drain(self) -> None:
         low_water = self._max_pending // 2
-        while self._queue.qsize() > low_water and self._fatal is None and self._thread.is_alive():
-            time.sleep(0.001)
+        with self._progress:
+            self._progress.wait_for(
+                lambda: self._sent - self._written <= low_water or self._fatal is not None, timeout=60.0
+            )
 
-    # -- writer thread -----------------------------------------------------------------------
+    def _close_pipes(self, timeout_s: float) -> None:
+        with contextlib.suppress(OSError):
+            self._requests.close()  # end of file: the writer process stops if it has not yet
+        try:
+            self._process.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait(timeout_s)
+        self._reader.join(timeout_s)
+        with contextlib.suppress(OSError):
+            self._replies.close()
 
-    def _run(self) -> None:
-        dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
-        writer = self._writer
-        get = self._queue.get
-        interval_ns = self._flush_interval_ns
-        last_flush_log_ns: int | None = None
-        last_flush_wall_ns = time.monotonic_ns()
-        unflushed = False
-        item: object = None
+    # -- reader thread -----------------------------------------------------------------------
+
+    def _read_replies(self) -> None:
+        """Account for written messages, collect errors, and answer waiters until the pipe ends."""
+        replies = self._replies
         while True:
             try:
-                timeout = None
-                if unflushed:
-                    timeout = max(0.0, (last_flush_wall_ns + interval_ns - time.monotonic_ns()) / 1e9)
-                try:
-                    item = get(timeout=timeout)
-                except queue.Empty:
-                    self._flush(fsync=False)
-                    unflushed, last_flush_wall_ns = False, time.monotonic_ns()
-                    continue
-                if type(item) is tuple:
-                    topic, log_ns, publish_ns, payload = item
-                    channel_id = self._channels.get(topic)
-                    if channel_id is None:
-                        channel_id = self._register(topic)
-                    try:
-                        data = dumps(payload).encode()
-                    except (ValueError, TypeError, OverflowError) as error:
-                        self._errors.append(
-                            LogWriteError(f"{topic} message at log time {log_ns} not written: {error}")
-                        )
-                        continue
-                    sequence = self._sequences[channel_id] = (self._sequences[channel_id] + 1) & 0xFFFFFFFF
-                    writer.add_message(channel_id, log_ns, data, publish_ns, sequence)
-                    unflushed = True
-                    now_wall_ns = time.monotonic_ns()
-                    if last_flush_log_ns is None:
-                        last_flush_log_ns = log_ns
-                    if (
-                        log_ns - last_flush_log_ns >= interval_ns
-                        or now_wall_ns - last_flush_wall_ns >= interval_ns
-                    ):
-                        self._flush(fsync=False)
-                        unflushed, last_flush_log_ns, last_flush_wall_ns = False, log_ns, now_wall_ns
-                    continue
-                if self._control(item):
-                    return
-                if item.op == "flush":
-                    unflushed, last_flush_wall_ns = False, time.monotonic_ns()
-            except BaseException as error:  # the file cannot be trusted any more: stop writing
+                reply = pickle.loads(replies.recv_bytes())
+            except (EOFError, OSError):
+                break
+            except Exception as error:  # pragma: no cover - a reply that does not unpickle
+                self._set_fatal(error)
+                break
+            kind = reply[0]
+            if kind == "written":
+                with self._progress:
+                    self._written += reply[1]
+                    self._progress.notify_all()
+            elif kind == "done":
+                self._release(reply[1])
+            elif kind == "error":
+                self._errors.append(LogWriteError(reply[1]))
+            elif kind == "fatal":
+                self._set_fatal(reply[1])
+        if not self._finished or self._done:
+            code = self._process.poll()
+            self._set_fatal(LogWriteError(f"the writer process ended unexpectedly (exit status {code})"))
+
+    def _set_fatal(self, error: BaseException) -> None:
+        with self._progress:
+            if self._fatal is None:
                 self._fatal = error
-                if not (isinstance(item, _Control) and item.op == "finish"):
-                    self._drain_after_fatal()
-                return
+            self._progress.notify_all()
+        for token in list(self._done):
+            self._release(token)
 
-    def _register(self, topic: str) -> int:
-        spec = schemas.TOPICS[topic]
-        schema_id = self._writer.register_schema(spec.schema_name, schemas.SCHEMA_ENCODING, spec.schema_bytes)
-        channel_id = self._writer.register_channel(topic, schemas.MESSAGE_ENCODING, schema_id)
-        self._channels[topic] = channel_id
-        self._sequences[channel_id] = 0
-        return channel_id
-
-    def _flush(self, *, fsync: bool) -> None:
-        self._writer.flush()
-        if fsync:
-            os.fsync(self._file.fileno())
-
-    def _control(self, request: _Control) -> bool:
-        """Carry out one request; True when the thread should end (finish)."""
-        try:
-            if request.op == "flush":
-                self._flush(fsync=request.args[0])
-            elif request.op == "metadata":
-                self._writer.add_metadata(*request.args)
-            elif request.op == "attachment":
-                self._writer.add_attachment(*request.args)
-            elif request.op == "finish":
-                try:
-                    self._writer.finish()
-                    self._file.flush()
-                    os.fsync(self._file.fileno())
-                finally:
-                    self._file.close()
-                return True
-        finally:
-            request.done.set()
-        return False
-
-    def _drain_after_fatal(self) -> None:
-        """Release every waiter; close the file (unfinished) when asked to finish."""
-        with contextlib.suppress(Exception):  # the fatal error is what gets reported
-            self._file.close()
-        while True:
-            item = self._queue.get()
-            if isinstance(item, _Control):
-                item.done.set()
-                if item.op == "finish":
-                    return
+    def _release(self, token: int) -> None:
+        done = self._done.pop(token, None)
+        if done is not None:
+            done.set()
