@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import fcntl
 import itertools
 import operator
 import os
@@ -42,8 +43,9 @@ LIBRARY = f"rig-logger/{rig.__version__} mcap-python/{MCAP_VERSION}"
 DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes; periodic flushes usually close chunks first
 DEFAULT_FLUSH_INTERVAL_S = 1.0
 DEFAULT_MAX_PENDING = 100_000  # queued messages (~80 s of rig data) before log() applies back-pressure
-BATCH_MESSAGES = 256  # messages per pipe write (fewer when max_pending is small)
-BATCH_LOG_TIME_NS = 50_000_000  # a batch spans at most this much log time
+BATCH_MESSAGES = 1024  # messages per pipe write (fewer when max_pending is small)
+BATCH_LOG_TIME_NS = 250_000_000  # a batch spans at most this much log time
+PIPE_BYTES = 1 << 20  # request pipe capacity, so that sending a batch does not wait for the writer
 _STRICT_ENV = "RIG_LOG_STRICT"
 
 
@@ -111,6 +113,8 @@ class RunLogger:
 
         file_fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         request_read, request_write = os.pipe()
+        with contextlib.suppress(AttributeError, OSError):  # Linux: room for several batches
+            fcntl.fcntl(request_write, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
         reply_read, reply_write = os.pipe()
         child_fds = (request_read, reply_write, file_fd)
         try:
