@@ -2,16 +2,17 @@
 
 `RunLogger` (rig.log.writer) starts this module as a child process (`python -m
 rig.log.writer_process ...`) so that the encoding work does not share the acquisition loop's GIL.
-It reads pickled requests from one pipe and answers on another:
+It reads pickled requests from one pipe and answers on another.
 
-requests (parent -> child)             replies (child -> parent)
-``("batch", [(topic, log_ns, publish_ns, payload), ...])``   ``("written", n)`` once written
-``("flush", token, fsync)``            ``("done", token)``
-``("metadata", name, data)``           -
-``("attachment", args)``               -
-``("finish", token)``                  ``("done", token)``, then the process exits
-                                       ``("error", text)``: one message not written (bad payload)
-                                       ``("fatal", exception)``: the file cannot be trusted; stop
+Requests (parent -> child), and the replies (child -> parent) they get:
+
+* ``("batch", [(topic, log_ns, publish_ns, payload), ...])`` -> ``("written", n)`` once written
+* ``("flush", token, fsync)`` -> ``("done", token)``
+* ``("metadata", name, data)``, ``("attachment", args)`` -> no reply
+* ``("finish", token)`` -> ``("done", token)``, then the process exits
+
+Unprompted replies: ``("error", text)``, one message not written (a payload JSON cannot encode);
+``("fatal", exception)``, the file cannot be trusted any more and nothing else is written.
 
 The open chunk is closed (flushed) about every second of log time or wall time and whenever the
 parent asks. If the parent dies (end of file on the request pipe) the process exits without
