@@ -40,41 +40,50 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
-        covered, errors, rmses = 0, [], []
-        for seed in range(args.seeds):
-            report = run("joint_estimation.yaml", seed, out)
-            est, k_true = report.estimate, report.truth["k"]
-            lo, hi = est["k_ci"]
-            covered += lo <= k_true <= hi
-            errors.append((est["k"] - k_true) / k_true * 100)
-            rmses.append(est["rmse"])
-        print(f"joint estimation, {args.seeds} seeds (24 trials each):")
-        print(f"  99 % bounds cover the true k in {covered}/{args.seeds} runs")
-        print(
-            f"  estimate error: mean {statistics.mean(errors):+.2f} %, mean |error| "
-            f"{statistics.mean(abs(e) for e in errors):.2f} %, "
-            f"max |error| {max(abs(e) for e in errors):.2f} %"
-        )
-        print(f"  RMSE: median {statistics.median(rmses):.3f} kg (paper 0.126 kg)")
-        shares, means, stds, all_pct = [], [], [], []
-        for seed in range(args.link_seeds):
-            report = run("link_validation.yaml", seed, out)
-            pe = report.percentage_errors
-            shares.append(pe["share_below_pct"]["15"])
-            means.append(pe["mean_pct"])
-            stds.append(pe["std_pct"])
-            all_pct += pe["percentage_errors"]
-        print(f"link validation, {args.link_seeds} seeds (21 configurations each):")
-        print(
-            "  share of percentage errors below 15 % per run: "
-            + ", ".join(f"{s * 100:.1f} %" for s in shares)
-        )
-        pooled = sum(p < 15 for p in all_pct) / len(all_pct)
-        print(f"  pooled: {pooled * 100:.1f} % of {len(all_pct)} errors below 15 % (paper: 80.4 %)")
-        print(
-            f"  mean percentage error per run: {', '.join(f'{m:.2f}' for m in means)} % "
-            f"(sd {', '.join(f'{s:.2f}' for s in stds)}) (paper: 9.53 +- 6.73 and 12.5 +- 10.5)"
-        )
+        if args.seeds > 0:
+            joint_estimation_accuracy(args.seeds, out)
+        if args.link_seeds > 0:
+            link_validation_accuracy(args.link_seeds, out)
+
+
+def joint_estimation_accuracy(seeds: int, out: Path) -> None:
+    """Coverage of the 99 % bounds on k and the estimate's error over `seeds` runs."""
+    covered, errors, rmses = 0, [], []
+    for seed in range(seeds):
+        report = run("joint_estimation.yaml", seed, out)
+        est, k_true = report.estimate, report.truth["k"]
+        lo, hi = est["k_ci"]
+        covered += lo <= k_true <= hi
+        errors.append((est["k"] - k_true) / k_true * 100)
+        rmses.append(est["rmse"])
+    print(f"joint estimation, {seeds} seeds (24 trials each):")
+    print(f"  99 % bounds cover the true k in {covered}/{seeds} runs")
+    print(
+        f"  estimate error: mean {statistics.mean(errors):+.2f} %, mean |error| "
+        f"{statistics.mean(abs(e) for e in errors):.2f} %, "
+        f"max |error| {max(abs(e) for e in errors):.2f} %"
+    )
+    print(f"  RMSE: median {statistics.median(rmses):.3f} kg (paper 0.126 kg)")
+
+
+def link_validation_accuracy(seeds: int, out: Path) -> None:
+    """Table IV statistics of the percentage errors over `seeds` runs."""
+    shares, means, stds, all_pct = [], [], [], []
+    for seed in range(seeds):
+        report = run("link_validation.yaml", seed, out)
+        pe = report.percentage_errors
+        shares.append(pe["share_below_pct"]["15"])
+        means.append(pe["mean_pct"])
+        stds.append(pe["std_pct"])
+        all_pct += pe["percentage_errors"]
+    print(f"link validation, {seeds} seeds (21 configurations each):")
+    print("  share of percentage errors below 15 % per run: " + ", ".join(f"{s * 100:.1f} %" for s in shares))
+    pooled = sum(p < 15 for p in all_pct) / len(all_pct)
+    print(f"  pooled: {pooled * 100:.1f} % of {len(all_pct)} errors below 15 % (paper: 80.4 %)")
+    print(
+        f"  mean percentage error per run: {', '.join(f'{m:.2f}' for m in means)} % "
+        f"(sd {', '.join(f'{s:.2f}' for s in stds)}) (paper: 9.53 +- 6.73 and 12.5 +- 10.5)"
+    )
 
 
 if __name__ == "__main__":

@@ -194,6 +194,33 @@ def test_back_pressure_bounds_the_queue_and_loses_nothing(tmp_path):
     assert list(frame["raw"]) == list(range(3000))
 
 
+def test_log_many_writes_what_log_would_in_order_with_one_publish_time_per_call(tmp_path):
+    clock = VirtualClock()
+    path = tmp_path / "a.mcap"
+    with RunLogger(path, clock=clock, strict=True) as log:
+        log.log(S.LOADCELL, T0_NS, S.loadcell_sample(raw=0, force_n=0.0, seq=0))
+        for tick in range(3):
+            clock.advance_ns(20 * MS)
+            samples = [
+                (T0_NS + (20 * tick + i) * MS, S.loadcell_sample(raw=i, force_n=0.25 * i, seq=i))
+                for i in range(1, 21)
+            ]
+            log.log_many(S.LOADCELL, samples)
+        log.log_many(S.LOADCELL, [])
+        assert log.messages_logged == 61
+        with pytest.raises(KeyError, match="unknown topic"):
+            log.log_many("/rig/nope", samples)
+        with pytest.raises(TypeError):
+            log.log_many(S.LOADCELL, [(1.5, samples[0][1])])  # log times are integer ns
+    messages = mcap_messages(path)
+    assert len(messages) == 61
+    log_times = [m[2] for m in messages]
+    assert log_times == sorted(log_times) and log_times[-1] == T0_NS + 60 * MS
+    publish = [m[3] for m in messages[1:]]
+    assert publish == [clock.time_ns() - (2 - tick) * 20 * MS for tick in range(3) for _ in range(20)]
+    assert [m[4]["raw"] for m in messages[1:21]] == list(range(1, 21))
+
+
 def test_flush_with_fsync_and_the_messages_it_covers_are_on_disk(tmp_path):
     path = tmp_path / "a.mcap"
     log = RunLogger(path, flush_interval_s=3600)

@@ -26,7 +26,7 @@ import sys
 import threading
 import time
 import weakref
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -156,12 +156,7 @@ class RunLogger:
         `log_time_ns` is the epoch time of sampling. `payload` must not be changed afterwards (the
         builders in `rig.log.schemas` return fresh dicts).
         """
-        if self._errors or self._fatal is not None:
-            self._raise_errors()
-        if self._finished:
-            raise LogWriteError(f"{self.path}: log() after finish()")
-        if topic not in schemas.TOPICS:
-            raise KeyError(f"unknown topic {topic!r}; known: {', '.join(schemas.TOPICS)}")
+        self._check_loggable(topic)
         if type(log_time_ns) is not int:
             log_time_ns = operator.index(log_time_ns)  # numpy ints are fine, floats are not
         if self._strict:
@@ -171,7 +166,46 @@ class RunLogger:
             self._batch_start_ns = log_time_ns
         batch.append((topic, log_time_ns, self._now_ns(), payload))
         self.messages_logged += 1
-        if len(batch) >= self._batch_limit or log_time_ns - self._batch_start_ns >= BATCH_LOG_TIME_NS:
+        self._maybe_send(log_time_ns)
+
+    def log_many(self, topic: str, messages: Iterable[tuple[int, Mapping[str, Any]]]) -> None:
+        """Enqueue `(log_time_ns, payload)` messages of one topic, in order, as `log` would one by one.
+
+        One call per control period for the 1 kHz load-cell samples: the checks and the publish
+        time are per call, not per message.
+        """
+        self._check_loggable(topic)
+        publish_ns = self._now_ns()
+        strict = self._strict
+        batch = self._batch
+        count = len(batch)
+        for log_time_ns, payload in messages:
+            if type(log_time_ns) is not int:
+                log_time_ns = operator.index(log_time_ns)
+            if strict:
+                schemas.check_payload(topic, payload)
+            if not batch:
+                self._batch_start_ns = log_time_ns
+            batch.append((topic, log_time_ns, publish_ns, payload))
+        added = len(batch) - count
+        if added:
+            self.messages_logged += added
+            self._maybe_send(batch[-1][1])
+
+    def _check_loggable(self, topic: str) -> None:
+        if self._errors or self._fatal is not None:
+            self._raise_errors()
+        if self._finished:
+            raise LogWriteError(f"{self.path}: log() after finish()")
+        if topic not in schemas.TOPICS:
+            raise KeyError(f"unknown topic {topic!r}; known: {', '.join(schemas.TOPICS)}")
+
+    def _maybe_send(self, last_log_time_ns: int) -> None:
+        """Send the batch once it is full or spans enough log time; back-pressure if far behind."""
+        if (
+            len(self._batch) >= self._batch_limit
+            or last_log_time_ns - self._batch_start_ns >= BATCH_LOG_TIME_NS
+        ):
             self._send_batch()
             if self._sent - self._written + self._batch_limit > self._max_pending:
                 self._wait_for_drain()

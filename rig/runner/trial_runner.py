@@ -186,21 +186,20 @@ class TrialRunner:
             raise InterlockTripped(reason)
 
     def _ingest(self, samples: list[LoadCellSample]) -> None:
-        log, tare = self.log.log, self.tare_n
-        self.tick_samples = []
-        for s in samples:
-            force = s.force_n - tare
-            self.tick_samples.append((s.time_ns, force))
-            log(
-                schemas.LOADCELL,
-                s.time_ns,
-                schemas.loadcell_sample(raw=s.raw, force_n=force, seq=s.seq, device_time_us=s.device_time_us),
-            )
-        if self.tick_samples:
+        tare, payload = self.tare_n, schemas.loadcell_sample
+        self.tick_samples = [(s.time_ns, s.force_n - tare) for s in samples]
+        if samples:
             self.force_n = self.tick_samples[-1][1]
+            self.log.log_many(
+                schemas.LOADCELL,
+                [
+                    (s.time_ns, payload(raw=s.raw, force_n=force, seq=s.seq, device_time_us=s.device_time_us))
+                    for s, (_, force) in zip(samples, self.tick_samples, strict=True)
+                ],
+            )
         roles = self.session.roles
         for state in self.states.values():
-            log(
+            self.log.log(
                 schemas.SERVO_STATE,
                 state.time_ns,
                 schemas.servo_state_payload(state, roles.get(state.servo_id, "")),
