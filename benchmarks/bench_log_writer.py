@@ -2,7 +2,7 @@
 
 Variants (same payload dicts, zstd, 512 KiB chunks, all in this process):
   bare_flush   json.dumps + Writer.add_message, flush() every 1000 messages (1 s at 1 kHz): the same
-               chunking as RunLogger, whose writer thread flushes every second of log time
+               chunking as RunLogger, whose writer process flushes every second of log time
   bare         json.dumps + Writer.add_message, chunks closed by size only
   logger       RunLogger.log() for every message, then finish(); caller-side time = the log() calls
 
