@@ -156,8 +156,8 @@ def bench_pty(n: int, tmp: str) -> None:
 class CannedSerial:
     """A fake serial port that answers the sync-read request with canned bytes (no emulator)."""
 
-    def __init__(self) -> None:
-        self.request, self.reply = canned_replies()
+    def __init__(self, exchange: tuple[bytes, bytes] | None = None) -> None:
+        self.request, self.reply = exchange or canned_replies()
         self.rx = bytearray()
         self.is_open = True
 
@@ -183,8 +183,10 @@ class CannedSerial:
 
 
 class CannedPortHandler(PortHandler):
+    exchange: tuple[bytes, bytes] | None = None  # (request, reply); None: the 3-servo sync read
+
     def setupPort(self, cflag_baud: int) -> bool:
-        self.ser = CannedSerial()
+        self.ser = CannedSerial(self.exchange)
         self.is_open = True
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
         return True
@@ -249,7 +251,7 @@ def soak(n: int, tmp: str) -> int:
 
 
 STATE_ADDR, STATE_LENGTH = 122, 14  # Moving .. Present Position, the block `read_states` reads
-CPU_REPEATS = 5
+CPU_REPEATS = 7
 
 
 def _torque_on(
@@ -262,30 +264,61 @@ def _torque_on(
     servo.write(ct.ADDR_TORQUE_ENABLE, b"\x01", now_ns)
 
 
-def cpu_fast_sync_read(n: int) -> tuple[float, str]:
-    """CPU µs per fast sync read of 2 holding servos through the SDK on the in-process port, and a digest."""
+def _fast_read_group(port: PortHandler) -> GroupSyncRead:
+    assert port.openPort() and port.setBaudRate(BAUD)
+    group = GroupSyncRead(port, PacketHandler(2.0), STATE_ADDR, STATE_LENGTH)
+    for sid in (1, 2):
+        group.addParam(sid)
+    return group
+
+
+def _timed_reads(group: GroupSyncRead, n: int) -> float:
+    fast_read = group.fastSyncRead
+    t0 = time.thread_time()
+    for _ in range(n):
+        if fast_read() != COMM_SUCCESS:
+            raise RuntimeError("fast sync read failed")
+    return (time.thread_time() - t0) / n * 1e6
+
+
+def cpu_fast_sync_read(n: int) -> tuple[float, float, str]:
+    """CPU µs per fast sync read of 2 servos through the SDK on the in-process port; the same with canned
+    bytes (the SDK's own share); a digest of everything the host received.
+
+    Servo 1 ramps in mode 5 at 1 rad/s (its state block changes every read), servo 2 holds.
+    """
     clock = VirtualClock()
     bus = EmulatedBus.with_servos(clock, ids=(1, 2))
     clock.on_advance(bus.advance_to)
     for sid in (1, 2):
         bus.servo(sid).write(9, b"\x00", 0)  # Return Delay Time 0, as the driver configures
-        _torque_on(bus, sid, 4, 0)
+    _torque_on(bus, 1, 5, 0, goal_current=800)
+    _torque_on(bus, 2, 4, 0)
+    bus.servo(1).write(112, round(1.0 / ct.RAD_S_PER_VELOCITY_UNIT).to_bytes(4, "little"), 0)
+    bus.servo(1).write(116, (1 << 30).to_bytes(4, "little"), 0)  # Goal Position: far away
     port = SimPortHandler(bus, clock)
-    assert port.openPort() and port.setBaudRate(BAUD)
-    group = GroupSyncRead(port, PacketHandler(2.0), STATE_ADDR, STATE_LENGTH)
-    for sid in (1, 2):
-        group.addParam(sid)
+    group = _fast_read_group(port)
     digest = hashlib.sha256()
-    fast_read, get = group.fastSyncRead, group.getData
-    t0 = time.thread_time()
-    for _ in range(n):
-        if fast_read() != COMM_SUCCESS:
-            raise RuntimeError("fast sync read failed")
-    cpu_s = time.thread_time() - t0
-    for sid in (1, 2):
-        digest.update(struct.pack("<I", get(sid, 132, 4)))
+    received: list[bytes] = []
+    feed = bus.feed
+
+    def recording_feed(data: bytes, now_ns: int) -> list:
+        replies = feed(data, now_ns)
+        received.extend(r.data for r in replies)
+        return replies
+
+    bus.feed = recording_feed  # type: ignore[method-assign]
+    us = _timed_reads(group, n)
+    for data in received:
+        digest.update(data)
     digest.update(struct.pack("<QQ", clock.monotonic_ns(), port.ser.bytes_read))
-    return cpu_s / n * 1e6, digest.hexdigest()[:16]
+    request = p.build_instruction(
+        p.BROADCAST_ID, p.FAST_SYNC_READ, bytes((STATE_ADDR, 0, STATE_LENGTH, 0, 1, 2)), stuffed=False
+    )
+    canned = CannedPortHandler("canned")
+    canned.exchange = (request, received[-1])
+    canned_us = _timed_reads(_fast_read_group(canned), n)
+    return us, canned_us, digest.hexdigest()[:16]
 
 
 def cpu_winch_ramp(seconds: float = 10.0) -> tuple[float, str]:
@@ -326,19 +359,22 @@ def cpu_winch_ramp(seconds: float = 10.0) -> tuple[float, str]:
 
 
 def bench_cpu(reads: int) -> None:
-    """Median CPU time of (a) and (b) over CPU_REPEATS repetitions."""
-    reads_us, ramps_us = [], []
+    """Median CPU time of (a) and (b) over CPU_REPEATS repetitions, after one warm-up."""
+    reads_us, canned_us, ramps_us = [], [], []
     digests = set()
-    for _ in range(CPU_REPEATS):
-        us, d_read = cpu_fast_sync_read(reads)
-        reads_us.append(us)
-        us, d_ramp = cpu_winch_ramp()
-        ramps_us.append(us)
+    for k in range(CPU_REPEATS + 1):
+        us, c_us, d_read = cpu_fast_sync_read(reads)
+        ramp_us, d_ramp = cpu_winch_ramp()
         digests.add((d_read, d_ramp))
+        if k:
+            reads_us.append(us)
+            canned_us.append(c_us)
+            ramps_us.append(ramp_us)
     ((d_read, d_ramp),) = digests
     print(
         f"(a) fast sync read of 2 servos, SDK on SimPortHandler: {statistics.median(reads_us):.1f} µs CPU "
-        f"per read (min {min(reads_us):.1f}; {reads} reads x {CPU_REPEATS}), digest {d_read}"
+        f"per read (min {min(reads_us):.1f}; SDK alone on canned bytes {statistics.median(canned_us):.1f}; "
+        f"{reads} reads x {CPU_REPEATS}), digest {d_read}"
     )
     print(
         f"(b) winch ramp 10 s in 1 ms steps, 2 servos: {statistics.median(ramps_us):.2f} µs CPU per step "
