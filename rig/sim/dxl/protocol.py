@@ -72,20 +72,17 @@ CRC_TABLE = _make_crc_table()
 _LITTLE_ENDIAN = sys.byteorder == "little"
 
 
-_crc_words: tuple[int, ...] | None = None
-
-
-def _crc_word_table() -> tuple[int, ...]:
+def _make_crc_word_table() -> tuple[int, ...]:
     """CRC_TABLE extended to 16-bit words: entry `w` is the CRC (from 0) of the big-endian bytes of `w`.
 
-    With a 16-bit CRC, two bytes `hi lo` move `crc` to `table[crc ^ (hi << 8 | lo)]`. Built on first
-    use (about 10 ms) so that importing the protocol stays cheap.
+    With a 16-bit CRC, two bytes `hi lo` move `crc` to `table[crc ^ (hi << 8 | lo)]`.
     """
-    global _crc_words
-    if _crc_words is None:
-        t = CRC_TABLE
-        _crc_words = tuple([((a << 8) & 0xFFFF) ^ t[(a >> 8) ^ lo] for a in t for lo in range(256)])
-    return _crc_words
+    t = CRC_TABLE
+    return tuple([((a << 8) & 0xFFFF) ^ t[(a >> 8) ^ lo] for a in t for lo in range(256)])
+
+
+# Built at import (~10 ms), not on first use: a pty server must not add that to its first reply.
+CRC_WORD_TABLE = _make_crc_word_table()
 
 
 def crc16(data: bytes | bytearray | memoryview | Sequence[int], crc: int = 0) -> int:
@@ -97,7 +94,7 @@ def crc16(data: bytes | bytearray | memoryview | Sequence[int], crc: int = 0) ->
     words.frombytes(memoryview(data)[:-1] if odd else data)
     if _LITTLE_ENDIAN:
         words.byteswap()
-    table = _crc_words or _crc_word_table()
+    table = CRC_WORD_TABLE
     for w in words:
         crc = table[crc ^ w]
     if odd:  # the last byte on its own
