@@ -6,16 +6,23 @@ reply latency p50/p99/max and the number of failed transactions; compared with a
 In-process (`SimPortHandler`): sync-read transactions per second and virtual-vs-wall time ratio,
 compared with the SDK on a fake serial port that returns the same canned bytes.
 `--soak N`: N mixed transactions (ping, read, write, sync/bulk/fast read) over the pty; exit 1 on any failure.
+`--cpu`: only the main-thread CPU cost of what `rig run` does on the simulated rig: (a) one fast sync
+read of 2 servos (Moving..Present Position, 14 bytes) through the SDK on `SimPortHandler`, and (b) a
+10 s winch ramp integrated in 1 ms steps (`EmulatedBus.advance_to`, as the world's substeps call it);
+median CPU time of 5 repetitions, plus a digest of the bytes and floats so runs can be compared.
 
     .venv/bin/python benchmarks/bench_dxl_emulator.py [--reads 5000] [--soak 1000]
+    .venv/bin/python benchmarks/bench_dxl_emulator.py --cpu
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import select
 import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -30,6 +37,7 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
+from rig.hw import control_table as ct
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl import protocol as p
 from rig.sim.dxl.bus import EmulatedBus
@@ -148,8 +156,8 @@ def bench_pty(n: int, tmp: str) -> None:
 class CannedSerial:
     """A fake serial port that answers the sync-read request with canned bytes (no emulator)."""
 
-    def __init__(self) -> None:
-        self.request, self.reply = canned_replies()
+    def __init__(self, exchange: tuple[bytes, bytes] | None = None) -> None:
+        self.request, self.reply = exchange or canned_replies()
         self.rx = bytearray()
         self.is_open = True
 
@@ -175,8 +183,10 @@ class CannedSerial:
 
 
 class CannedPortHandler(PortHandler):
+    exchange: tuple[bytes, bytes] | None = None  # (request, reply); None: the 3-servo sync read
+
     def setupPort(self, cflag_baud: int) -> bool:
-        self.ser = CannedSerial()
+        self.ser = CannedSerial(self.exchange)
         self.is_open = True
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
         return True
@@ -240,15 +250,151 @@ def soak(n: int, tmp: str) -> int:
     return 1 if total else 0
 
 
+STATE_ADDR, STATE_LENGTH = 122, 14  # Moving .. Present Position, the block `read_states` reads
+CPU_REPEATS = 7
+
+
+def _torque_on(
+    bus: EmulatedBus, servo_id: int, mode: int, now_ns: int, goal_current: int | None = None
+) -> None:
+    servo = bus.servo(servo_id)
+    servo.write(ct.ADDR_OPERATING_MODE, bytes((mode,)), now_ns)
+    if goal_current is not None:
+        servo.write(102, goal_current.to_bytes(2, "little"), now_ns)  # Goal Current
+    servo.write(ct.ADDR_TORQUE_ENABLE, b"\x01", now_ns)
+
+
+def _fast_read_group(port: PortHandler) -> GroupSyncRead:
+    assert port.openPort() and port.setBaudRate(BAUD)
+    group = GroupSyncRead(port, PacketHandler(2.0), STATE_ADDR, STATE_LENGTH)
+    for sid in (1, 2):
+        group.addParam(sid)
+    return group
+
+
+def _timed_reads(group: GroupSyncRead, n: int) -> float:
+    fast_read = group.fastSyncRead
+    t0 = time.thread_time()
+    for _ in range(n):
+        if fast_read() != COMM_SUCCESS:
+            raise RuntimeError("fast sync read failed")
+    return (time.thread_time() - t0) / n * 1e6
+
+
+def cpu_fast_sync_read(n: int) -> tuple[float, float, str]:
+    """CPU µs per fast sync read of 2 servos through the SDK on the in-process port; the same with canned
+    bytes (the SDK's own share); a digest of everything the host received.
+
+    Servo 1 ramps in mode 5 at 1 rad/s (its state block changes every read), servo 2 holds.
+    """
+    clock = VirtualClock()
+    bus = EmulatedBus.with_servos(clock, ids=(1, 2))
+    clock.on_advance(bus.advance_to)
+    for sid in (1, 2):
+        bus.servo(sid).write(9, b"\x00", 0)  # Return Delay Time 0, as the driver configures
+    _torque_on(bus, 1, 5, 0, goal_current=800)
+    _torque_on(bus, 2, 4, 0)
+    bus.servo(1).write(112, round(1.0 / ct.RAD_S_PER_VELOCITY_UNIT).to_bytes(4, "little"), 0)
+    bus.servo(1).write(116, (1 << 30).to_bytes(4, "little"), 0)  # Goal Position: far away
+    port = SimPortHandler(bus, clock)
+    group = _fast_read_group(port)
+    digest = hashlib.sha256()
+    received: list[bytes] = []
+    feed = bus.feed
+
+    def recording_feed(data: bytes, now_ns: int) -> list:
+        replies = feed(data, now_ns)
+        received.extend(r.data for r in replies)
+        return replies
+
+    bus.feed = recording_feed  # type: ignore[method-assign]
+    us = _timed_reads(group, n)
+    for data in received:
+        digest.update(data)
+    digest.update(struct.pack("<QQ", clock.monotonic_ns(), port.ser.bytes_read))
+    request = p.build_instruction(
+        p.BROADCAST_ID, p.FAST_SYNC_READ, bytes((STATE_ADDR, 0, STATE_LENGTH, 0, 1, 2)), stuffed=False
+    )
+    canned = CannedPortHandler("canned")
+    canned.exchange = (request, received[-1])
+    canned_us = _timed_reads(_fast_read_group(canned), n)
+    return us, canned_us, digest.hexdigest()[:16]
+
+
+def cpu_winch_ramp(seconds: float = 10.0) -> tuple[float, str]:
+    """CPU µs per 1 ms step of a winch ramp (mode 5, 1 rad/s profile) against a spring line, and a digest.
+
+    A second servo holds still with torque on (the bender), as on the rig. The world's order per
+    substep: advance the bus, read the winch angle, set the line torque.
+    """
+    bus = EmulatedBus.with_servos(None, ids=(1, 2))
+    winch, bender = bus.servo(1), bus.servo(2)
+    _torque_on(bus, 1, 5, 0, goal_current=800)
+    _torque_on(bus, 2, 4, 0)
+    winch.write(112, round(1.0 / ct.RAD_S_PER_VELOCITY_UNIT).to_bytes(4, "little"), 0)  # Profile Velocity
+    theta0 = winch.present_position_rad
+    goal = round((theta0 + 1.2 * seconds) / ct.RAD_PER_PULSE)
+    winch.write(116, goal.to_bytes(4, "little", signed=True), 0)  # Goal Position
+    digest = hashlib.sha256()
+    steps = round(seconds * 1000)
+    t0 = time.thread_time()
+    for k in range(1, steps + 1):
+        bus.advance_to(k * 1_000_000)
+        theta = winch.present_position_rad
+        winch.external_torque_nm = -0.06 * max(0.0, theta - theta0 - 0.5)  # slack, then a spring line
+    cpu_s = time.thread_time() - t0
+    for servo in (winch, bender):
+        s = servo.state
+        digest.update(
+            struct.pack(
+                "<5d",
+                s.position_rad,
+                s.velocity_rad_s,
+                s.motor_torque_nm,
+                s.ref_position_rad,
+                s.ref_velocity_rad_s,
+            )
+        )
+    return cpu_s / steps * 1e6, digest.hexdigest()[:16]
+
+
+def bench_cpu(reads: int) -> None:
+    """Median CPU time of (a) and (b) over CPU_REPEATS repetitions, after one warm-up."""
+    reads_us, canned_us, ramps_us = [], [], []
+    digests = set()
+    for k in range(CPU_REPEATS + 1):
+        us, c_us, d_read = cpu_fast_sync_read(reads)
+        ramp_us, d_ramp = cpu_winch_ramp()
+        digests.add((d_read, d_ramp))
+        if k:
+            reads_us.append(us)
+            canned_us.append(c_us)
+            ramps_us.append(ramp_us)
+    ((d_read, d_ramp),) = digests
+    print(
+        f"(a) fast sync read of 2 servos, SDK on SimPortHandler: {statistics.median(reads_us):.1f} µs CPU "
+        f"per read (min {min(reads_us):.1f}; SDK alone on canned bytes {statistics.median(canned_us):.1f}; "
+        f"{reads} reads x {CPU_REPEATS}), digest {d_read}"
+    )
+    print(
+        f"(b) winch ramp 10 s in 1 ms steps, 2 servos: {statistics.median(ramps_us):.2f} µs CPU per step "
+        f"(min {min(ramps_us):.2f}; x {CPU_REPEATS}), digest {d_ramp}"
+    )
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reads", type=int, default=5000)
     parser.add_argument("--inprocess", type=int, default=20000)
     parser.add_argument("--soak", type=int, default=0, help="also run N mixed transactions over the pty")
+    parser.add_argument("--cpu", action="store_true", help="only the in-process CPU costs (a) and (b)")
     parser.add_argument("--serve-canned", metavar="LINK", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve_canned:
         serve_canned(args.serve_canned)
+        return 0
+    if args.cpu:
+        bench_cpu(2000)
         return 0
     print(f"host: {os.cpu_count()} cpus, load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as tmp:

@@ -100,7 +100,11 @@ def profile_step(
     """One step of an online trapezoidal profile; returns (position, velocity, reached)."""
     d = goal_rad - ref_rad
     if math.isinf(a_max):
-        v = max(-v_max, min(v_max, d / dt_s))
+        # max(-v_max, min(v_max, d / dt_s)) spelled out with the builtins' exact tie and NaN rules
+        # (min keeps its first argument unless a later one is smaller); this runs every millisecond.
+        v = d / dt_s
+        v = v if v < v_max else v_max
+        v = v if v > -v_max else -v_max
         new = ref_rad + v * dt_s
         if abs(goal_rad - new) < 1e-12:
             return goal_rad, 0.0, True
@@ -124,15 +128,30 @@ class ProfiledActuator:
     def __init__(self, params: MotorParams) -> None:
         self.params = params
 
+    @property
+    def params(self) -> MotorParams:
+        """The motor constants (setting them refreshes the derived constants the steps use)."""
+        return self._params
+
+    @params.setter
+    def params(self, params: MotorParams) -> None:
+        self._params = params
+        # MotorParams is frozen; its derived properties are evaluated once here, not on every step.
+        self._stall_nm = params.stall_torque_nm
+        self._no_load = params.no_load_speed_rad_s
+        self._gain = params.position_gain_per_s
+        self._coulomb = params.coulomb_nm
+        self._viscous = params.viscous_nm_s
+        self._backdrive = params.backdrive_nm_s
+
     def step(
         self, state: ActuatorState, cmd: ActuatorCommand, dt_s: float, external_torque_nm: float
     ) -> ActuatorState:
         """Advance `state` by `dt_s` under `cmd` and a constant external torque; returns `state`."""
-        p = self.params
         tau_ext = external_torque_nm
         if not cmd.torque_enabled:
             state.motor_torque_nm = 0.0
-            state.velocity_rad_s = self._passive_velocity(tau_ext, p.backdrive_nm_s)
+            state.velocity_rad_s = self._passive_velocity(tau_ext, self._backdrive)
             state.position_rad += state.velocity_rad_s * dt_s
             state.ref_position_rad, state.ref_velocity_rad_s = state.position_rad, 0.0
             state.saturated, state.profile_done = False, True
@@ -147,11 +166,13 @@ class ProfiledActuator:
             return state
         if mode == 16:
             # Voltage control: the motor's speed-torque line scaled by the PWM duty.
-            tau_m = cmd.pwm_fraction * p.stall_torque_nm
+            tau_m = cmd.pwm_fraction * self._stall_nm
             self._apply_open_loop(state, tau_m, tau_ext, dt_s, line=True)
             state.saturated = False
             return state
-        v_cap = min(p.no_load_speed_rad_s, cmd.profile_velocity_rad_s)
+        no_load = self._no_load
+        v_cap = cmd.profile_velocity_rad_s
+        v_cap = v_cap if v_cap < no_load else no_load  # min(no_load, profile velocity)
         if mode == 1:
             goal_v = max(-v_cap, min(v_cap, cmd.goal_velocity_rad_s))
             a = cmd.profile_acceleration_rad_s2
@@ -163,10 +184,11 @@ class ProfiledActuator:
             desired = rv
         else:
             # Error against the reference *before* this step, so that steps of any length converge.
-            err = state.ref_position_rad - state.position_rad
-            if not state.profile_done or state.ref_position_rad != cmd.goal_position_rad:
+            ref = state.ref_position_rad
+            err = ref - state.position_rad
+            if not state.profile_done or ref != cmd.goal_position_rad:
                 ref, rv, done = profile_step(
-                    state.ref_position_rad,
+                    ref,
                     state.ref_velocity_rad_s,
                     cmd.goal_position_rad,
                     v_cap,
@@ -174,41 +196,38 @@ class ProfiledActuator:
                     dt_s,
                 )
                 state.ref_position_rad, state.ref_velocity_rad_s, state.profile_done = ref, rv, done
-            desired = state.ref_velocity_rad_s + p.position_gain_per_s * err
-            desired = max(-p.no_load_speed_rad_s, min(p.no_load_speed_rad_s, desired))
-            if (
-                state.profile_done
-                and abs(state.ref_position_rad - state.position_rad) < 1e-4
-                and not state.saturated
-            ):
+            desired = state.ref_velocity_rad_s + self._gain * err
+            # max(-no_load, min(no_load, desired)), spelled out as in profile_step.
+            desired = desired if desired < no_load else no_load
+            desired = desired if desired > -no_load else -no_load
+            if state.profile_done and abs(ref - state.position_rad) < 1e-4 and not state.saturated:
                 # Settled: hold exactly at the reference, balancing the load.
                 desired = 0.0
-                state.position_rad = state.ref_position_rad
+                state.position_rad = ref
         self._track(state, desired, cmd.torque_limit_nm, tau_ext, dt_s)
         if mode == 1:
             state.ref_position_rad = state.position_rad
         return state
 
     def _passive_velocity(self, net_nm: float, damping: float) -> float:
-        c = self.params.coulomb_nm
+        c = self._coulomb
         if abs(net_nm) <= c:
             return 0.0
         v = (net_nm - _sign(net_nm) * c) / damping
-        limit = 2.0 * self.params.no_load_speed_rad_s
+        limit = 2.0 * self._no_load
         return max(-limit, min(limit, v))
 
     def _apply_open_loop(
         self, state: ActuatorState, tau_m: float, tau_ext: float, dt_s: float, line: bool = False
     ) -> None:
-        p = self.params
         net = tau_m + tau_ext
         # Driven by the motor: gear friction (plus the motor line in PWM mode); else back-driven.
-        damping = p.viscous_nm_s + (p.backdrive_nm_s if line else 0.0)
+        damping = self._viscous + (self._backdrive if line else 0.0)
         if _sign(net) != _sign(tau_m):
-            damping = p.backdrive_nm_s
+            damping = self._backdrive
         v = self._passive_velocity(net, damping)
         if line:
-            tau_m -= p.backdrive_nm_s * v  # back-EMF: torque falls with speed at a fixed duty
+            tau_m -= self._backdrive * v  # back-EMF: torque falls with speed at a fixed duty
         state.motor_torque_nm = tau_m
         state.velocity_rad_s = v
         state.position_rad += v * dt_s
@@ -217,12 +236,13 @@ class ProfiledActuator:
     def _track(
         self, state: ActuatorState, desired: float, limit_nm: float, tau_ext: float, dt_s: float
     ) -> None:
-        p = self.params
-        limit_nm = min(limit_nm, p.stall_torque_nm)
+        stall = self._stall_nm
+        limit_nm = stall if stall < limit_nm else limit_nm  # min(limit_nm, stall torque)
         if desired == 0.0:
             needed = -tau_ext
         else:
-            needed = p.viscous_nm_s * desired + p.coulomb_nm * _sign(desired) - tau_ext
+            sign = 1.0 if desired > 0 else (-1.0 if desired < 0 else 0.0)  # _sign(desired), inlined
+            needed = self._viscous * desired + self._coulomb * sign - tau_ext
         if abs(needed) <= limit_nm:
             state.motor_torque_nm = needed
             state.velocity_rad_s = desired
@@ -230,7 +250,7 @@ class ProfiledActuator:
         else:
             tau_m = _sign(needed) * limit_nm
             net = tau_m + tau_ext
-            damping = p.viscous_nm_s if _sign(net) == _sign(tau_m) else p.backdrive_nm_s
+            damping = self._viscous if _sign(net) == _sign(tau_m) else self._backdrive
             state.motor_torque_nm = tau_m
             state.velocity_rad_s = self._passive_velocity(net, damping)
             state.saturated = True

@@ -52,8 +52,39 @@ _INDIRECT_DATA_RANGES = tuple(
 _LOW_INDIRECT = min(r[0] for r in _INDIRECT_DATA_RANGES)
 
 
-# Realtime Tick (120) .. Present Input Voltage (144), contiguous in every X430 table.
-_PRESENT_BLOCK = struct.Struct("<HBBhhiiiiH")
+# Realtime Tick (120), then Moving (122) .. Present Input Voltage (144): contiguous in every X430 table,
+# as are the registers they are computed from (checked by `_check_layout`).
+_TICK = struct.Struct("<H")
+_PRESENT_REST = struct.Struct("<BBhhiiiiH")
+_ADDR_REALTIME_TICK = 120
+_ADDR_HOMING_OFFSET = 20
+_HOMING_MOVING = struct.Struct("<iI")  # Homing Offset (20), Moving Threshold (24)
+_ADDR_PROFILE_ACCELERATION = 108
+_PROFILE_GOAL = struct.Struct(
+    "<IIi"
+)  # Profile Acceleration (108), Profile Velocity (112), Goal Position (116)
+_LAYOUT = (
+    ("Drive Mode", ct.ADDR_DRIVE_MODE, 1),
+    ("Homing Offset", _ADDR_HOMING_OFFSET, 4),
+    ("Moving Threshold", _ADDR_HOMING_OFFSET + 4, 4),
+    ("Torque Enable", ct.ADDR_TORQUE_ENABLE, 1),
+    ("Profile Acceleration", _ADDR_PROFILE_ACCELERATION, 4),
+    ("Profile Velocity", _ADDR_PROFILE_ACCELERATION + 4, 4),
+    ("Goal Position", _ADDR_PROFILE_ACCELERATION + 8, 4),
+    ("Realtime Tick", _ADDR_REALTIME_TICK, 2),
+    ("Moving", _ADDR_REALTIME_TICK + 2, 1),
+    ("Present Input Voltage", _ADDR_REALTIME_TICK + 24, 2),
+)
+
+
+def _check_layout(table: ControlTable) -> None:
+    """The fixed addresses `_refresh_present` packs and unpacks must be the table's."""
+    for name, address, size in _LAYOUT:
+        f = table[name]
+        if (f.address, f.size) != (address, size):
+            raise ValueError(
+                f"{table.model_name}: {name} at {f.address}+{f.size}, the emulator assumes {address}+{size}"
+            )
 
 
 def _clamp(value: int, bits: int) -> int:
@@ -92,6 +123,7 @@ class Servo:
             raise ValueError(
                 f"baud {baud} is not a Dynamixel rate; allowed: {sorted(ct.BAUD_REGISTER_BY_RATE)}"
             )
+        _check_layout(table)
         self.table = table
         self.firmware = table.default_firmware if firmware is None else firmware
         self.motor = motor or MotorParams(
@@ -109,6 +141,7 @@ class Servo:
         self._f = {name: table[name] for name in table.names()}
         self._has_current = "Current Limit" in table
         self._mem = bytearray(table.size)
+        self._present_key: tuple | None = None  # inputs of the last _refresh_present
         self._load_defaults(keep_id=False, keep_baud=False)
         self._set("ID", servo_id)
         self._set("Baud Rate", ct.BAUD_REGISTER_BY_RATE[baud])
@@ -142,6 +175,7 @@ class Servo:
         return self._get(name)
 
     def _load_defaults(self, *, keep_id: bool, keep_baud: bool, ram_only: bool = False) -> None:
+        self._present_key = None  # the present registers are reset too
         keep = {}
         if keep_id:
             keep["ID"] = self._get("ID")
@@ -288,6 +322,12 @@ class Servo:
             a = prof_a * ct.RAD_S2_PER_ACCELERATION_UNIT if prof_a else math.inf
         direction = self._direction()
         goal_current_a = self._get("Goal Current") * ct.CURRENT_UNIT_A if self._has_current else 0.0
+        # Used by every integration step; Current Limit and the motor change only with a new command.
+        overload_a = self.motor.stall_current_a
+        if self._has_current:
+            overload_a = min(overload_a, self._get("Current Limit") * ct.CURRENT_UNIT_A)
+        self._overload_cap_nm = overload_a * kt * OVERLOAD_FRACTION
+        self._coulomb_nm = self.motor.coulomb_nm
         self._cmd = ActuatorCommand(
             torque_enabled=self.torque_enabled,
             mode=mode,
@@ -320,19 +360,17 @@ class Servo:
             self._integrate(self._boot_until_ns)
             self._finish_boot()
         self._integrate(now_ns)
-        self._check_watchdog(now_ns)
+        if self._mem[98]:  # Bus Watchdog enabled (or tripped)
+            self._check_watchdog(now_ns)
 
     def _integrate(self, now_ns: int) -> None:
         t = self._now_ns
         if now_ns <= t:
             return
-        state, cmd, step = self.state, self._cmd, self.actuator.step
-        idle = (
-            not cmd.torque_enabled
-            and state.velocity_rad_s == 0.0
-            and abs(self.external_torque_nm) <= self.motor.coulomb_nm
-        )
-        if idle:
+        state, cmd = self.state, self._cmd
+        tau_ext = self.external_torque_nm
+        if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self._coulomb_nm:
+            # Idle: torque off and the load inside the gear's static friction band.
             state.motor_torque_nm = 0.0
             self._now_ns = now_ns
             self._at_limit_ns = 0
@@ -341,20 +379,19 @@ class Servo:
         if (
             settled is not None
             and settled[0] is cmd
-            and settled[1] == self.external_torque_nm
+            and settled[1] == tau_ext
             and settled[2] == state.position_rad
         ):
             # Holding still under an unchanged load and command: the quasi-static step is at a
             # fixed point, so integrating would change nothing (the bender idles most of a run).
             self._now_ns = now_ns
             return
-        limit_a = self.motor.stall_current_a
-        if self._has_current:
-            limit_a = min(limit_a, self._get("Current Limit") * ct.CURRENT_UNIT_A)
-        overload_cap_nm = limit_a * self.motor.torque_constant_nm_per_a * OVERLOAD_FRACTION
-        tau_ext = self.external_torque_nm
+        step = self.actuator.step
+        overload_cap_nm = self._overload_cap_nm
         while t < now_ns:
-            dt_ns = min(MAX_STEP_NS, now_ns - t)
+            dt_ns = now_ns - t
+            if dt_ns > MAX_STEP_NS:
+                dt_ns = MAX_STEP_NS
             step(state, cmd, dt_ns * 1e-9, tau_ext)
             t += dt_ns
             if cmd.torque_enabled and abs(state.motor_torque_nm) >= overload_cap_nm > 0:
@@ -367,8 +404,15 @@ class Servo:
             else:
                 self._at_limit_ns = 0
         self._now_ns = now_ns
-        at_rest = state.velocity_rad_s == 0.0 and state.profile_done and not state.saturated
-        self._settled = (cmd, tau_ext, state.position_rad) if at_rest and self._at_limit_ns == 0 else None
+        if (
+            state.velocity_rad_s == 0.0
+            and state.profile_done
+            and not state.saturated
+            and self._at_limit_ns == 0
+        ):
+            self._settled = (cmd, tau_ext, state.position_rad)
+        else:
+            self._settled = None
 
     def _check_watchdog(self, now_ns: int) -> None:
         wd = self._mem[98]
@@ -394,42 +438,71 @@ class Servo:
     def _refresh_present(self, now_ns: int) -> None:
         """Write the Present/trajectory/status registers (120-146) from the motion state at `now_ns`."""
         self.advance_to(now_ns)
+        mem = self._mem
         s = self.state
-        direction = self._direction()
-        torque_on = self.torque_enabled
-        tau_fraction = max(-1.0, min(1.0, direction * s.motor_torque_nm / self.motor.stall_torque_nm))
+        _TICK.pack_into(mem, _ADDR_REALTIME_TICK, (now_ns // 1_000_000) % 32768)
+        homing, moving_threshold = _HOMING_MOVING.unpack_from(mem, _ADDR_HOMING_OFFSET)
+        profile_acceleration, profile_velocity, goal = _PROFILE_GOAL.unpack_from(
+            mem, _ADDR_PROFILE_ACCELERATION
+        )
+        # Everything the rest of the block is computed from; when none of it changed since the last
+        # refresh (a servo holding still), the bytes already in memory are the answer.
+        key = (
+            s.position_rad,
+            s.velocity_rad_s,
+            s.motor_torque_nm,
+            s.ref_position_rad,
+            s.ref_velocity_rad_s,
+            s.profile_done,
+            s.saturated,
+            mem[ct.ADDR_DRIVE_MODE],
+            mem[ct.ADDR_TORQUE_ENABLE],
+            homing,
+            moving_threshold,
+            profile_acceleration,
+            profile_velocity,
+            goal,
+            self._turn_offset_pulses,
+            self.supply_voltage_v,
+            self.motor,
+        )
+        if key == self._present_key:
+            return
+        self._present_key = key
+        direction = -1 if mem[ct.ADDR_DRIVE_MODE] & 0x01 else 1
+        offset_pulses = self._turn_offset_pulses + homing
+        torque_on = mem[ct.ADDR_TORQUE_ENABLE] == 1
+        motor = self.motor
+        tau_fraction = max(-1.0, min(1.0, direction * s.motor_torque_nm / motor.stall_torque_nm))
         pwm = round(885 * tau_fraction) if torque_on else 0
         if self._has_current:
             current = round(
-                direction * s.motor_torque_nm / self.motor.torque_constant_nm_per_a / ct.CURRENT_UNIT_A
+                direction * s.motor_torque_nm / motor.torque_constant_nm_per_a / ct.CURRENT_UNIT_A
             )
         else:
             current = round(1000 * tau_fraction)  # XL430 Present Load, 0.1 % of stall torque
         velocity = round(direction * s.velocity_rad_s / ct.RAD_S_PER_VELOCITY_UNIT)
-        present = self._pulses_from_rad(s.position_rad)
+        present = direction * round(s.position_rad / ct.RAD_PER_PULSE) + offset_pulses
         status = 0
         if torque_on:
-            if s.profile_done and abs(self._get("Goal Position") - present) <= 1:
+            if s.profile_done and abs(goal - present) <= 1:
                 status |= 0x01
             if not s.profile_done:
                 status |= 0x02
             if s.saturated:
                 status |= 0x08
-            status |= (
-                0x30 if self._get("Profile Acceleration") else (0x10 if self._get("Profile Velocity") else 0)
-            )
-        _PRESENT_BLOCK.pack_into(
-            self._mem,
-            120,
-            (now_ns // 1_000_000) % 32768,
-            1 if abs(velocity) > self._get("Moving Threshold") else 0,
+            status |= 0x30 if profile_acceleration else (0x10 if profile_velocity else 0)
+        _PRESENT_REST.pack_into(
+            mem,
+            _ADDR_REALTIME_TICK + 2,
+            1 if abs(velocity) > moving_threshold else 0,
             status,
             pwm,
             _clamp(current, 16),
             _clamp(velocity, 32),
             _clamp(present, 32),
             _clamp(round(direction * s.ref_velocity_rad_s / ct.RAD_S_PER_VELOCITY_UNIT), 32),
-            _clamp(self._pulses_from_rad(s.ref_position_rad), 32),
+            _clamp(direction * round(s.ref_position_rad / ct.RAD_PER_PULSE) + offset_pulses, 32),
             round(self.supply_voltage_v / ct.VOLTAGE_UNIT_V),
         )
 
