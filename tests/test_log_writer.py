@@ -290,3 +290,24 @@ def test_a_run_killed_with_sigkill_keeps_every_flushed_message(tmp_path):
     assert run.metadata == {"session": {"seed": "3"}}
     assert run.reports[0].messages == len(loadcell) + 5
     assert os.path.getsize(path) > 0
+
+
+def test_the_writer_process_encodes_load_cell_samples_exactly_as_the_json_encoder():
+    from rig.log.writer_process import _DUMPS, _loadcell_json
+
+    floats = [0.0, -0.0, 5e-324, 1.7976931348623157e308, 0.1 + 0.2, -7.25, 1e16, 1e-7, 123456.789]
+    for i, force in enumerate(floats):
+        for seq, device_us in ((None, None), (i, None), (None, 2**40 + i), (2**33, 7)):
+            payload = S.loadcell_sample(
+                raw=(-1) ** i * 2**i, force_n=force, seq=seq, device_time_us=device_us
+            )
+            assert _loadcell_json(payload) == _DUMPS(payload).encode()
+    # Anything but the builder's exact shape goes to the JSON encoder (which rejects NaN).
+    unusual = [
+        {"seq": True, "raw": 1, "force_n": 1.0, "device_time_us": None},
+        {"raw": 1, "seq": 1, "force_n": 1.0, "device_time_us": None},
+        {"seq": 1, "raw": 1, "force_n": 1, "device_time_us": None},
+        {"seq": 1, "raw": 1, "force_n": float("nan"), "device_time_us": None},
+        {"seq": 1, "raw": 1, "force_n": 1.0},
+    ]
+    assert [_loadcell_json(p) for p in unusual] == [None] * len(unusual)

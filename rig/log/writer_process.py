@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import pickle
 import signal
@@ -129,6 +130,7 @@ class WriterProcess:
 
     def _write_batch(self, batch: list[tuple[str, int, int, Any]]) -> None:
         dumps = _DUMPS
+        loadcell_json = _loadcell_json
         writer = self._writer
         channels = self._channels
         sequences = self._sequences
@@ -138,22 +140,20 @@ class WriterProcess:
             if channel_id is None:
                 channel_id = self._register(topic)
             try:
-                data = dumps(payload).encode()
+                data = (topic == schemas.LOADCELL and loadcell_json(payload)) or dumps(payload).encode()
             except (ValueError, TypeError, OverflowError) as error:
                 self._reply(("error", f"{topic} message at log time {log_ns} not written: {error}"))
                 continue
             sequence = sequences[channel_id] = (sequences[channel_id] + 1) & 0xFFFFFFFF
             writer.add_message(channel_id, log_ns, data, publish_ns, sequence)
             self._unflushed = True
-            now_wall_ns = time.monotonic_ns()
             if self._last_flush_log_ns is None:
                 self._last_flush_log_ns = log_ns
-            if (
-                log_ns - self._last_flush_log_ns >= interval_ns
-                or now_wall_ns - self._last_flush_wall_ns >= interval_ns
-            ):
+            if log_ns - self._last_flush_log_ns >= interval_ns:
                 self._flush(fsync=False)
                 self._last_flush_log_ns = log_ns
+        if self._unflushed and time.monotonic_ns() - self._last_flush_wall_ns >= interval_ns:
+            self._flush(fsync=False)
         self._reply(("written", len(batch)))
 
     def _register(self, topic: str) -> int:
@@ -196,6 +196,27 @@ class WriterProcess:
 
 
 _DUMPS = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+_LOADCELL_KEYS = ("seq", "raw", "force_n", "device_time_us")
+_INT_OR_NONE = (int, type(None))
+
+
+def _loadcell_json(payload: Any) -> bytes | None:
+    """The `/rig/loadcell` payload as `_DUMPS` would encode it, byte for byte, ~3x faster; None if unusual.
+
+    Only the builder's exact shape takes this path (those keys in that order, ints, a finite float);
+    anything else goes through the JSON encoder, which also raises for what JSON cannot hold.
+    """
+    if type(payload) is not dict or tuple(payload) != _LOADCELL_KEYS:
+        return None
+    seq, raw, force, device_us = payload.values()
+    if type(raw) is not int or type(force) is not float or not math.isfinite(force):
+        return None
+    if type(seq) not in _INT_OR_NONE or type(device_us) not in _INT_OR_NONE:
+        return None
+    return (
+        f'{{"seq":{"null" if seq is None else seq},"raw":{raw},"force_n":{force!r},'
+        f'"device_time_us":{"null" if device_us is None else device_us}}}'
+    ).encode()
 
 
 def main(argv: list[str]) -> int:
