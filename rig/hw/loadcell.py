@@ -225,28 +225,16 @@ class SerialLoadCell:
         time_ns = self._anchor_ns + receipt_mono_ns
         cal = self.calibration
         with self._lock:
-            lines = self._decoder.feed(data)
-            if not lines:
+            raws, seqs, device_times_us = self._decoder.feed_columns(data)
+            if not raws:
                 return
-            when = self._device_clock.sample_time_ns
+            times_ns = self._device_clock.sample_times_ns(device_times_us, time_ns)
             if cal is None:
-                nan = math.nan
-                samples = [
-                    LoadCellSample(when(ln.device_time_us, time_ns), ln.raw, nan, ln.seq, ln.device_time_us)
-                    for ln in lines
-                ]
+                forces = [math.nan] * len(raws)
             else:
                 factor, offset = cal.factor_n_per_count, cal.offset_counts
-                samples = [
-                    LoadCellSample(
-                        when(ln.device_time_us, time_ns),
-                        ln.raw,
-                        (ln.raw - offset) * factor,
-                        ln.seq,
-                        ln.device_time_us,
-                    )
-                    for ln in lines
-                ]
+                forces = [(raw - offset) * factor for raw in raws]
+            samples = list(map(LoadCellSample, times_ns, raws, forces, seqs, device_times_us))
             queue = self._queue
             overflow = len(queue) + len(samples) - self._queue_samples
             if overflow > 0:
