@@ -99,7 +99,8 @@ class LineCodec(Protocol):
 
 
 # XOR of the two bytes of every 16-bit word: the last step of `nmea_checksum`'s fold.
-_XOR_OF_WORD = bytes(((word >> 8) ^ word) & 0xFF for word in range(1 << 16))
+_WORDS = np.arange(1 << 16)
+_XOR_OF_WORD = (((_WORDS >> 8) ^ _WORDS) & 0xFF).astype(np.uint8).tobytes()
 
 
 def nmea_checksum(body: bytes) -> int:

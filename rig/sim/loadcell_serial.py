@@ -66,15 +66,26 @@ class InProcessLoadCellSerial:
 
     # -- device side ------------------------------------------------------------------------------
     def _on_advance(self, now_ns: int) -> None:
+        tx, byte_ns, free_ns = self._tx, self._byte_ns, self._uart_free_ns
+        done: list[bytes] = []  # lines wholly transmitted by now, while none is still on the wire
         for t_sample, data in self.emulator.lines_until(now_ns):
-            start = max(float(t_sample), self._uart_free_ns)
-            self._tx.append((start, data))
-            self._uart_free_ns = start + len(data) * self._byte_ns
-        self._arrive(now_ns)
+            start = max(float(t_sample), free_ns)
+            free_ns = start + len(data) * byte_ns
+            # The test `_arrive` makes, without queueing lines it would deliver at once.
+            if not tx and int((now_ns - start) / byte_ns) >= len(data):
+                done.append(data)
+            else:
+                tx.append((start, data))
+        self._uart_free_ns = free_ns
+        if done:
+            self._receive(b"".join(done))
+        if tx:
+            self._arrive(now_ns)
 
     def _arrive(self, now_ns: int) -> None:
         """Move every byte fully transmitted by `now_ns` from the line into the receive buffer."""
         tx, byte_ns = self._tx, self._byte_ns
+        done: list[bytes] = []
         while tx:
             start, data = tx[0]
             n_done = int((now_ns - start) / byte_ns)
@@ -82,13 +93,16 @@ class InProcessLoadCellSerial:
                 break
             if n_done >= len(data):
                 tx.popleft()
-                self._receive(data)
+                done.append(data)
             else:
                 tx[0] = (start + n_done * byte_ns, data[n_done:])
-                self._receive(data[:n_done])
+                done.append(data[:n_done])
                 break
+        if done:
+            self._receive(b"".join(done))
 
     def _receive(self, data: bytes) -> None:
+        """Bytes off the wire into the receive buffer (bytewise: one call per line or per chunk alike)."""
         if not self.is_open:
             return
         if self.baudrate != self.emulator.baud:
