@@ -124,8 +124,8 @@ _NUMPY_CHECKSUM_MIN_LINES = 8  # below this, numpy's per-call overhead exceeds w
 _CHECKSUM_SLOT_BYTES = 32  # every rig-lc1 body fits: at most 31 bytes
 
 
-def _checksums(bodies: Sequence[bytes]) -> list[int]:
-    """`nmea_checksum` of each body (each at most 32 bytes); many at once with numpy."""
+def nmea_checksums(bodies: Sequence[bytes]) -> list[int]:
+    """`nmea_checksum` of each body (each at most 32 bytes), in one numpy reduction for many bodies."""
     if len(bodies) < _NUMPY_CHECKSUM_MIN_LINES:
         return list(map(nmea_checksum, bodies))
     # One zero-padded 32-byte row per body (zeros do not change an XOR), reduced along the rows.
@@ -191,7 +191,7 @@ class RigLc1Codec:
         tiled = sum(map(len, bodies)) + sum(map(len, crs)) + _LC1_FIXED_BYTES * len(found)
         if tiled != len(block):
             return None
-        if _checksums(bodies) != list(map(int, checksum_texts, repeat(16))):
+        if nmea_checksums(bodies) != list(map(int, checksum_texts, repeat(16))):
             return None
         seqs = list(map(int, seq_texts))
         times = list(map(int, time_texts))

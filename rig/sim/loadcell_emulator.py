@@ -19,6 +19,7 @@ keeps sampling and counting, nothing is sent).
 
 from __future__ import annotations
 
+import math
 import random
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -32,7 +33,7 @@ from rig.hw.loadcell_formats import (
     LineCodec,
     RigLc1Codec,
     get_codec,
-    nmea_checksum,
+    nmea_checksums,
 )
 
 MIN_RATE_HZ = 10.0
@@ -300,32 +301,49 @@ class LoadCellEmulator:
         drift, noise, q = signal.drift_counts_per_s, signal.noise_counts, signal.quantisation_counts
         lowest, highest = signal.adc_min, signal.adc_max
         start_ns, rate_hz, time0_us = self.start_ns, self.rate_hz, self._device_time_start_us
-        tension_n, gauss, append = self.tension_n, self._rng.gauss, out.append
+        tension_n = self.tension_n
+        times: list[int] = []
+        bodies: list[bytes] = []
+        add_time, add_body = times.append, bodies.append
+        rng = self._rng
+        uniform, tau, sqrt, log, cos, sin = rng.random, math.tau, math.sqrt, math.log, math.cos, math.sin
+        # `rng.gauss(0.0, 1.0)` inlined: CPython draws normals in Box-Muller pairs and keeps the
+        # second of a pair in `gauss_next` for the next call; this loop does the same with `spare`.
+        spare, rng.gauss_next = rng.gauss_next, None
         k = k0 = self._k
         seq = self._seq
         try:
             while True:
                 t_sample = start_ns + round(k * 1e9 / rate_hz)
                 if t_sample > t_ns:
-                    return
+                    break
                 elapsed_ns = t_sample - start_ns
-                value = (
-                    offset + gain * tension_n(t_sample) + drift * (elapsed_ns / 1e9) + noise * gauss(0.0, 1.0)
-                )
+                tension = tension_n(t_sample)
+                if spare is None:
+                    angle = uniform() * tau
+                    radius = sqrt(-2.0 * log(1.0 - uniform()))
+                    draw = cos(angle) * radius
+                    spare = sin(angle) * radius
+                else:
+                    draw, spare = spare, None
+                value = offset + gain * tension + drift * (elapsed_ns / 1e9) + noise * draw
                 counts = round(value / q) * q
                 if counts > highest:
                     counts = highest
                 elif counts < lowest:
                     counts = lowest
-                body = b"LC,%d,%d,%d" % (
-                    seq % SEQ_MODULUS,
-                    (time0_us + elapsed_ns // 1000) % DEVICE_TIME_MODULUS_US,
-                    counts,
+                add_time(t_sample)
+                add_body(
+                    b"LC,%d,%d,%d"
+                    % (seq % SEQ_MODULUS, (time0_us + elapsed_ns // 1000) % DEVICE_TIME_MODULUS_US, counts)
                 )
-                append((t_sample, b"$%b%b" % (body, _LC1_TAILS[nmea_checksum(body)])))
                 k += 1
                 seq += 1
+            # The checksums of all the bodies at once, then the lines: `RigLc1Codec.encode`'s bytes.
+            tails = map(_LC1_TAILS.__getitem__, nmea_checksums(bodies))
+            out.extend(zip(times, map(b"$%b%b".__mod__, zip(bodies, tails, strict=True)), strict=True))
         finally:  # also when the tension source raises: the samples made so far count
+            rng.gauss_next = spare
             self._k, self._seq = k, seq
             self.counts.samples += k - k0
             self.counts.lines_sent += k - k0
