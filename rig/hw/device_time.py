@@ -52,6 +52,7 @@ class DeviceClockMapper:
         # The same steps as `sample_time_ns`, with the state in locals for the whole batch.
         offset, last, wraps = self._offset_ns, self._last_raw_us, self._wraps
         half_wrap = DEVICE_CLOCK_WRAP_US // 2
+        unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
         times: list[int] = []
         append = times.append
         for device_time_us in device_times_us:
@@ -59,10 +60,16 @@ class DeviceClockMapper:
                 raise TypeError("device times of one batch must all be set or all be None")
             if last is not None and device_time_us < last and last - device_time_us > half_wrap:
                 wraps += 1
+                unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
             last = device_time_us
-            device_ns = (device_time_us + wraps * DEVICE_CLOCK_WRAP_US) * 1000
+            device_ns = (device_time_us + unwrap_us) * 1000
             observed = receipt_ns - device_ns
-            offset = observed if offset is None else min(offset + OFFSET_LEAK_NS, observed)
+            if offset is None:
+                offset = observed
+            else:  # min(offset + OFFSET_LEAK_NS, observed) without a call
+                offset += OFFSET_LEAK_NS
+                if observed < offset:
+                    offset = observed
             append(offset + device_ns)
         self._offset_ns, self._last_raw_us, self._wraps = offset, last, wraps
         return times

@@ -66,6 +66,8 @@ class InProcessLoadCellSerial:
 
     # -- device side ------------------------------------------------------------------------------
     def _on_advance(self, now_ns: int) -> None:
+        if self._tx:
+            self._arrive(now_ns)  # lines already on the wire come first
         tx, byte_ns, free_ns = self._tx, self._byte_ns, self._uart_free_ns
         done: list[bytes] = []  # lines wholly transmitted by now, while none is still on the wire
         for t_sample, data in self.emulator.lines_until(now_ns):
