@@ -71,10 +71,13 @@ class InProcessLoadCellSerial:
         tx, byte_ns, free_ns = self._tx, self._byte_ns, self._uart_free_ns
         done: list[bytes] = []  # lines wholly transmitted by now, while none is still on the wire
         for t_sample, data in self.emulator.lines_until(now_ns):
-            start = max(float(t_sample), free_ns)
-            free_ns = start + len(data) * byte_ns
-            # The test `_arrive` makes, without queueing lines it would deliver at once.
-            if not tx and int((now_ns - start) / byte_ns) >= len(data):
+            n_bytes = len(data)
+            start = float(t_sample)
+            if free_ns > start:  # the UART is still sending earlier bytes
+                start = free_ns
+            free_ns = start + n_bytes * byte_ns
+            # `_arrive`'s test `int(sent) >= n_bytes`, for n_bytes >= 1, without queueing the line.
+            if not tx and (now_ns - start) / byte_ns >= n_bytes:
                 done.append(data)
             else:
                 tx.append((start, data))
