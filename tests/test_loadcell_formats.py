@@ -243,6 +243,8 @@ def test_decode_block_equals_line_by_line_decode():
         [d.device_time_us for d in decoded],
     )
     assert LC1.decode_block(block.replace(b"\r\n", b"\n")) == (raws, seqs, times)  # bare LF
+    lower_hex = b"".join(line[:-4] + line[-4:-2].lower() + b"\r\n" for line in lines)
+    assert lower_hex != block and LC1.decode_block(lower_hex) == (raws, seqs, times)
     # Anything but a block of valid lines is left to the line-by-line path.
     star = lines[3].index(b"*")
     bad_checksum = lines[3][: star + 1] + b"%02X" % (int(lines[3][star + 1 : star + 3], 16) ^ 1) + b"\r\n"

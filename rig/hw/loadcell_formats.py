@@ -139,6 +139,7 @@ _LC1_LINE = re.compile(rb"\$LC,([0-9]{1,5}),([0-9]{1,10}),(-?[0-9]{1,10})\*([0-9
 _LC1_TERMINATED_LINE = re.compile(
     rb"\$(LC,([0-9]{1,5}),([0-9]{1,10}),(-?[0-9]{1,10}))\*([0-9A-Fa-f]{2})(\r?)\n"
 )
+_UPPER_HEX = [b"%02X" % byte for byte in range(256)]
 _LC1_FIXED_BYTES = len(b"$*hh\n")  # bytes of a terminated line outside its body and CR groups
 
 
@@ -191,7 +192,11 @@ class RigLc1Codec:
         tiled = sum(map(len, bodies)) + sum(map(len, crs)) + _LC1_FIXED_BYTES * len(found)
         if tiled != len(block):
             return None
-        if nmea_checksums(bodies) != list(map(int, checksum_texts, repeat(16))):
+        checksums = nmea_checksums(bodies)
+        # Compared as text (devices send upper case); lower-case hex is compared as numbers.
+        if list(map(_UPPER_HEX.__getitem__, checksums)) != list(checksum_texts) and checksums != list(
+            map(int, checksum_texts, repeat(16))
+        ):
             return None
         seqs = list(map(int, seq_texts))
         times = list(map(int, time_texts))
