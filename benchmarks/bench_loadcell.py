@@ -5,8 +5,12 @@
    `readline()` loop over the same bytes (`io.BytesIO`), in the same run.
 2. Streaming: `rig sim loadcell` in its own process on a pty at --rate Hz, read by the driver
    through real pyserial for --duration-s; lines expected vs received, gaps and corrupt lines.
+3. Simulated chain: what one sample costs the main thread of a simulated run, in CPU time: the
+   emulator (1 kHz, default signal, a sawtooth tension), the in-process port and the driver's
+   `poll()`, with the virtual clock advanced as the runner does (two 10 ms advances per poll).
 
 Run: .venv/bin/python benchmarks/bench_loadcell.py [--lines N] [--duration-s 60] [--rate 1000]
+     [--chain-s 20]
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import argparse
 import io
 import select
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -25,6 +30,8 @@ from rig.hw.calibration import Calibration
 from rig.hw.loadcell import SerialLoadCell
 from rig.hw.loadcell_formats import DeviceReading, RigLc1Codec
 from rig.sim.clock import VirtualClock
+from rig.sim.loadcell_profiles import SawtoothTension
+from rig.sim.loadcell_serial import simulated_load_cell
 
 CAL = Calibration(1.25e-5, 120000.0, None, 9.80665, "2026-01-01", "", "rig-lc1")
 
@@ -113,6 +120,33 @@ def bench_parse(n_lines: int, repeats: int) -> dict[str, float]:
     }
 
 
+def bench_chain(rig_s: float, repeats: int) -> dict[str, float]:
+    """CPU microseconds per sample of emulator + in-process port + driver poll, median and best."""
+    per_sample_us = []
+    for _ in range(repeats):
+        clock = VirtualClock()
+        driver, _emulator = simulated_load_cell(SawtoothTension(), clock, seed=0)
+        driver.open()
+        received = 0
+        t0 = time.thread_time()
+        for _ in range(round(rig_s * 50)):
+            clock.advance_ns(10_000_000)
+            clock.advance_ns(10_000_000)
+            received += len(driver.poll())
+        per_sample_us.append((time.thread_time() - t0) / received * 1e6)
+        assert received >= rig_s * 1000 - 1 and driver.stats().lines_ok == received
+    tension = SawtoothTension()
+    t0 = time.thread_time()
+    for k in range(round(rig_s * 1000)):
+        tension(k * 1_000_000)
+    return {
+        "samples": received,
+        "median_us_per_sample": statistics.median(per_sample_us),
+        "best_us_per_sample": min(per_sample_us),
+        "tension_source_us_per_sample": (time.thread_time() - t0) / (rig_s * 1000) * 1e6,
+    }
+
+
 def bench_pty(duration_s: float, rate_hz: float) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         link = Path(tmp) / "loadcell"
@@ -171,7 +205,15 @@ def main() -> None:
     parser.add_argument("--duration-s", type=float, default=60.0)
     parser.add_argument("--rate", type=float, default=1000.0)
     parser.add_argument("--skip-pty", action="store_true")
+    parser.add_argument("--chain-s", type=float, default=20.0, help="rig seconds per chain repetition")
     args = parser.parse_args()
+    chain = bench_chain(args.chain_s, max(args.repeats, 5))
+    print(
+        f"chain: {chain['samples']} samples: emulator + in-process port + driver poll "
+        f"{chain['median_us_per_sample']:.2f} us CPU/sample "
+        f"(median; best {chain['best_us_per_sample']:.2f}), "
+        f"of which the tension source {chain['tension_source_us_per_sample']:.2f}"
+    )
     parse = bench_parse(args.lines, args.repeats)
     print(
         f"parse: {parse['lines']} rig-lc1 lines: driver {parse['driver_lines_per_s']:,.0f} lines/s, "

@@ -31,3 +31,20 @@ def test_never_later_than_receipt_and_unwraps():
     t2 = m.sample_time_ns(500, 11_000_000)  # wrapped: 1000 µs later on the device
     assert t2 - t1 == 1_000_000 and t2 <= 11_000_000
     assert m.sample_time_ns(None, 12_345) == 12_345
+
+
+def test_batch_mapping_equals_one_by_one():
+    one, batch = DeviceClockMapper(), DeviceClockMapper()
+    # Jittery receipts, a device clock that wraps and drifts 500 ppm against the host's.
+    device_us = [
+        (DEVICE_CLOCK_WRAP_US - 30_000 + round(k * 1000.5)) % DEVICE_CLOCK_WRAP_US for k in range(200)
+    ]
+    expected, got = [], []
+    for start in range(0, 200, 17):
+        chunk = device_us[start : start + 17]
+        receipt = 7_000_000_000 + (start + 17) * 1_000_000 + (start * 7919) % 400_000
+        expected += [one.sample_time_ns(t, receipt) for t in chunk]
+        got += batch.sample_times_ns(chunk, receipt)
+    assert got == expected
+    assert batch.sample_times_ns([], 5) == []
+    assert batch.sample_times_ns([None, None], 5) == [5, 5]

@@ -205,3 +205,54 @@ def test_in_process_serial_closed_port_wrong_baud_and_overflow():
     with pytest.raises(OSError, match="not open"):
         ser.read(1)
     assert ser.write(b"T\r\n") == 3
+
+
+@pytest.mark.parametrize("rate_hz", [1000.0, 333.0, 2000.0])
+def test_fast_path_makes_the_same_bytes_counts_and_draws_as_sample_by_sample(rate_hz):
+    def run(fast):
+        signal = SignalModel(quantisation_counts=3, adc_bits=20, drift_counts_per_s=1e4)
+        emulator = LoadCellEmulator(
+            SawtoothTension(peak_n=10.0, period_s=0.7),  # up to saturation at 2**19 counts
+            rate_hz=rate_hz,
+            signal=signal,
+            seed=5,
+            start_ns=123_456,
+            seq_start=65_000,  # the sequence counter wraps
+            device_time_start_us=2**32 - 300_000,  # so does the device clock
+        )
+        emulator._fault_free_lc1 = fast  # the switch the constructor sets for fault-free rig-lc1
+        emulator.inject_silence(0.05, at_ns=200_000_000)
+        out = []
+        for step in range(1, 200):
+            if step == 50:
+                emulator.inject_garbage(4)
+                emulator.inject_truncated()
+                emulator.inject_bad_checksum()
+                emulator.inject_sequence_gap(2)
+            if step == 120:
+                emulator.inject_silence(0.013)
+            out += emulator.lines_until(123_456 + step * 7_300_001)
+        return out, emulator.counts, emulator._rng.getstate(), emulator.next_sample_ns
+
+    fast, slow = run(True), run(False)
+    assert fast == slow
+    assert fast[1].silenced_samples > 0 and fast[1].truncated_lines == 1
+
+
+def test_fast_path_only_without_random_faults_and_for_rig_lc1():
+    assert LoadCellEmulator(ConstantTension(1.0))._fault_free_lc1
+    assert not LoadCellEmulator(ConstantTension(1.0), faults=FaultPlan(gap_per_line=0.01))._fault_free_lc1
+    assert not LoadCellEmulator(ConstantTension(1.0), format_name="indicator-st")._fault_free_lc1
+
+
+def test_fast_path_keeps_the_samples_made_before_the_tension_source_fails():
+    def tension(t_ns):
+        if t_ns >= 5_000_000:
+            raise ValueError("older than the history")
+        return 1.0
+
+    emulator = LoadCellEmulator(tension)
+    with pytest.raises(ValueError):
+        emulator.lines_until(9_000_000)
+    assert emulator.counts.samples == emulator.counts.lines_sent == 5
+    assert emulator.next_sample_ns == 5_000_000

@@ -1,5 +1,7 @@
 """Line formats: golden lines, round trips, and the decoder's resynchronisation and counters."""
 
+import random
+
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -216,3 +218,65 @@ def test_decoder_accounts_for_every_byte(chunks, data):
     # Every valid line is counted with CRLF; a line received with a bare LF would be one byte shorter.
     assert c.bytes_received == ok_bytes + c.bytes_discarded + decoder.pending_bytes
     assert c.lines_ok == len(out)
+
+
+@pytest.mark.parametrize("length", range(41))
+def test_nmea_checksum_fold_matches_a_byte_by_byte_xor(length):
+    rng = random.Random(length)
+    for _ in range(20):
+        body = bytes(rng.randrange(256) for _ in range(length))
+        expected = 0
+        for byte in body:
+            expected ^= byte
+        assert nmea_checksum(body) == expected
+
+
+def test_decode_block_equals_line_by_line_decode():
+    lines = [LC1.encode(DeviceReading(raw, seq, t)) for raw, seq, t in [(-5, 65535, 0), (7, 0, 2**32 - 1)]]
+    lines += lc1_lines(20)
+    block = b"".join(lines)
+    raws, seqs, times = LC1.decode_block(block)
+    decoded = [LC1.decode(line[:-1]) for line in lines]
+    assert (raws, seqs, times) == (
+        [d.raw for d in decoded],
+        [d.seq for d in decoded],
+        [d.device_time_us for d in decoded],
+    )
+    assert LC1.decode_block(block.replace(b"\r\n", b"\n")) == (raws, seqs, times)  # bare LF
+    lower_hex = b"".join(line[:-4] + line[-4:-2].lower() + b"\r\n" for line in lines)
+    assert lower_hex != block and LC1.decode_block(lower_hex) == (raws, seqs, times)
+    # Anything but a block of valid lines is left to the line-by-line path.
+    star = lines[3].index(b"*")
+    bad_checksum = lines[3][: star + 1] + b"%02X" % (int(lines[3][star + 1 : star + 3], 16) ^ 1) + b"\r\n"
+    seq_too_big = b"$LC,70000,1,1*%02X\r\n" % nmea_checksum(b"LC,70000,1,1")
+    for broken in (b"x", b"\n", lines[4][:-2], bad_checksum, seq_too_big):
+        assert LC1.decode_block(b"".join(lines[:3]) + broken + b"".join(lines[4:])) is None
+    assert LC1.decode_block(b"no lines\n") is None
+    assert IND.decode_block(IND.encode(DeviceReading(5))) is None
+
+
+@given(
+    st.lists(st.one_of(st.sampled_from(lc1_lines(40)), st.binary(max_size=40), st.just(b"$")), max_size=60),
+    st.data(),
+)
+def test_feed_columns_equals_feed(chunks, data):
+    stream = b"".join(chunks)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
+    by_line, by_block = LineDecoder(LC1), LineDecoder(LC1)
+    for lo, hi in zip([0, *cuts], [*cuts, len(stream)], strict=True):
+        lines = by_line.feed(stream[lo:hi])
+        columns = by_block.feed_columns(stream[lo:hi])
+        assert columns == ([d.raw for d in lines], [d.seq for d in lines], [d.device_time_us for d in lines])
+    assert by_block.counts() == by_line.counts()
+    assert by_block.pending_bytes == by_line.pending_bytes
+
+
+def test_feed_columns_counts_gaps_and_wraps_like_feed():
+    lines = [LC1.encode(DeviceReading(k, seq, 1000 * k)) for k, seq in enumerate([65534, 65535, 0, 1, 5, 6])]
+    lines += lc1_lines(30)  # seq 0.. again: a gap back to 0
+    by_line, by_block = LineDecoder(LC1), LineDecoder(LC1)
+    for part in (lines[:2], lines[2:5], lines[5:]):
+        by_line.feed(b"".join(part))
+        by_block.feed_columns(b"".join(part))
+    assert by_block.counts() == by_line.counts()
+    assert by_block.counts().sequence_gaps == 2

@@ -10,6 +10,8 @@ time is never later than the line's receipt.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 DEVICE_CLOCK_WRAP_US = 1 << 32
 # How fast the offset estimate may move later, per sample: 2 µs at 1 kHz follows a drift of up to
 # 2000 ppm, far beyond a crystal's, while keeping the estimate near the minimum latency.
@@ -42,3 +44,32 @@ class DeviceClockMapper:
         offset = observed if offset is None else min(offset + OFFSET_LEAK_NS, observed)
         self._offset_ns = offset
         return offset + device_ns
+
+    def sample_times_ns(self, device_times_us: Sequence[int | None], receipt_ns: int) -> list[int]:
+        """`sample_time_ns` of each device time in turn (all received at `receipt_ns`), in one call."""
+        if not device_times_us or device_times_us[0] is None:  # a format without a device clock
+            return [self.sample_time_ns(t, receipt_ns) for t in device_times_us]
+        # The same steps as `sample_time_ns`, with the state in locals for the whole batch.
+        offset, last, wraps = self._offset_ns, self._last_raw_us, self._wraps
+        half_wrap = DEVICE_CLOCK_WRAP_US // 2
+        unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
+        times: list[int] = []
+        append = times.append
+        for device_time_us in device_times_us:
+            if device_time_us is None:
+                raise TypeError("device times of one batch must all be set or all be None")
+            if last is not None and device_time_us < last and last - device_time_us > half_wrap:
+                wraps += 1
+                unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
+            last = device_time_us
+            device_ns = (device_time_us + unwrap_us) * 1000
+            observed = receipt_ns - device_ns
+            if offset is None:
+                offset = observed
+            else:  # min(offset + OFFSET_LEAK_NS, observed) without a call
+                offset += OFFSET_LEAK_NS
+                if observed < offset:
+                    offset = observed
+            append(offset + device_ns)
+        self._offset_ns, self._last_raw_us, self._wraps = offset, last, wraps
+        return times

@@ -16,6 +16,7 @@ import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from itertools import repeat
 from typing import Any, Literal
 
 import serial
@@ -225,28 +226,19 @@ class SerialLoadCell:
         time_ns = self._anchor_ns + receipt_mono_ns
         cal = self.calibration
         with self._lock:
-            lines = self._decoder.feed(data)
-            if not lines:
+            raws, seqs, device_times_us = self._decoder.feed_columns(data)
+            if not raws:
                 return
-            when = self._device_clock.sample_time_ns
+            times_ns = self._device_clock.sample_times_ns(device_times_us, time_ns)
             if cal is None:
-                nan = math.nan
-                samples = [
-                    LoadCellSample(when(ln.device_time_us, time_ns), ln.raw, nan, ln.seq, ln.device_time_us)
-                    for ln in lines
-                ]
+                forces = [math.nan] * len(raws)
             else:
                 factor, offset = cal.factor_n_per_count, cal.offset_counts
-                samples = [
-                    LoadCellSample(
-                        when(ln.device_time_us, time_ns),
-                        ln.raw,
-                        (ln.raw - offset) * factor,
-                        ln.seq,
-                        ln.device_time_us,
-                    )
-                    for ln in lines
-                ]
+                forces = [(raw - offset) * factor for raw in raws]
+            # What `LoadCellSample(*fields)` does (a NamedTuple's __new__ is `tuple.__new__(cls, fields)`),
+            # without a Python-level call per sample.
+            fields = zip(times_ns, raws, forces, seqs, device_times_us, strict=True)
+            samples = list(map(tuple.__new__, repeat(LoadCellSample), fields))
             queue = self._queue
             overflow = len(queue) + len(samples) - self._queue_samples
             if overflow > 0:

@@ -13,9 +13,12 @@ to throw away. The formats are specified for firmware writers in `protocols/load
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from itertools import repeat
 from typing import NamedTuple, Protocol
+
+import numpy as np
 
 from rig.errors import InputError
 
@@ -57,6 +60,10 @@ class DecodedLine(NamedTuple):
     decimals: int = 0  # indicator digits after the decimal point: value = raw * 10**-decimals
 
 
+# Valid lines as columns: raw, seq, device_time_us (one entry per line, in order).
+Columns = tuple[list[int], Sequence[int | None], Sequence[int | None]]
+
+
 class LineCodec(Protocol):
     """One line format: how a device writes a reading and how the host reads it back."""
 
@@ -82,16 +89,58 @@ class LineCodec(Protocol):
         """How many line starts `segment` contains (each one a truncated line when discarded)."""
         ...
 
+    def decode_block(self, block: bytes) -> Columns | None:
+        r"""Decode complete lines (`block` ends with `\n`) if every one is valid, else None.
+
+        A fast path with exactly the results of `decode` on each line; None (any line invalid, or
+        no fast path for the format) tells the caller to decode line by line.
+        """
+        ...
+
+
+# XOR of the two bytes of every 16-bit word: the last step of `nmea_checksum`'s fold.
+_WORDS = np.arange(1 << 16)
+_XOR_OF_WORD = (((_WORDS >> 8) ^ _WORDS) & 0xFF).astype(np.uint8).tobytes()
+
 
 def nmea_checksum(body: bytes) -> int:
     """XOR of every byte of `body` (the bytes between `$` and `*`)."""
-    checksum = 0
-    for byte in body:
-        checksum ^= byte
-    return checksum
+    if len(body) > 32:
+        checksum = 0
+        for byte in body:
+            checksum ^= byte
+        return checksum
+    # Up to 32 bytes: read them as one integer and XOR its halves together down to one 16-bit
+    # word (bits of equal position within a byte stay aligned), which is 4 big-int steps instead
+    # of a Python step per byte.
+    folded = int.from_bytes(body, "little")
+    folded ^= folded >> 128
+    folded ^= folded >> 64
+    folded ^= folded >> 32
+    return _XOR_OF_WORD[(folded ^ (folded >> 16)) & 0xFFFF]
+
+
+_NUMPY_CHECKSUM_MIN_LINES = 8  # below this, numpy's per-call overhead exceeds what it saves
+_CHECKSUM_SLOT_BYTES = 32  # every rig-lc1 body fits: at most 31 bytes
+
+
+def nmea_checksums(bodies: Sequence[bytes]) -> list[int]:
+    """`nmea_checksum` of each body (each at most 32 bytes), in one numpy reduction for many bodies."""
+    if len(bodies) < _NUMPY_CHECKSUM_MIN_LINES:
+        return list(map(nmea_checksum, bodies))
+    # One zero-padded 32-byte row per body (zeros do not change an XOR), reduced along the rows.
+    padded = b"".join(map(bytes.ljust, bodies, repeat(_CHECKSUM_SLOT_BYTES), repeat(b"\0")))
+    rows = np.frombuffer(padded, np.uint8).reshape(-1, _CHECKSUM_SLOT_BYTES)
+    return np.bitwise_xor.reduce(rows, axis=1).tolist()
 
 
 _LC1_LINE = re.compile(rb"\$LC,([0-9]{1,5}),([0-9]{1,10}),(-?[0-9]{1,10})\*([0-9A-Fa-f]{2})\r?")
+# The same line with its terminator, the checksummed body and the optional CR as groups too.
+_LC1_TERMINATED_LINE = re.compile(
+    rb"\$(LC,([0-9]{1,5}),([0-9]{1,10}),(-?[0-9]{1,10}))\*([0-9A-Fa-f]{2})(\r?)\n"
+)
+_UPPER_HEX = [b"%02X" % byte for byte in range(256)]
+_LC1_FIXED_BYTES = len(b"$*hh\n")  # bytes of a terminated line outside its body and CR groups
 
 
 class RigLc1Codec:
@@ -128,6 +177,38 @@ class RigLc1Codec:
         if seq >= SEQ_MODULUS or device_time_us >= DEVICE_TIME_MODULUS_US or not RAW_MIN <= raw <= RAW_MAX:
             raise LineError("rig-lc1 field out of range")
         return DecodedLine(raw, seq, device_time_us)
+
+    def decode_block(self, block: bytes) -> Columns | None:
+        r"""All lines of `block` (which ends with `\n`) as columns if every one is valid, else None.
+
+        `findall` runs in C; the matches tile the block exactly (so each one is a whole line, as
+        `decode` sees it) iff their lengths add up to the block's. Checksums, then field ranges, are
+        checked as in `decode`.
+        """
+        found = _LC1_TERMINATED_LINE.findall(block)
+        if not found:
+            return None
+        bodies, seq_texts, time_texts, raw_texts, checksum_texts, crs = zip(*found, strict=True)
+        tiled = sum(map(len, bodies)) + sum(map(len, crs)) + _LC1_FIXED_BYTES * len(found)
+        if tiled != len(block):
+            return None
+        checksums = nmea_checksums(bodies)
+        # Compared as text (devices send upper case); lower-case hex is compared as numbers.
+        if list(map(_UPPER_HEX.__getitem__, checksums)) != list(checksum_texts) and checksums != list(
+            map(int, checksum_texts, repeat(16))
+        ):
+            return None
+        seqs = list(map(int, seq_texts))
+        times = list(map(int, time_texts))
+        raws = list(map(int, raw_texts))
+        if (
+            max(seqs) >= SEQ_MODULUS
+            or max(times) >= DEVICE_TIME_MODULUS_US
+            or min(raws) < RAW_MIN
+            or max(raws) > RAW_MAX
+        ):
+            return None
+        return raws, seqs, times
 
     def last_line_start(self, segment: bytes) -> int:
         """The last `$`."""
@@ -209,6 +290,10 @@ class IndicatorStCodec:
             unit=unit.decode("ascii"),
             decimals=decimals,
         )
+
+    def decode_block(self, block: bytes) -> Columns | None:
+        """No fast path for this format: always None (decode line by line)."""
+        return None
 
     def last_line_start(self, segment: bytes) -> int:
         """Start of the last `ST,GS,`-style header."""
@@ -297,12 +382,42 @@ class LineDecoder:
 
     def feed(self, data: bytes) -> list[DecodedLine]:
         """Consume received bytes; return the valid lines completed by them, in order."""
+        block = self._take_block(data)
+        return self._decode_lines(block) if block else []
+
+    def feed_columns(self, data: bytes) -> Columns:
+        """`feed` with the valid lines as columns (raw, seq, device_time_us): same lines, same counters.
+
+        A block of complete lines that are all valid is decoded by the codec's `decode_block` fast
+        path; anything else goes line by line through `feed`'s resynchronising path.
+        """
+        block = self._take_block(data)
+        if not block:
+            return [], [], []
+        columns = self.codec.decode_block(block)
+        if columns is not None:
+            self.lines_ok += len(columns[0])
+            if self.codec.has_sequence:
+                self._account_sequence(columns[1])  # type: ignore[arg-type]  # never None with a sequence
+            return columns  # no overload flag in a format with a fast path (rig-lc1)
+        lines = self._decode_lines(block)
+        return [ln.raw for ln in lines], [ln.seq for ln in lines], [ln.device_time_us for ln in lines]
+
+    def _take_block(self, data: bytes) -> bytes:
+        r"""Count `data` in; return the complete lines now buffered (up to the last `\n`), keep the rest."""
         self.bytes_received += len(data)
-        segments = (self._pending + data).split(b"\n") if self._pending else data.split(b"\n")
-        tail = segments.pop()
+        buffered = self._pending + data if self._pending else data
+        end = buffered.rfind(b"\n") + 1
+        tail = buffered[end:]
         if len(tail) > self.max_line_bytes:
             tail = self._drop_overlong(tail)
         self._pending = tail
+        return buffered[:end]
+
+    def _decode_lines(self, block: bytes) -> list[DecodedLine]:
+        r"""Decode the lines of `block` (which ends with `\n`) one by one, resynchronising after damage."""
+        segments = block.split(b"\n")
+        segments.pop()  # the empty string after the final terminator
         decode = self.codec.decode
         lines: list[DecodedLine] = []
         append = lines.append
@@ -315,21 +430,24 @@ class LineDecoder:
                     continue
             append(line)
         if lines:
-            self._account(lines)
+            self.lines_ok += len(lines)
+            if self.codec.has_sequence:
+                self._account_sequence([line.seq for line in lines])  # type: ignore[misc]
+            self.overload_lines += sum(1 for line in lines if line.overload)
         return lines
 
-    def _account(self, lines: list[DecodedLine]) -> None:
-        self.lines_ok += len(lines)
-        if self.codec.has_sequence:
-            last = self._last_seq
-            for line in lines:
-                seq = line.seq
+    def _account_sequence(self, seqs: Sequence[int]) -> None:
+        """Count the gaps in the sequence numbers of consecutive valid lines."""
+        last = self._last_seq
+        expected = seqs[0] if last is None else (last + 1) % SEQ_MODULUS
+        # The usual case, an unbroken run without a wrap, in one comparison made in C.
+        if expected + len(seqs) > SEQ_MODULUS or seqs != list(range(expected, expected + len(seqs))):
+            for seq in seqs:
                 if last is not None and seq != (last + 1) % SEQ_MODULUS:
                     self.sequence_gaps += 1
                     self.missing_samples += (seq - last - 1) % SEQ_MODULUS
                 last = seq
-            self._last_seq = last
-        self.overload_lines += sum(1 for line in lines if line.overload)
+        self._last_seq = seqs[-1]
 
     def _resync(self, segment: bytes) -> DecodedLine | None:
         """Handle a segment that is not one valid line: find the last line start in it."""

@@ -19,12 +19,22 @@ keeps sampling and counting, nothing is sent).
 
 from __future__ import annotations
 
+import math
 import random
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 from rig.errors import InputError
-from rig.hw.loadcell_formats import DeviceReading, IndicatorStCodec, LineCodec, get_codec
+from rig.hw.loadcell_formats import (
+    DEVICE_TIME_MODULUS_US,
+    SEQ_MODULUS,
+    DeviceReading,
+    IndicatorStCodec,
+    LineCodec,
+    RigLc1Codec,
+    get_codec,
+    nmea_checksums,
+)
 
 MIN_RATE_HZ = 10.0
 MAX_RATE_HZ = 2000.0
@@ -35,6 +45,7 @@ DEFAULT_BAUD = 921600
 _GARBAGE_ALPHABET = bytes(b for b in range(256) if b not in b"$\r\n")
 
 TensionSource = Callable[[int], float]
+_LC1_TAILS = [b"*%02X\r\n" % checksum for checksum in range(256)]  # rig-lc1 line ends by checksum
 
 
 def wrong_baud_garbage(data: bytes) -> bytes:
@@ -216,6 +227,13 @@ class LoadCellEmulator:
             digits_per_n = 10.0**self._indicator.decimals / indicator_g
             self._display_per_count = digits_per_n / self.signal.gain_counts_per_n
         self._recent_display: list[int] = []
+        # rig-lc1 with no random faults: samples before any silence or injected fault take a fast path.
+        self._fault_free_lc1 = isinstance(self.codec, RigLc1Codec) and not (
+            self.faults.garbage_per_line
+            or self.faults.truncate_per_line
+            or self.faults.bad_checksum_per_line
+            or self.faults.gap_per_line
+        )
 
     # -- one-shot injections (tests) --------------------------------------------------------------
     def inject_garbage(self, n_bytes: int) -> None:
@@ -255,13 +273,80 @@ class LoadCellEmulator:
     def lines_until(self, t_ns: int) -> list[tuple[int, bytes]]:
         """(sample time, bytes) for every sample taken at or before `t_ns` and not yet produced."""
         out: list[tuple[int, bytes]] = []
+        fast = self._fault_free_lc1
         while True:
+            if fast and not self._pending_faults():
+                # Up to the next silence (the general path below handles it and pops it when over).
+                silences = self._silences_ns
+                self._lc1_lines_until(min(t_ns, silences[0][0] - 1) if silences else t_ns, out)
             t_sample = self.sample_time_ns(self._k)
             if t_sample > t_ns:
                 return out
             data = self._sample(t_sample)
             if data:
                 out.append((t_sample, data))
+
+    def _pending_faults(self) -> bool:
+        pending = self._pending
+        return bool(pending.garbage_bytes or pending.truncate or pending.bad_checksum or pending.gap_samples)
+
+    def _lc1_lines_until(self, t_ns: int, out: list[tuple[int, bytes]]) -> None:
+        """`_sample` for every sample up to `t_ns`, for rig-lc1 with no fault due.
+
+        The same lines, counters and random draws, with `SignalModel.counts` and `RigLc1Codec.encode`
+        inlined and no per-sample objects.
+        """
+        signal = self.signal
+        offset, gain = signal.offset_counts, signal.gain_counts_per_n
+        drift, noise, q = signal.drift_counts_per_s, signal.noise_counts, signal.quantisation_counts
+        lowest, highest = signal.adc_min, signal.adc_max
+        start_ns, rate_hz, time0_us = self.start_ns, self.rate_hz, self._device_time_start_us
+        tension_n = self.tension_n
+        times: list[int] = []
+        bodies: list[bytes] = []
+        add_time, add_body = times.append, bodies.append
+        rng = self._rng
+        uniform, tau, sqrt, log, cos, sin = rng.random, math.tau, math.sqrt, math.log, math.cos, math.sin
+        # `rng.gauss(0.0, 1.0)` inlined: CPython draws normals in Box-Muller pairs and keeps the
+        # second of a pair in `gauss_next` for the next call; this loop does the same with `spare`.
+        spare, rng.gauss_next = rng.gauss_next, None
+        k = k0 = self._k
+        seq = self._seq
+        try:
+            while True:
+                t_sample = start_ns + round(k * 1e9 / rate_hz)
+                if t_sample > t_ns:
+                    break
+                elapsed_ns = t_sample - start_ns
+                tension = tension_n(t_sample)
+                if spare is None:
+                    angle = uniform() * tau
+                    radius = sqrt(-2.0 * log(1.0 - uniform()))
+                    draw = cos(angle) * radius
+                    spare = sin(angle) * radius
+                else:
+                    draw, spare = spare, None
+                value = offset + gain * tension + drift * (elapsed_ns / 1e9) + noise * draw
+                counts = round(value / q) * q
+                if counts > highest:
+                    counts = highest
+                elif counts < lowest:
+                    counts = lowest
+                add_time(t_sample)
+                add_body(
+                    b"LC,%d,%d,%d"
+                    % (seq % SEQ_MODULUS, (time0_us + elapsed_ns // 1000) % DEVICE_TIME_MODULUS_US, counts)
+                )
+                k += 1
+                seq += 1
+            # The checksums of all the bodies at once, then the lines: `RigLc1Codec.encode`'s bytes.
+            tails = map(_LC1_TAILS.__getitem__, nmea_checksums(bodies))
+            out.extend(zip(times, map(b"$%b%b".__mod__, zip(bodies, tails, strict=True)), strict=True))
+        finally:  # also when the tension source raises: the samples made so far count
+            rng.gauss_next = spare
+            self._k, self._seq = k, seq
+            self.counts.samples += k - k0
+            self.counts.lines_sent += k - k0
 
     def _silenced(self, t_ns: int) -> bool:
         while self._silences_ns and self._silences_ns[0][1] <= t_ns:

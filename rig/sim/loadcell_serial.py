@@ -66,15 +66,31 @@ class InProcessLoadCellSerial:
 
     # -- device side ------------------------------------------------------------------------------
     def _on_advance(self, now_ns: int) -> None:
+        if self._tx:
+            self._arrive(now_ns)  # lines already on the wire come first
+        tx, byte_ns, free_ns = self._tx, self._byte_ns, self._uart_free_ns
+        done: list[bytes] = []  # lines wholly transmitted by now, while none is still on the wire
         for t_sample, data in self.emulator.lines_until(now_ns):
-            start = max(float(t_sample), self._uart_free_ns)
-            self._tx.append((start, data))
-            self._uart_free_ns = start + len(data) * self._byte_ns
-        self._arrive(now_ns)
+            n_bytes = len(data)
+            start = float(t_sample)
+            if free_ns > start:  # the UART is still sending earlier bytes
+                start = free_ns
+            free_ns = start + n_bytes * byte_ns
+            # `_arrive`'s test `int(sent) >= n_bytes`, for n_bytes >= 1, without queueing the line.
+            if not tx and (now_ns - start) / byte_ns >= n_bytes:
+                done.append(data)
+            else:
+                tx.append((start, data))
+        self._uart_free_ns = free_ns
+        if done:
+            self._receive(b"".join(done))
+        if tx:
+            self._arrive(now_ns)
 
     def _arrive(self, now_ns: int) -> None:
         """Move every byte fully transmitted by `now_ns` from the line into the receive buffer."""
         tx, byte_ns = self._tx, self._byte_ns
+        done: list[bytes] = []
         while tx:
             start, data = tx[0]
             n_done = int((now_ns - start) / byte_ns)
@@ -82,13 +98,16 @@ class InProcessLoadCellSerial:
                 break
             if n_done >= len(data):
                 tx.popleft()
-                self._receive(data)
+                done.append(data)
             else:
                 tx[0] = (start + n_done * byte_ns, data[n_done:])
-                self._receive(data[:n_done])
+                done.append(data[:n_done])
                 break
+        if done:
+            self._receive(b"".join(done))
 
     def _receive(self, data: bytes) -> None:
+        """Bytes off the wire into the receive buffer (bytewise: one call per line or per chunk alike)."""
         if not self.is_open:
             return
         if self.baudrate != self.emulator.baud:
