@@ -292,22 +292,48 @@ def test_a_run_killed_with_sigkill_keeps_every_flushed_message(tmp_path):
     assert os.path.getsize(path) > 0
 
 
-def test_the_writer_process_encodes_load_cell_samples_exactly_as_the_json_encoder():
-    from rig.log.writer_process import _DUMPS, _loadcell_json
+def test_the_writer_process_encodes_load_cell_rows_exactly_as_the_json_encoder():
+    from rig.log.writer_process import _DUMPS, _loadcell_row_json
 
+    fields = S.ROW_FIELDS[S.LOADCELL]
     floats = [0.0, -0.0, 5e-324, 1.7976931348623157e308, 0.1 + 0.2, -7.25, 1e16, 1e-7, 123456.789]
     for i, force in enumerate(floats):
         for seq, device_us in ((None, None), (i, None), (None, 2**40 + i), (2**33, 7)):
             payload = S.loadcell_sample(
                 raw=(-1) ** i * 2**i, force_n=force, seq=seq, device_time_us=device_us
             )
-            assert _loadcell_json(payload) == _DUMPS(payload).encode()
-    # Anything but the builder's exact shape goes to the JSON encoder (which rejects NaN).
-    unusual = [
-        {"seq": True, "raw": 1, "force_n": 1.0, "device_time_us": None},
-        {"raw": 1, "seq": 1, "force_n": 1.0, "device_time_us": None},
-        {"seq": 1, "raw": 1, "force_n": 1, "device_time_us": None},
-        {"seq": 1, "raw": 1, "force_n": float("nan"), "device_time_us": None},
-        {"seq": 1, "raw": 1, "force_n": 1.0},
-    ]
-    assert [_loadcell_json(p) for p in unusual] == [None] * len(unusual)
+            row = S.loadcell_row(raw=(-1) ** i * 2**i, force_n=force, seq=seq, device_time_us=device_us)
+            assert dict(zip(fields, row, strict=True)) == payload
+            assert _loadcell_row_json(row) == _DUMPS(payload).encode()
+    # Anything but exact types goes to the JSON encoder (which rejects NaN).
+    unusual = [(True, 1, 1.0, None), (1, 1, 1, None), (1, 1, float("nan"), None), (1, 1.0, 1.0, None)]
+    assert [_loadcell_row_json(row) for row in unusual] == [None] * len(unusual)
+
+
+def test_log_many_takes_rows_for_the_load_cell_and_writes_the_same_json(tmp_path):
+    path = tmp_path / "a.mcap"
+    with RunLogger(path, strict=False) as log:  # strict would stop the NaN row in the caller
+        log.log_many(
+            S.LOADCELL,
+            [
+                (T0_NS + i * MS, S.loadcell_row(raw=i, force_n=i / 4, seq=i, device_time_us=None))
+                for i in range(5)
+            ],
+        )
+        log.log(S.LOADCELL, T0_NS + 5 * MS, S.loadcell_sample(raw=5, force_n=1.25, seq=5))
+        with pytest.raises(TypeError, match="row"):
+            log.log_many(S.SERVO_STATE, [(T0_NS, (1, 2, 3))])
+        with pytest.raises(TypeError, match="row"):
+            log.log_many(S.LOADCELL, [(T0_NS, (1, 2, 3))])
+        log.log_many(S.LOADCELL, [(T0_NS + 6 * MS, (6, 6, float("nan"), None))])  # reported at the next call
+        with pytest.raises(LogWriteError, match="not written: Out of range float"):
+            log.flush()  # waits for the writer process, which reports the NaN row
+        log.log(S.LOADCELL, T0_NS + 7 * MS, S.loadcell_sample(raw=7, force_n=1.75, seq=7))
+    payloads = [m[4] for m in mcap_messages(path)]
+    assert payloads[:6] == [S.loadcell_sample(raw=i, force_n=i / 4, seq=i) for i in range(6)]
+    assert len(payloads) == 7 and payloads[-1]["raw"] == 7
+
+
+def test_strict_mode_checks_rows_against_the_schema(tmp_path):
+    with RunLogger(tmp_path / "a.mcap", strict=True) as log, pytest.raises(ValueError, match="raw"):
+        log.log_many(S.LOADCELL, [(T0_NS, (1, "x", 1.0, None))])

@@ -168,21 +168,30 @@ class RunLogger:
         self.messages_logged += 1
         self._maybe_send(log_time_ns)
 
-    def log_many(self, topic: str, messages: Iterable[tuple[int, Mapping[str, Any]]]) -> None:
+    def log_many(
+        self, topic: str, messages: Iterable[tuple[int, Mapping[str, Any] | tuple[Any, ...]]]
+    ) -> None:
         """Enqueue `(log_time_ns, payload)` messages of one topic, in order, as `log` would one by one.
 
         One call per control period for the 1 kHz load-cell samples: the checks and the publish
-        time are per call, not per message.
+        time are per call, not per message. For a topic in `schemas.ROW_FIELDS` a payload may be a
+        row (a tuple of the values in that order); the file holds the same JSON object.
         """
         self._check_loggable(topic)
         publish_ns = self._now_ns()
         strict = self._strict
+        fields = schemas.ROW_FIELDS.get(topic)
         batch = self._batch
         count = len(batch)
         for log_time_ns, payload in messages:
             if type(log_time_ns) is not int:
                 log_time_ns = operator.index(log_time_ns)
-            if strict:
+            if type(payload) is tuple:
+                if fields is None or len(payload) != len(fields):
+                    raise TypeError(f"{topic}: a row payload needs the fields {fields}; got {payload!r}")
+                if strict:
+                    schemas.check_payload(topic, dict(zip(fields, payload, strict=True)))
+            elif strict:
                 schemas.check_payload(topic, payload)
             if not batch:
                 self._batch_start_ns = log_time_ns

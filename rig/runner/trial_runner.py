@@ -186,15 +186,16 @@ class TrialRunner:
             raise InterlockTripped(reason)
 
     def _ingest(self, samples: list[LoadCellSample]) -> None:
-        tare, payload = self.tare_n, schemas.loadcell_sample
+        tare = self.tare_n
         self.tick_samples = [(s.time_ns, s.force_n - tare) for s in samples]
         if samples:
             self.force_n = self.tick_samples[-1][1]
+            # Rows in schemas.ROW_FIELDS order (seq, raw, force_n, device_time_us): no dict per sample.
             self.log.log_many(
                 schemas.LOADCELL,
                 [
-                    (s.time_ns, payload(raw=s.raw, force_n=force, seq=s.seq, device_time_us=s.device_time_us))
-                    for s, (_, force) in zip(samples, self.tick_samples, strict=True)
+                    (t_ns, (s.seq, s.raw, force, s.device_time_us))
+                    for s, (t_ns, force) in zip(samples, self.tick_samples, strict=True)
                 ],
             )
         roles = self.session.roles
