@@ -5,6 +5,8 @@ Variants (same payload dicts, zstd, 512 KiB chunks, all in this process):
                chunking as RunLogger, whose writer process flushes every second of log time
   bare         json.dumps + Writer.add_message, chunks closed by size only
   logger       RunLogger.log() for every message, then finish(); caller-side time = the log() calls
+  logger_rows  RunLogger.log_many() with rows, 20 messages per call (the runner's way at 1 kHz and a
+               20 ms control period), then finish()
 
 Run: .venv/bin/python benchmarks/bench_log_writer.py [--messages 200000] [--repeats 3]
 """
@@ -66,6 +68,19 @@ def run_logger(path: Path, messages: list[tuple[int, dict]]) -> dict[str, float]
     return {"caller_s": caller, "total_s": total, "bytes": path.stat().st_size}
 
 
+def run_logger_rows(path: Path, messages: list[tuple[int, dict]], per_call: int = 20) -> dict[str, float]:
+    fields = S.ROW_FIELDS[S.LOADCELL]
+    rows = [(t, tuple(payload[f] for f in fields)) for t, payload in messages]
+    start = time.perf_counter()
+    logger = RunLogger(path)
+    for i in range(0, len(rows), per_call):
+        logger.log_many(S.LOADCELL, rows[i : i + per_call])
+    caller = time.perf_counter() - start
+    logger.finish()
+    total = time.perf_counter() - start
+    return {"caller_s": caller, "total_s": total, "bytes": path.stat().st_size}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--messages", type=int, default=200_000)
@@ -75,10 +90,12 @@ def main() -> None:
     best: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for repeat in range(args.repeats):
-            for name in ("bare_flush", "bare", "logger"):
+            for name in ("bare_flush", "bare", "logger", "logger_rows"):
                 path = Path(tmp) / f"{name}-{repeat}.mcap"
                 if name == "logger":
                     result = run_logger(path, messages)
+                elif name == "logger_rows":
+                    result = run_logger_rows(path, messages)
                 else:
                     result = run_bare(path, messages, 1000 if name == "bare_flush" else None)
                 path.unlink()
@@ -97,6 +114,8 @@ def main() -> None:
         f"ratio total logger / bare_flush: {logger['total_s'] / bare_flush['total_s']:.2f}x (target <= 1.3x)"
     )
     print(f"ratio total logger / bare:       {logger['total_s'] / bare['total_s']:.2f}x")
+    rows = best["logger_rows"]
+    print(f"ratio total logger_rows / bare_flush: {rows['total_s'] / bare_flush['total_s']:.2f}x")
     print(f"ratio caller-side logger / bare_flush total: {logger['caller_s'] / bare_flush['total_s']:.2f}x")
 
 
