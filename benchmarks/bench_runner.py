@@ -24,8 +24,7 @@ from typing import Any
 import yaml
 
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.sim.simulated_rig import simulated_session
+from rig.runner.run import RunRequest, execute_run, open_session, prepare_run
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -33,7 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def one_run(protocol: Path, seed: int, out: Path) -> tuple[float, float, int, int]:
     request = RunRequest(protocol_path=protocol, rig_path=None, out_dir=out, seed=seed, run_id=f"bench{seed}")
     prepared = prepare_run(request)
-    session = simulated_session(prepared.config, seed=seed)
+    session = open_session(prepared)
     start_virtual_ns = session.clock.monotonic_ns()
     t0 = time.perf_counter()
     report = execute_run(prepared, session, SilentProgress())

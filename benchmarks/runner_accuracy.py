@@ -15,8 +15,7 @@ import tempfile
 from pathlib import Path
 
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.sim.simulated_rig import simulated_session
+from rig.runner.run import RunRequest, execute_run, open_session, prepare_run
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -30,7 +29,7 @@ def run(protocol: str, seed: int, out: Path):
         run_id=f"{Path(protocol).stem}-{seed}",
     )
     prepared = prepare_run(request)
-    return execute_run(prepared, simulated_session(prepared.config, seed=seed), SilentProgress())
+    return execute_run(prepared, open_session(prepared), SilentProgress())
 
 
 def main() -> None:

@@ -14,6 +14,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
 from mcap.records import Chunk
 from mcap.stream_reader import breakup_chunk
+from sim_runs import run_on_simulated_rig
 
 from model.chain import lever_arms_m, planar_transforms
 from rig.analysis import redetect as rd
@@ -21,9 +22,6 @@ from rig.analysis.replay import replay
 from rig.analysis.trials import load_trial_table
 from rig.cli import main
 from rig.rig_config import load_rig_config
-from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.sim.simulated_rig import simulated_session
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 
@@ -61,17 +59,11 @@ REPORT_FILES = (
 
 
 def _run(out: Path, protocol: Path, run_id: str, *, resume: bool = False, operator=None):
-    request = RunRequest(
-        protocol_path=protocol, rig_path=None, out_dir=out, seed=3,
-        run_id=None if resume else run_id, resume=run_id if resume else None,
-    )  # fmt: skip
-    prepared = prepare_run(request)
-    session = simulated_session(
-        prepared.config, seed=prepared.journal.seed, invocation=prepared.journal.invocations + 1
-    )
-    if operator is not None:
+    def use_operator(session) -> None:
         session.operator = operator
-    return execute_run(prepared, session, SilentProgress())
+
+    patch = use_operator if operator is not None else None
+    return run_on_simulated_rig(protocol, out, run_id=run_id, resume=resume, patch=patch)[0]
 
 
 class _InterruptAtTrial2:

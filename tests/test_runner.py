@@ -8,6 +8,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from sim_runs import run_on_simulated_rig
 
 from model.fit import SUMMARY_KEYS
 from rig.cli import main
@@ -15,9 +16,6 @@ from rig.errors import InputError
 from rig.protocol import TrialPlan
 from rig.rig_config import load_rig_config
 from rig.runner.journal import RunJournal
-from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.sim.simulated_rig import simulated_session
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 
@@ -44,18 +42,10 @@ blocks:
 
 
 def run_api(tmp_path: Path, protocol: Path, *, run_id: str = "r1", resume: str | None = None, patch=None):
-    request = RunRequest(
-        protocol_path=protocol, rig_path=None, out_dir=tmp_path / "out", seed=3,
-        run_id=None if resume else run_id, resume=resume,
-    )  # fmt: skip
-    prepared = prepare_run(request)
-    session = simulated_session(
-        prepared.config, seed=prepared.journal.seed, invocation=prepared.journal.invocations + 1
+    """Run (or resume, `resume` = the run id) in tmp_path/out; returns (report, session)."""
+    return run_on_simulated_rig(
+        protocol, tmp_path / "out", run_id=resume or run_id, resume=resume is not None, patch=patch
     )
-    if patch is not None:
-        patch(session)
-    report = execute_run(prepared, session, SilentProgress())
-    return report, session
 
 
 def assert_safe(session) -> None:

@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
     # The runner is imported here, not at the top, so that `rig --help` stays quick.
     from rig.runner.progress import make_progress
-    from rig.runner.run import RunRequest, execute_run, prepare_run
+    from rig.runner.run import RunRequest, execute_run, open_session, prepare_run
     from rig.runner.safety import terminate_as_interrupt
 
     if args.seed < 0:
@@ -107,9 +107,7 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume,
     )
     prepared = prepare_run(request)  # validates everything; InputError -> exit 2, nothing started
-    session = _session(
-        prepared.config, prepared.journal.seed, args.realtime, prepared.journal.invocations + 1
-    )
+    session = open_session(prepared)
     terminate_as_interrupt()
     report = execute_run(prepared, session, make_progress(args.json))
     if args.json:
@@ -117,16 +115,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(_summary(report), file=sys.stderr if report.exit_code else sys.stdout)
     return report.exit_code
-
-
-def _session(config: Any, seed: int, realtime: bool, invocation: int) -> Any:
-    if config.kind == "hardware":  # hardware always runs in real time
-        from rig.hw.hardware_rig import hardware_session
-
-        return hardware_session(config)
-    from rig.sim.simulated_rig import simulated_session
-
-    return simulated_session(config, seed=seed, realtime=realtime, invocation=invocation)
 
 
 def _dry_run(args: argparse.Namespace) -> int:

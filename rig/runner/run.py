@@ -156,6 +156,28 @@ def prepare_run(request: RunRequest) -> PreparedRun:
     return PreparedRun(request, protocol, config, journal.run_id, journal, estimator, remaining)
 
 
+def open_session(prepared: PreparedRun) -> RigSession:
+    """The rig a prepared run asks for (nothing connected yet).
+
+    A hardware config gives the hardware rig (always real time). A simulated one gives the simulated
+    rig seeded from the run's journal, so a resumed part draws the same world; each part starts its
+    virtual clock after the previous one's (`invocation`), and `request.realtime` paces it by the wall
+    clock.
+    """
+    if prepared.config.kind == "hardware":
+        from rig.hw.hardware_rig import hardware_session
+
+        return hardware_session(prepared.config)
+    from rig.sim.simulated_rig import simulated_session
+
+    return simulated_session(
+        prepared.config,
+        seed=prepared.journal.seed,
+        realtime=prepared.request.realtime,
+        invocation=prepared.journal.invocations + 1,
+    )
+
+
 def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressReporter) -> RunReport:
     """Run the remaining trials on `session` and write the log, journal and estimates."""
     request, protocol, config, journal = (
