@@ -46,20 +46,21 @@ def instrument_parts() -> collections.Counter[str]:
     """Wrap the runner's per-tick calls to add up the calling thread's CPU time per part."""
     from rig.hw.loadcell import SerialLoadCell
     from rig.hw.servo_bus import DynamixelServoBus
+    from rig.log.writer import RunLogger
     from rig.runner.trial_runner import TrialRunner
     from rig.sim.clock import VirtualClock
 
     totals: collections.Counter[str] = collections.Counter()
 
-    def wrap(cls: type, name: str, part: str) -> None:
+    def wrap(cls: type, name: str, part: str, clock: Callable[[], float] = time.thread_time) -> None:
         original: Callable[..., Any] = getattr(cls, name)
 
         def timed(*args: Any, **kwargs: Any) -> Any:
-            start = time.thread_time()
+            start = clock()
             try:
                 return original(*args, **kwargs)
             finally:
-                totals[part] += time.thread_time() - start
+                totals[part] += clock() - start
 
         setattr(cls, name, timed)
 
@@ -68,6 +69,7 @@ def instrument_parts() -> collections.Counter[str]:
     wrap(DynamixelServoBus, "read_states", "  servo state read (SDK + emulated bus)")
     wrap(SerialLoadCell, "poll", "  load-cell poll (bytes to samples)")
     wrap(TrialRunner, "_ingest", "  runner ingest and logging calls")
+    wrap(RunLogger, "flush", "wall time waiting for the writer process to flush (not CPU)", time.perf_counter)
     return totals
 
 
