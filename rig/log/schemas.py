@@ -524,11 +524,6 @@ def loadcell_sample(
 ROW_FIELDS: dict[str, tuple[str, ...]] = {LOADCELL: ("seq", "raw", "force_n", "device_time_us")}
 
 
-def loadcell_row(*, raw: int, force_n: float, seq: int | None, device_time_us: int | None) -> tuple[Any, ...]:
-    """A `/rig/loadcell` payload as a row (see `ROW_FIELDS`); the writer checks the types."""
-    return (seq, raw, force_n, device_time_us)
-
-
 def loadcell_payload(sample: LoadCellSample) -> dict[str, Any]:
     """A `/rig/loadcell` payload from the hardware seam's value type (log it at `sample.time_ns`)."""
     return loadcell_sample(

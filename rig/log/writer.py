@@ -97,7 +97,7 @@ class RunLogger:
         self._strict = os.environ.get(_STRICT_ENV) == "1" if strict is None else strict
         self._max_pending = max_pending
         self._batch_limit = max(1, min(BATCH_MESSAGES, max_pending // 2))
-        self._batch: list[tuple[str, int, int, Mapping[str, Any]]] = []
+        self._batch: list[tuple[str, int, int, Mapping[str, Any] | tuple[Any, ...]]] = []
         self._batch_start_ns = 0
         self._sent = 0  # messages sent to the writer process
         self._written = 0  # messages the writer process has handled (reader thread)
@@ -156,17 +156,7 @@ class RunLogger:
         `log_time_ns` is the epoch time of sampling. `payload` must not be changed afterwards (the
         builders in `rig.log.schemas` return fresh dicts).
         """
-        self._check_loggable(topic)
-        if type(log_time_ns) is not int:
-            log_time_ns = operator.index(log_time_ns)  # numpy ints are fine, floats are not
-        if self._strict:
-            schemas.check_payload(topic, payload)
-        batch = self._batch
-        if not batch:
-            self._batch_start_ns = log_time_ns
-        batch.append((topic, log_time_ns, self._now_ns(), payload))
-        self.messages_logged += 1
-        self._maybe_send(log_time_ns)
+        self.log_many(topic, ((log_time_ns, payload),))
 
     def log_many(
         self, topic: str, messages: Iterable[tuple[int, Mapping[str, Any] | tuple[Any, ...]]]
@@ -185,7 +175,7 @@ class RunLogger:
         count = len(batch)
         for log_time_ns, payload in messages:
             if type(log_time_ns) is not int:
-                log_time_ns = operator.index(log_time_ns)
+                log_time_ns = operator.index(log_time_ns)  # numpy ints are fine, floats are not
             if type(payload) is tuple:
                 if fields is None or len(payload) != len(fields):
                     raise TypeError(f"{topic}: a row payload needs the fields {fields}; got {payload!r}")
