@@ -60,9 +60,8 @@ _ADDR_REALTIME_TICK = 120
 _ADDR_HOMING_OFFSET = 20
 _HOMING_MOVING = struct.Struct("<iI")  # Homing Offset (20), Moving Threshold (24)
 _ADDR_PROFILE_ACCELERATION = 108
-_PROFILE_GOAL = struct.Struct(
-    "<IIi"
-)  # Profile Acceleration (108), Profile Velocity (112), Goal Position (116)
+# Profile Acceleration (108), Profile Velocity (112), Goal Position (116)
+_PROFILE_GOAL = struct.Struct("<IIi")
 _LAYOUT = (
     ("Drive Mode", ct.ADDR_DRIVE_MODE, 1),
     ("Homing Offset", _ADDR_HOMING_OFFSET, 4),
