@@ -37,7 +37,7 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
-from rig.hw import control_table as ct
+from rig.hw.dxl import control_table as ct
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl import protocol as p
 from rig.sim.dxl.bus import EmulatedBus

@@ -21,7 +21,7 @@ import time
 
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler
 
-from rig.hw.servo_bus import DynamixelServoBus
+from rig.hw.dxl.bus import DynamixelServoBus
 from rig.rig_config import ServoSpec
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.bus import EmulatedBus

@@ -19,10 +19,10 @@ from __future__ import annotations
 import argparse
 import time
 
-from rig.hw import control_table as ct
-from rig.sim.article_presets import make_preset
+from rig.hw.dxl import control_table as ct
+from rig.sim.physics.article_presets import make_preset
 from rig.sim.dxl.servo import Servo
-from rig.sim.world import SimWorld
+from rig.sim.physics.world import SimWorld
 
 MS = 1_000_000
 CLOCK_STEP_NS = 10 * MS

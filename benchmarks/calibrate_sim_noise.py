@@ -23,8 +23,8 @@ import numpy as np
 
 from model.fit import fit_inverse_distance
 from model.slip_detector import DetectorParams, detect_slips
-from rig.sim.article_presets import PRESET_NAMES, make_preset
-from rig.sim.world import SimWorld
+from rig.sim.physics.article_presets import PRESET_NAMES, make_preset
+from rig.sim.physics.world import SimWorld
 
 PAPER = {  # MODEL.md §4: k, SSE, R², RMSE
     "link1": {"k": 0.1615, "sse": 0.1112, "r2": 0.9937, "rmse": 0.1261},

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunReport, RunRequest, execute_run, open_session, prepare_run
-from rig.runner.session import RigSession
+from rig.hw.session import RigSession
 
 
 def run_on_simulated_rig(

@@ -1,6 +1,6 @@
 import itertools
 
-from rig.hw.device_time import DEVICE_CLOCK_WRAP_US, OFFSET_LEAK_NS, DeviceClockMapper
+from rig.hw.loadcell.device_time import DEVICE_CLOCK_WRAP_US, OFFSET_LEAK_NS, DeviceClockMapper
 
 
 def test_lines_read_together_keep_their_sampling_times():

@@ -8,7 +8,7 @@ from pathlib import Path
 import dynamixel_easy_sdk
 import pytest
 
-from rig.hw.control_table import (
+from rig.hw.dxl.control_table import (
     MODELS_BY_NUMBER,
     RAD_PER_PULSE,
     TABLE_SIZE,

@@ -12,7 +12,7 @@ from dynamixel_sdk import (
     PacketHandler,
 )
 
-from rig.hw.control_table import XM430_W350
+from rig.hw.dxl.control_table import XM430_W350
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler

@@ -17,7 +17,7 @@ from dynamixel_sdk import (
     PacketHandler,
 )
 
-from rig.hw.control_table import RAD_PER_PULSE, XM430_W350
+from rig.hw.dxl.control_table import RAD_PER_PULSE, XM430_W350
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl import protocol as p
 from rig.sim.dxl.bus import EmulatedBus

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from rig.errors import InputError
-from rig.hw.calibration import (
+from rig.hw.loadcell.calibration import (
     STANDARD_GRAVITY_M_S2,
     Calibration,
     CalibrationError,
@@ -20,8 +20,8 @@ from rig.hw.calibration import (
 )
 from rig.hw.seams import LoadCellSample
 from rig.sim.clock import VirtualClock
-from rig.sim.loadcell_profiles import StepTension
-from rig.sim.loadcell_serial import simulated_load_cell
+from rig.sim.loadcell.profiles import StepTension
+from rig.sim.loadcell.inprocess import simulated_load_cell
 
 CAL = Calibration(
     factor_n_per_count=1.25e-5,

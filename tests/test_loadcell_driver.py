@@ -9,15 +9,15 @@ import pytest
 import serial
 
 from rig.errors import InputError, NotConnectedError, StaleDataError
-from rig.hw.calibration import indicator_calibration
-from rig.hw.device_time import OFFSET_LEAK_NS
-from rig.hw.loadcell import SerialLoadCell
-from rig.hw.loadcell_formats import DeviceReading, RigLc1Codec
+from rig.hw.loadcell.calibration import indicator_calibration
+from rig.hw.loadcell.device_time import OFFSET_LEAK_NS
+from rig.hw.loadcell.driver import SerialLoadCell
+from rig.hw.loadcell.formats import DeviceReading, RigLc1Codec
 from rig.hw.seams import LoadCell
 from rig.sim.clock import VirtualClock
-from rig.sim.loadcell_emulator import FaultPlan, LoadCellEmulator, SignalModel
-from rig.sim.loadcell_profiles import ConstantTension, SawtoothTension
-from rig.sim.loadcell_serial import in_process_serial_factory, simulated_load_cell
+from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator, SignalModel
+from rig.sim.loadcell.profiles import ConstantTension, SawtoothTension
+from rig.sim.loadcell.inprocess import in_process_serial_factory, simulated_load_cell
 
 
 def run_for(load_cell, clock, seconds, step_s=0.01):

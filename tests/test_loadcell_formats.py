@@ -7,7 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rig.errors import InputError
-from rig.hw.loadcell_formats import (
+from rig.hw.loadcell.formats import (
     ChecksumError,
     DeviceReading,
     IndicatorStCodec,

@@ -14,9 +14,9 @@ import pytest
 import serial
 
 from rig.errors import StaleDataError
-from rig.hw.calibration import STANDARD_GRAVITY_M_S2, Calibration, indicator_calibration
-from rig.hw.loadcell import SerialLoadCell
-from rig.sim.loadcell_emulator import SignalModel
+from rig.hw.loadcell.calibration import STANDARD_GRAVITY_M_S2, Calibration, indicator_calibration
+from rig.hw.loadcell.driver import SerialLoadCell
+from rig.sim.loadcell.emulator import SignalModel
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
 

@@ -16,7 +16,7 @@ from dynamixel_sdk import PacketHandler, PortHandler
 from rig.errors import HandshakeError
 from rig.hw.clock import SystemClock
 from rig.hw.seams import OperatingMode
-from rig.hw.servo_bus import DynamixelServoBus
+from rig.hw.dxl.bus import DynamixelServoBus
 from rig.rig_config import ServoSpec
 
 SPECS = [ServoSpec(1, "winch", "XM430-W350"), ServoSpec(2, "bender", "XM430-W350")]

@@ -8,17 +8,17 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rig.errors import HardwareFault, InputError
-from rig.hw import control_table as ct
-from rig.hw import dxl_units as units
+from rig.hw.dxl import control_table as ct
+from rig.hw.dxl import units as units
 from rig.hw.clock import SystemClock
-from rig.hw.dxl_errors import (
+from rig.hw.dxl.errors import (
     comm_result_name,
     describe_hardware_error,
     error_number_name,
     hardware_error_words,
     hardware_fault,
 )
-from rig.hw.servo_bus import DynamixelServoBus, model_name_for, model_number_for
+from rig.hw.dxl.bus import DynamixelServoBus, model_name_for, model_number_for
 from rig.rig_config import ServoSpec
 
 

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from model.chain import planar_transforms, predict_slip
 from model.joint import PAPER_CONSTANT
-from rig.sim.article_presets import PRESET_NAMES, SimPreset, make_preset
-from rig.sim.world import SimWorld, TrialKind, WorldBendingFixture
+from rig.sim.physics.article_presets import PRESET_NAMES, SimPreset, make_preset
+from rig.sim.physics.world import SimWorld, TrialKind, WorldBendingFixture
 
 MS = 1_000_000
 S = 1_000_000_000

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
-from rig.hw.calibration import (
+from rig.hw.loadcell.calibration import (
     STANDARD_GRAVITY_M_S2,
     Calibration,
     CalibrationError,
@@ -18,8 +18,8 @@ from rig.hw.calibration import (
     run_calibration,
 )
 from rig.hw.clock import SystemClock
-from rig.hw.loadcell import DEFAULT_BAUD, DEFAULT_STALE_TIMEOUT_S, SerialLoadCell
-from rig.hw.loadcell_formats import FORMATS
+from rig.hw.loadcell.driver import DEFAULT_BAUD, DEFAULT_STALE_TIMEOUT_S, SerialLoadCell
+from rig.hw.loadcell.formats import FORMATS
 from rig.hw.seams import Clock, LoadCell
 from rig.rig_config import load_rig_config
 
@@ -204,9 +204,9 @@ def _report(args: argparse.Namespace, calibration: Calibration) -> None:
 def _simulated(args: argparse.Namespace, prompt: PromptFn) -> tuple[LoadCell, Clock, PromptFn]:
     """The in-process emulator on a virtual clock; the prompts move the simulated mass."""
     from rig.sim.clock import VirtualClock
-    from rig.sim.loadcell_emulator import LoadCellEmulator
-    from rig.sim.loadcell_profiles import StepTension
-    from rig.sim.loadcell_serial import SIM_PORT, in_process_serial_factory
+    from rig.sim.loadcell.emulator import LoadCellEmulator
+    from rig.sim.loadcell.profiles import StepTension
+    from rig.sim.loadcell.inprocess import SIM_PORT, in_process_serial_factory
 
     clock = VirtualClock()
     # The line starts with an unknown load on it: the operator has to take it off for the tare.

@@ -8,7 +8,7 @@ import time
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
-from rig.hw.servo_bus import SDK_BAUDS, scan_port
+from rig.hw.dxl.bus import SDK_BAUDS, scan_port
 
 DEFAULT_BAUDS = (57_600, 1_000_000)
 

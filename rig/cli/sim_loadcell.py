@@ -6,10 +6,10 @@ import argparse
 import sys
 import time
 
-from rig.hw.loadcell_formats import FORMATS
-from rig.sim.loadcell_emulator import DEFAULT_BAUD, FaultPlan, LoadCellEmulator, SignalModel, parse_fault
-from rig.sim.loadcell_profiles import parse_profile
-from rig.sim.loadcell_pty import serve_loadcell
+from rig.hw.loadcell.formats import FORMATS
+from rig.sim.loadcell.emulator import DEFAULT_BAUD, FaultPlan, LoadCellEmulator, SignalModel, parse_fault
+from rig.sim.loadcell.profiles import parse_profile
+from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.pty_link import PtyLink, StopFlag
 
 

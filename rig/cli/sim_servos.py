@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 from rig.errors import InputError
 from rig.hw.clock import SystemClock
-from rig.hw.control_table import BAUD_REGISTER_BY_RATE, MODELS
+from rig.hw.dxl.control_table import BAUD_REGISTER_BY_RATE, MODELS
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.faults import FaultSpec, parse_fault
 from rig.sim.dxl.pty_server import serve

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from rig.errors import InputError
-from rig.hw.control_table import table_for_model
+from rig.hw.dxl.control_table import table_for_model
 from rig.protocol import Protocol, TrialPlan
 from rig.rig_config import RigConfig
 

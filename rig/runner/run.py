@@ -28,7 +28,7 @@ from rig.runner.estimation import RunEstimator, load_estimates_file
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
 from rig.runner.progress import ProgressReporter
-from rig.runner.session import RigSession
+from rig.hw.session import RigSession
 from rig.runner.trial_runner import EXIT_OK, TrialRunner, percentage_error_summary
 
 _RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")

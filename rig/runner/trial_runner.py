@@ -38,7 +38,7 @@ from rig.runner.journal import RunJournal
 from rig.runner.phases import Phase, PhaseMachine
 from rig.runner.progress import ProgressReporter
 from rig.runner.safety import interrupts_deferred
-from rig.runner.session import RigSession
+from rig.hw.session import RigSession
 
 EXIT_OK, EXIT_FAULT, EXIT_INTERRUPTED = 0, 1, 130
 _POSITION_TOLERANCE_RAD = 0.02

@@ -22,18 +22,18 @@ import time
 from typing import Any
 
 from rig.errors import ConfigError
-from rig.hw.servo_bus import DynamixelServoBus
+from rig.hw.dxl.bus import DynamixelServoBus
 from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, require_simulated
-from rig.runner.session import RigSession
-from rig.sim.article_presets import make_preset
+from rig.hw.session import RigSession
+from rig.sim.physics.article_presets import make_preset
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
-from rig.sim.configuration_source import SimConfigurationSource
+from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
-from rig.sim.loadcell_emulator import SignalModel
-from rig.sim.loadcell_serial import simulated_load_cell
-from rig.sim.world import SimWorld
+from rig.sim.loadcell.emulator import SignalModel
+from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.physics.world import SimWorld
 
 
 class PacedVirtualClock(VirtualClock):
@@ -58,7 +58,7 @@ class SimOperator:
 
 
 class SimBendingFixture:
-    """Bender goals from the world's fixture (one bender servo; see rig/sim/bending_fixture.py)."""
+    """Bender goals from the world's fixture (one bender servo; see rig/sim/physics/bending_fixture.py)."""
 
     def __init__(self, world: SimWorld, bender_id: int) -> None:
         self.world = world

@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from rig.errors import InputError
-from rig.hw.control_table import BAUD_REGISTER_BY_RATE
+from rig.hw.dxl.control_table import BAUD_REGISTER_BY_RATE
 
 
 @dataclass(slots=True)

@@ -36,8 +36,8 @@ import math
 import struct
 from dataclasses import dataclass
 
-from rig.hw import control_table as ct
-from rig.hw.control_table import ControlTable, Field
+from rig.hw.dxl import control_table as ct
+from rig.hw.dxl.control_table import ControlTable, Field
 from rig.sim.dxl import protocol as p
 from rig.sim.dxl.actuator import ActuatorCommand, ActuatorState, MotorParams, ProfiledActuator
 

@@ -23,9 +23,9 @@ import numpy as np
 
 from model.chain import planar_transforms
 from rig.hw.seams import Clock, ConfigurationReading
-from rig.sim.article import rotation_about_axis
-from rig.sim.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
-from rig.sim.world import SimWorld
+from rig.sim.physics.article import rotation_about_axis
+from rig.sim.physics.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
+from rig.sim.physics.world import SimWorld
 
 
 class SimConfigurationSource:

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 from rig.errors import InputError
-from rig.hw.loadcell_formats import (
+from rig.hw.loadcell.formats import (
     DEVICE_TIME_MODULUS_US,
     SEQ_MODULUS,
     DeviceReading,

@@ -14,11 +14,11 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from rig.hw.calibration import STANDARD_GRAVITY_M_S2, Calibration, indicator_calibration
-from rig.hw.loadcell import SerialLoadCell
-from rig.hw.loadcell_formats import IndicatorStCodec
+from rig.hw.loadcell.calibration import STANDARD_GRAVITY_M_S2, Calibration, indicator_calibration
+from rig.hw.loadcell.driver import SerialLoadCell
+from rig.hw.loadcell.formats import IndicatorStCodec
 from rig.sim.clock import VirtualClock
-from rig.sim.loadcell_emulator import (
+from rig.sim.loadcell.emulator import (
     BITS_PER_BYTE,
     FaultPlan,
     LoadCellEmulator,

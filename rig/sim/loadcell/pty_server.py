@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from rig.sim.loadcell_emulator import LoadCellEmulator, wrong_baud_garbage
+from rig.sim.loadcell.emulator import LoadCellEmulator, wrong_baud_garbage
 from rig.sim.pty_link import PtyLink, StopFlag
 
 MAX_SLEEP_S = 0.05  # bounds how late a stop request is noticed

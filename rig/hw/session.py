@@ -67,7 +67,7 @@ class RigSession:
 
     kind: str  # "simulated" or "hardware"
     clock: Clock
-    servos: ServoBus  # e.g. rig.hw.servo_bus.DynamixelServoBus
+    servos: ServoBus  # e.g. rig.hw.dxl.bus.DynamixelServoBus
     load_cell: LoadCell
     operator: Operator
     fixture: BendingFixture

@@ -44,15 +44,15 @@ from typing import Any, Protocol
 import numpy as np
 
 from model.joint import mu_delta0_pa_from_capacity, resolve_constant
-from rig.sim.article import ChainArticle
-from rig.sim.article_presets import (
+from rig.sim.physics.article import ChainArticle
+from rig.sim.physics.article_presets import (
     STREAM_BEND,
     STREAM_TRIAL_CAPACITY,
     SimPreset,
     stream_rng,
 )
-from rig.sim.bending_fixture import BendingFixture
-from rig.sim.winch_line import WinchLine
+from rig.sim.physics.bending_fixture import BendingFixture
+from rig.sim.physics.winch_line import WinchLine
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0
@@ -485,7 +485,7 @@ class SimWorld:
 
 
 class WorldBendingFixture:
-    """The runner's `BendingFixture` seam (rig.runner.session) over a world with one bender servo.
+    """The runner's `BendingFixture` seam (rig.hw.session) over a world with one bender servo.
 
     `bend_goals` asks the world's fixture for the configuration and returns the goal to command;
     the world holds the link until the bender gets there.

@@ -69,9 +69,9 @@ from rig.errors import (
     RigError,
     RigTimeoutError,
 )
-from rig.hw import control_table as ct
-from rig.hw import dxl_units as units
-from rig.hw.dxl_errors import (
+from rig.hw.dxl import control_table as ct
+from rig.hw.dxl import units as units
+from rig.hw.dxl.errors import (
     ALERT_BIT,
     ERRNUM_CRC,
     ERROR_NUMBER_MASK,

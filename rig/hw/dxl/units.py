@@ -3,14 +3,14 @@
 The servo layer converts here and nowhere else: positions in rad (4096 pulses per revolution,
 pulse 0 = 0 rad), velocities in rad/s (0.229 rpm per unit), currents in A (2.69 mA per unit),
 profile accelerations in rad/s^2 (214.577 rev/min^2 per unit), voltages in V (0.1 V per unit),
-temperatures in degC (1 degC per unit). The constants come from `rig.hw.control_table`, the one
+temperatures in degC (1 degC per unit). The constants come from `rig.hw.dxl.control_table`, the one
 source of truth shared with the emulator. The SDK hands every value back unsigned; `to_signed`
 restores the sign of the signed fields.
 """
 
 from __future__ import annotations
 
-from rig.hw.control_table import (
+from rig.hw.dxl.control_table import (
     ACCELERATION_UNIT_REV_MIN2,
     CURRENT_UNIT_A,
     PULSES_PER_REV,

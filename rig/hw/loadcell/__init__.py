@@ -1,0 +1,1 @@
+"""The serial load cell: line formats, the pyserial driver, calibration and device-clock mapping."""
