@@ -44,8 +44,8 @@ def one_run(protocol: Path, seed: int, out: Path) -> tuple[float, float, int, in
 
 def instrument_parts() -> collections.Counter[str]:
     """Wrap the runner's per-tick calls to add up the calling thread's CPU time per part."""
-    from rig.hw.loadcell.driver import SerialLoadCell
     from rig.hw.dxl.bus import DynamixelServoBus
+    from rig.hw.loadcell.driver import SerialLoadCell
     from rig.log.writer import RunLogger
     from rig.runner.trial_runner import TrialRunner
     from rig.sim.clock import VirtualClock

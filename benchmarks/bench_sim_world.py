@@ -20,8 +20,8 @@ import argparse
 import time
 
 from rig.hw.dxl import control_table as ct
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.dxl.servo import Servo
+from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.world import SimWorld
 
 MS = 1_000_000

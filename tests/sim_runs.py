@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from rig.hw.session import RigSession
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunReport, RunRequest, execute_run, open_session, prepare_run
-from rig.hw.session import RigSession
 
 
 def run_on_simulated_rig(

@@ -20,8 +20,8 @@ from rig.hw.loadcell.calibration import (
 )
 from rig.hw.seams import LoadCellSample
 from rig.sim.clock import VirtualClock
-from rig.sim.loadcell.profiles import StepTension
 from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.loadcell.profiles import StepTension
 
 CAL = Calibration(
     factor_n_per_count=1.25e-5,

@@ -16,8 +16,8 @@ from rig.hw.loadcell.formats import DeviceReading, RigLc1Codec
 from rig.hw.seams import LoadCell
 from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator, SignalModel
-from rig.sim.loadcell.profiles import ConstantTension, SawtoothTension
 from rig.sim.loadcell.inprocess import in_process_serial_factory, simulated_load_cell
+from rig.sim.loadcell.profiles import ConstantTension, SawtoothTension
 
 
 def run_for(load_cell, clock, seconds, step_s=0.01):

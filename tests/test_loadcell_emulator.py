@@ -8,8 +8,8 @@ from rig.errors import InputError
 from rig.hw.loadcell.formats import DeviceReading, IndicatorStCodec, LineDecoder, RigLc1Codec
 from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator, SignalModel, parse_fault
-from rig.sim.loadcell.profiles import ConstantTension, SawtoothTension, StepTension, parse_profile
 from rig.sim.loadcell.inprocess import InProcessLoadCellSerial
+from rig.sim.loadcell.profiles import ConstantTension, SawtoothTension, StepTension, parse_profile
 
 
 def decode_all(emulator, until_ns, codec=None):

@@ -15,8 +15,8 @@ from dynamixel_sdk import PacketHandler, PortHandler
 
 from rig.errors import HandshakeError
 from rig.hw.clock import SystemClock
-from rig.hw.seams import OperatingMode
 from rig.hw.dxl.bus import DynamixelServoBus
+from rig.hw.seams import OperatingMode
 from rig.rig_config import ServoSpec
 
 SPECS = [ServoSpec(1, "winch", "XM430-W350"), ServoSpec(2, "bender", "XM430-W350")]

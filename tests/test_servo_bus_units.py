@@ -8,9 +8,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rig.errors import HardwareFault, InputError
+from rig.hw.clock import SystemClock
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl import units as units
-from rig.hw.clock import SystemClock
+from rig.hw.dxl.bus import DynamixelServoBus, model_name_for, model_number_for
 from rig.hw.dxl.errors import (
     comm_result_name,
     describe_hardware_error,
@@ -18,7 +19,6 @@ from rig.hw.dxl.errors import (
     hardware_error_words,
     hardware_fault,
 )
-from rig.hw.dxl.bus import DynamixelServoBus, model_name_for, model_number_for
 from rig.rig_config import ServoSpec
 
 

@@ -10,8 +10,8 @@ import pytest
 
 from model.chain import planar_transforms
 from rig.hw.seams import ConfigurationSource
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.clock import VirtualClock
+from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
 

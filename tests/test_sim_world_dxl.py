@@ -8,9 +8,9 @@ from dataclasses import replace
 import pytest
 
 from rig.hw.dxl import control_table as ct
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.servo import Servo
+from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.world import SimWorld
 
 MS = 1_000_000

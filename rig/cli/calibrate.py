@@ -10,6 +10,7 @@ from pathlib import Path
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
+from rig.hw.clock import SystemClock
 from rig.hw.loadcell.calibration import (
     STANDARD_GRAVITY_M_S2,
     Calibration,
@@ -17,7 +18,6 @@ from rig.hw.loadcell.calibration import (
     CalibrationStep,
     run_calibration,
 )
-from rig.hw.clock import SystemClock
 from rig.hw.loadcell.driver import DEFAULT_BAUD, DEFAULT_STALE_TIMEOUT_S, SerialLoadCell
 from rig.hw.loadcell.formats import FORMATS
 from rig.hw.seams import Clock, LoadCell
@@ -205,8 +205,8 @@ def _simulated(args: argparse.Namespace, prompt: PromptFn) -> tuple[LoadCell, Cl
     """The in-process emulator on a virtual clock; the prompts move the simulated mass."""
     from rig.sim.clock import VirtualClock
     from rig.sim.loadcell.emulator import LoadCellEmulator
-    from rig.sim.loadcell.profiles import StepTension
     from rig.sim.loadcell.inprocess import SIM_PORT, in_process_serial_factory
+    from rig.sim.loadcell.profiles import StepTension
 
     clock = VirtualClock()
     # The line starts with an unknown load on it: the operator has to take it off for the tare.

@@ -7,12 +7,12 @@ connecting still ends in the safe state.
 from __future__ import annotations
 
 from rig.errors import InputError
-from rig.hw.loadcell.calibration import Calibration
 from rig.hw.clock import SystemClock
-from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.dxl.bus import DynamixelServoBus
-from rig.rig_config import RigConfig
+from rig.hw.loadcell.calibration import Calibration
+from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.session import ConsoleOperator, ManualBending, RigSession
+from rig.rig_config import RigConfig
 
 
 def hardware_session(config: RigConfig) -> RigSession:

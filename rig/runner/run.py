@@ -21,6 +21,7 @@ from typing import Any
 import rig
 from rig.errors import InputError
 from rig.files import atomic_write_text
+from rig.hw.session import RigSession
 from rig.log.writer import RunLogger
 from rig.protocol import Protocol, load_protocol
 from rig.rig_config import RigConfig, load_rig_config
@@ -28,7 +29,6 @@ from rig.runner.estimation import RunEstimator, load_estimates_file
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
 from rig.runner.progress import ProgressReporter
-from rig.hw.session import RigSession
 from rig.runner.trial_runner import EXIT_OK, TrialRunner, percentage_error_summary
 
 _RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")

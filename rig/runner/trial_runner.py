@@ -27,6 +27,7 @@ from rig.errors import (
     StaleDataError,
 )
 from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
+from rig.hw.session import RigSession
 from rig.log import schemas
 from rig.log.schemas import LogLevel
 from rig.log.writer import RunLogger
@@ -38,7 +39,6 @@ from rig.runner.journal import RunJournal
 from rig.runner.phases import Phase, PhaseMachine
 from rig.runner.progress import ProgressReporter
 from rig.runner.safety import interrupts_deferred
-from rig.hw.session import RigSession
 
 EXIT_OK, EXIT_FAULT, EXIT_INTERRUPTED = 0, 1, 130
 _POSITION_TOLERANCE_RAD = 0.02

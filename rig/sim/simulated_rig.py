@@ -23,16 +23,16 @@ from typing import Any
 
 from rig.errors import ConfigError
 from rig.hw.dxl.bus import DynamixelServoBus
+from rig.hw.session import RigSession
 from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, require_simulated
-from rig.hw.session import RigSession
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
-from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
 from rig.sim.loadcell.emulator import SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.physics.article_presets import make_preset
+from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
 
 

@@ -22,8 +22,8 @@ from typing import Any, Literal
 import serial
 
 from rig.errors import InputError, NotConnectedError, StaleDataError
-from rig.hw.loadcell.calibration import Calibration
 from rig.hw.clock import SystemClock
+from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.device_time import DeviceClockMapper
 from rig.hw.loadcell.formats import LineDecoder, get_codec
 from rig.hw.seams import Clock, LoadCellSample
