@@ -14,8 +14,9 @@ import statistics
 import tempfile
 from pathlib import Path
 
+from rig.rigs import open_session
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, open_session, prepare_run
+from rig.runner.run import RunRequest, execute_run, prepare_run
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from rig.hw.session import RigSession
+from rig.rigs import open_simulated_rig
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunReport, RunRequest, execute_run, open_session, prepare_run
+from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
+from rig.sim.simulated_rig import SimulatedRig
 
 
 def run_on_simulated_rig(
@@ -17,9 +18,9 @@ def run_on_simulated_rig(
     run_id: str = "r1",
     resume: bool = False,
     seed: int = 3,
-    patch: Callable[[RigSession], None] | None = None,
-) -> tuple[RunReport, RigSession]:
-    """Start run `run_id` (or resume it) and run it to its end; `patch` may alter the session first."""
+    patch: Callable[[SimulatedRig], None] | None = None,
+) -> tuple[RunReport, SimulatedRig]:
+    """Start run `run_id` (or resume it) and run it to its end; `patch` may alter the rig first."""
     request = RunRequest(
         protocol_path=protocol,
         rig_path=None,
@@ -29,7 +30,7 @@ def run_on_simulated_rig(
         resume=run_id if resume else None,
     )
     prepared = prepare_run(request)
-    session = open_session(prepared)
+    sim = open_simulated_rig(prepared)
     if patch is not None:
-        patch(session)
-    return execute_run(prepared, session, SilentProgress()), session
+        patch(sim)
+    return execute_run(prepared, sim.session, SilentProgress()), sim

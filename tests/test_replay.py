@@ -59,8 +59,8 @@ REPORT_FILES = (
 
 
 def _run(out: Path, protocol: Path, run_id: str, *, resume: bool = False, operator=None):
-    def use_operator(session) -> None:
-        session.operator = operator
+    def use_operator(sim) -> None:
+        sim.session.operator = operator
 
     patch = use_operator if operator is not None else None
     return run_on_simulated_rig(protocol, out, run_id=run_id, resume=resume, patch=patch)[0]

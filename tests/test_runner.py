@@ -42,18 +42,18 @@ blocks:
 
 
 def run_api(tmp_path: Path, protocol: Path, *, run_id: str = "r1", resume: str | None = None, patch=None):
-    """Run (or resume, `resume` = the run id) in tmp_path/out; returns (report, session)."""
+    """Run (or resume, `resume` = the run id) in tmp_path/out; returns (report, simulated rig)."""
     return run_on_simulated_rig(
         protocol, tmp_path / "out", run_id=resume or run_id, resume=resume is not None, patch=patch
     )
 
 
-def assert_safe(session) -> None:
+def assert_safe(sim) -> None:
     """The line is released (winch back near its zero-tension angle) and every servo is torque-off."""
-    bus = session.sim_devices["bus"]
+    bus = sim.devices.bus
     for servo in bus.servos:
         assert not servo.torque_enabled, f"servo {servo.servo_id} left with torque on"
-    assert session.sim_devices["world"].tension_n < 1.0
+    assert sim.devices.world.tension_n < 1.0
 
 
 def test_smoke_run_json(tmp_path, capsys):
@@ -75,14 +75,14 @@ def test_smoke_run_json(tmp_path, capsys):
 
 
 def test_joint_estimation_recovers_the_true_capacity(tmp_path):
-    report, session = run_api(tmp_path, write_protocol(tmp_path, QUICK))
+    report, sim = run_api(tmp_path, write_protocol(tmp_path, QUICK))
     assert report.exit_code == 0 and report.completed == 3
     truth = report.truth
     # Three slips with the preset's trial-to-trial scatter (sd 8.5 %): within 15 % of the hidden k.
     assert report.estimate["k"] == pytest.approx(truth["k"], rel=0.15)
     lo, hi = report.estimate["k_ci"]
     assert lo < truth["k"] < hi
-    assert_safe(session)
+    assert_safe(sim)
     # The third trial was planned from the fit of the first two: a prediction within 3 scatter sd.
     third = report.trials[2]
     assert report.trials[0]["predicted_mass_kg"] is None
@@ -147,60 +147,60 @@ def test_force_ceiling_interlock_stops_safely(tmp_path):
         .replace("max_force_n: 70.0", "max_force_n: 9.8")
         .replace("force_ceiling_n: 75.0", "force_ceiling_n: 10.0")
     )
-    report, session = run_api(tmp_path, write_protocol(tmp_path, body))
+    report, sim = run_api(tmp_path, write_protocol(tmp_path, body))
     assert report.exit_code == 1 and report.aborted
     assert "above the ceiling" in report.reason
-    assert_safe(session)
+    assert_safe(sim)
     assert RunJournal.load(tmp_path / "out" / "r1.journal.json").status == "faulted"
 
 
 def test_stale_load_cell_stops_safely(tmp_path):
-    def unplug_during_first_ramp(session):
-        session.sim_devices["loadcell_emulator"].inject_silence(5.0, at_ns=3_000_000_000)
+    def unplug_during_first_ramp(sim):
+        sim.devices.loadcell_emulator.inject_silence(5.0, at_ns=3_000_000_000)
 
-    report, session = run_api(tmp_path, write_protocol(tmp_path, QUICK), patch=unplug_during_first_ramp)
+    report, sim = run_api(tmp_path, write_protocol(tmp_path, QUICK), patch=unplug_during_first_ramp)
     assert report.exit_code == 1
     assert "StaleDataError" in report.reason
-    assert_safe(session)
+    assert_safe(sim)
 
 
 def test_servo_hardware_error_stops_safely(tmp_path):
-    def overload_after_first_trial(session):
-        world = session.sim_devices["world"]
-        bus = session.sim_devices["bus"]
-        original = session.begin_trial
+    def overload_after_first_trial(sim):
+        world = sim.devices.world
+        bus = sim.devices.bus
+        original = sim.session.begin_trial
 
         def begin(trial: TrialPlan) -> None:
             if trial.trial_id == 2:
                 bus.set_hardware_error(1, 0x20)
             original(trial)
 
-        session.begin_trial = begin
+        sim.session.begin_trial = begin
         assert world is not None
 
-    report, session = run_api(tmp_path, write_protocol(tmp_path, QUICK), patch=overload_after_first_trial)
+    report, sim = run_api(tmp_path, write_protocol(tmp_path, QUICK), patch=overload_after_first_trial)
     assert report.exit_code == 1 and report.completed == 1
     assert "overload" in report.reason
-    assert_safe(session)
+    assert_safe(sim)
 
 
 def test_interrupt_then_resume_completes_without_repeats(tmp_path):
     protocol = write_protocol(tmp_path, QUICK)
 
-    def interrupt_at_trial_2(session):
+    def interrupt_at_trial_2(sim):
         class Operator:
             def confirm(self, text, trial):
                 if trial is not None and trial.trial_id == 2:
                     raise KeyboardInterrupt
 
-        session.operator = Operator()
+        sim.session.operator = Operator()
 
-    report, session = run_api(tmp_path, protocol, patch=interrupt_at_trial_2)
+    report, sim = run_api(tmp_path, protocol, patch=interrupt_at_trial_2)
     assert report.exit_code == 130 and report.completed == 1
-    assert_safe(session)
+    assert_safe(sim)
     assert RunJournal.load(tmp_path / "out" / "r1.journal.json").status == "interrupted"
 
-    resumed, session2 = run_api(tmp_path, protocol, resume="r1")
+    resumed, sim2 = run_api(tmp_path, protocol, resume="r1")
     assert resumed.exit_code == 0
     ids = [t["trial_id"] for t in resumed.trials]
     assert ids == [1, 2, 3]
@@ -208,7 +208,7 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path):
     # The resumed part's virtual time starts after the first part's: the logs never overlap.
     assert resumed.trials[1]["start_time_ns"] > resumed.trials[0]["end_time_ns"]
     assert resumed.estimate["n"] == 3
-    assert_safe(session2)
+    assert_safe(sim2)
     with pytest.raises(InputError, match="already completed"):
         run_api(tmp_path, protocol, resume="r1")
 
@@ -216,12 +216,12 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path):
 def test_resume_refuses_an_edited_protocol(tmp_path):
     protocol = write_protocol(tmp_path, QUICK)
 
-    def stop_early(session):
+    def stop_early(sim):
         class Operator:
             def confirm(self, text, trial):
                 raise KeyboardInterrupt
 
-        session.operator = Operator()
+        sim.session.operator = Operator()
 
     run_api(tmp_path, protocol, patch=stop_early)
     protocol.write_text(QUICK.replace("repeats: 1", "repeats: 2"))
@@ -246,7 +246,7 @@ def test_link_validation_predicts_from_the_rigs_own_estimates(tmp_path):
           - [10, -10, 10, -10, 10, -10, 10, -10]
         steps: [bend, measure, {tare: {settle_s: 0.1}}, ramp_until_slip, unload, reset]
     """
-    report, session = run_api(tmp_path, write_protocol(tmp_path, body))
+    report, sim = run_api(tmp_path, write_protocol(tmp_path, body))
     assert report.exit_code == 0 and report.completed == 4
     estimation = [t for t in report.trials if t["kind"] == "joint_estimation"]
     validation = [t for t in report.trials if t["kind"] == "link_validation"]
@@ -264,7 +264,7 @@ def test_link_validation_predicts_from_the_rigs_own_estimates(tmp_path):
     pe = report.percentage_errors
     assert pe["n"] == 2 and math.isfinite(pe["mean_pct"])
     assert len(report.joints) == 8
-    assert_safe(session)
+    assert_safe(sim)
 
 
 def test_rig_config_defaults_to_the_simulated_rig():

@@ -87,8 +87,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
     # The runner is imported here, not at the top, so that `rig --help` stays quick.
+    from rig.rigs import open_session
     from rig.runner.progress import make_progress
-    from rig.runner.run import RunRequest, execute_run, open_session, prepare_run
+    from rig.runner.run import RunRequest, execute_run, prepare_run
     from rig.runner.safety import terminate_as_interrupt
 
     if args.seed < 0:

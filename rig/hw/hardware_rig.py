@@ -1,4 +1,4 @@
-"""Build a `RigSession` for a real rig from its config: servo bus, load cell, operator, real time.
+"""The hardware rig: a `RigSession` on real serial ports, a person at the console, manual bending.
 
 Nothing is opened here; the runner connects inside its safety `try`, so a failure while
 connecting still ends in the safe state.
@@ -6,12 +6,15 @@ connecting still ends in the safe state.
 
 from __future__ import annotations
 
+import sys
+
 from rig.errors import InputError
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
-from rig.hw.session import ConsoleOperator, ManualBending, RigSession
+from rig.hw.session import RigSession
+from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig
 
 
@@ -55,3 +58,26 @@ def hardware_session(config: RigConfig) -> RigSession:
         roles={s.servo_id: s.role for s in config.servos.servos},
         attachments=[(cal_path.name, "application/json", cal_path.read_bytes())],
     )
+
+
+class ConsoleOperator:
+    """A person at the terminal: prompts on stderr, waits for Enter on stdin."""
+
+    def confirm(self, text: str, trial: TrialPlan | None) -> None:
+        """Prompt and wait for Enter; no terminal is an error (nobody could answer)."""
+        if not sys.stdin or not sys.stdin.isatty():
+            raise InputError(f"operator step needs a person at a terminal: {text}")
+        print(f"\n>>> {text}  [Enter to continue, Ctrl-C to abort] ", end="", file=sys.stderr, flush=True)
+        sys.stdin.readline()
+
+
+class ManualBending:
+    """No bender servos: the configuration is set by hand after a prompt."""
+
+    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
+        """No servo goals: the runner falls back to an operator prompt."""
+        return {}
+
+    def home_goals(self) -> dict[int, float]:
+        """No servo goals."""
+        return {}

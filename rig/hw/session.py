@@ -1,4 +1,4 @@
-"""What a run needs from a rig, real or simulated: devices, clock, operator, bending fixture.
+"""The session contract: what a run needs from a rig, real or simulated (devices, clock, operator, fixture).
 
 `RigSession` bundles the seams (`rig.hw.seams`) plus two rig-level roles the protocol steps use:
 the `Operator` (prompts a person, or auto-confirms in simulation, where the simulated operator
@@ -8,14 +8,24 @@ configuration into bender-servo goals, or asks the operator to bend the link by 
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from rig.errors import InputError
 from rig.hw.seams import Clock, ConfigurationSource, LoadCell, ServoBus
 from rig.protocol import TrialPlan
+
+
+class GroundTruth(Protocol):
+    """What a simulated rig knows and a real one cannot: the hidden truth the estimates should find."""
+
+    def summary(self) -> dict[str, Any]:
+        """The true values `rig run --json` reports under `truth` (k, capacities, world settings)."""
+        ...
+
+    def detail(self) -> dict[str, Any]:
+        """The summary plus every trial's hidden draws and slips, for the log's `sim_truth` record."""
+        ...
 
 
 class Operator(Protocol):
@@ -38,29 +48,6 @@ class BendingFixture(Protocol):
         ...
 
 
-class ConsoleOperator:
-    """A person at the terminal: prompts on stderr, waits for Enter on stdin."""
-
-    def confirm(self, text: str, trial: TrialPlan | None) -> None:
-        """Prompt and wait for Enter; no terminal is an error (nobody could answer)."""
-        if not sys.stdin or not sys.stdin.isatty():
-            raise InputError(f"operator step needs a person at a terminal: {text}")
-        print(f"\n>>> {text}  [Enter to continue, Ctrl-C to abort] ", end="", file=sys.stderr, flush=True)
-        sys.stdin.readline()
-
-
-class ManualBending:
-    """No bender servos: the configuration is set by hand after a prompt."""
-
-    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
-        """No servo goals: the runner falls back to an operator prompt."""
-        return {}
-
-    def home_goals(self) -> dict[int, float]:
-        """No servo goals."""
-        return {}
-
-
 @dataclass
 class RigSession:
     """A connected-or-connectable rig as the runner sees it."""
@@ -75,9 +62,6 @@ class RigSession:
     winch_id: int
     roles: dict[int, str]
     begin_trial: Callable[[TrialPlan], None] = field(default=lambda trial: None)
-    truth: Callable[..., dict[str, Any]] | None = None  # truth(detail=False): simulation only
+    truth: GroundTruth | None = None  # simulation only: what the rig should find
     attachments: list[tuple[str, str, bytes]] = field(default_factory=list)  # (name, media type, data)
     close: Callable[[], None] = field(default=lambda: None)
-    sim_devices: dict[str, Any] | None = (
-        None  # simulation only: emulators and world, for tests and fault injection
-    )

@@ -156,28 +156,6 @@ def prepare_run(request: RunRequest) -> PreparedRun:
     return PreparedRun(request, protocol, config, journal.run_id, journal, estimator, remaining)
 
 
-def open_session(prepared: PreparedRun) -> RigSession:
-    """The rig a prepared run asks for (nothing connected yet).
-
-    A hardware config gives the hardware rig (always real time). A simulated one gives the simulated
-    rig seeded from the run's journal, so a resumed part draws the same world; each part starts its
-    virtual clock after the previous one's (`invocation`), and `request.realtime` paces it by the wall
-    clock.
-    """
-    if prepared.config.kind == "hardware":
-        from rig.hw.hardware_rig import hardware_session
-
-        return hardware_session(prepared.config)
-    from rig.sim.simulated_rig import simulated_session
-
-    return simulated_session(
-        prepared.config,
-        seed=prepared.journal.seed,
-        realtime=prepared.request.realtime,
-        invocation=prepared.journal.invocations + 1,
-    )
-
-
 def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressReporter) -> RunReport:
     """Run the remaining trials on `session` and write the log, journal and estimates."""
     request, protocol, config, journal = (
@@ -211,9 +189,7 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
         )
         outcome = runner.run(prepared.remaining)
         if session.truth is not None:  # at the end, so it includes every trial's hidden draws
-            logger.add_metadata(
-                "sim_truth", {"json": json.dumps(session.truth(detail=True), allow_nan=False)}
-            )
+            logger.add_metadata("sim_truth", {"json": json.dumps(session.truth.detail(), allow_nan=False)})
     finally:
         progress.stop()
         logger.finish()
@@ -226,7 +202,7 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
         estimates_path,
         json.dumps({"run_id": journal.run_id, "estimate": summary, "joints": joints}, indent=1) + "\n",
     )
-    truth = session.truth() if session.truth is not None else None
+    truth = session.truth.summary() if session.truth is not None else None
     return RunReport(
         run_id=journal.run_id,
         log=str(log_path),

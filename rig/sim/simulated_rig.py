@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from rig.errors import ConfigError
@@ -29,7 +30,7 @@ from rig.rig_config import RigConfig, require_simulated
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
-from rig.sim.loadcell.emulator import SignalModel
+from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
@@ -78,9 +79,61 @@ class SimBendingFixture:
 VIRTUAL_DAY_NS = 86_400 * 1_000_000_000
 
 
+@dataclass(frozen=True)
+class SimulatedDevices:
+    """The simulation behind a session, for tests, fault injection and benchmarks (never the runner)."""
+
+    bus: EmulatedBus
+    world: SimWorld
+    loadcell_emulator: LoadCellEmulator
+
+
+@dataclass(frozen=True)
+class SimulatedRig:
+    """A simulated rig: the session the runner drives and the emulated devices behind it."""
+
+    session: RigSession
+    devices: SimulatedDevices
+
+
+class WorldTruth:
+    """The world's hidden truth as the run reports it (`rig.hw.session.GroundTruth`)."""
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+
+    def summary(self) -> dict[str, Any]:
+        """True k, capacities and world settings; the per-trial draws and slips go to the log only."""
+        full = self.world.truth()
+        return self._with_headline({k: v for k, v in full.items() if k not in ("trials", "slips")})
+
+    def detail(self) -> dict[str, Any]:
+        """The summary with every trial's hidden draws and slip records."""
+        return self._with_headline(self.world.truth())
+
+    @staticmethod
+    def _with_headline(world: dict[str, Any]) -> dict[str, Any]:
+        estimated = world["joints"][0]
+        return {
+            "k": estimated["k_kg_m"],
+            "capacity_nm": estimated["capacity_nm"],
+            "mu_delta0_pa": estimated["mu_delta0_pa"],
+            "estimated_joint": 1,
+            "joint_capacities_nm": [j["capacity_nm"] for j in world["joints"]],
+            "world": world,
+        }
+
+
 def simulated_session(
     config: RigConfig, *, seed: int = 0, realtime: bool = False, invocation: int = 1
 ) -> RigSession:
+    """The session of `simulated_rig` (what the runner needs; the devices stay hidden)."""
+    return simulated_rig(config, seed=seed, realtime=realtime, invocation=invocation).session
+
+
+def simulated_rig(
+    config: RigConfig, *, seed: int = 0, realtime: bool = False, invocation: int = 1
+) -> SimulatedRig:
     """The simulated rig of a `kind: simulated` config, seeded; nothing is connected yet.
 
     `invocation` (1 for a new run, 2 for its first resume, ...) sets the start of virtual time.
@@ -143,22 +196,7 @@ def simulated_session(
         else:
             world.begin_trial("link_validation")
 
-    def truth(detail: bool = False) -> dict[str, Any]:
-        full = world.truth()
-        if not detail:  # the per-trial draws and slip records go to the log only
-            full = {k: v for k, v in full.items() if k not in ("trials", "slips")}
-        joints = full["joints"]
-        estimated = joints[0]
-        return {
-            "k": estimated["k_kg_m"],
-            "capacity_nm": estimated["capacity_nm"],
-            "mu_delta0_pa": estimated["mu_delta0_pa"],
-            "estimated_joint": 1,
-            "joint_capacities_nm": [j["capacity_nm"] for j in joints],
-            "world": full,
-        }
-
-    return RigSession(
+    session = RigSession(
         kind="simulated",
         clock=clock,
         servos=servos,
@@ -169,10 +207,10 @@ def simulated_session(
         winch_id=winch_spec.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
         begin_trial=begin_trial,
-        truth=truth,
-        sim_devices={"bus": bus, "world": world, "loadcell_emulator": loadcell_emulator},
+        truth=WorldTruth(world),
         attachments=[("loadcell-calibration.json", "application/json", _calibration_json(load_cell))],
     )
+    return SimulatedRig(session, SimulatedDevices(bus, world, loadcell_emulator))
 
 
 def _calibration_json(load_cell: Any) -> bytes:

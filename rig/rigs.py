@@ -1,0 +1,36 @@
+"""Composition: the rig a prepared run asks for, hardware or simulated (the CLI, tests and benchmarks use it).
+
+This is the one module that knows both rigs; the runner below it sees only `rig.hw.session.RigSession`.
+"""
+
+from __future__ import annotations
+
+from rig.hw.hardware_rig import hardware_session
+from rig.hw.session import RigSession
+from rig.runner.run import PreparedRun
+from rig.sim.simulated_rig import SimulatedRig, simulated_rig
+
+
+def open_session(prepared: PreparedRun) -> RigSession:
+    """The rig a prepared run asks for (nothing connected yet).
+
+    A hardware config gives the hardware rig (always real time); a simulated one gives the session
+    of `open_simulated_rig`.
+    """
+    if prepared.config.kind == "hardware":
+        return hardware_session(prepared.config)
+    return open_simulated_rig(prepared).session
+
+
+def open_simulated_rig(prepared: PreparedRun) -> SimulatedRig:
+    """The simulated rig of a prepared run, seeded from its journal so a resumed part draws the same world.
+
+    Each part starts its virtual clock after the previous one's (`invocation`), and
+    `request.realtime` paces it by the wall clock.
+    """
+    return simulated_rig(
+        prepared.config,
+        seed=prepared.journal.seed,
+        realtime=prepared.request.realtime,
+        invocation=prepared.journal.invocations + 1,
+    )
