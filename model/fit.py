@@ -23,8 +23,8 @@ R² can be negative: a fit through the origin can be worse than the constant mea
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, fields
 from functools import lru_cache
 from typing import Any, Final
 
@@ -276,53 +276,87 @@ def capacity_from_fit(
     )
 
 
-SUMMARY_KEYS: Final[tuple[str, ...]] = (
-    "n",
-    "k",
-    "k_ci",
-    "sse",
-    "sst",
-    "r2",
-    "rmse",
-    "dfe",
-    "se",
-    "level",
-    "constant",
-    "c",
-    "radius_m",
-    "mu_delta0_pa",
-    "mu_delta0_ci_pa",
-    "capacity_nm",
-    "capacity_ci_nm",
-)
+@dataclass(frozen=True, slots=True)
+class FitSummary:
+    """A joint-estimation fit with the capacity it implies: the `rig fit --json` object, typed.
 
-
-def _plain_pair(pair: Iterable[float]) -> list[float]:
-    return [float(v) for v in pair]
-
-
-def fit_summary_dict(fit: InverseFit, capacity: CapacityEstimate) -> dict[str, Any]:
-    """The DESIGN §5 `rig fit` JSON object, keys in the contract's order, plain Python values.
-
-    R² may be NaN (SST = 0); the CLI's strict JSON writer turns it into null.
+    Field order is the JSON contract's key order. Floats may be NaN where a statistic is undefined
+    (R² when SST = 0); JSON shows those as null.
     """
-    summary: dict[str, Any] = {
-        "n": int(fit.n),
-        "k": float(fit.k),
-        "k_ci": _plain_pair(fit.k_ci),
-        "sse": float(fit.sse),
-        "sst": float(fit.sst),
-        "r2": float(fit.r2),
-        "rmse": float(fit.rmse),
-        "dfe": int(fit.dfe),
-        "se": float(fit.se),
-        "level": float(fit.level),
-        "constant": capacity.constant,
-        "c": float(capacity.c),
-        "radius_m": float(capacity.radius_m),
-        "mu_delta0_pa": float(capacity.mu_delta0_pa),
-        "mu_delta0_ci_pa": _plain_pair(capacity.mu_delta0_ci_pa),
-        "capacity_nm": float(capacity.capacity_nm),
-        "capacity_ci_nm": _plain_pair(capacity.capacity_ci_nm),
-    }
-    return summary
+
+    n: int
+    k: float
+    k_ci: tuple[float, float]
+    sse: float
+    sst: float
+    r2: float
+    rmse: float
+    dfe: int
+    se: float
+    level: float
+    constant: str
+    c: float
+    radius_m: float
+    mu_delta0_pa: float
+    mu_delta0_ci_pa: tuple[float, float]
+    capacity_nm: float
+    capacity_ci_nm: tuple[float, float]
+
+    def as_json(self) -> dict[str, Any]:
+        """The `rig fit --json` object: keys in contract order, plain Python values, pairs as lists."""
+        return {
+            name: list(value) if isinstance(value, tuple) else value
+            for name, value in ((f.name, getattr(self, f.name)) for f in fields(self))
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> FitSummary:
+        """Read a `rig fit --json` object back (null numbers become NaN); KeyError names a missing key."""
+        values: dict[str, Any] = {}
+        for f in fields(cls):
+            raw = data[f.name]
+            if f.name in ("n", "dfe"):
+                values[f.name] = int(raw)
+            elif f.name == "constant":
+                values[f.name] = str(raw)
+            elif f.name.endswith("_ci") or "_ci_" in f.name:
+                lo, hi = raw
+                values[f.name] = (_float_or_nan(lo), _float_or_nan(hi))
+            else:
+                values[f.name] = _float_or_nan(raw)
+        return cls(**values)
+
+
+def _float_or_nan(value: Any) -> float:
+    return math.nan if value is None else float(value)
+
+
+SUMMARY_KEYS: Final[tuple[str, ...]] = tuple(f.name for f in fields(FitSummary))
+
+
+def fit_summary(fit: InverseFit, capacity: CapacityEstimate) -> FitSummary:
+    """The fit and its capacity as one `FitSummary` of plain Python values."""
+    return FitSummary(
+        n=int(fit.n),
+        k=float(fit.k),
+        k_ci=_plain_pair(fit.k_ci),
+        sse=float(fit.sse),
+        sst=float(fit.sst),
+        r2=float(fit.r2),
+        rmse=float(fit.rmse),
+        dfe=int(fit.dfe),
+        se=float(fit.se),
+        level=float(fit.level),
+        constant=capacity.constant,
+        c=float(capacity.c),
+        radius_m=float(capacity.radius_m),
+        mu_delta0_pa=float(capacity.mu_delta0_pa),
+        mu_delta0_ci_pa=_plain_pair(capacity.mu_delta0_ci_pa),
+        capacity_nm=float(capacity.capacity_nm),
+        capacity_ci_nm=_plain_pair(capacity.capacity_ci_nm),
+    )
+
+
+def _plain_pair(pair: Iterable[float]) -> tuple[float, float]:
+    lo, hi = pair
+    return float(lo), float(hi)

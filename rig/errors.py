@@ -5,6 +5,8 @@ Messages carry what an operator needs to act: units, limits, IDs and retry count
 
 from __future__ import annotations
 
+from enum import IntEnum
+
 
 class RigError(Exception):
     """Root of every error the rig raises on purpose."""
@@ -51,3 +53,12 @@ class InterlockTripped(RigError):
 
 class LimitError(RigError, ValueError):
     """A requested motion or load is outside configured limits; checked before anything moves."""
+
+
+class ExitCode(IntEnum):
+    """The process exit codes of every `rig` command (one definition for the CLI and the runner)."""
+
+    OK = 0  # done
+    FAULT = 1  # stopped by a fault or an interlock
+    INVALID_INPUT = 2  # nothing started; the message names the file and field
+    INTERRUPTED = 130  # Ctrl-C or SIGTERM; hardware left safe

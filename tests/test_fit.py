@@ -21,7 +21,7 @@ from model.fit import (
     SUMMARY_KEYS,
     capacity_from_fit,
     fit_inverse_distance,
-    fit_summary_dict,
+    fit_summary,
 )
 
 
@@ -140,7 +140,7 @@ def test_all_equal_masses_give_nan_r2_not_an_error():
     assert fit.sst == 0.0
     assert math.isnan(fit.r2)
     assert fit.sse > 0 and math.isfinite(fit.k_ci[0])
-    summary = fit_summary_dict(fit, capacity_from_fit(fit, 0.01))
+    summary = fit_summary(fit, capacity_from_fit(fit, 0.01)).as_json()
     assert math.isnan(summary["r2"])
 
 
@@ -201,7 +201,7 @@ def test_capacity_from_fit_validates_inputs():
 def test_summary_dict_has_exactly_the_design_keys_in_order():
     fit = fit_inverse_distance(VECTOR9_DISTANCES_M, VECTOR9_MASSES_KG)
     capacity = capacity_from_fit(fit, 0.012, constant="derived")
-    summary = fit_summary_dict(fit, capacity)
+    summary = fit_summary(fit, capacity).as_json()
     assert tuple(summary) == SUMMARY_KEYS == (
         "n", "k", "k_ci", "sse", "sst", "r2", "rmse", "dfe", "se", "level", "constant", "c",
         "radius_m", "mu_delta0_pa", "mu_delta0_ci_pa", "capacity_nm", "capacity_ci_nm",

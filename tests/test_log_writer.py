@@ -11,6 +11,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from mcap.reader import make_reader
 
@@ -18,6 +19,7 @@ from rig.errors import RigError
 from rig.log import schemas as S
 from rig.log.examples import example_payloads
 from rig.log.reader import read_run
+from rig.log.records import TrialPhase, TrialState
 from rig.log.writer import LIBRARY, LogWriteError, RunLogger
 from rig.sim.clock import VirtualClock
 
@@ -79,9 +81,9 @@ def test_round_trip_of_every_topic_with_metadata_and_attachments(tmp_path):
     slip = run.topic(S.SLIP).iloc[0]
     assert slip["onset_time_ns"] == payloads[S.SLIP]["onset_time_ns"]  # exact beyond 2**53
     assert (slip["onset.sec"], slip["onset.nsec"]) == (1_767_225_600, 123_456_789)
-    assert slip["detector.window_s"] == 0.05
+    assert slip["detector.drop_fraction"] == 0.2 and pd.isna(slip["detector.slope_n_per_s"])
     result = run.topic(S.TRIAL_RESULT).iloc[0]
-    assert list(result["configuration.joint_angles_rad"]) == [0.0, 0.5]
+    assert list(result["joint_angles_rad"]) == [0.0, 0.5]
     assert result["outcome"] == "slip" and result["slipped_joint"] == 2
     estimate = run.topic(S.ESTIMATE).iloc[0]
     assert estimate["k"] == 0.167 and list(estimate["k_ci"]) == [0.148, 0.185]
@@ -143,7 +145,7 @@ def test_finish_is_idempotent_and_logging_after_it_fails(tmp_path):
 def test_context_manager_finishes_the_file_when_the_body_raises(tmp_path):
     path = tmp_path / "a.mcap"
     with pytest.raises(RuntimeError, match="interlock"), RunLogger(path) as log:
-        log.log(S.TRIAL_STATE, T0_NS, S.trial_state(trial_id=1, phase="ramp_slow"))
+        log.log(S.TRIAL_STATE, T0_NS, TrialState(1, TrialPhase.RAMP_SLOW).to_payload())
         raise RuntimeError("interlock")
     run = read_run(path)
     assert run.complete and run.message_counts == {S.TRIAL_STATE: 1}
@@ -237,6 +239,7 @@ KILLED_WRITER = textwrap.dedent(
     """
     import os, signal, sys
     from rig.log import schemas as S
+    from rig.log.records import TrialKind, TrialOutcome, TrialResult
     from rig.log.writer import RunLogger
 
     path, blocks = sys.argv[1], int(sys.argv[2])
@@ -248,10 +251,12 @@ KILLED_WRITER = textwrap.dedent(
             log.log(S.LOADCELL, 1_767_225_600_000_000_000 + seq * 1_000_000,
                     S.loadcell_sample(raw=seq, force_n=seq * 1e-3, seq=seq))
             seq += 1
-        log.log(S.TRIAL_RESULT, 1_767_225_600_000_000_000 + seq * 1_000_000, S.trial_result(
-            trial_id=seq // 1000, kind="joint_estimation", start_time_ns=1_767_225_600_000_000_000,
-            end_time_ns=1_767_225_600_000_000_000 + seq * 1_000_000, outcome="slip",
-            peak_force_n=1.0, slip_mass_kg=0.1, distance_m=0.1))
+        log.log(S.TRIAL_RESULT, 1_767_225_600_000_000_000 + seq * 1_000_000, TrialResult(
+            trial_id=seq // 1000, kind=TrialKind.JOINT_ESTIMATION, repeat=1, joint=1, distance_m=0.1,
+            configuration_index=None, joint_angles_rad=None, start_time_ns=1_767_225_600_000_000_000,
+            end_time_ns=1_767_225_600_000_000_000 + seq * 1_000_000, outcome=TrialOutcome.SLIP,
+            peak_force_n=1.0, slip_mass_kg=0.1, predicted_force_n=None, predicted_mass_kg=None,
+            percentage_error=None, slipped_joint=None, lever_arms_m=None, tare_n=0.0).to_payload())
         log.flush(wait=True)
     print(seq, flush=True)
     for _ in range(700):  # logged but never flushed

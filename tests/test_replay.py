@@ -112,11 +112,11 @@ def test_fresh_run_reproduces_online_estimate_and_slip_events(logs, capsys):
         "compared": True, "agree": True, "max_relative_difference": 0.0, "differing": []
     }  # fmt: skip
     # The run's own report (from its journal) is the same fit.
-    assert offline["k"] == logs["smoke"].estimate["k"]
+    assert offline["k"] == logs["smoke"].estimate.k
     redetection = out["redetection"]
     assert redetection["matches"] == 2 and redetection["mismatches"] == [] and redetection["exact"]
     assert out["redetected_estimate"] == offline
-    for trial, logged in zip(out["trials"], logs["smoke"].trials, strict=True):
+    for trial, logged in zip(out["trials"], logs["smoke"].as_json()["trials"], strict=True):
         assert trial["redetection"] == "match"
         assert trial["redetected_peak_force_n"] == trial["peak_force_n"] == logged["peak_force_n"]
         assert trial["slip_mass_kg"] == logged["slip_mass_kg"]
@@ -138,7 +138,7 @@ def test_every_redetected_event_equals_the_logged_one_field_by_field(logs):
 def test_link_validation_tables_iv_and_v(logs, capsys):
     code, out = _cli_json(capsys, logs["link"].log)
     assert code == 0 and out["complete"]
-    run_trials = logs["link"].trials
+    run_trials = logs["link"].as_json()["trials"]
     link_trials = [t for t in out["trials"] if t["kind"] == "link_validation"]
     assert len(link_trials) == 2 and [t["configuration_index"] for t in link_trials] == [1, 2]
     for t, logged in zip(link_trials, run_trials[2:], strict=True):
@@ -146,7 +146,7 @@ def test_link_validation_tables_iv_and_v(logs, capsys):
         assert t["percentage_error_pct"] == pytest.approx(logged["percentage_error"], rel=1e-12)
         assert t["joint_angles_rad"] == logged["joint_angles_rad"]
     pe = out["percentage_errors"]
-    assert pe == logs["link"].percentage_errors | {"trial_ids": [3, 4]}
+    assert pe == logs["link"].percentage_errors.to_dict() | {"trial_ids": [3, 4]}
     # Table V: the base moment at slip is the peak tension times the line's lever arm about the
     # base origin at the measured configuration (rig geometry, computed here independently).
     article = load_rig_config(None).article
@@ -285,7 +285,7 @@ def test_resumed_run_parts_combine(logs, capsys):
     # The parts' virtual clocks both start at the same epoch: re-detection must keep them apart.
     assert out["redetection"]["matches"] == 2
     assert out["online_agreement"]["agree"] is True and out["estimate"]["n"] == 2
-    assert out["estimate"]["k"] == resumed.estimate["k"]
+    assert out["estimate"]["k"] == resumed.estimate.k
     # The same files given one by one, in any order, give the same replay.
     code, again = _cli_json(capsys, *reversed(resumed.logs))
     assert code == 0 and again["trials"] == out["trials"]

@@ -79,14 +79,14 @@ def test_joint_estimation_recovers_the_true_capacity(tmp_path):
     assert report.exit_code == 0 and report.completed == 3
     truth = report.truth
     # Three slips with the preset's trial-to-trial scatter (sd 8.5 %): within 15 % of the hidden k.
-    assert report.estimate["k"] == pytest.approx(truth["k"], rel=0.15)
-    lo, hi = report.estimate["k_ci"]
+    assert report.estimate.k == pytest.approx(truth["k"], rel=0.15)
+    lo, hi = report.estimate.k_ci
     assert lo < truth["k"] < hi
     assert_safe(sim)
     # The third trial was planned from the fit of the first two: a prediction within 3 scatter sd.
     third = report.trials[2]
-    assert report.trials[0]["predicted_mass_kg"] is None
-    assert third["predicted_mass_kg"] == pytest.approx(third["slip_mass_kg"], rel=0.3)
+    assert report.trials[0].predicted_mass_kg is None
+    assert third.predicted_mass_kg == pytest.approx(third.slip_mass_kg, rel=0.3)
 
 
 def test_dry_run_moves_nothing_and_writes_nothing(tmp_path, capsys):
@@ -202,12 +202,12 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path):
 
     resumed, sim2 = run_api(tmp_path, protocol, resume="r1")
     assert resumed.exit_code == 0
-    ids = [t["trial_id"] for t in resumed.trials]
+    ids = [t.trial_id for t in resumed.trials]
     assert ids == [1, 2, 3]
     assert len(resumed.logs) == 2 and resumed.logs[1].endswith("r1.part2.mcap")
     # The resumed part's virtual time starts after the first part's: the logs never overlap.
-    assert resumed.trials[1]["start_time_ns"] > resumed.trials[0]["end_time_ns"]
-    assert resumed.estimate["n"] == 3
+    assert resumed.trials[1].start_time_ns > resumed.trials[0].end_time_ns
+    assert resumed.estimate.n == 3
     assert_safe(sim2)
     with pytest.raises(InputError, match="already completed"):
         run_api(tmp_path, protocol, resume="r1")
@@ -248,21 +248,21 @@ def test_link_validation_predicts_from_the_rigs_own_estimates(tmp_path):
     """
     report, sim = run_api(tmp_path, write_protocol(tmp_path, body))
     assert report.exit_code == 0 and report.completed == 4
-    estimation = [t for t in report.trials if t["kind"] == "joint_estimation"]
-    validation = [t for t in report.trials if t["kind"] == "link_validation"]
+    estimation = [t for t in report.trials if t.kind == "joint_estimation"]
+    validation = [t for t in report.trials if t.kind == "link_validation"]
     for trial in validation:
-        assert trial["predicted_mass_kg"] is not None and len(trial["lever_arms_m"]) == 8
-        assert abs(trial["percentage_error"]) < 60
+        assert trial.predicted_mass_kg is not None and len(trial.lever_arms_m) == 8
+        assert abs(trial.percentage_error) < 60
     # The first prediction comes from the rig's own two-point fit (every joint's prior is the
     # fitted capacity), never from the simulator's truth: f* = capacity / largest lever arm.
-    fitted_capacity = sum(
-        t["peak_force_n"] * t["distance_m"] / t["distance_m"] ** 2 for t in estimation
-    ) / sum(1 / t["distance_m"] ** 2 for t in estimation)
+    fitted_capacity = sum(t.peak_force_n * t.distance_m / t.distance_m**2 for t in estimation) / sum(
+        1 / t.distance_m**2 for t in estimation
+    )
     first = validation[0]
-    expected_force = fitted_capacity / max(first["lever_arms_m"])
-    assert first["predicted_force_n"] == pytest.approx(expected_force, rel=2e-3)
+    expected_force = fitted_capacity / max(first.lever_arms_m)
+    assert first.predicted_force_n == pytest.approx(expected_force, rel=2e-3)
     pe = report.percentage_errors
-    assert pe["n"] == 2 and math.isfinite(pe["mean_pct"])
+    assert pe.n == 2 and math.isfinite(pe.mean_pct)
     assert len(report.joints) == 8
     assert_safe(sim)
 

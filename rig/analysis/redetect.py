@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from model.slip_detector import DetectorParams, SlipEvent, detect_slips
-from rig.analysis.trials import LoggedSlip, TrialRecord
+from rig.analysis.trials import TrialRecord
 from rig.errors import InputError
 from rig.log import schemas
 
@@ -53,7 +53,7 @@ class Redetection:
     trial_id: int
     status: str
     event: SlipEvent | None
-    logged: LoggedSlip | None
+    logged: SlipEvent | None
     samples: int
     detail: str
 
@@ -84,7 +84,7 @@ def detector_params(
         raise InputError(str(exc)) from None
 
 
-def _same_event(event: SlipEvent, logged: LoggedSlip) -> list[str]:
+def _same_event(event: SlipEvent, logged: SlipEvent) -> list[str]:
     """Fields in which a re-detected event differs from the logged one (empty: identical)."""
     differences = []
     for name in (
@@ -155,7 +155,7 @@ def _redetect_one(
         return Redetection(
             record.trial_id, NO_SAMPLES, None, logged, 0, "no ramp phase logged for this trial"
         )
-    end_ns = record.unloading_ns if record.unloading_ns is not None else int(record.result["end_time_ns"])
+    end_ns = record.unloading_ns if record.unloading_ns is not None else record.result.end_time_ns
     lo = int(np.searchsorted(times, record.ramp_start_ns, side="left"))
     hi = int(np.searchsorted(times, end_ns, side="left"))
     if hi <= lo:

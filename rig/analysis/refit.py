@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from model.fit import SUMMARY_KEYS, capacity_from_fit, fit_inverse_distance, fit_summary_dict
+from model.fit import SUMMARY_KEYS, capacity_from_fit, fit_inverse_distance, fit_summary
 from model.payload_errors import payload_error_stats
 
 AGREEMENT_RTOL = 1e-9
@@ -38,7 +38,7 @@ def refit(
     if len(distances_m) < 2 or radius_m is None:
         return None
     fit = fit_inverse_distance(distances_m, masses_kg, level)
-    return fit_summary_dict(fit, capacity_from_fit(fit, radius_m, constant, g))
+    return fit_summary(fit, capacity_from_fit(fit, radius_m, constant, g)).as_json()
 
 
 def joint_estimation_pairs(

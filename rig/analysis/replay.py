@@ -14,10 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
-from model.fit import SUMMARY_KEYS
 from model.slip_detector import DetectorParams
 from rig.analysis import redetect as rd
 from rig.analysis.refit import (
@@ -37,6 +35,8 @@ from rig.analysis.runlog import (
 )
 from rig.analysis.trials import TrialRecord, records_json, trial_records, trial_table
 from rig.log import schemas
+from rig.log.frames import frame_payloads
+from rig.log.records import Estimate
 
 
 @dataclass
@@ -47,7 +47,7 @@ class ReplayResult:
     settings: RunSettings
     records: list[TrialRecord]
     table: pd.DataFrame
-    estimates: list[dict[str, Any]]  # the logged /rig/estimate messages, in run order
+    estimates: list[Estimate]  # the logged /rig/estimate messages, in run order
     estimate: dict[str, Any] | None
     online_estimate: dict[str, Any] | None
     redetected_estimate: dict[str, Any] | None
@@ -120,7 +120,7 @@ class ReplayResult:
 
     def final_joint_estimates(self) -> list[dict[str, Any]]:
         """The last logged per-joint capacity estimates (link validation), or []."""
-        return list(self.estimates[-1]["joints"]) if self.estimates else []
+        return [j.to_json() for j in self.estimates[-1].joints] if self.estimates else []
 
 
 def replay(
@@ -203,36 +203,17 @@ def replay(
     )
 
 
-def _plain(value: Any) -> Any:
-    if value is None or value is pd.NA:
-        return None
-    if isinstance(value, np.ndarray):
-        return [_plain(v) for v in value.tolist()]
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, float) and value != value:
-        return None
-    return value
+def _logged_estimates(parts: Sequence[LogPart]) -> list[Estimate]:
+    """Every `/rig/estimate` message of the run, decoded into the runner's `Estimate`, in run order."""
+    return [
+        Estimate.from_payload(payload)
+        for part in parts
+        for _, payload in frame_payloads(part.log.topic(schemas.ESTIMATE))
+    ]
 
 
-def _logged_estimates(parts: Sequence[LogPart]) -> list[dict[str, Any]]:
-    """Every `/rig/estimate` message of the run (fit keys, trial_id, joints, part), in run order."""
-    rows = []
-    for part in parts:
-        frame = part.log.topic(schemas.ESTIMATE)
-        for _, message in frame.iterrows():
-            row = {key: _plain(message.get(key)) for key in ("trial_id", *SUMMARY_KEYS, "joints")}
-            row["joints"] = [{k: _plain(v) for k, v in dict(j).items()} for j in (row.get("joints") or [])]
-            row["part"] = part.name
-            row["log_time_ns"] = int(message["log_time_ns"])
-            rows.append(row)
-    return rows
-
-
-def _online_estimate(estimates: list[dict[str, Any]]) -> dict[str, Any] | None:
+def _online_estimate(estimates: list[Estimate]) -> dict[str, Any] | None:
     """The last logged online estimate with a fit, as `rig fit --json` keys (None if none has one)."""
-    if not estimates or not estimates[-1]["n"]:
+    if not estimates or estimates[-1].fit is None:
         return None
-    return {key: estimates[-1][key] for key in SUMMARY_KEYS}
+    return estimates[-1].fit.as_json()

@@ -35,6 +35,7 @@ from rig.analysis.replay import ReplayResult
 from rig.analysis.trials import write_trial_table
 from rig.errors import InputError
 from rig.log import schemas
+from rig.log.records import TrialKind
 
 DPI = 110
 MEASURED_COLOR = "#1f77b4"
@@ -263,18 +264,18 @@ def _errors_figure(result: ReplayResult) -> tuple[Figure, str] | str:
 
 
 def _evolution_figure(result: ReplayResult) -> tuple[Figure, str] | str:
-    rows = [e for e in result.estimates if e["n"] and e.get("capacity_nm") is not None]
+    rows = [(e.trial_id, e.fit) for e in result.estimates if e.fit is not None]
     if not rows:
         return "no online estimate was logged (fewer than 2 joint-estimation slips)"
-    joint_rows = [e for e in result.estimates if e["joints"]]
+    joint_rows = [e for e in result.estimates if e.joints]
     fig = Figure(figsize=(8.0, 6.5 if joint_rows else 4.0), layout="constrained")
     axes = fig.subplots(2 if joint_rows else 1, 1, squeeze=False)[:, 0]
     ax = axes[0]
-    trial = np.array([e["trial_id"] for e in rows], float)
-    capacity = np.array([e["capacity_nm"] for e in rows], float)
-    lo = np.array([e["capacity_ci_nm"][0] for e in rows], float)
-    hi = np.array([e["capacity_ci_nm"][1] for e in rows], float)
-    level = rows[-1].get("level") or 0.99
+    trial = np.array([trial_id for trial_id, _ in rows], float)
+    capacity = np.array([fit.capacity_nm for _, fit in rows], float)
+    lo = np.array([fit.capacity_ci_nm[0] for _, fit in rows], float)
+    hi = np.array([fit.capacity_ci_nm[1] for _, fit in rows], float)
+    level = rows[-1][1].level
     ax.fill_between(
         trial, lo, hi, step="post", color=BAND_COLOR, alpha=0.2, label=f"{100 * level:g} % bounds"
     )
@@ -289,7 +290,7 @@ def _evolution_figure(result: ReplayResult) -> tuple[Figure, str] | str:
     settled = capacity[-1]
     spread = max(np.abs(capacity - settled).max(), abs(hi[-1] - lo[-1]))
     ax.set_ylim(max(0.0, settled - 1.5 * spread), settled + 1.5 * spread)
-    ax.set_xlim(trial.min() - 0.5, max(trial.max(), *(e["trial_id"] for e in result.estimates)) + 0.5)
+    ax.set_xlim(trial.min() - 0.5, max(trial.max(), *(e.trial_id for e in result.estimates)) + 0.5)
     ax.set_xlabel("after trial")
     ax.xaxis.get_major_locator().set_params(integer=True)
     ax.set_ylabel("joint capacity [N·m]")
@@ -298,11 +299,11 @@ def _evolution_figure(result: ReplayResult) -> tuple[Figure, str] | str:
     ax.legend(fontsize=8, loc="upper right")
     if joint_rows:
         ax2 = axes[1]
-        trials = np.array([e["trial_id"] for e in joint_rows], float)
-        joint_count = len(joint_rows[-1]["joints"])
+        trials = np.array([e.trial_id for e in joint_rows], float)
+        joint_count = len(joint_rows[-1].joints)
         for j in range(joint_count):
             values = np.array(
-                [e["joints"][j]["capacity_nm"] if j < len(e["joints"]) else np.nan for e in joint_rows]
+                [_or_nan(e.joints[j].capacity_nm) if j < len(e.joints) else np.nan for e in joint_rows]
             )
             ax2.plot(trials, values, "-o", ms=2.5, lw=1.2, label=f"joint {j + 1}")
         ax2.set_xlabel("after trial")
@@ -312,6 +313,10 @@ def _evolution_figure(result: ReplayResult) -> tuple[Figure, str] | str:
         ax2.grid(alpha=0.3)
         ax2.legend(fontsize=7, ncol=4, loc="best")
     return fig, "The online estimate after every trial, with its bounds (and per-joint capacities)."
+
+
+def _or_nan(value: float | None) -> float:
+    return np.nan if value is None else value
 
 
 def _traces_figure(result: ReplayResult) -> tuple[Figure, str] | str:
@@ -332,7 +337,7 @@ def _traces_figure(result: ReplayResult) -> tuple[Figure, str] | str:
             samples[key] = (loadcell["log_time_ns"].to_numpy(np.int64), loadcell["force_n"].to_numpy(float))
         times, forces = samples[key]
         start = record.ramp_start_ns
-        end = record.unloading_ns if record.unloading_ns is not None else int(record.result["end_time_ns"])
+        end = record.unloading_ns if record.unloading_ns is not None else record.result.end_time_ns
         end += int(TRACE_SECONDS_AFTER_UNLOADING * 1e9)
         lo, hi = np.searchsorted(times, start), np.searchsorted(times, end)
         t_s = (times[lo:hi] - start) / 1e9
@@ -353,8 +358,8 @@ def _traces_figure(result: ReplayResult) -> tuple[Figure, str] | str:
                 (row.redetected_peak_time_ns - start) / 1e9, row.redetected_peak_force_n, "o",
                 mfc="none", color=REDETECTED_COLOR, ms=7,
             )  # fmt: skip
-        if record.kind == "joint_estimation" and record.result.get("distance_m") is not None:
-            label = f"d = {record.result['distance_m']:.3f} m"
+        if record.kind == TrialKind.JOINT_ESTIMATION and record.result.distance_m is not None:
+            label = f"d = {record.result.distance_m:.3f} m"
         elif row is not None and not pd.isna(row.configuration_index):
             label = f"config {row.configuration_index}"
         else:

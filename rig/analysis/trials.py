@@ -1,9 +1,10 @@
 """The trial table: one row per finished trial, rebuilt from `/rig/trial/result`, and its files.
 
-Each `/rig/trial/result` message becomes a `TrialRecord` that also keeps where the trial's samples
-are: the part (file) it was logged in, the log time at which its ramp began (the first `ramp_fast`
-or `ramp_slow` phase of the trial, which is the instant from which the live detector was fed), the
-start of its `unloading` phase, and the `/rig/slip` event the runner logged for it.
+Each `/rig/trial/result` message is decoded into the runner's own `TrialResult` and becomes a
+`TrialRecord` that also keeps where the trial's samples are: the part (file) it was logged in, the
+log time at which its ramp began (the first `ramp_fast` or `ramp_slow` phase of the trial, which is
+the instant from which the live detector was fed), the start of its `unloading` phase, and the
+detector's `SlipEvent` the runner logged for it (`/rig/slip`, decoded back into the same record).
 
 `trial_table(records, ...)` turns the records into a DataFrame with a fixed set of columns (units in
 the names; nullable integer columns as `Int64`), which `write_trial_table` exports as CSV and
@@ -23,12 +24,15 @@ import numpy as np
 import pandas as pd
 
 from model.chain import lever_arms_m, planar_transforms
+from model.slip_detector import SlipEvent
 from rig.analysis.runlog import LogPart, RunSettings
 from rig.errors import InputError
 from rig.log import schemas
+from rig.log.frames import frame_payloads
+from rig.log.records import SlipMessage, TrialKind, TrialPhase, TrialResult
 
-RAMP_PHASES = (schemas.TrialPhase.RAMP_FAST.value, schemas.TrialPhase.RAMP_SLOW.value)
-UNLOADING_PHASE = schemas.TrialPhase.UNLOADING.value
+RAMP_PHASES = (TrialPhase.RAMP_FAST.value, TrialPhase.RAMP_SLOW.value)
+UNLOADING_PHASE = TrialPhase.UNLOADING.value
 
 # Column -> dtype of the trial table (joint angle columns `joint_angle_<i>_rad` are added per joint).
 TRIAL_COLUMNS: dict[str, str] = {
@@ -61,45 +65,36 @@ TRIAL_COLUMNS: dict[str, str] = {
 ANGLE_COLUMN = re.compile(r"^joint_angle_(\d+)_rad$")
 
 
-@dataclass(frozen=True)
-class LoggedSlip:
-    """The `/rig/slip` event the runner logged for a trial."""
-
-    onset_time_ns: int
-    detection_time_ns: int
-    peak_time_ns: int
-    peak_force_n: float
-    force_after_n: float
-    drop_fraction: float
-    trigger: str
-
-
 @dataclass
 class TrialRecord:
     """One finished trial: its logged result and where its samples are."""
 
     part: LogPart
-    result: dict[str, Any]
+    result: TrialResult
     ramp_start_ns: int | None
     unloading_ns: int | None
-    slip: LoggedSlip | None
-    joint_angles_rad: tuple[float, ...] | None
+    slip: SlipEvent | None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def trial_id(self) -> int:
         """The trial's id (1-based position in the protocol's plan)."""
-        return int(self.result["trial_id"])
+        return self.result.trial_id
 
     @property
-    def kind(self) -> str:
+    def kind(self) -> TrialKind:
         """joint_estimation or link_validation."""
-        return str(self.result["kind"])
+        return self.result.kind
 
     @property
     def slipped(self) -> bool:
         """Whether the runner recorded a slip."""
-        return self.result.get("outcome") == "slip"
+        return self.result.slipped
+
+    @property
+    def joint_angles_rad(self) -> tuple[float, ...] | None:
+        """The trial's (measured, else commanded) configuration."""
+        return self.result.joint_angles_rad
 
 
 def _value(row: pd.Series, name: str) -> Any:
@@ -121,12 +116,15 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
     records: list[TrialRecord] = []
     seen: dict[int, str] = {}
     for part in parts:
-        results = part.log.topic(schemas.TRIAL_RESULT)
         states = part.log.topic(schemas.TRIAL_STATE)
-        slips = part.log.topic(schemas.SLIP)
-        for _, row in results.iterrows():
-            result = {name: _value(row, name) for name in row.index}
-            trial_id = int(result["trial_id"])
+        slips = [SlipMessage.from_payload(p) for _, p in frame_payloads(part.log.topic(schemas.SLIP))]
+        for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_RESULT)):
+            try:
+                result = TrialResult.from_payload(payload)
+            except (KeyError, TypeError, ValueError) as exc:
+                warnings.append(f"{part.name}: a /rig/trial/result could not be decoded ({exc}); skipped")
+                continue
+            trial_id = result.trial_id
             if trial_id in seen:
                 warnings.append(
                     f"{part.name}: trial {trial_id} has a second result (first in {seen[trial_id]}); "
@@ -134,22 +132,11 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
                 )
                 continue
             seen[trial_id] = part.name
-            start = int(result["start_time_ns"])
-            end = int(result["end_time_ns"])
+            start, end = result.start_time_ns, result.end_time_ns
             ramp_start, unloading = _ramp_window(states, trial_id, start, end)
             slip = _logged_slip(slips, trial_id, start, end)
-            angles = result.get("configuration.joint_angles_rad")
-            records.append(
-                TrialRecord(
-                    part=part,
-                    result=result,
-                    ramp_start_ns=ramp_start,
-                    unloading_ns=unloading,
-                    slip=slip,
-                    joint_angles_rad=tuple(float(a) for a in angles) if angles is not None else None,
-                )
-            )
-            if result.get("outcome") == "slip" and slip is None:
+            records.append(TrialRecord(part, result, ramp_start, unloading, slip))
+            if result.slipped and slip is None:
                 warnings.append(f"{part.name}: trial {trial_id}: outcome slip but no /rig/slip event logged")
     return records
 
@@ -175,25 +162,12 @@ def _ramp_window(
     return ramp_start, int(times[unload_idx[0]]) if unload_idx.size else None
 
 
-def _logged_slip(slips: pd.DataFrame, trial_id: int, start_ns: int, end_ns: int) -> LoggedSlip | None:
-    if slips.empty:
-        return None
-    times = slips["detection_time_ns"].to_numpy()
-    mine = np.flatnonzero(
-        (slips["trial_id"] == trial_id).to_numpy(bool) & (times >= start_ns) & (times <= end_ns)
-    )
-    if mine.size == 0:
-        return None
-    row = slips.iloc[mine[0]]
-    return LoggedSlip(
-        onset_time_ns=int(row["onset_time_ns"]),
-        detection_time_ns=int(row["detection_time_ns"]),
-        peak_time_ns=int(row["peak_time_ns"]),
-        peak_force_n=float(row["peak_force_n"]),
-        force_after_n=float(row["force_after_n"]),
-        drop_fraction=float(row["drop_fraction"]),
-        trigger=str(row["trigger"]),
-    )
+def _logged_slip(slips: Sequence[SlipMessage], trial_id: int, start_ns: int, end_ns: int) -> SlipEvent | None:
+    """The first slip logged for the trial within its time span."""
+    for slip in slips:
+        if slip.trial_id == trial_id and start_ns <= slip.event.detection_time_ns <= end_ns:
+            return slip.event
+    return None
 
 
 def base_lever_arm_m(settings: RunSettings, joint_angles_rad: Sequence[float]) -> float | None:
@@ -213,9 +187,9 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
     for record in records:
         r = record.result
         plan = settings.plans.get(record.trial_id)
-        peak = r.get("peak_force_n")
-        slip_mass = r.get("slip_mass_kg")
-        predicted = r.get("predicted_mass_kg")
+        peak = r.peak_force_n
+        slip_mass = r.slip_mass_kg
+        predicted = r.predicted_mass_kg
         pct = None
         if record.slipped and predicted is not None and slip_mass:
             pct = (predicted - slip_mass) / slip_mass * 100.0
@@ -225,22 +199,25 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
         )
         row: dict[str, Any] = {
             "trial_id": record.trial_id,
-            "kind": record.kind,
+            "kind": record.kind.value,
             "part": record.part.name,
-            "repeat": r.get("repeat"),
-            "joint": plan.joint if plan is not None else None,
-            "configuration_index": plan.configuration_index if plan is not None else None,
-            "distance_m": r.get("distance_m"),
-            "outcome": r.get("outcome"),
+            "repeat": r.repeat,
+            # logs written before the result carried them: from the protocol's plan
+            "joint": r.joint if r.joint is not None else (plan.joint if plan is not None else None),
+            "configuration_index": r.configuration_index
+            if r.configuration_index is not None
+            else (plan.configuration_index if plan is not None else None),
+            "distance_m": r.distance_m,
+            "outcome": r.outcome.value,
             "peak_force_n": peak,
             "slip_mass_kg": slip_mass,
             "predicted_mass_kg": predicted,
             "percentage_error_pct": pct,
-            "slipped_joint": r.get("slipped_joint"),
+            "slipped_joint": r.slipped_joint,
             "base_lever_arm_m": base_arm,
             "base_moment_nm": base_moment,
-            "start_time_ns": r.get("start_time_ns"),
-            "end_time_ns": r.get("end_time_ns"),
+            "start_time_ns": r.start_time_ns,
+            "end_time_ns": r.end_time_ns,
             "ramp_start_ns": record.ramp_start_ns,
             "slip_peak_time_ns": record.slip.peak_time_ns if record.slip else None,
             "slip_detection_time_ns": record.slip.detection_time_ns if record.slip else None,

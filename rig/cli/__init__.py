@@ -1,7 +1,7 @@
 """The `rig` command: one subcommand per module in this package, dispatched by argparse.
 
-Exit codes (DESIGN §5): 0 done; 1 stopped by a fault or abort, hardware left safe; 2 invalid
-input, nothing started; 130 interrupted, hardware left safe. User errors are one line on stderr,
+Exit codes: `rig.errors.ExitCode` (0 done; 1 stopped by a fault or abort, hardware left safe; 2
+invalid input, nothing started; 130 interrupted, hardware left safe). User errors are one line on stderr,
 never a traceback.
 """
 
@@ -13,12 +13,7 @@ import sys
 from collections.abc import Sequence
 
 from rig import __version__
-from rig.errors import InputError, RigError
-
-EXIT_OK = 0
-EXIT_FAULT = 1
-EXIT_INVALID_INPUT = 2
-EXIT_INTERRUPTED = 130
+from rig.errors import ExitCode, InputError, RigError
 
 # Each module `rig.cli.<name>` defines `register(subparsers)`, which adds its parser and sets
 # `handler=<callable(args) -> int>` as a default.
@@ -29,7 +24,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse with the rig's one-line error format (argparse already exits 2)."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(EXIT_INVALID_INPUT, f"{self.prog}: error: {message}\n")
+        self.exit(ExitCode.INVALID_INPUT, f"{self.prog}: error: {message}\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,18 +52,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     handler = getattr(args, "handler", None)
     if handler is None:
         parser.print_help(sys.stderr)
-        return EXIT_INVALID_INPUT
+        return ExitCode.INVALID_INPUT
     try:
         return int(handler(args))
     except InputError as exc:
         print(f"rig: error: {exc}", file=sys.stderr)
-        return EXIT_INVALID_INPUT
+        return ExitCode.INVALID_INPUT
     except KeyboardInterrupt:
         print("rig: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED
     except RigError as exc:
         print(f"rig: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return EXIT_FAULT
+        return ExitCode.FAULT
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -18,7 +18,7 @@ from model.fit import (
     InverseFit,
     capacity_from_fit,
     fit_inverse_distance,
-    fit_summary_dict,
+    fit_summary,
 )
 from model.joint import CapacityConstant, resolve_constant
 from rig.cli.output import emit_json, format_table
@@ -283,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # every input was checked above; this keeps any residue one line
         raise InputError(f"{path}: {exc}") from None
     if args.json:
-        emit_json(fit_summary_dict(fit, capacity))
+        emit_json(fit_summary(fit, capacity).as_json())
     else:
         print(human_report(path, data, fit, capacity))
     return 0

@@ -14,6 +14,7 @@ from rig.protocol import load_protocol
 from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
 
 if TYPE_CHECKING:
+    from model.fit import FitSummary
     from rig.runner.run import RunReport
 
 DESCRIPTION = """\
@@ -157,24 +158,19 @@ def _summary(report: RunReport) -> str:
         lines.append(f"STOPPED: {report.reason} (hardware left safe; `--resume {report.run_id}` continues)")
     est = report.estimate
     if est is not None:
-        lo, hi = est["k_ci"]
-        clo, chi = est["capacity_ci_nm"]
-        mlo, mhi = est["mu_delta0_ci_pa"]
+        lo, hi = est.k_ci
+        clo, chi = est.capacity_ci_nm
+        mlo, mhi = est.mu_delta0_ci_pa
         lines.append(
             format_table(
-                ["quantity", "estimate", f"{est['level'] * 100:g} % bounds", "unit"],
+                ["quantity", "estimate", f"{est.level * 100:g} % bounds", "unit"],
                 [
-                    ["k", est["k"], f"[{lo:.5g}, {hi:.5g}]", "kg·m"],
-                    ["capacity N_max", est["capacity_nm"], f"[{clo:.5g}, {chi:.5g}]", "N·m"],
-                    [
-                        f"mu_s·delta0 (c={est['constant']})",
-                        est["mu_delta0_pa"],
-                        f"[{mlo:.5g}, {mhi:.5g}]",
-                        "Pa",
-                    ],
-                    ["RMSE", est["rmse"], "", "kg"],
-                    ["R²", est["r2"], "", ""],
-                    ["n", est["n"], "", "trials"],
+                    ["k", est.k, f"[{lo:.5g}, {hi:.5g}]", "kg·m"],
+                    ["capacity N_max", est.capacity_nm, f"[{clo:.5g}, {chi:.5g}]", "N·m"],
+                    [f"mu_s·delta0 (c={est.constant})", est.mu_delta0_pa, f"[{mlo:.5g}, {mhi:.5g}]", "Pa"],
+                    ["RMSE", est.rmse, "", "kg"],
+                    ["R²", est.r2, "", ""],
+                    ["n", est.n, "", "trials"],
                 ],
             )
         )
@@ -182,12 +178,12 @@ def _summary(report: RunReport) -> str:
         lines.append(
             format_table(
                 ["joint", "capacity N·m", "lower", "upper"],
-                [[j["joint"], j["capacity_nm"], j["ci_lo_nm"], j["ci_hi_nm"]] for j in report.joints],
+                [[j.joint, j.capacity_nm, j.ci_lo_nm, j.ci_hi_nm] for j in report.joints],
             )
         )
     pe = report.percentage_errors
     if pe is not None:
-        lines.append(_percentage_text(pe))
+        lines.append(_percentage_text(pe.to_dict()))
     if report.truth is not None:
         lines.append(_truth_text(report.truth, est))
     return "\n\n".join(lines)
@@ -201,15 +197,15 @@ def _percentage_text(pe: dict[str, Any]) -> str:
     return "; ".join(parts)
 
 
-def _truth_text(truth: dict[str, Any], est: dict[str, Any] | None) -> str:
+def _truth_text(truth: dict[str, Any], est: FitSummary | None) -> str:
     k = truth.get("k")
     text = "simulator truth:"
     if k is not None:
         text += f" k = {k:.5g} kg·m"
         if est is not None:
-            lo, hi = est["k_ci"]
+            lo, hi = est.k_ci
             inside = "inside" if lo <= k <= hi else "OUTSIDE"
-            text += f" ({inside} the bounds; estimate off by {(est['k'] - k) / k * 100:+.2f} %)"
+            text += f" ({inside} the bounds; estimate off by {(est.k - k) / k * 100:+.2f} %)"
     caps = truth.get("capacity_nm")
     if isinstance(caps, list):
         text += " joint capacities " + ", ".join(f"{c:.3f}" for c in caps) + " N·m"

@@ -1,18 +1,60 @@
-"""One valid example payload per rig topic, built with the schema builders (for tests, docs and checks)."""
+"""One valid example payload per rig topic, made by the records themselves (for tests, docs and checks)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
+from model.fit import FitSummary
+from model.slip_detector import SlipEvent
 from rig.log import schemas as S
+from rig.log.records import (
+    Estimate,
+    JointCapacity,
+    LogLevel,
+    LogMessage,
+    ServoCommand,
+    ServoCommandName,
+    SlipMessage,
+    TrialKind,
+    TrialOutcome,
+    TrialPhase,
+    TrialResult,
+    TrialState,
+)
 
 EXAMPLE_TIME_NS = 1_767_225_600_123_456_789  # 2026-01-01T00:00:00.123456789Z
 
 
 def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]]:
     """A payload for every topic in `schemas.TOPICS` (same order), with times around `time_ns`."""
+    event = SlipEvent(
+        onset_time_ns=time_ns,
+        detection_time_ns=time_ns + 5_000_000,
+        peak_time_ns=time_ns - 1_000_000,
+        peak_force_n=12.5,
+        force_after_n=8.0,
+        drop_fraction=0.36,
+        trigger="drop",
+    )
+    fit = FitSummary(
+        n=4,
+        k=0.167,
+        k_ci=(0.148, 0.185),
+        sse=0.001,
+        sst=0.2,
+        r2=float("nan"),
+        rmse=0.018,
+        dfe=3,
+        se=0.003,
+        level=0.99,
+        constant="paper",
+        c=6.9,
+        radius_m=0.01,
+        mu_delta0_pa=2.4e5,
+        mu_delta0_ci_pa=(2.1e5, 2.6e5),
+        capacity_nm=1.64,
+        capacity_ci_nm=(1.45, 1.81),
+    )
     return {
         S.LOADCELL: S.loadcell_sample(raw=123456, force_n=1.25, seq=7, device_time_us=None),
         S.SERVO_STATE: S.servo_state(
@@ -24,47 +66,29 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
             hardware_error=0,
             moving=True,
         ),
-        S.SERVO_COMMAND: S.servo_command(
-            servo_id=2, role="bend", command="goal_position", value=1.0, unit="rad"
-        ),
-        S.TRIAL_STATE: S.trial_state(trial_id=3, phase=S.TrialPhase.RAMP_SLOW, step="ramp"),
-        S.SLIP: S.slip_event(
+        S.SERVO_COMMAND: ServoCommand(2, "bend", ServoCommandName.GOAL_POSITION, 1.0, "rad").to_payload(),
+        S.TRIAL_STATE: TrialState(3, TrialPhase.RAMP_SLOW, "ramp").to_payload(),
+        S.SLIP: SlipMessage(3, event, {"drop_fraction": 0.2, "slope_n_per_s": None}, None).to_payload(),
+        S.TRIAL_RESULT: TrialResult(
             trial_id=3,
-            onset_time_ns=time_ns,
-            detection_time_ns=time_ns + 5_000_000,
-            peak_time_ns=time_ns - 1_000_000,
-            peak_force_n=12.5,
-            force_after_n=8.0,
-            drop_fraction=0.36,
-            detector={"drop_fraction": 0.2, "window_s": 0.05},
-            trigger="drop",
+            kind=TrialKind.LINK_VALIDATION,
+            repeat=1,
             joint=None,
-        ),
-        S.TRIAL_RESULT: S.trial_result(
-            trial_id=3,
-            kind="link_validation",
+            distance_m=None,
+            configuration_index=2,
+            joint_angles_rad=(0.0, 0.5),
             start_time_ns=time_ns,
             end_time_ns=time_ns + 9_000_000_000,
-            outcome="slip",
+            outcome=TrialOutcome.SLIP,
             peak_force_n=12.5,
             slip_mass_kg=1.2755,
+            predicted_force_n=12.74,
             predicted_mass_kg=1.3,
-            configuration={"joint_angles_rad": [0.0, 0.5], "transforms": np.eye(4)[None].repeat(2, 0)},
+            percentage_error=1.92,
             slipped_joint=2,
-            repeat=1,
-            lever_arms_m=[0.1, 0.07],
-        ),
-        S.ESTIMATE: S.estimate(
-            trial_id=3,
-            fit={
-                "n": 4,
-                "k": 0.167,
-                "k_ci": (0.148, 0.185),
-                "r2": float("nan"),
-                "dfe": 3,
-                "constant": "paper",
-            },
-            joints=[{"joint": 1, "capacity_nm": 1.6, "ci_lo_nm": 1.4, "ci_hi_nm": 1.8}],
-        ),
-        S.LOG: S.log_message(time_ns=time_ns, level=S.LogLevel.WARNING, message="tension high", line=12),
+            lever_arms_m=(0.1, 0.07),
+            tare_n=0.01,
+        ).to_payload(),
+        S.ESTIMATE: Estimate(3, fit, (JointCapacity(1, 1.6, 1.4, 1.8),)).to_payload(),
+        S.LOG: LogMessage(time_ns, LogLevel.WARNING, "tension high", line=12).to_payload(),
     }

@@ -229,3 +229,44 @@ def empty_frame(topic: str) -> pd.DataFrame:
     explicit = arrow_schema(topic)
     fields = [pa.field(n, pa.int64()) for n in TIME_COLUMNS] + (list(explicit) if explicit else [])
     return table_to_frame(pa.schema(fields).empty_table(), nullable_integer_fields(topic))
+
+
+def _plain(value: Any) -> Any:
+    """A cell as a plain JSON-like Python value (None for missing)."""
+    if value is None or value is pd.NA:
+        return None
+    if isinstance(value, np.ndarray):
+        return [_plain(v) for v in value.tolist()]
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, np.generic):
+        return _plain(value.item())
+    if isinstance(value, float) and value != value:
+        return None
+    return value
+
+
+def frame_payloads(frame: pd.DataFrame) -> list[tuple[int, dict[str, Any]]]:
+    """The messages of a topic frame as `(log_time_ns, payload)`: flattened `a.b` columns nested again.
+
+    For the low-rate topics that replay decodes into records (`rig.log.records`); missing values
+    are None, numbers plain Python numbers.
+    """
+    columns = [c for c in frame.columns if c not in TIME_COLUMNS]
+    out: list[tuple[int, dict[str, Any]]] = []
+    for log_time_ns, *values in frame[["log_time_ns", *columns]].itertuples(index=False, name=None):
+        payload: dict[str, Any] = {}
+        for column, value in zip(columns, values, strict=True):
+            target = payload
+            *parents, leaf = column.removeprefix("payload.").split(".")
+            for parent in parents:
+                nested = target.setdefault(parent, {})
+                if not isinstance(nested, dict):
+                    break
+                target = nested
+            else:
+                target[leaf] = _plain(value)
+        out.append((int(log_time_ns), payload))
+    return out

@@ -1,35 +1,47 @@
-"""The MCAP topic contract: JSON Schemas of every rig topic, payload builders and a cheap checker.
+"""The MCAP topic contract: topic names and JSON Schemas, derived from the typed records.
 
 Every topic is JSON-encoded with a `jsonschema` schema whose top level is an object (Foxglove needs
-that). High-rate messages are flat; a missing number is `null` (`["number", "null"]`), never NaN.
-Integers stay below 2**53 so that JavaScript readers see them exactly, except the epoch-nanosecond
-fields named `*_time_ns` (kept exact for Python replay): each has a `{sec, nsec}` twin for
-JavaScript and Foxglove.
+that). The schemas are not written by hand: each is derived from the fields and type hints of the
+record that makes the payload (`rig.log.records`, and the seams' `ServoState` and `LoadCellSample`),
+so a field added to a record appears in its schema. Conventions: a missing number is `null`
+(`["number", "null"]`), never NaN; integers stay below 2**53 so that JavaScript readers see them
+exactly, except the epoch-nanosecond fields named `*_time_ns` (kept exact for Python replay), each
+with a `{sec, nsec}` twin for JavaScript and Foxglove. `/rig/log` is Foxglove's well-known
+`foxglove.Log`, kept field for field.
 
-The builders (`loadcell_sample`, `servo_state`, ...) are how the runner makes payloads: they
-coerce numpy scalars to plain Python numbers, map non-finite values of nullable numbers to `null`
-and reject them elsewhere, so a payload they return always satisfies its schema. `check_payload`
-validates any payload against its schema (types, required keys, enums, ranges); `RunLogger` calls
-it per message only in strict mode (tests), since the builders already guarantee the contract.
+`/rig/loadcell` (1 kHz) is logged as rows (`ROW_FIELDS`), not records: no object per sample.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import operator
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
-from enum import IntEnum, StrEnum
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, is_dataclass
+from enum import Enum
 from typing import Any
 
-from model.fit import SUMMARY_KEYS
+from model.fit import FitSummary
+from model.slip_detector import SlipEvent
 from rig.hw.seams import LoadCellSample, ServoState
+from rig.log.records import (
+    Estimate,
+    JointCapacity,
+    LogLevel,
+    ServoCommand,
+    SlipMessage,
+    TrialResult,
+    TrialState,
+    stamp_name,
+)
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
 MAX_SAFE_INT = 2**53 - 1  # largest integer a JavaScript double holds exactly
-NS_PER_S = 1_000_000_000
 
 LOADCELL = "/rig/loadcell"
 SERVO_STATE = "/rig/servo/state"
@@ -40,66 +52,9 @@ TRIAL_RESULT = "/rig/trial/result"
 ESTIMATE = "/rig/estimate"
 LOG = "/rig/log"
 
-
-class TrialPhase(StrEnum):
-    """Phases of the runner's state machine, as logged on `/rig/trial/state`."""
-
-    IDLE = "idle"
-    CONNECTING = "connecting"
-    TARING = "taring"
-    BENDING = "bending"
-    PROMPTING = "prompting"
-    RAMP_FAST = "ramp_fast"
-    RAMP_SLOW = "ramp_slow"
-    UNLOADING = "unloading"
-    RESETTING = "resetting"
-    PAUSING = "pausing"
-    DONE = "done"
-    ABORTED = "aborted"
-    FAULTED = "faulted"
-
-
-class LogLevel(IntEnum):
-    """`foxglove.Log` levels."""
-
-    UNKNOWN = 0
-    DEBUG = 1
-    INFO = 2
-    WARNING = 3
-    ERROR = 4
-    FATAL = 5
-
-
-SERVO_COMMANDS = (
-    "goal_position",
-    "goal_current",
-    "goal_velocity",
-    "profile_velocity",
-    "profile_acceleration",
-    "torque",
-    "mode",
-    "reboot",
-)
-TRIAL_KINDS = ("joint_estimation", "link_validation")
-TRIAL_OUTCOMES = ("slip", "no_slip", "aborted", "fault")
-FIT_KEYS = SUMMARY_KEYS  # the `rig fit --json` keys, defined with the fit itself
-_FIT_INTEGER_KEYS = frozenset({"n", "dfe"})
-_FIT_INTERVAL_KEYS = frozenset({"k_ci", "mu_delta0_ci_pa", "capacity_ci_nm"})
-
 # ---------------------------------------------------------------------------------------------
-# JSON Schema pieces
+# Deriving schemas from type hints
 
-_NUMBER = {"type": "number"}
-_NUMBER_OR_NULL = {"type": ["number", "null"]}
-_INTEGER = {"type": "integer"}
-_INTEGER_OR_NULL = {"type": ["integer", "null"]}
-_STRING = {"type": "string"}
-_STRING_OR_NULL = {"type": ["string", "null"]}
-_TIME_NS = {
-    "type": "integer",
-    "minimum": 0,
-    "description": "epoch ns (exceeds 2^53: use the {sec,nsec} twin)",
-}
 _TIMESTAMP = {
     "type": "object",
     "title": "time",
@@ -109,13 +64,72 @@ _TIMESTAMP = {
     },
     "required": ["sec", "nsec"],
 }
-_INTERVAL_OR_NULL = {
-    "type": ["array", "null"],
-    "items": _NUMBER_OR_NULL,
-    "minItems": 2,
-    "maxItems": 2,
-    "description": "[lower, upper]",
+_TIME_NS = {
+    "type": "integer",
+    "minimum": 0,
+    "description": "epoch ns (exceeds 2^53: use the {sec,nsec} twin)",
 }
+
+
+def _type_schema(name: str, hint: Any) -> dict[str, Any]:
+    """The JSON Schema of one field from its type hint (`X | None` allows null)."""
+    args = typing.get_args(hint)
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        inner = [a for a in args if a is not type(None)]
+        if len(inner) != 1:
+            raise TypeError(f"{name}: unsupported union {hint!r}")
+        schema = _type_schema(name, inner[0])
+        if type(None) in args:
+            kinds = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
+            schema = {**schema, "type": [*kinds, "null"]}
+        return schema
+    if isinstance(hint, type) and issubclass(hint, Enum):
+        return {"type": "string", "enum": [m.value for m in hint]}
+    if hint is bool:
+        return {"type": "boolean"}
+    if hint is int:
+        if name.endswith("_time_ns"):
+            return dict(_TIME_NS)
+        return {"type": "integer", "maximum": MAX_SAFE_INT, "minimum": -MAX_SAFE_INT}
+    if hint is float:
+        return {"type": "number"}
+    if hint is str:
+        return {"type": "string"}
+    origin = typing.get_origin(hint)
+    if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return {"type": "array", "items": _type_schema(name, args[0])}
+        return {
+            "type": "array",
+            "items": _type_schema(name, args[0]),
+            "minItems": len(args),
+            "maxItems": len(args),
+        }
+    if origin in (Mapping, dict, typing.Mapping):
+        return {"type": "object", "additionalProperties": _type_schema(name, args[1])}
+    raise TypeError(f"{name}: no JSON Schema for {hint!r}")
+
+
+def _field_schemas(record: type, *, exclude: tuple[str, ...] = (), nullable: bool = False) -> dict[str, Any]:
+    """`{field: schema}` for a dataclass or NamedTuple, in field order (all nullable if asked)."""
+    hints = typing.get_type_hints(record)
+    names = [f.name for f in fields(record)] if is_dataclass(record) else list(record._fields)  # type: ignore[attr-defined]
+    out: dict[str, Any] = {}
+    for name in names:
+        if name in exclude:
+            continue
+        schema = _type_schema(name, hints[name])
+        if nullable and "null" not in schema["type"]:
+            kinds = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
+            schema = {**schema, "type": [*kinds, "null"]}
+        out[name] = schema
+    return out
+
+
+def _with_time_twins(properties: dict[str, Any]) -> dict[str, Any]:
+    """Add the `{sec, nsec}` twin of every `*_time_ns` property."""
+    twins = {stamp_name(name): _TIMESTAMP for name in properties if name.endswith("_time_ns")}
+    return {**properties, **twins}
 
 
 def _rig_object(title: str, description: str, properties: dict[str, Any]) -> dict[str, Any]:
@@ -130,120 +144,97 @@ def _rig_object(title: str, description: str, properties: dict[str, Any]) -> dic
     }
 
 
+def _servo_state_properties() -> dict[str, Any]:
+    state = _field_schemas(ServoState, exclude=("time_ns",))
+    servo_id = state.pop("servo_id")
+    return {"servo_id": servo_id, "role": {"type": "string"}, **state}
+
+
+def _estimate_properties() -> dict[str, Any]:
+    fit = _field_schemas(FitSummary, nullable=True)
+    fit["n"] = {"type": "integer", "minimum": 0, "maximum": MAX_SAFE_INT}
+    joint = _field_schemas(JointCapacity)
+    joints = {
+        "type": "array",
+        "items": {
+            "type": "object",
+            "properties": joint,
+            "required": list(joint),
+            "additionalProperties": False,
+        },
+    }
+    return {**_field_schemas(Estimate, exclude=("fit", "joints")), **fit, "joints": joints}
+
+
+def _foxglove_log() -> dict[str, Any]:
+    # The exact well-known schema (name and fields) that Foxglove's Log panel recognizes.
+    return {
+        "title": "foxglove.Log",
+        "description": "A log message",
+        "type": "object",
+        "properties": {
+            "timestamp": {**_TIMESTAMP, "description": "Timestamp of log message"},
+            "level": {
+                "title": "foxglove.LogLevel",
+                "description": "Log level",
+                "oneOf": [{"title": lv.name, "const": int(lv)} for lv in LogLevel],
+            },
+            "message": {"type": "string", "description": "Log message"},
+            "name": {"type": "string", "description": "Process or node name"},
+            "file": {"type": "string", "description": "Filename"},
+            "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
+        },
+        "required": ["timestamp", "level", "message", "name", "file", "line"],
+    }
+
+
 _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     LOADCELL: (
         "rig.LoadCellSample",
         _rig_object(
             "rig.LoadCellSample",
-            "One load-cell sample; log_time is its host receive time.",
-            {
-                "seq": {**_INTEGER_OR_NULL, "description": "device sequence counter"},
-                "raw": {**_INTEGER, "description": "ADC counts as sent by the device"},
-                "force_n": {**_NUMBER, "description": "calibrated line tension, N"},
-                "device_time_us": {**_INTEGER_OR_NULL, "description": "device clock, us"},
-            },
+            "One load-cell sample (log time: its sampling time): seq and device clock [us] when sent.",
+            _field_schemas(LoadCellSample, exclude=("time_ns",)),
         ),
     ),
     SERVO_STATE: (
         "rig.ServoState",
-        _rig_object(
-            "rig.ServoState",
-            "One servo's state from one bus read.",
-            {
-                "servo_id": _INTEGER,
-                "role": _STRING,
-                "position_rad": _NUMBER,
-                "velocity_rad_s": _NUMBER,
-                "current_a": _NUMBER,
-                "hardware_error": {**_INTEGER, "minimum": 0, "description": "Hardware Error Status bits"},
-                "moving": {"type": "boolean"},
-            },
-        ),
+        _rig_object("rig.ServoState", "One servo's state from one bus read.", _servo_state_properties()),
     ),
     SERVO_COMMAND: (
         "rig.ServoCommand",
         _rig_object(
             "rig.ServoCommand",
-            "A command sent to a servo (log_time = when it was sent).",
-            {
-                "servo_id": _INTEGER,
-                "role": _STRING,
-                "command": {"type": "string", "enum": list(SERVO_COMMANDS)},
-                "value": {**_NUMBER_OR_NULL, "description": "setpoint in `unit`; null for reboot"},
-                "unit": {**_STRING, "description": "e.g. rad, A, rad/s, bool, mode; empty if none"},
-            },
+            "A command sent to a servo (log_time = when it was sent); value in unit, null for reboot.",
+            _field_schemas(ServoCommand),
         ),
     ),
     TRIAL_STATE: (
         "rig.TrialState",
         _rig_object(
             "rig.TrialState",
-            "A phase change of the runner.",
-            {
-                "trial_id": {**_INTEGER_OR_NULL, "description": "null outside trials"},
-                "phase": {"type": "string", "enum": [p.value for p in TrialPhase]},
-                "step": _STRING_OR_NULL,
-            },
+            "A phase change of the runner (trial_id null outside trials).",
+            _field_schemas(TrialState),
         ),
     ),
     SLIP: (
         "rig.SlipEvent",
         _rig_object(
             "rig.SlipEvent",
-            "A slip detected in the load-cell signal.",
-            {
-                "trial_id": _INTEGER,
-                "onset_time_ns": _TIME_NS,
-                "detection_time_ns": _TIME_NS,
-                "peak_time_ns": _TIME_NS,
-                "onset": _TIMESTAMP,
-                "detection": _TIMESTAMP,
-                "peak_force_n": _NUMBER,
-                "force_after_n": _NUMBER,
-                "drop_fraction": _NUMBER,
-                "detector": {
-                    "type": "object",
-                    "description": "detector parameters by name",
-                    "additionalProperties": _NUMBER_OR_NULL,
-                },
-                "trigger": {**_STRING, "description": "what fired the detector"},
-                "joint": {**_INTEGER_OR_NULL, "description": "1-based joint that slipped, if known"},
-            },
+            "A slip detected in the load-cell signal; detector parameters by name; joint 1-based or null.",
+            _with_time_twins(
+                {
+                    **_field_schemas(SlipMessage, exclude=("event", "detector", "joint")),
+                    **_field_schemas(SlipEvent),
+                    **_field_schemas(SlipMessage, exclude=("trial_id", "event")),
+                }
+            ),
         ),
     ),
     TRIAL_RESULT: (
         "rig.TrialResult",
         _rig_object(
-            "rig.TrialResult",
-            "The result of one trial.",
-            {
-                "trial_id": _INTEGER,
-                "kind": {"type": "string", "enum": list(TRIAL_KINDS)},
-                "distance_m": _NUMBER_OR_NULL,
-                "configuration": {
-                    "type": ["object", "null"],
-                    "properties": {
-                        "joint_angles_rad": {"type": "array", "items": _NUMBER},
-                        "transforms": {
-                            "type": "array",
-                            "description": "(J, 4, 4) pose of {i} in {i-1}, row-major",
-                            "items": {"type": "array", "items": {"type": "array", "items": _NUMBER}},
-                        },
-                    },
-                    "additionalProperties": False,
-                },
-                "start": _TIMESTAMP,
-                "end": _TIMESTAMP,
-                "start_time_ns": _TIME_NS,
-                "end_time_ns": _TIME_NS,
-                "peak_force_n": _NUMBER_OR_NULL,
-                "slip_mass_kg": _NUMBER_OR_NULL,
-                "predicted_mass_kg": _NUMBER_OR_NULL,
-                "slipped_joint": _INTEGER_OR_NULL,
-                "outcome": {"type": "string", "enum": list(TRIAL_OUTCOMES)},
-                "repeat": {**_INTEGER, "minimum": 0},
-                "lever_arms_m": {"type": ["array", "null"], "items": _NUMBER},
-            },
+            "rig.TrialResult", "The result of one trial.", _with_time_twins(_field_schemas(TrialResult))
         ),
     ),
     ESTIMATE: (
@@ -251,64 +242,10 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         _rig_object(
             "rig.Estimate",
             "The online estimate after a trial (keys as `rig fit --json`; null where undefined).",
-            {
-                "trial_id": _INTEGER,
-                "n": {**_INTEGER, "minimum": 0},
-                "k": _NUMBER_OR_NULL,
-                "k_ci": _INTERVAL_OR_NULL,
-                "sse": _NUMBER_OR_NULL,
-                "sst": _NUMBER_OR_NULL,
-                "r2": _NUMBER_OR_NULL,
-                "rmse": _NUMBER_OR_NULL,
-                "dfe": _INTEGER_OR_NULL,
-                "se": _NUMBER_OR_NULL,
-                "level": _NUMBER_OR_NULL,
-                "constant": _STRING_OR_NULL,
-                "c": _NUMBER_OR_NULL,
-                "radius_m": _NUMBER_OR_NULL,
-                "mu_delta0_pa": _NUMBER_OR_NULL,
-                "mu_delta0_ci_pa": _INTERVAL_OR_NULL,
-                "capacity_nm": _NUMBER_OR_NULL,
-                "capacity_ci_nm": _INTERVAL_OR_NULL,
-                "joints": {
-                    "type": "array",
-                    "items": {
-                        "type": "object",
-                        "properties": {
-                            "joint": _INTEGER,
-                            "capacity_nm": _NUMBER_OR_NULL,
-                            "ci_lo_nm": _NUMBER_OR_NULL,
-                            "ci_hi_nm": _NUMBER_OR_NULL,
-                        },
-                        "required": ["joint", "capacity_nm", "ci_lo_nm", "ci_hi_nm"],
-                        "additionalProperties": False,
-                    },
-                },
-            },
+            _estimate_properties(),
         ),
     ),
-    # The exact well-known schema (name and fields) that Foxglove's Log panel recognizes.
-    LOG: (
-        "foxglove.Log",
-        {
-            "title": "foxglove.Log",
-            "description": "A log message",
-            "type": "object",
-            "properties": {
-                "timestamp": {**_TIMESTAMP, "description": "Timestamp of log message"},
-                "level": {
-                    "title": "foxglove.LogLevel",
-                    "description": "Log level",
-                    "oneOf": [{"title": lv.name, "const": int(lv)} for lv in LogLevel],
-                },
-                "message": {"type": "string", "description": "Log message"},
-                "name": {"type": "string", "description": "Process or node name"},
-                "file": {"type": "string", "description": "Filename"},
-                "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
-            },
-            "required": ["timestamp", "level", "message", "name", "file", "line"],
-        },
-    ),
+    LOG: ("foxglove.Log", _foxglove_log()),
 }
 
 
@@ -339,8 +276,48 @@ def schema_for(topic: str) -> TopicSpec:
         raise KeyError(f"unknown topic {topic!r}; known: {', '.join(TOPICS)}") from None
 
 
-# ---------------------------------------------------------------------------------------------
-# Checking payloads against the schemas (the subset of JSON Schema used above)
+@functools.cache
+def _validator(topic: str) -> Any:
+    from jsonschema import Draft202012Validator  # a test dependency: strict mode only
+
+    return Draft202012Validator(schema_for(topic).schema)
+
+
+def check_payload(topic: str, payload: Any) -> None:
+    """Raise `ValueError` naming the topic and field if `payload` violates its schema or is not strict JSON.
+
+    Uses `jsonschema` (installed with the test extra); `RunLogger` calls this per message only in
+    strict mode, which the tests turn on.
+    """
+    spec = schema_for(topic)
+    problem = _not_strict_json(payload, "")
+    if problem:
+        raise ValueError(f"{topic} ({spec.schema_name}): {problem}")
+    errors = sorted(_validator(topic).iter_errors(payload), key=lambda e: list(e.absolute_path))
+    if errors:
+        where = ".".join(str(p) for p in errors[0].absolute_path) or "payload"
+        raise ValueError(f"{topic} ({spec.schema_name}): {where}: {errors[0].message}")
+
+
+def _not_strict_json(value: Any, path: str) -> str | None:
+    """The first value that strict JSON cannot hold (NaN, infinity, a numpy scalar...), named by path."""
+    if isinstance(value, Mapping):
+        for key, item in value.items():
+            problem = _not_strict_json(item, f"{path}.{key}" if path else str(key))
+            if problem:
+                return problem
+        return None
+    if isinstance(value, list | tuple):
+        for i, item in enumerate(value):
+            problem = _not_strict_json(item, f"{path}[{i}]")
+            if problem:
+                return problem
+        return None
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"{path}: {value} is not finite (use null)"
+    if value is None or type(value) in (bool, int, float, str) or isinstance(value, Enum):
+        return None
+    return f"{path}: {type(value).__name__} is not a JSON type (convert numpy scalars with float()/int())"
 
 
 def json_types(schema: Mapping[str, Any]) -> tuple[str, ...]:
@@ -351,110 +328,8 @@ def json_types(schema: Mapping[str, Any]) -> tuple[str, ...]:
     return (t,) if isinstance(t, str) else tuple(t)
 
 
-def _check(schema: Mapping[str, Any], value: Any, path: str) -> str | None:
-    """First violation of `schema` by `value` (a message naming `path`), or None."""
-    types = json_types(schema)
-    if value is None:
-        return None if "null" in types else f"{path}: null not allowed"
-    if "oneOf" in schema:
-        consts = [alt["const"] for alt in schema["oneOf"] if "const" in alt]
-        if isinstance(value, bool) or not isinstance(value, int) or value not in consts:
-            return f"{path}: {value!r} not one of {consts}"
-        return None
-    if "enum" in schema and value not in schema["enum"]:
-        return f"{path}: {value!r} not one of {schema['enum']}"
-    kind = type(value)
-    if isinstance(value, bool):
-        if "boolean" not in types:
-            return f"{path}: got a bool, expected {'/'.join(types)}"
-        return None
-    if isinstance(value, int):  # IntEnum serializes as its value
-        if "integer" not in types and "number" not in types:
-            return f"{path}: got an integer, expected {'/'.join(types)}"
-        limit = 2**63 - 1 if path.endswith("_time_ns") else MAX_SAFE_INT
-        if abs(value) > limit:
-            return f"{path}: {value} exceeds {limit} (JavaScript readers lose precision)"
-        return _check_range(schema, value, path)
-    if isinstance(value, float):  # includes numpy.float64
-        if "number" not in types:
-            return f"{path}: got a float, expected {'/'.join(types)}"
-        if not math.isfinite(value):
-            return f"{path}: {value} is not finite (use null)"
-        return _check_range(schema, value, path)
-    if isinstance(value, str):  # includes StrEnum members
-        return None if "string" in types else f"{path}: got a string, expected {'/'.join(types)}"
-    if isinstance(value, Mapping):
-        if "object" not in types:
-            return f"{path}: got an object, expected {'/'.join(types)}"
-        return _check_object(schema, value, path)
-    if isinstance(value, list | tuple):
-        if "array" not in types:
-            return f"{path}: got an array, expected {'/'.join(types)}"
-        if "minItems" in schema and len(value) < schema["minItems"]:
-            return f"{path}: {len(value)} items, at least {schema['minItems']} required"
-        if "maxItems" in schema and len(value) > schema["maxItems"]:
-            return f"{path}: {len(value)} items, at most {schema['maxItems']} allowed"
-        items = schema.get("items")
-        if items is not None:
-            for i, item in enumerate(value):
-                problem = _check(items, item, f"{path}[{i}]")
-                if problem:
-                    return problem
-        return None
-    return f"{path}: {kind.__name__} is not a JSON type (convert numpy scalars with float()/int())"
-
-
-def _check_range(schema: Mapping[str, Any], value: float, path: str) -> str | None:
-    if "minimum" in schema and value < schema["minimum"]:
-        return f"{path}: {value} below the minimum {schema['minimum']}"
-    if "maximum" in schema and value > schema["maximum"]:
-        return f"{path}: {value} above the maximum {schema['maximum']}"
-    return None
-
-
-def _check_object(schema: Mapping[str, Any], value: Mapping[str, Any], path: str) -> str | None:
-    properties = schema.get("properties", {})
-    for key in schema.get("required", ()):
-        if key not in value:
-            return f"{path}: missing required key {key!r}"
-    extra = schema.get("additionalProperties", True)
-    for key, item in value.items():
-        if not isinstance(key, str):
-            return f"{path}: key {key!r} is not a string"
-        sub = properties.get(key)
-        if sub is None:
-            if extra is False:
-                return f"{path}: unexpected key {key!r}; allowed: {', '.join(properties)}"
-            if extra is True:
-                continue
-            sub = extra
-        problem = _check(sub, item, f"{path}.{key}" if path else key)
-        if problem:
-            return problem
-    return None
-
-
-def check_payload(topic: str, payload: Mapping[str, Any]) -> None:
-    """Raise `ValueError` naming the topic and field if `payload` violates the topic's schema."""
-    spec = schema_for(topic)
-    if not isinstance(payload, Mapping):
-        raise ValueError(f"{topic}: payload must be a dict, got {type(payload).__name__}")
-    problem = _check_object(spec.schema, payload, "")
-    if problem:
-        raise ValueError(f"{topic} ({spec.schema_name}): {problem}")
-
-
 # ---------------------------------------------------------------------------------------------
-# Builders
-
-
-def stamp(time_ns: int) -> dict[str, int]:
-    """Epoch nanoseconds as a `{sec, nsec}` timestamp (foxglove.Timestamp)."""
-    t = _int(time_ns, "time_ns")
-    if t < 0:
-        raise ValueError(f"time_ns: {t} is before the epoch")
-    sec, nsec = divmod(t, NS_PER_S)
-    return {"sec": sec, "nsec": nsec}
+# Payloads of the seams' value types (the records make their own: `record.to_payload()`)
 
 
 def _num(value: Any, field: str) -> float:
@@ -464,16 +339,6 @@ def _num(value: Any, field: str) -> float:
     if not math.isfinite(x):
         raise ValueError(f"{field}: {x} is not a finite number")
     return x
-
-
-def _num_or_none(value: Any, field: str) -> float | None:
-    """A nullable number: None and non-finite values become null."""
-    if value is None:
-        return None
-    if isinstance(value, bool):
-        raise ValueError(f"{field}: {value!r} is not a number")
-    x = float(value)
-    return x if math.isfinite(x) else None
 
 
 def _int(value: Any, field: str) -> int:
@@ -487,14 +352,6 @@ def _int(value: Any, field: str) -> int:
 
 def _int_or_none(value: Any, field: str) -> int | None:
     return None if value is None else _int(value, field)
-
-
-def _choice(value: Any, field: str, allowed: Iterable[str]) -> str:
-    allowed = tuple(allowed)
-    text = str(value)
-    if text not in allowed:
-        raise ValueError(f"{field}: {value!r} not allowed; allowed: {', '.join(allowed)}")
-    return text
 
 
 def loadcell_sample(
@@ -564,179 +421,3 @@ def servo_state_payload(state: ServoState, role: str) -> dict[str, Any]:
         hardware_error=state.hardware_error,
         moving=state.moving,
     )
-
-
-def servo_command(
-    *, servo_id: int, role: str, command: str, value: float | None, unit: str
-) -> dict[str, Any]:
-    """A `/rig/servo/command` payload; `command` is one of `SERVO_COMMANDS`."""
-    return {
-        "servo_id": _int(servo_id, "servo_id"),
-        "role": str(role),
-        "command": _choice(command, "command", SERVO_COMMANDS),
-        "value": _num_or_none(value, "value"),
-        "unit": str(unit),
-    }
-
-
-def trial_state(*, trial_id: int | None, phase: str, step: str | None = None) -> dict[str, Any]:
-    """A `/rig/trial/state` payload; `phase` is a `TrialPhase` (or its string value)."""
-    return {
-        "trial_id": _int_or_none(trial_id, "trial_id"),
-        "phase": _choice(phase, "phase", (p.value for p in TrialPhase)),
-        "step": None if step is None else str(step),
-    }
-
-
-def slip_event(
-    *,
-    trial_id: int,
-    onset_time_ns: int,
-    detection_time_ns: int,
-    peak_time_ns: int,
-    peak_force_n: float,
-    force_after_n: float,
-    drop_fraction: float,
-    detector: Mapping[str, float | None],
-    trigger: str,
-    joint: int | None = None,
-) -> dict[str, Any]:
-    """A `/rig/slip` payload; `detector` maps parameter names to numbers."""
-    onset_ns = _int(onset_time_ns, "onset_time_ns")
-    detection_ns = _int(detection_time_ns, "detection_time_ns")
-    return {
-        "trial_id": _int(trial_id, "trial_id"),
-        "onset_time_ns": onset_ns,
-        "detection_time_ns": detection_ns,
-        "peak_time_ns": _int(peak_time_ns, "peak_time_ns"),
-        "onset": stamp(onset_ns),
-        "detection": stamp(detection_ns),
-        "peak_force_n": _num(peak_force_n, "peak_force_n"),
-        "force_after_n": _num(force_after_n, "force_after_n"),
-        "drop_fraction": _num(drop_fraction, "drop_fraction"),
-        "detector": {str(k): _num_or_none(v, f"detector.{k}") for k, v in detector.items()},
-        "trigger": str(trigger),
-        "joint": _int_or_none(joint, "joint"),
-    }
-
-
-def _configuration(configuration: Mapping[str, Any] | None) -> dict[str, Any] | None:
-    if configuration is None:
-        return None
-    allowed = ("joint_angles_rad", "transforms")
-    out: dict[str, Any] = {}
-    for key, value in configuration.items():
-        if key not in allowed:
-            raise ValueError(f"configuration: unexpected key {key!r}; allowed: {', '.join(allowed)}")
-        if value is None:
-            continue
-        if key == "joint_angles_rad":
-            out[key] = [_num(a, f"configuration.joint_angles_rad[{i}]") for i, a in enumerate(value)]
-        else:
-            transforms = value.tolist() if hasattr(value, "tolist") else value
-            out[key] = [
-                [[_num(x, "configuration.transforms") for x in row] for row in matrix]
-                for matrix in transforms
-            ]
-    return out
-
-
-def trial_result(
-    *,
-    trial_id: int,
-    kind: str,
-    start_time_ns: int,
-    end_time_ns: int,
-    outcome: str,
-    peak_force_n: float | None,
-    slip_mass_kg: float | None,
-    predicted_mass_kg: float | None = None,
-    distance_m: float | None = None,
-    configuration: Mapping[str, Any] | None = None,
-    slipped_joint: int | None = None,
-    repeat: int = 0,
-    lever_arms_m: Sequence[float] | None = None,
-) -> dict[str, Any]:
-    """A `/rig/trial/result` payload; `configuration` has `joint_angles_rad` and/or `transforms`."""
-    start_ns = _int(start_time_ns, "start_time_ns")
-    end_ns = _int(end_time_ns, "end_time_ns")
-    return {
-        "trial_id": _int(trial_id, "trial_id"),
-        "kind": _choice(kind, "kind", TRIAL_KINDS),
-        "distance_m": _num_or_none(distance_m, "distance_m"),
-        "configuration": _configuration(configuration),
-        "start": stamp(start_ns),
-        "end": stamp(end_ns),
-        "start_time_ns": start_ns,
-        "end_time_ns": end_ns,
-        "peak_force_n": _num_or_none(peak_force_n, "peak_force_n"),
-        "slip_mass_kg": _num_or_none(slip_mass_kg, "slip_mass_kg"),
-        "predicted_mass_kg": _num_or_none(predicted_mass_kg, "predicted_mass_kg"),
-        "slipped_joint": _int_or_none(slipped_joint, "slipped_joint"),
-        "outcome": _choice(outcome, "outcome", TRIAL_OUTCOMES),
-        "repeat": _int(repeat, "repeat"),
-        "lever_arms_m": None
-        if lever_arms_m is None
-        else [_num(d, f"lever_arms_m[{i}]") for i, d in enumerate(lever_arms_m)],
-    }
-
-
-def _fit_value(key: str, value: Any) -> Any:
-    if value is None:
-        return None
-    if key in _FIT_INTEGER_KEYS:
-        return _int(value, key)
-    if key == "constant":
-        return str(value)
-    if key in _FIT_INTERVAL_KEYS:
-        bounds = list(value.tolist() if hasattr(value, "tolist") else value)
-        if len(bounds) != 2:
-            raise ValueError(f"{key}: expected [lower, upper], got {len(bounds)} values")
-        return [_num_or_none(b, key) for b in bounds]
-    return _num_or_none(value, key)
-
-
-def estimate(
-    *,
-    trial_id: int,
-    fit: Mapping[str, Any] | None = None,
-    joints: Iterable[Mapping[str, Any]] = (),
-) -> dict[str, Any]:
-    """A `/rig/estimate` payload.
-
-    `fit` is the `rig fit --json` object (missing keys and non-finite values become null; with no
-    fit at all, `n` is 0). Each joint is `{joint, capacity_nm, ci_lo_nm, ci_hi_nm}`.
-    """
-    fit = fit or {}
-    unknown = set(fit) - set(FIT_KEYS)
-    if unknown:
-        raise ValueError(f"fit: unexpected keys {sorted(unknown)}; allowed: {', '.join(FIT_KEYS)}")
-    payload: dict[str, Any] = {"trial_id": _int(trial_id, "trial_id")}
-    for key in FIT_KEYS:
-        payload[key] = _fit_value(key, fit.get(key))
-    if payload["n"] is None:
-        payload["n"] = 0
-    payload["joints"] = [
-        {
-            "joint": _int(j["joint"], "joints.joint"),
-            "capacity_nm": _num_or_none(j.get("capacity_nm"), "joints.capacity_nm"),
-            "ci_lo_nm": _num_or_none(j.get("ci_lo_nm"), "joints.ci_lo_nm"),
-            "ci_hi_nm": _num_or_none(j.get("ci_hi_nm"), "joints.ci_hi_nm"),
-        }
-        for j in joints
-    ]
-    return payload
-
-
-def log_message(
-    *, time_ns: int, level: LogLevel | int, message: str, name: str = "rig", file: str = "", line: int = 0
-) -> dict[str, Any]:
-    """A `/rig/log` (foxglove.Log) payload."""
-    return {
-        "timestamp": stamp(time_ns),
-        "level": int(LogLevel(level)),
-        "message": str(message),
-        "name": str(name),
-        "file": str(file),
-        "line": _int(line, "line"),
-    }

@@ -2,9 +2,9 @@
 
 Glue between the runner and `model/`: it feeds each finished trial into the pure step functions
 (`model.online_fit`, `model.joint_capacity_estimation`), predicts the next trial's slip load from
-the estimates **the rig itself made** (never from simulator truth), and renders the estimate as the
-`rig fit --json` keys for logs and output. Replaying the same results rebuilds the same state, which
-is how `--resume` restores it.
+the estimates **the rig itself made** (never from simulator truth), and gives the estimate as one
+`rig.log.records.Estimate` for the log, the progress line and the report. Replaying the same
+results rebuilds the same state, which is how `--resume` restores it.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
@@ -19,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from model.chain import planar_transforms, predict_slip
-from model.fit import SUMMARY_KEYS, capacity_from_fit, fit_summary_dict
+from model.fit import FitSummary, capacity_from_fit, fit_summary
 from model.joint_capacity_estimation import (
     link_estimator_estimates,
     link_estimator_init,
@@ -27,11 +28,23 @@ from model.joint_capacity_estimation import (
 )
 from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
 from rig.errors import InputError
+from rig.log.records import Estimate, JointCapacity, TrialKind, TrialResult
 from rig.rig_config import ArticleConfig
 
 # How much the joints of one link are taken to differ from the joint that was fitted (log sd):
 # the paper assumed identical joints; 10 % is the spread a hand-made link plausibly has.
 BETWEEN_JOINT_SD_LOG = 0.10
+
+
+@dataclass(frozen=True, slots=True)
+class LinkPrediction:
+    """The predicted slip of the link at a configuration, from the current joint estimates."""
+
+    slip_force_n: float
+    slip_mass_kg: float
+    first_slip_joint: int  # 1-based
+    lever_arms_m: tuple[float, ...]  # of the line about each joint, base to tip
+    base_moment_nm: float
 
 
 class RunEstimator:
@@ -43,7 +56,7 @@ class RunEstimator:
         *,
         level: float = 0.99,
         constant: str = "paper",
-        prior_summary: dict[str, Any] | None = None,
+        prior_summary: FitSummary | None = None,
     ) -> None:
         self.article = article
         self.level = level
@@ -53,20 +66,20 @@ class RunEstimator:
         self._file_prior = prior_summary
 
     # ---- predictions -------------------------------------------------------------------------
-    def summary(self) -> dict[str, Any] | None:
-        """The current joint-estimation fit as `rig fit --json` keys, or None before 2 trials."""
+    def summary(self) -> FitSummary | None:
+        """The current joint-estimation fit, or the estimates file's before 2 trials (else None)."""
         fit = online_fit_estimate(self.fit_state, self.level)
         if fit is None:
             return self._file_prior
         capacity = capacity_from_fit(fit, self.article.joint_radius_m, self.constant, self.article.g)
-        return fit_summary_dict(fit, capacity)
+        return fit_summary(fit, capacity)
 
     def predict_joint_estimation_force_n(self, distance_m: float) -> float | None:
         """Predicted slip tension at `distance_m` from the fit so far (None before 2 trials)."""
         summary = self.summary()
         if summary is None:
             return None
-        return summary["capacity_nm"] / distance_m
+        return summary.capacity_nm / distance_m
 
     def transforms_for(self, joint_angles_rad: Sequence[float]) -> np.ndarray:
         """The link's (J, 4, 4) transforms at a planar configuration."""
@@ -82,7 +95,7 @@ class RunEstimator:
         est = link_estimator_estimates(state, self.level)
         return {"capacity_nm": est.capacity_nm, "ci_lo_nm": est.ci_lo_nm, "ci_hi_nm": est.ci_hi_nm}
 
-    def predict_link(self, joint_angles_rad: Sequence[float]) -> dict[str, Any] | None:
+    def predict_link(self, joint_angles_rad: Sequence[float]) -> LinkPrediction | None:
         """Predicted slip of the link at a measured configuration from the current estimates."""
         caps = self.joint_capacities()
         if caps is None:
@@ -95,13 +108,13 @@ class RunEstimator:
             np.asarray(self.article.direction),
             g=self.article.g,
         )
-        return {
-            "slip_force_n": float(pred.slip_force_n),
-            "slip_mass_kg": float(pred.slip_mass_kg),
-            "first_slip_joint": int(pred.first_slip_joint),
-            "lever_arms_m": [float(v) for v in np.asarray(pred.lever_arms_m)[1:]],
-            "base_moment_nm": float(pred.base_moment_nm),
-        }
+        return LinkPrediction(
+            slip_force_n=float(pred.slip_force_n),
+            slip_mass_kg=float(pred.slip_mass_kg),
+            first_slip_joint=int(pred.first_slip_joint),
+            lever_arms_m=tuple(float(v) for v in np.asarray(pred.lever_arms_m)[1:]),
+            base_moment_nm=float(pred.base_moment_nm),
+        )
 
     # ---- updates -----------------------------------------------------------------------------
     def update_joint_estimation(self, distance_m: float, mass_kg: float) -> None:
@@ -121,67 +134,59 @@ class RunEstimator:
             state, np.asarray(lever_arms_m, float), peak_force_n, slipped_joint
         )
 
-    def replay(self, results: Sequence[dict[str, Any]]) -> None:
+    def replay(self, results: Sequence[TrialResult]) -> None:
         """Rebuild the state from journalled results, in order (used by --resume)."""
         for r in results:
             self.apply_result(r)
 
-    def apply_result(self, result: dict[str, Any]) -> None:
-        """Feed one finished trial's result (as journalled) into the estimators."""
-        if result.get("outcome") != "slip":
+    def apply_result(self, result: TrialResult) -> None:
+        """Feed one finished trial's result into the estimators (slips only)."""
+        if not result.slipped:
             return
-        if result["kind"] == "joint_estimation":
-            self.update_joint_estimation(result["distance_m"], result["slip_mass_kg"])
+        if result.kind == TrialKind.JOINT_ESTIMATION:
+            assert result.distance_m is not None and result.slip_mass_kg is not None
+            self.update_joint_estimation(result.distance_m, result.slip_mass_kg)
         else:
-            self.update_link(result["lever_arms_m"], result["peak_force_n"], result.get("slipped_joint"))
+            assert result.lever_arms_m is not None and result.peak_force_n is not None
+            self.update_link(result.lever_arms_m, result.peak_force_n, result.slipped_joint)
 
     def _link(self) -> Any:
         if self.link_state is None:
             prior = self.summary()
             if prior is None:
                 return None
-            lo, hi = prior["capacity_ci_nm"]
-            capacity = prior["capacity_nm"]
+            lo, hi = prior.capacity_ci_nm
+            capacity = prior.capacity_nm
             # The fit's bounds on the capacity read as a log-normal spread, widened by the spread
             # between joints of one link: the fit measured one joint and the link has several.
-            z = NormalDist().inv_cdf(0.5 + prior.get("level", 0.99) / 2)
+            z = NormalDist().inv_cdf(0.5 + prior.level / 2)
             fit_sd = (math.log(hi) - math.log(lo)) / (2 * z) if 0 < lo < hi else 0.5
             sd_log = math.hypot(fit_sd, BETWEEN_JOINT_SD_LOG)
             joints = self.article.joint_count
             self.link_state = link_estimator_init(np.full(joints, capacity), np.full(joints, sd_log))
         return self.link_state
 
-    def estimate_message(self, trial_id: int) -> dict[str, Any]:
-        """The `/rig/estimate` payload after a trial: fit keys (null before 2 trials) and joints."""
-        summary = self.summary() or {}
-        message: dict[str, Any] = {"trial_id": trial_id}
-        for key in SUMMARY_KEYS:
-            message[key] = summary.get(key)
-        joints: list[dict[str, Any]] = []
+    def joint_estimates(self) -> tuple[JointCapacity, ...]:
+        """Per-joint capacities with bounds, once link estimation has begun (else empty)."""
         caps = self.joint_capacities() if self.link_state is not None else None
-        if caps is not None:
-            for j in range(len(caps["capacity_nm"])):
-                joints.append(
-                    {
-                        "joint": j + 1,
-                        "capacity_nm": float(caps["capacity_nm"][j]),
-                        "ci_lo_nm": float(caps["ci_lo_nm"][j]),
-                        "ci_hi_nm": float(caps["ci_hi_nm"][j]),
-                    }
-                )
-        message["joints"] = joints
-        return message
+        if caps is None:
+            return ()
+        return tuple(
+            JointCapacity(
+                joint=j + 1,
+                capacity_nm=float(caps["capacity_nm"][j]),
+                ci_lo_nm=float(caps["ci_lo_nm"][j]),
+                ci_hi_nm=float(caps["ci_hi_nm"][j]),
+            )
+            for j in range(len(caps["capacity_nm"]))
+        )
 
-    def estimate_text(self) -> str:
-        """A one-line human summary of the current estimate."""
-        s = self.summary()
-        if s is None:
-            return "estimate: needs 2 slips"
-        lo, hi = s["capacity_ci_nm"]
-        return f"k={s['k']:.4f} kg·m  capacity={s['capacity_nm']:.3f} N·m [{lo:.3f}, {hi:.3f}] (n={s['n']})"
+    def estimate(self, trial_id: int) -> Estimate:
+        """The estimate after trial `trial_id`: the fit so far and the per-joint capacities."""
+        return Estimate(trial_id=trial_id, fit=self.summary(), joints=self.joint_estimates())
 
 
-def load_estimates_file(path: str | Path) -> dict[str, Any]:
+def load_estimates_file(path: str | Path) -> FitSummary:
     """Read an estimates JSON (a `rig fit --json` object, or a run's `.estimates.json`)."""
     p = Path(path)
     try:
@@ -194,4 +199,9 @@ def load_estimates_file(path: str | Path) -> dict[str, Any]:
     for key in ("capacity_nm", "capacity_ci_nm", "k", "n"):
         if key not in summary or summary[key] is None:
             raise InputError(f"{p}: field '{key}' is missing; allowed: a `rig fit --json` object")
-    return summary
+    try:
+        return FitSummary.from_json(summary)
+    except KeyError as exc:
+        raise InputError(f"{p}: field {exc} is missing; allowed: a `rig fit --json` object") from None
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{p}: not a `rig fit --json` object ({exc})") from None

@@ -12,10 +12,10 @@ import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from rig.errors import InputError
 from rig.files import atomic_write_text
+from rig.log.records import TrialResult
 
 JOURNAL_FORMAT = "rig-journal/1"
 RUN_STATUSES = ("running", "completed", "aborted", "faulted", "interrupted")
@@ -38,7 +38,7 @@ class RunJournal:
     rig_hash: str
     seed: int
     planned_trials: list[int]
-    completed: list[dict[str, Any]] = field(default_factory=list)
+    completed: list[TrialResult] = field(default_factory=list)
     logs: list[str] = field(default_factory=list)
     status: str = "running"
     invocations: int = 0
@@ -51,9 +51,9 @@ class RunJournal:
     @property
     def completed_ids(self) -> set[int]:
         """Trial ids already done (whatever their outcome)."""
-        return {int(r["trial_id"]) for r in self.completed}
+        return {r.trial_id for r in self.completed}
 
-    def record_trial(self, result: dict[str, Any]) -> None:
+    def record_trial(self, result: TrialResult) -> None:
         """Append one finished trial and persist atomically."""
         self.completed.append(result)
         self.save()
@@ -69,7 +69,7 @@ class RunJournal:
             "rig_hash": self.rig_hash,
             "seed": self.seed,
             "planned_trials": self.planned_trials,
-            "completed": self.completed,
+            "completed": [r.to_json() for r in self.completed],
             "logs": self.logs,
             "status": self.status,
             "invocations": self.invocations,
@@ -97,7 +97,7 @@ class RunJournal:
                 rig_hash=str(data["rig_hash"]),
                 seed=int(data["seed"]),
                 planned_trials=[int(t) for t in data["planned_trials"]],
-                completed=list(data["completed"]),
+                completed=[TrialResult.from_json(r) for r in data["completed"]],
                 logs=[str(x) for x in data["logs"]],
                 status=str(data["status"]),
                 invocations=int(data.get("invocations", 0)),

@@ -14,6 +14,8 @@ from rich.live import Live
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from rig.log.records import Estimate, TrialResult
+
 
 class ProgressReporter(Protocol):
     """What the runner tells about its progress."""
@@ -26,8 +28,8 @@ class ProgressReporter(Protocol):
         """A trial begins."""
         ...
 
-    def trial_finished(self, row: dict[str, Any], estimate_text: str) -> None:
-        """A trial ended; `row` has the trial's result, `estimate_text` the current estimate."""
+    def trial_finished(self, result: TrialResult, estimate: Estimate) -> None:
+        """A trial ended with `result`; `estimate` is the run's estimate after it."""
         ...
 
     def message(self, text: str) -> None:
@@ -48,7 +50,7 @@ class SilentProgress:
     def trial_started(self, trial_id: int, description: str) -> None:
         pass
 
-    def trial_finished(self, row: dict[str, Any], estimate_text: str) -> None:
+    def trial_finished(self, result: TrialResult, estimate: Estimate) -> None:
         pass
 
     def message(self, text: str) -> None:
@@ -58,18 +60,18 @@ class SilentProgress:
         pass
 
 
-def _result_line(row: dict[str, Any]) -> str:
-    parts = [f"trial {row['trial_id']:>3}", f"{row['outcome']:<8}"]
-    if row.get("distance_m") is not None:
-        parts.append(f"l={row['distance_m']:.3f} m")
-    if row.get("configuration_index") is not None:
-        parts.append(f"config {row['configuration_index']}")
-    if row.get("peak_force_n") is not None:
-        parts.append(f"peak {row['peak_force_n']:.2f} N ({row['slip_mass_kg']:.3f} kg)")
-    if row.get("predicted_mass_kg") is not None:
-        parts.append(f"predicted {row['predicted_mass_kg']:.3f} kg")
-    if row.get("percentage_error") is not None:
-        parts.append(f"error {row['percentage_error']:.1f} %")
+def _result_line(r: TrialResult) -> str:
+    parts = [f"trial {r.trial_id:>3}", f"{r.outcome:<8}"]
+    if r.distance_m is not None:
+        parts.append(f"l={r.distance_m:.3f} m")
+    if r.configuration_index is not None:
+        parts.append(f"config {r.configuration_index}")
+    if r.peak_force_n is not None and r.slip_mass_kg is not None:
+        parts.append(f"peak {r.peak_force_n:.2f} N ({r.slip_mass_kg:.3f} kg)")
+    if r.predicted_mass_kg is not None:
+        parts.append(f"predicted {r.predicted_mass_kg:.3f} kg")
+    if r.percentage_error is not None:
+        parts.append(f"error {r.percentage_error:.1f} %")
     return "  ".join(parts)
 
 
@@ -94,12 +96,14 @@ class PlainProgress:
     def trial_started(self, trial_id: int, description: str) -> None:
         pass
 
-    def trial_finished(self, row: dict[str, Any], estimate_text: str) -> None:
+    def trial_finished(self, result: TrialResult, estimate: Estimate) -> None:
         self.done += 1
         elapsed = time.monotonic() - self.started_at
         rate = (self.done - self.done_at_start) / elapsed if elapsed > 0 else 0.0
         eta = (self.total - self.done) / rate if rate > 0 else 0.0
-        self._print(f"[{self.done}/{self.total} eta {eta:5.0f} s] {_result_line(row)}  | {estimate_text}")
+        self._print(
+            f"[{self.done}/{self.total} eta {eta:5.0f} s] {_result_line(result)}  | {estimate.text()}"
+        )
 
     def message(self, text: str) -> None:
         self._print(text)
@@ -121,7 +125,7 @@ class LiveProgress:
             TimeRemainingColumn(),
             console=self.console,
         )
-        self.rows: list[dict[str, Any]] = []
+        self.rows: list[TrialResult] = []
         self.rows_shown = rows_shown
         self.estimate_text = "no estimate yet"
         self.task: Any = None
@@ -131,20 +135,16 @@ class LiveProgress:
         table = Table(expand=False, title=self.estimate_text, title_justify="left")
         for header in ("trial", "outcome", "distance / config", "peak N", "mass kg", "pred kg", "err %"):
             table.add_column(header, justify="right")
-        for row in self.rows[-self.rows_shown :]:
-            where = (
-                f"{row['distance_m']:.3f} m"
-                if row.get("distance_m") is not None
-                else f"config {row.get('configuration_index')}"
-            )
+        for r in self.rows[-self.rows_shown :]:
+            where = f"{r.distance_m:.3f} m" if r.distance_m is not None else f"config {r.configuration_index}"
             table.add_row(
-                str(row["trial_id"]),
-                str(row["outcome"]),
+                str(r.trial_id),
+                str(r.outcome),
                 where,
-                _fmt(row.get("peak_force_n"), ".2f"),
-                _fmt(row.get("slip_mass_kg"), ".3f"),
-                _fmt(row.get("predicted_mass_kg"), ".3f"),
-                _fmt(row.get("percentage_error"), ".1f"),
+                _fmt(r.peak_force_n, ".2f"),
+                _fmt(r.slip_mass_kg, ".3f"),
+                _fmt(r.predicted_mass_kg, ".3f"),
+                _fmt(r.percentage_error, ".1f"),
             )
         return Group(self.progress, table)
 
@@ -156,9 +156,9 @@ class LiveProgress:
     def trial_started(self, trial_id: int, description: str) -> None:
         self.progress.update(self.task, description=f"trial {trial_id}: {description}")
 
-    def trial_finished(self, row: dict[str, Any], estimate_text: str) -> None:
-        self.rows.append(row)
-        self.estimate_text = estimate_text
+    def trial_finished(self, result: TrialResult, estimate: Estimate) -> None:
+        self.rows.append(result)
+        self.estimate_text = estimate.text()
         self.progress.advance(self.task)
         if self.live is not None:
             self.live.update(self._render())

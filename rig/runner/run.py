@@ -14,22 +14,26 @@ import platform
 import re
 import socket
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import rig
-from rig.errors import InputError
+from model.fit import FitSummary
+from model.payload_errors import PayloadErrorStats
+from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text
 from rig.hw.session import RigSession
+from rig.log.records import JointCapacity, TrialResult
 from rig.log.writer import RunLogger
-from rig.protocol import Protocol, load_protocol
+from rig.protocol import Protocol, TrialPlan, load_protocol
 from rig.rig_config import RigConfig, load_rig_config
 from rig.runner.estimation import RunEstimator, load_estimates_file
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
 from rig.runner.progress import ProgressReporter
-from rig.runner.trial_runner import EXIT_OK, TrialRunner, percentage_error_summary
+from rig.runner.results import percentage_error_stats
+from rig.runner.trial_runner import TrialRunner
 
 _RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 
@@ -54,15 +58,15 @@ class RunReport:
     run_id: str
     log: str
     logs: list[str]
-    trials: list[dict[str, Any]]
+    trials: list[TrialResult]
     completed: int
     planned: int
     aborted: bool
     reason: str | None
-    exit_code: int
-    estimate: dict[str, Any] | None
-    percentage_errors: dict[str, Any] | None
-    joints: list[dict[str, Any]] = field(default_factory=list)
+    exit_code: ExitCode
+    estimate: FitSummary | None
+    percentage_errors: PayloadErrorStats | None
+    joints: tuple[JointCapacity, ...] = ()
     truth: dict[str, Any] | None = None
 
     def as_json(self) -> dict[str, Any]:
@@ -71,16 +75,16 @@ class RunReport:
             "run_id": self.run_id,
             "log": self.log,
             "logs": self.logs,
-            "trials": self.trials,
+            "trials": [t.to_json() for t in self.trials],
             "completed": self.completed,
             "planned": self.planned,
             "aborted": self.aborted,
             "reason": self.reason,
-            "estimate": self.estimate,
-            "joints": self.joints,
+            "estimate": self.estimate.as_json() if self.estimate is not None else None,
+            "joints": [j.to_json() for j in self.joints],
         }
         if self.percentage_errors is not None:
-            out["percentage_errors"] = self.percentage_errors
+            out["percentage_errors"] = self.percentage_errors.to_dict()
         if self.truth is not None:
             out["truth"] = self.truth
         return out
@@ -96,7 +100,7 @@ class PreparedRun:
     run_id: str
     journal: RunJournal
     estimator: RunEstimator
-    remaining: list[Any]
+    remaining: list[TrialPlan]
 
 
 def prepare_run(request: RunRequest) -> PreparedRun:
@@ -196,12 +200,14 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
     journal.status = outcome.status
     journal.save()
     summary = prepared.estimator.summary()
-    joints = prepared.estimator.estimate_message(0)["joints"]
+    joints = prepared.estimator.joint_estimates()
     estimates_path = request.out_dir / f"{journal.run_id}.estimates.json"
-    atomic_write_text(
-        estimates_path,
-        json.dumps({"run_id": journal.run_id, "estimate": summary, "joints": joints}, indent=1) + "\n",
-    )
+    estimates = {
+        "run_id": journal.run_id,
+        "estimate": summary.as_json() if summary is not None else None,
+        "joints": [j.to_json() for j in joints],
+    }
+    atomic_write_text(estimates_path, json.dumps(estimates, indent=1) + "\n")
     truth = session.truth.summary() if session.truth is not None else None
     return RunReport(
         run_id=journal.run_id,
@@ -210,11 +216,11 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
         trials=list(journal.completed),
         completed=len(journal.completed),
         planned=len(protocol.trials),
-        aborted=outcome.exit_code != EXIT_OK,
+        aborted=outcome.exit_code != ExitCode.OK,
         reason=outcome.reason,
         exit_code=outcome.exit_code,
         estimate=summary,
-        percentage_errors=percentage_error_summary(journal.completed),
+        percentage_errors=percentage_error_stats(journal.completed),
         joints=joints,
         truth=truth,
     )

@@ -1,4 +1,4 @@
-"""The trial loop: runs a protocol's trials on a rig session, logging everything and refitting online.
+"""The trial loop and its steps: runs a protocol's trials on a rig session, logging and refitting online.
 
 One control tick reads the servo states (one sync read), drains the load cell (never blocking),
 logs both, checks the interlocks, and hands the samples to the step in progress. Steps are small
@@ -6,6 +6,8 @@ methods (tare, bend, measure, prompt, ramp_until_slip, unload, reset, pause) dri
 protocol's per-trial template. Whatever ends the run (success, interlock, fault, exception,
 Ctrl-C), `run()` finishes in the safe state: line tension released, then torque off, inside a
 block that a second Ctrl-C cannot interrupt, then the log is finished and the journal saved.
+The stages of the safe state are `rig.runner.safe_state`; the trial's record is built by
+`rig.runner.results`.
 """
 
 from __future__ import annotations
@@ -15,11 +17,10 @@ import math
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
-from model.payload_errors import payload_error_stats
 from model.slip_detector import DetectorParams, SlipEvent, detector_init, detector_step
 from rig.errors import (
+    ExitCode,
     HardwareFault,
     InterlockTripped,
     RigError,
@@ -29,7 +30,17 @@ from rig.errors import (
 from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
 from rig.hw.session import RigSession
 from rig.log import schemas
-from rig.log.schemas import LogLevel
+from rig.log.records import (
+    LogLevel,
+    LogMessage,
+    ServoCommand,
+    ServoCommandName,
+    SlipMessage,
+    TrialKind,
+    TrialOutcome,
+    TrialResult,
+    TrialState,
+)
 from rig.log.writer import RunLogger
 from rig.protocol import Protocol, StepSpec, TrialPlan
 from rig.rig_config import RigConfig
@@ -38,21 +49,26 @@ from rig.runner.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
 from rig.runner.journal import RunJournal
 from rig.runner.phases import Phase, PhaseMachine
 from rig.runner.progress import ProgressReporter
+from rig.runner.results import TrialMeasurements, trial_result
+from rig.runner.safe_state import enter_safe_state, move_timeout_s
 from rig.runner.safety import interrupts_deferred
 
-EXIT_OK, EXIT_FAULT, EXIT_INTERRUPTED = 0, 1, 130
 _POSITION_TOLERANCE_RAD = 0.02
 _RELEASED_TENSION_N = 0.5
+_BENDER_SPEED_RAD_S = 2.0
+# The safe state waits this long beyond the winch's travel time: interlocks are off by then, and
+# the load cell may be what failed, so arrival at the zero-tension angle is all it waits for.
+_SAFE_STATE_MARGIN_S = 2.0
 
 
 @dataclass
 class RunOutcome:
     """How a run invocation ended."""
 
-    exit_code: int
+    exit_code: ExitCode
     status: str  # journal status: completed, faulted, interrupted
     reason: str | None = None
-    new_results: list[dict[str, Any]] = field(default_factory=list)
+    new_results: list[TrialResult] = field(default_factory=list)
 
 
 class TrialRunner:
@@ -101,7 +117,7 @@ class TrialRunner:
 
     def run(self, trials: list[TrialPlan]) -> RunOutcome:
         """Run `trials` in order and always end safe; returns the exit code and status."""
-        outcome = RunOutcome(EXIT_OK, "completed")
+        outcome = RunOutcome(ExitCode.OK, "completed")
         try:
             self._connect()
             for trial in trials:
@@ -109,26 +125,33 @@ class TrialRunner:
             self._phase(Phase.DONE, None)
         except KeyboardInterrupt:
             outcome = RunOutcome(
-                EXIT_INTERRUPTED, "interrupted", "interrupted by the operator", outcome.new_results
+                ExitCode.INTERRUPTED, "interrupted", "interrupted by the operator", outcome.new_results
             )
             self._note(LogLevel.WARNING, "interrupted: releasing the line and turning torque off")
         except (InterlockTripped, StaleDataError, HardwareFault, RigTimeoutError) as exc:
-            outcome = RunOutcome(EXIT_FAULT, "faulted", f"{type(exc).__name__}: {exc}", outcome.new_results)
+            outcome = RunOutcome(
+                ExitCode.FAULT, "faulted", f"{type(exc).__name__}: {exc}", outcome.new_results
+            )
             self._note(LogLevel.ERROR, f"run stopped: {exc}")
         except RigError as exc:
-            outcome = RunOutcome(EXIT_FAULT, "faulted", f"{type(exc).__name__}: {exc}", outcome.new_results)
+            outcome = RunOutcome(
+                ExitCode.FAULT, "faulted", f"{type(exc).__name__}: {exc}", outcome.new_results
+            )
             self._note(LogLevel.ERROR, f"run stopped: {exc}")
         except Exception as exc:  # a bug must still end in the safe state, and be reported
-            outcome = RunOutcome(EXIT_FAULT, "faulted", f"internal error: {exc!r}", outcome.new_results)
+            outcome = RunOutcome(ExitCode.FAULT, "faulted", f"internal error: {exc!r}", outcome.new_results)
             self._note(LogLevel.FATAL, "internal error: " + "".join(traceback.format_exception(exc)))
         finally:
             with interrupts_deferred():
                 safe_error = self._make_safe()
-                if safe_error is not None and outcome.exit_code == EXIT_OK:
-                    outcome = RunOutcome(EXIT_FAULT, "faulted", safe_error, outcome.new_results)
-                if outcome.exit_code != EXIT_OK and self.phases.phase not in (Phase.ABORTED, Phase.FAULTED):
+                if safe_error is not None and outcome.exit_code == ExitCode.OK:
+                    outcome = RunOutcome(ExitCode.FAULT, "faulted", safe_error, outcome.new_results)
+                if outcome.exit_code != ExitCode.OK and self.phases.phase not in (
+                    Phase.ABORTED,
+                    Phase.FAULTED,
+                ):
                     self._phase(
-                        Phase.ABORTED if outcome.exit_code == EXIT_INTERRUPTED else Phase.FAULTED, None
+                        Phase.ABORTED if outcome.exit_code == ExitCode.INTERRUPTED else Phase.FAULTED, None
                     )
         return outcome
 
@@ -145,14 +168,16 @@ class TrialRunner:
             goal_current_a=self.config.limits.winch_current_limit_a,
             profile_velocity_rad_s=self.protocol.ramp.fast_speed_rad_s,
         )
-        self._command(winch, "mode", float(OperatingMode.CURRENT_BASED_POSITION), "")
+        self._command(winch, ServoCommandName.MODE, float(OperatingMode.CURRENT_BASED_POSITION), "")
         benders = [sid for sid, role in self.session.roles.items() if role == "bender"]
         for sid in benders:
-            servos.set_operating_mode(sid, OperatingMode.EXTENDED_POSITION, profile_velocity_rad_s=2.0)
-            self._command(sid, "mode", float(OperatingMode.EXTENDED_POSITION), "")
+            servos.set_operating_mode(
+                sid, OperatingMode.EXTENDED_POSITION, profile_velocity_rad_s=_BENDER_SPEED_RAD_S
+            )
+            self._command(sid, ServoCommandName.MODE, float(OperatingMode.EXTENDED_POSITION), "")
         servos.set_torque([winch, *benders], True)
         for sid in (winch, *benders):
-            self._command(sid, "torque", 1.0, "")
+            self._command(sid, ServoCommandName.TORQUE, 1.0, "")
         self.session.load_cell.open()
         self._next_tick_ns = self.clock.monotonic_ns()
         self._tick()
@@ -211,34 +236,46 @@ class TrialRunner:
         while self.clock.monotonic_ns() < end:
             self._tick()
 
-    def _wait_until(self, done: Callable[[], bool], timeout_s: float, what: str) -> None:
+    def _wait_until(
+        self, done: Callable[[], bool], timeout_s: float, what: str, step: Callable[[], None] | None = None
+    ) -> None:
+        """Call `step` (a control tick by default) until `done()`; RigTimeoutError after `timeout_s`."""
+        step = step or self._tick
         deadline = self.clock.monotonic_ns() + round(timeout_s * 1e9)
         while not done():
             if self.clock.monotonic_ns() > deadline:
                 raise RigTimeoutError(f"step {what} did not finish within its timeout of {timeout_s:.1f} s")
-            self._tick()
+            step()
 
     # ------------------------------------------------------------------ trial
 
-    def _run_trial(self, trial: TrialPlan) -> dict[str, Any]:
+    def _run_trial(self, trial: TrialPlan) -> TrialResult:
         self.trial = trial
         self.session.begin_trial(trial)
         start_ns = self.clock.time_ns()
         self.progress.trial_started(trial.trial_id, self._describe(trial))
-        ctx: dict[str, Any] = {"angles": trial.joint_angles_rad, "slipped_joint": None}
+        found = TrialMeasurements(joint_angles_rad=trial.joint_angles_rad)
         for step in trial.steps:
-            self._run_step(step, trial, ctx)
-        result = self._result(trial, ctx, start_ns)
+            self._run_step(step, trial, found)
+        result = trial_result(
+            trial,
+            found,
+            start_time_ns=start_ns,
+            end_time_ns=self.clock.time_ns(),
+            tare_n=self.tare_n,
+            g=self.config.article.g,
+        )
         self.estimator.apply_result(result)
+        estimate = self.estimator.estimate(trial.trial_id)
         log_time = self.clock.time_ns()
-        self.log.log(schemas.TRIAL_RESULT, log_time, self._result_payload(result))
-        self.log.log(schemas.ESTIMATE, log_time, self._estimate_payload(trial.trial_id))
+        self.log.log(schemas.TRIAL_RESULT, log_time, result.to_payload())
+        self.log.log(schemas.ESTIMATE, log_time, estimate.to_payload())
         self.log.flush(wait=True)
         self.journal.record_trial(result)
-        self.progress.trial_finished(result, self.estimator.estimate_text())
+        self.progress.trial_finished(result, estimate)
         return result
 
-    def _run_step(self, step: StepSpec, trial: TrialPlan, ctx: dict[str, Any]) -> None:
+    def _run_step(self, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
         kind = step.kind
         if kind == "prompt":
             self._phase(Phase.PROMPTING, trial.trial_id, "prompt")
@@ -246,11 +283,11 @@ class TrialRunner:
         elif kind == "tare":
             self._tare(step.duration_s, trial)
         elif kind == "bend":
-            self._bend(trial, ctx)
+            self._bend(trial)
         elif kind == "measure":
-            self._measure(trial, ctx)
+            self._measure(found)
         elif kind == "ramp_until_slip":
-            self._ramp_until_slip(trial, ctx)
+            self._ramp_until_slip(trial, found)
         elif kind == "unload":
             self._unload(trial)
         elif kind == "reset":
@@ -280,9 +317,9 @@ class TrialRunner:
         servos = self.session.servos
         servos.write_goal_positions(goals)
         for sid, goal in goals.items():
-            self._command(sid, "goal_position", goal, "rad")
+            self._command(sid, ServoCommandName.GOAL_POSITION, goal, "rad")
         travel = max(abs(goal - self.states[sid].position_rad) for sid, goal in goals.items())
-        timeout = travel / speed_rad_s * 2.0 + self.protocol.step_timeout_margin_s
+        timeout = move_timeout_s(travel, speed_rad_s, self.protocol.step_timeout_margin_s)
 
         def arrived() -> bool:
             return all(
@@ -293,7 +330,7 @@ class TrialRunner:
 
         self._wait_until(arrived, timeout, what)
 
-    def _bend(self, trial: TrialPlan, ctx: dict[str, Any]) -> None:
+    def _bend(self, trial: TrialPlan) -> None:
         self._phase(Phase.BENDING, trial.trial_id, "bend")
         angles = trial.joint_angles_rad or ()
         goals = self.session.fixture.bend_goals(angles)
@@ -303,7 +340,7 @@ class TrialRunner:
                 f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg", trial
             )
             return
-        self._move_servos(goals, "bend", speed_rad_s=2.0)
+        self._move_servos(goals, "bend", speed_rad_s=_BENDER_SPEED_RAD_S)
 
     def _reset(self, trial: TrialPlan) -> None:
         self._phase(Phase.RESETTING, trial.trial_id, "reset")
@@ -311,38 +348,36 @@ class TrialRunner:
         if not goals:
             self.session.operator.confirm("Straighten the link (reset), then confirm.", trial)
             return
-        self._move_servos(goals, "reset", speed_rad_s=2.0)
+        self._move_servos(goals, "reset", speed_rad_s=_BENDER_SPEED_RAD_S)
 
-    def _measure(self, trial: TrialPlan, ctx: dict[str, Any]) -> None:
+    def _measure(self, found: TrialMeasurements) -> None:
         source = self.session.configuration
         if source is None:
             return  # the commanded configuration stands for the measured one
         reading = source.measure()
         if reading.joint_angles_rad is not None:
-            ctx["angles"] = tuple(reading.joint_angles_rad)
+            found.joint_angles_rad = tuple(reading.joint_angles_rad)
 
     # ------------------------------------------------------------------ ramp
 
-    def _predicted_force_n(self, trial: TrialPlan, ctx: dict[str, Any]) -> float | None:
-        if trial.kind == "joint_estimation":
+    def _predicted_force_n(self, trial: TrialPlan, found: TrialMeasurements) -> float | None:
+        if trial.kind == TrialKind.JOINT_ESTIMATION:
             assert trial.distance_m is not None
-            force = self.estimator.predict_joint_estimation_force_n(trial.distance_m)
-            ctx["predicted_force_n"] = force
-            ctx["lever_arms_m"] = None
-            return force
-        prediction = self.estimator.predict_link(ctx["angles"])
+            found.predicted_force_n = self.estimator.predict_joint_estimation_force_n(trial.distance_m)
+            found.lever_arms_m = None
+            return found.predicted_force_n
+        prediction = self.estimator.predict_link(found.joint_angles_rad or ())
         if prediction is None:
             raise InterlockTripped("link validation needs joint estimates, and none are available")
-        ctx["prediction"] = prediction
-        ctx["predicted_force_n"] = prediction["slip_force_n"]
-        ctx["lever_arms_m"] = prediction["lever_arms_m"]
-        return prediction["slip_force_n"]
+        found.predicted_force_n = prediction.slip_force_n
+        found.lever_arms_m = prediction.lever_arms_m
+        return prediction.slip_force_n
 
-    def _ramp_until_slip(self, trial: TrialPlan, ctx: dict[str, Any]) -> None:
+    def _ramp_until_slip(self, trial: TrialPlan, found: TrialMeasurements) -> None:
         ramp = self.protocol.ramp
         winch = self.session.winch_id
         servos = self.session.servos
-        predicted = self._predicted_force_n(trial, ctx)
+        predicted = self._predicted_force_n(trial, found)
         switch_n = self.detector_params.arm_threshold_n
         if predicted is not None and math.isfinite(predicted):
             switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
@@ -365,7 +400,7 @@ class TrialRunner:
         )
         servos.set_profile(winch, velocity_rad_s=ramp.fast_speed_rad_s if fast else ramp.slow_speed_rad_s)
         servos.write_goal_positions({winch: target})
-        self._command(winch, "goal_position", target, "rad")
+        self._command(winch, ServoCommandName.GOAL_POSITION, target, "rad")
         params = self.detector_params
         state = detector_init(params)
         event: SlipEvent | None = None
@@ -388,16 +423,16 @@ class TrialRunner:
                 fast = False
                 servos.set_profile(winch, velocity_rad_s=ramp.slow_speed_rad_s)
                 servos.write_goal_positions({winch: target})
-                self._command(winch, "goal_position", target, "rad")
+                self._command(winch, ServoCommandName.GOAL_POSITION, target, "rad")
                 self._phase(Phase.RAMP_SLOW, trial.trial_id, "ramp_until_slip")
             if self.force_n >= ramp.max_force_n:
-                ctx["outcome"] = "no_slip"
+                found.outcome = TrialOutcome.NO_SLIP
                 self._note(
                     LogLevel.WARNING, f"trial {trial.trial_id}: no slip up to {ramp.max_force_n:.1f} N"
                 )
                 break
             if self.states[winch].position_rad >= target - _POSITION_TOLERANCE_RAD:
-                ctx["outcome"] = "no_slip"
+                found.outcome = TrialOutcome.NO_SLIP
                 self._note(LogLevel.WARNING, f"trial {trial.trial_id}: winch travel exhausted without a slip")
                 break
             if self.clock.monotonic_ns() > deadline:
@@ -407,15 +442,19 @@ class TrialRunner:
         # Stop reeling: hold where the winch is, keep logging the post-slip tension briefly.
         hold = self.states[winch].position_rad
         servos.write_goal_positions({winch: hold})
-        self._command(winch, "goal_position", hold, "rad")
-        ctx["peak_observed_n"] = peak_n
+        self._command(winch, ServoCommandName.GOAL_POSITION, hold, "rad")
+        found.peak_observed_n = peak_n
         if event is not None:
-            ctx["outcome"] = "slip"
-            ctx["event"] = event
+            found.outcome = TrialOutcome.SLIP
+            found.event = event
             self._ticks_for(ramp.hold_after_slip_s)
             if self.session.configuration is not None:
-                ctx["slipped_joint"] = self.session.configuration.measure().slipped_joint
-            self._log_slip(trial, event, ctx["slipped_joint"])
+                found.slipped_joint = self.session.configuration.measure().slipped_joint
+            self._log(
+                schemas.SLIP,
+                SlipMessage(trial.trial_id, event, params.to_mapping(), found.slipped_joint).to_payload(),
+                event.detection_time_ns,
+            )
 
     def _confirmed_by_winch(self, event: SlipEvent) -> bool:
         """A tension drop is a slip only if the winch was not backing off (it reels in or holds)."""
@@ -427,182 +466,89 @@ class TrialRunner:
             self._note(LogLevel.WARNING, f"drop at {event.peak_force_n:.2f} N ignored: winch was backing off")
         return confirmed
 
+    # ------------------------------------------------------------------ releasing the line
+
     def _unload(self, trial: TrialPlan) -> None:
         self._phase(Phase.UNLOADING, trial.trial_id, "unload")
-        self._release_tension(timeout_extra_s=self.protocol.step_timeout_margin_s)
+        self._release_tension(safe_state=False)
 
-    def _release_tension(self, timeout_extra_s: float) -> None:
+    def _release_tension(self, *, safe_state: bool) -> None:
+        """Back the winch off to its zero-tension angle: the unload step, and the safe state's release.
+
+        As a step it ticks with the interlocks live and waits until the winch is home and the line
+        slack by the load cell. In the safe state the interlocks are what stopped the run and the
+        load cell may be dead, so it reads the servos directly, ignores stale data, and waits only
+        for the winch to be home.
+        """
         winch = self.session.winch_id
         zero = self.winch_zero_rad
         if zero is None:
             return
+        servos = self.session.servos
         speed = self.protocol.ramp.unload_speed_rad_s
-        self.session.servos.set_profile(winch, velocity_rad_s=speed)
-        self.session.servos.write_goal_positions({winch: zero})
-        self._command(winch, "goal_position", zero, "rad")
-        travel = abs(self.states[winch].position_rad - zero)
-        self._wait_until(
-            lambda: (
-                abs(self.states[winch].position_rad - zero) < _POSITION_TOLERANCE_RAD
-                and self.force_n < _RELEASED_TENSION_N + abs(self.tare_n)
-            ),
-            travel / speed * 2.0 + timeout_extra_s,
-            "unload",
-        )
+        servos.set_profile(winch, velocity_rad_s=speed)
+        servos.write_goal_positions({winch: zero})
+        self._command(winch, ServoCommandName.GOAL_POSITION, zero, "rad")
+
+        def winch_home() -> bool:
+            return abs(self.states[winch].position_rad - zero) < _POSITION_TOLERANCE_RAD
+
+        if safe_state:
+            self.states = servos.read_states()  # the last tick's states may be old
+            margin_s, step, done = _SAFE_STATE_MARGIN_S, self._tick_without_interlocks, winch_home
+        else:
+
+            def done() -> bool:
+                return winch_home() and self.force_n < _RELEASED_TENSION_N + abs(self.tare_n)
+
+            margin_s, step = self.protocol.step_timeout_margin_s, self._tick
+        travel = self.states[winch].position_rad - zero
+        self._wait_until(done, move_timeout_s(travel, speed, margin_s), "unload", step)
+
+    def _tick_without_interlocks(self) -> None:
+        """One control period of the safe state: read and log, no interlocks, stale data ignored."""
+        self.clock.sleep(self.protocol.control_period_s)
+        self.states = self.session.servos.read_states()
+        try:
+            self._ingest(self.session.load_cell.poll())
+        except StaleDataError:
+            self.tick_samples = []
 
     # ------------------------------------------------------------------ safety
 
     def _make_safe(self) -> str | None:
         """Release the line, then torque off every servo, then close; returns an error text or None."""
-        errors: list[str] = []
 
         def release() -> None:
             if not self.connected or self.winch_zero_rad is None:
                 return
-            try:
-                winch_state = self.states.get(self.session.winch_id)
-                if winch_state is not None and winch_state.hardware_error:
-                    return  # torque already dropped by the fault: the line is slack
-                self._phase_quiet(Phase.UNLOADING)
-                self._release_tension_without_interlocks()
-            except Exception as exc:  # keep going to torque off
-                errors.append(f"release failed: {exc}")
+            winch_state = self.states.get(self.session.winch_id)
+            if winch_state is not None and winch_state.hardware_error:
+                return  # torque already dropped by the fault: the line is slack
+            self._phase_quiet(Phase.UNLOADING)
+            self._release_tension(safe_state=True)
 
-        try:
-            self.session.servos.shutdown(release)
-        except Exception as exc:
-            errors.append(f"torque off failed: {exc}")
-        try:
-            self.session.load_cell.close()
-        except Exception as exc:
-            errors.append(f"load cell close failed: {exc}")
-        try:
-            self.session.close()
-        except Exception as exc:
-            errors.append(f"session close failed: {exc}")
+        errors = enter_safe_state(self.session, release)
         if errors:
             self._note(LogLevel.ERROR, "; ".join(errors))
             return "; ".join(errors)
         self._note(LogLevel.INFO, "safe state: line released, torque off")
         return None
 
-    def _release_tension_without_interlocks(self) -> None:
-        """Back the winch off to zero tension, bounded, ignoring interlocks (they caused this)."""
-        winch = self.session.winch_id
-        zero = self.winch_zero_rad
-        assert zero is not None
-        servos = self.session.servos
-        speed = self.protocol.ramp.unload_speed_rad_s
-        servos.set_profile(winch, velocity_rad_s=speed)
-        servos.write_goal_positions({winch: zero})
-        self._command(winch, "goal_position", zero, "rad")
-        state = servos.read_states()[winch]
-        deadline = self.clock.monotonic_ns() + round((abs(state.position_rad - zero) / speed * 2 + 2.0) * 1e9)
-        while self.clock.monotonic_ns() < deadline:
-            self.clock.sleep(self.protocol.control_period_s)
-            self.states = servos.read_states()
-            try:
-                self._ingest(self.session.load_cell.poll())
-            except StaleDataError:
-                self.tick_samples = []
-            if abs(self.states[winch].position_rad - zero) < _POSITION_TOLERANCE_RAD:
-                return
-        raise RigTimeoutError("winch did not return to zero tension within its timeout")
+    # ------------------------------------------------------------------ logging
 
-    # ------------------------------------------------------------------ results and logging
+    def _log(self, topic: str, payload: dict[str, object], time_ns: int | None = None) -> None:
+        self.log.log(topic, self.clock.time_ns() if time_ns is None else time_ns, payload)
 
-    def _result(self, trial: TrialPlan, ctx: dict[str, Any], start_ns: int) -> dict[str, Any]:
-        event: SlipEvent | None = ctx.get("event")
-        g = self.config.article.g
-        peak = event.peak_force_n if event is not None else ctx.get("peak_observed_n")
-        predicted_force = ctx.get("predicted_force_n")
-        predicted_mass = predicted_force / g if predicted_force is not None else None
-        slip_mass = peak / g if peak is not None else None
-        pct = None
-        if event is not None and predicted_mass is not None and trial.kind == "link_validation":
-            pct = (predicted_mass - slip_mass) / slip_mass * 100.0
-        angles = ctx.get("angles")
-        return {
-            "trial_id": trial.trial_id,
-            "kind": trial.kind,
-            "repeat": trial.repeat,
-            "joint": trial.joint,
-            "distance_m": trial.distance_m,
-            "configuration_index": trial.configuration_index,
-            "joint_angles_rad": list(angles) if angles is not None else None,
-            "start_time_ns": start_ns,
-            "end_time_ns": self.clock.time_ns(),
-            "outcome": ctx.get("outcome", "no_slip"),
-            "peak_force_n": peak,
-            "slip_mass_kg": slip_mass,
-            "predicted_force_n": predicted_force,
-            "predicted_mass_kg": predicted_mass,
-            "percentage_error": pct,
-            "slipped_joint": ctx.get("slipped_joint"),
-            "lever_arms_m": ctx.get("lever_arms_m"),
-            "tare_n": self.tare_n,
-        }
-
-    def _result_payload(self, r: dict[str, Any]) -> dict[str, Any]:
-        config = {"joint_angles_rad": r["joint_angles_rad"]} if r["joint_angles_rad"] is not None else None
-        return schemas.trial_result(
-            trial_id=r["trial_id"],
-            kind=r["kind"],
-            start_time_ns=r["start_time_ns"],
-            end_time_ns=r["end_time_ns"],
-            outcome=r["outcome"],
-            peak_force_n=r["peak_force_n"],
-            slip_mass_kg=r["slip_mass_kg"],
-            predicted_mass_kg=r["predicted_mass_kg"],
-            distance_m=r["distance_m"],
-            configuration=config,
-            slipped_joint=r["slipped_joint"],
-            repeat=r["repeat"],
-            lever_arms_m=r["lever_arms_m"],
-        )
-
-    def _estimate_payload(self, trial_id: int) -> dict[str, Any]:
-        message = self.estimator.estimate_message(trial_id)
-        fit = {k: v for k, v in message.items() if k not in ("trial_id", "joints")}
-        return schemas.estimate(
-            trial_id=trial_id, fit=fit if fit.get("n") else None, joints=message["joints"]
-        )
-
-    def _log_slip(self, trial: TrialPlan, event: SlipEvent, joint: int | None) -> None:
-        self.log.log(
-            schemas.SLIP,
-            event.detection_time_ns,
-            schemas.slip_event(
-                trial_id=trial.trial_id,
-                onset_time_ns=event.onset_time_ns,
-                detection_time_ns=event.detection_time_ns,
-                peak_time_ns=event.peak_time_ns,
-                peak_force_n=event.peak_force_n,
-                force_after_n=event.force_after_n,
-                drop_fraction=event.drop_fraction,
-                detector=self.detector_params.to_mapping(),
-                trigger=event.trigger,
-                joint=joint,
-            ),
-        )
-
-    def _command(self, servo_id: int, command: str, value: float | None, unit: str) -> None:
+    def _command(self, servo_id: int, command: ServoCommandName, value: float | None, unit: str) -> None:
         role = self.session.roles.get(servo_id, "")
-        self.log.log(
-            schemas.SERVO_COMMAND,
-            self.clock.time_ns(),
-            schemas.servo_command(servo_id=servo_id, role=role, command=command, value=value, unit=unit),
-        )
+        self._log(schemas.SERVO_COMMAND, ServoCommand(servo_id, role, command, value, unit).to_payload())
 
     def _phase(
         self, phase: Phase, trial_id: int | None, step: str | None = None, at_ns: int | None = None
     ) -> None:
         if self.phases.to(phase):
-            self.log.log(
-                schemas.TRIAL_STATE,
-                self.clock.time_ns() if at_ns is None else at_ns,
-                schemas.trial_state(trial_id=trial_id, phase=phase, step=step),
-            )
+            self._log(schemas.TRIAL_STATE, TrialState(trial_id, phase, step).to_payload(), at_ns)
 
     def _phase_quiet(self, phase: Phase) -> None:
         """Best-effort phase change during cleanup (never raises)."""
@@ -612,29 +558,13 @@ class TrialRunner:
     def _note(self, level: LogLevel, text: str) -> None:
         # The log itself may be what failed; the progress line below still tells.
         with contextlib.suppress(Exception):
-            self.log.log(
-                schemas.LOG,
-                self.clock.time_ns(),
-                schemas.log_message(time_ns=self.clock.time_ns(), level=level, message=text),
-            )
+            now = self.clock.time_ns()
+            self._log(schemas.LOG, LogMessage(now, level, text).to_payload(), now)
         if level >= LogLevel.WARNING:
             self.progress.message(text)
 
     @staticmethod
     def _describe(trial: TrialPlan) -> str:
-        if trial.kind == "joint_estimation":
+        if trial.kind == TrialKind.JOINT_ESTIMATION:
             return f"joint {trial.joint} at {trial.distance_m:.3f} m (repeat {trial.repeat})"
         return f"configuration {trial.configuration_index} (repeat {trial.repeat})"
-
-
-def percentage_error_summary(results: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """Table IV statistics over the link-validation slips of a run, or None if there are none."""
-    rows = [
-        r
-        for r in results
-        if r["kind"] == "link_validation" and r["outcome"] == "slip" and r["predicted_mass_kg"]
-    ]
-    if not rows:
-        return None
-    stats = payload_error_stats([r["predicted_mass_kg"] for r in rows], [r["slip_mass_kg"] for r in rows])
-    return stats.to_dict()

@@ -1,0 +1,495 @@
+"""What a run produces, as typed records: one frozen dataclass per thing, the single source of its shapes.
+
+Each record is built once by the runner and then shown in several places: the MCAP payload
+(`to_payload`, whose JSON Schema `rig.log.schemas` derives from the record's fields), the run
+journal and `rig run --json` (`TrialResult.to_json`), the progress line (`Estimate.text`), and
+replay, which decodes the logged payload back into the very same record (`from_payload`).
+
+Payload conventions: a record's fields appear under their own names; a missing or non-finite
+number is `null`; every `*_time_ns` field (epoch ns, exact for Python) has a `{sec, nsec}` twin
+named without the suffix (`start_time_ns` → `start`) for JavaScript readers and Foxglove.
+Decoders accept the payloads of older logs (fields added since are None there).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from enum import IntEnum, StrEnum
+from typing import Any
+
+from model.fit import FitSummary
+from model.slip_detector import SlipEvent
+
+NS_PER_S = 1_000_000_000
+
+
+class TrialPhase(StrEnum):
+    """Phases of the runner's state machine, as logged on `/rig/trial/state`."""
+
+    IDLE = "idle"
+    CONNECTING = "connecting"
+    TARING = "taring"
+    BENDING = "bending"
+    PROMPTING = "prompting"
+    RAMP_FAST = "ramp_fast"
+    RAMP_SLOW = "ramp_slow"
+    UNLOADING = "unloading"
+    RESETTING = "resetting"
+    PAUSING = "pausing"
+    DONE = "done"
+    ABORTED = "aborted"
+    FAULTED = "faulted"
+
+
+class TrialKind(StrEnum):
+    """The two trial kinds of the paper: one joint at a distance, or the whole link bent."""
+
+    JOINT_ESTIMATION = "joint_estimation"
+    LINK_VALIDATION = "link_validation"
+
+
+class TrialOutcome(StrEnum):
+    """How a trial ended."""
+
+    SLIP = "slip"
+    NO_SLIP = "no_slip"
+    ABORTED = "aborted"
+    FAULT = "fault"
+
+
+class ServoCommandName(StrEnum):
+    """What a logged servo command set."""
+
+    GOAL_POSITION = "goal_position"
+    GOAL_CURRENT = "goal_current"
+    GOAL_VELOCITY = "goal_velocity"
+    PROFILE_VELOCITY = "profile_velocity"
+    PROFILE_ACCELERATION = "profile_acceleration"
+    TORQUE = "torque"
+    MODE = "mode"
+    REBOOT = "reboot"
+
+
+class LogLevel(IntEnum):
+    """`foxglove.Log` levels."""
+
+    UNKNOWN = 0
+    DEBUG = 1
+    INFO = 2
+    WARNING = 3
+    ERROR = 4
+    FATAL = 5
+
+
+# ---------------------------------------------------------------------------------------------
+# Value coercion shared by the encoders
+
+
+def stamp(time_ns: int) -> dict[str, int]:
+    """Epoch nanoseconds as a `{sec, nsec}` timestamp (foxglove.Timestamp)."""
+    t = _int(time_ns, "time_ns")
+    if t < 0:
+        raise ValueError(f"time_ns: {t} is before the epoch")
+    sec, nsec = divmod(t, NS_PER_S)
+    return {"sec": sec, "nsec": nsec}
+
+
+def stamp_name(time_field: str) -> str:
+    """The `{sec, nsec}` twin of an epoch-ns field: `start_time_ns` → `start`."""
+    return time_field.removesuffix("_time_ns")
+
+
+def _num(value: Any, name: str) -> float:
+    if value is None or isinstance(value, bool):
+        raise ValueError(f"{name}: {value!r} is not a number")
+    x = float(value)
+    if not math.isfinite(x):
+        raise ValueError(f"{name}: {x} is not a finite number")
+    return x
+
+
+def _num_or_none(value: Any, name: str) -> float | None:
+    """A nullable number: None and non-finite values become null."""
+    if value is None:
+        return None
+    if isinstance(value, bool):
+        raise ValueError(f"{name}: {value!r} is not a number")
+    x = float(value)
+    return x if math.isfinite(x) else None
+
+
+def _int(value: Any, name: str) -> int:
+    if value is None or isinstance(value, bool):
+        raise ValueError(f"{name}: {value!r} is not an integer")
+    if isinstance(value, float):
+        if not value.is_integer():
+            raise ValueError(f"{name}: {value!r} is not an integer")
+        return int(value)
+    try:
+        return int(value.__index__())
+    except (AttributeError, TypeError):
+        raise ValueError(f"{name}: {value!r} is not an integer") from None
+
+
+def _int_or_none(value: Any, name: str) -> int | None:
+    return None if value is None else _int(value, name)
+
+
+def _numbers_or_none(values: Sequence[Any] | None, name: str) -> list[float] | None:
+    if values is None:
+        return None
+    return [_num(v, f"{name}[{i}]") for i, v in enumerate(values)]
+
+
+def _tuple_or_none(values: Sequence[Any] | None) -> tuple[float, ...] | None:
+    return None if values is None else tuple(float(v) for v in values)
+
+
+def _with_stamps(payload: dict[str, Any]) -> dict[str, Any]:
+    """Add the `{sec, nsec}` twin of every `*_time_ns` field that has a value."""
+    twins = {stamp_name(k): stamp(v) for k, v in payload.items() if k.endswith("_time_ns") and v is not None}
+    payload.update(twins)
+    return payload
+
+
+# ---------------------------------------------------------------------------------------------
+# Records
+
+
+@dataclass(frozen=True, slots=True)
+class ServoCommand:
+    """A command sent to a servo (logged at the time it was sent)."""
+
+    servo_id: int
+    role: str
+    command: ServoCommandName
+    value: float | None  # setpoint in `unit`; None for reboot
+    unit: str  # e.g. rad, A, rad/s, bool, mode; empty if none
+
+    def to_payload(self) -> dict[str, Any]:
+        """The `/rig/servo/command` payload."""
+        return {
+            "servo_id": _int(self.servo_id, "servo_id"),
+            "role": str(self.role),
+            "command": ServoCommandName(self.command).value,
+            "value": _num_or_none(self.value, "value"),
+            "unit": str(self.unit),
+        }
+
+    @classmethod
+    def from_payload(cls, payload: Mapping[str, Any]) -> ServoCommand:
+        """Decode a `/rig/servo/command` payload."""
+        return cls(
+            servo_id=_int(payload["servo_id"], "servo_id"),
+            role=str(payload["role"]),
+            command=ServoCommandName(payload["command"]),
+            value=_num_or_none(payload.get("value"), "value"),
+            unit=str(payload.get("unit", "")),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class TrialState:
+    """A phase change of the runner (`trial_id` is None outside trials)."""
+
+    trial_id: int | None
+    phase: TrialPhase
+    step: str | None = None
+
+    def to_payload(self) -> dict[str, Any]:
+        """The `/rig/trial/state` payload."""
+        return {
+            "trial_id": _int_or_none(self.trial_id, "trial_id"),
+            "phase": TrialPhase(self.phase).value,
+            "step": None if self.step is None else str(self.step),
+        }
+
+    @classmethod
+    def from_payload(cls, payload: Mapping[str, Any]) -> TrialState:
+        """Decode a `/rig/trial/state` payload."""
+        return cls(
+            trial_id=_int_or_none(payload.get("trial_id"), "trial_id"),
+            phase=TrialPhase(payload["phase"]),
+            step=payload.get("step"),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class SlipMessage:
+    """A slip the detector reported during a trial: the detector's own `SlipEvent` and its context."""
+
+    trial_id: int
+    event: SlipEvent
+    detector: Mapping[str, float | None]  # the detector's parameters by name
+    joint: int | None = None  # 1-based joint that slipped, if the configuration source knows
+
+    def to_payload(self) -> dict[str, Any]:
+        """The `/rig/slip` payload: the event's fields inline, with the trial, detector and joint."""
+        e = self.event
+        return _with_stamps(
+            {
+                "trial_id": _int(self.trial_id, "trial_id"),
+                "onset_time_ns": _int(e.onset_time_ns, "onset_time_ns"),
+                "detection_time_ns": _int(e.detection_time_ns, "detection_time_ns"),
+                "peak_time_ns": _int(e.peak_time_ns, "peak_time_ns"),
+                "peak_force_n": _num(e.peak_force_n, "peak_force_n"),
+                "force_after_n": _num(e.force_after_n, "force_after_n"),
+                "drop_fraction": _num(e.drop_fraction, "drop_fraction"),
+                "trigger": str(e.trigger),
+                "detector": {str(k): _num_or_none(v, f"detector.{k}") for k, v in self.detector.items()},
+                "joint": _int_or_none(self.joint, "joint"),
+            }
+        )
+
+    @classmethod
+    def from_payload(cls, payload: Mapping[str, Any]) -> SlipMessage:
+        """Decode a `/rig/slip` payload back into the `SlipEvent` the detector emitted."""
+        event = SlipEvent(
+            onset_time_ns=_int(payload["onset_time_ns"], "onset_time_ns"),
+            detection_time_ns=_int(payload["detection_time_ns"], "detection_time_ns"),
+            peak_time_ns=_int(payload["peak_time_ns"], "peak_time_ns"),
+            peak_force_n=float(payload["peak_force_n"]),
+            force_after_n=float(payload["force_after_n"]),
+            drop_fraction=float(payload["drop_fraction"]),
+            trigger=str(payload["trigger"]),
+        )
+        detector = payload.get("detector") or {}
+        return cls(
+            trial_id=_int(payload["trial_id"], "trial_id"),
+            event=event,
+            detector={str(k): _num_or_none(v, k) for k, v in detector.items()},
+            joint=_int_or_none(payload.get("joint"), "joint"),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class TrialResult:
+    """One finished trial: what was planned, what was measured and predicted, and how it ended.
+
+    The same record is the journal entry, a `rig run --json` trial, the `/rig/trial/result`
+    payload and what replay reads back.
+    """
+
+    trial_id: int
+    kind: TrialKind
+    repeat: int
+    joint: int | None  # joint under test (joint estimation)
+    distance_m: float | None  # load distance (joint estimation)
+    configuration_index: int | None  # configuration of the plan (link validation)
+    joint_angles_rad: tuple[float, ...] | None  # measured (else commanded) configuration
+    start_time_ns: int
+    end_time_ns: int
+    outcome: TrialOutcome
+    peak_force_n: float | None  # the slip load (slip), or the highest tension seen (no slip)
+    slip_mass_kg: float | None  # peak_force_n / g
+    predicted_force_n: float | None  # from the estimates before this trial
+    predicted_mass_kg: float | None
+    percentage_error: float | None  # (predicted − measured) / measured · 100, link-validation slips
+    slipped_joint: int | None  # 1-based, when the configuration source reports it
+    lever_arms_m: tuple[float, ...] | None  # of the line about each joint (link validation)
+    tare_n: float  # load-cell offset removed before the ramp
+
+    @property
+    def slipped(self) -> bool:
+        """Whether the trial ended in a slip."""
+        return self.outcome == TrialOutcome.SLIP
+
+    def to_json(self) -> dict[str, Any]:
+        """The journal entry and `rig run --json` trial: every field, plain JSON values."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, StrEnum):
+                value = value.value
+            elif isinstance(value, tuple):
+                value = list(value)
+            out[f.name] = value
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> TrialResult:
+        """Read a journal entry back; KeyError or ValueError name a missing or bad field."""
+        return cls(
+            trial_id=_int(data["trial_id"], "trial_id"),
+            kind=TrialKind(data["kind"]),
+            repeat=_int(data.get("repeat", 0), "repeat"),
+            joint=_int_or_none(data.get("joint"), "joint"),
+            distance_m=_num_or_none(data.get("distance_m"), "distance_m"),
+            configuration_index=_int_or_none(data.get("configuration_index"), "configuration_index"),
+            joint_angles_rad=_tuple_or_none(data.get("joint_angles_rad")),
+            start_time_ns=_int(data["start_time_ns"], "start_time_ns"),
+            end_time_ns=_int(data["end_time_ns"], "end_time_ns"),
+            outcome=TrialOutcome(data["outcome"]),
+            peak_force_n=_num_or_none(data.get("peak_force_n"), "peak_force_n"),
+            slip_mass_kg=_num_or_none(data.get("slip_mass_kg"), "slip_mass_kg"),
+            predicted_force_n=_num_or_none(data.get("predicted_force_n"), "predicted_force_n"),
+            predicted_mass_kg=_num_or_none(data.get("predicted_mass_kg"), "predicted_mass_kg"),
+            percentage_error=_num_or_none(data.get("percentage_error"), "percentage_error"),
+            slipped_joint=_int_or_none(data.get("slipped_joint"), "slipped_joint"),
+            lever_arms_m=_tuple_or_none(data.get("lever_arms_m")),
+            tare_n=float(data.get("tare_n") or 0.0),
+        )
+
+    def to_payload(self) -> dict[str, Any]:
+        """The `/rig/trial/result` payload: every field (non-finite numbers as null) and time twins."""
+        return _with_stamps(
+            {
+                "trial_id": _int(self.trial_id, "trial_id"),
+                "kind": TrialKind(self.kind).value,
+                "repeat": _int(self.repeat, "repeat"),
+                "joint": _int_or_none(self.joint, "joint"),
+                "distance_m": _num_or_none(self.distance_m, "distance_m"),
+                "configuration_index": _int_or_none(self.configuration_index, "configuration_index"),
+                "joint_angles_rad": _numbers_or_none(self.joint_angles_rad, "joint_angles_rad"),
+                "start_time_ns": _int(self.start_time_ns, "start_time_ns"),
+                "end_time_ns": _int(self.end_time_ns, "end_time_ns"),
+                "outcome": TrialOutcome(self.outcome).value,
+                "peak_force_n": _num_or_none(self.peak_force_n, "peak_force_n"),
+                "slip_mass_kg": _num_or_none(self.slip_mass_kg, "slip_mass_kg"),
+                "predicted_force_n": _num_or_none(self.predicted_force_n, "predicted_force_n"),
+                "predicted_mass_kg": _num_or_none(self.predicted_mass_kg, "predicted_mass_kg"),
+                "percentage_error": _num_or_none(self.percentage_error, "percentage_error"),
+                "slipped_joint": _int_or_none(self.slipped_joint, "slipped_joint"),
+                "lever_arms_m": _numbers_or_none(self.lever_arms_m, "lever_arms_m"),
+                "tare_n": _num(self.tare_n, "tare_n"),
+            }
+        )
+
+    @classmethod
+    def from_payload(cls, payload: Mapping[str, Any]) -> TrialResult:
+        """Decode a `/rig/trial/result` payload, also as written before the record had every field.
+
+        Logs from before carry the configuration as `configuration.joint_angles_rad` and lack
+        `joint`, `configuration_index`, `predicted_force_n`, `percentage_error` and `tare_n`
+        (None, None, None, None, 0.0 here; replay fills the plan's joint and configuration).
+        """
+        data = dict(payload)
+        if data.get("joint_angles_rad") is None:
+            configuration = data.get("configuration")
+            if isinstance(configuration, Mapping):
+                data["joint_angles_rad"] = configuration.get("joint_angles_rad")
+        return cls.from_json(data)
+
+
+@dataclass(frozen=True, slots=True)
+class JointCapacity:
+    """One joint's estimated capacity with its bounds [N·m] (None where not estimated)."""
+
+    joint: int  # 1-based, from the base
+    capacity_nm: float | None
+    ci_lo_nm: float | None
+    ci_hi_nm: float | None
+
+    def to_json(self) -> dict[str, Any]:
+        """As in `/rig/estimate` and `rig run --json`."""
+        return {
+            "joint": _int(self.joint, "joint"),
+            "capacity_nm": _num_or_none(self.capacity_nm, "capacity_nm"),
+            "ci_lo_nm": _num_or_none(self.ci_lo_nm, "ci_lo_nm"),
+            "ci_hi_nm": _num_or_none(self.ci_hi_nm, "ci_hi_nm"),
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> JointCapacity:
+        """Decode one joint of `/rig/estimate`."""
+        return cls(
+            joint=_int(data["joint"], "joint"),
+            capacity_nm=_num_or_none(data.get("capacity_nm"), "capacity_nm"),
+            ci_lo_nm=_num_or_none(data.get("ci_lo_nm"), "ci_lo_nm"),
+            ci_hi_nm=_num_or_none(data.get("ci_hi_nm"), "ci_hi_nm"),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """The run's estimate after a trial: the joint-estimation fit (None before 2 slips) and joints."""
+
+    trial_id: int
+    fit: FitSummary | None
+    joints: tuple[JointCapacity, ...] = ()
+
+    def text(self) -> str:
+        """One line for people: k and the capacity with its bounds."""
+        s = self.fit
+        if s is None:
+            return "estimate: needs 2 slips"
+        lo, hi = s.capacity_ci_nm
+        return f"k={s.k:.4f} kg·m  capacity={s.capacity_nm:.3f} N·m [{lo:.3f}, {hi:.3f}] (n={s.n})"
+
+    def to_payload(self) -> dict[str, Any]:
+        """The `/rig/estimate` payload: the `rig fit --json` keys (null before a fit; n = 0) and joints."""
+        payload: dict[str, Any] = {"trial_id": _int(self.trial_id, "trial_id")}
+        summary = self.fit.as_json() if self.fit is not None else {}
+        for f in fields(FitSummary):
+            payload[f.name] = _fit_value(f.name, summary.get(f.name))
+        if payload["n"] is None:
+            payload["n"] = 0
+        payload["joints"] = [j.to_json() for j in self.joints]
+        return payload
+
+    @classmethod
+    def from_payload(cls, payload: Mapping[str, Any]) -> Estimate:
+        """Decode a `/rig/estimate` payload (no fit when `n` is 0 or the fit keys are null)."""
+        fit = None
+        if payload.get("n") and payload.get("k") is not None:
+            fit = FitSummary.from_json(payload)
+        joints = tuple(JointCapacity.from_json(j) for j in payload.get("joints") or ())
+        return cls(trial_id=_int(payload["trial_id"], "trial_id"), fit=fit, joints=joints)
+
+
+_FIT_INTEGER_KEYS = frozenset({"n", "dfe"})
+
+
+def _fit_value(key: str, value: Any) -> Any:
+    if value is None:
+        return None
+    if key in _FIT_INTEGER_KEYS:
+        return _int(value, key)
+    if key == "constant":
+        return str(value)
+    if isinstance(value, list | tuple):
+        return [_num_or_none(b, key) for b in value]
+    return _num_or_none(value, key)
+
+
+@dataclass(frozen=True, slots=True)
+class LogMessage:
+    """A human-readable event (`/rig/log`, Foxglove's well-known `foxglove.Log`)."""
+
+    time_ns: int
+    level: LogLevel
+    message: str
+    name: str = "rig"
+    file: str = ""
+    line: int = 0
+
+    def to_payload(self) -> dict[str, Any]:
+        """The `foxglove.Log` payload."""
+        return {
+            "timestamp": stamp(self.time_ns),
+            "level": int(LogLevel(self.level)),
+            "message": str(self.message),
+            "name": str(self.name),
+            "file": str(self.file),
+            "line": _int(self.line, "line"),
+        }
+
+
+__all__ = [
+    "Estimate",
+    "JointCapacity",
+    "LogLevel",
+    "LogMessage",
+    "ServoCommand",
+    "ServoCommandName",
+    "SlipEvent",
+    "SlipMessage",
+    "TrialKind",
+    "TrialOutcome",
+    "TrialPhase",
+    "TrialResult",
+    "TrialState",
+    "stamp",
+]

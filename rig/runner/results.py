@@ -1,0 +1,81 @@
+"""A trial's measurements as the steps gather them, the `TrialResult` made from them, and run statistics."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from model.payload_errors import PayloadErrorStats, payload_error_stats
+from model.slip_detector import SlipEvent
+from rig.log.records import TrialKind, TrialOutcome, TrialResult
+from rig.protocol import TrialPlan
+
+
+@dataclass
+class TrialMeasurements:
+    """What the steps of one trial found out, filled in as they run."""
+
+    joint_angles_rad: tuple[float, ...] | None  # commanded, replaced by the measured ones
+    predicted_force_n: float | None = None
+    lever_arms_m: tuple[float, ...] | None = None
+    outcome: TrialOutcome = TrialOutcome.NO_SLIP
+    event: SlipEvent | None = None
+    peak_observed_n: float | None = None  # highest tension during the ramp
+    slipped_joint: int | None = None
+
+
+def trial_result(
+    trial: TrialPlan,
+    found: TrialMeasurements,
+    *,
+    start_time_ns: int,
+    end_time_ns: int,
+    tare_n: float,
+    g: float,
+) -> TrialResult:
+    """The record of a finished trial: the slip load is the detector's peak, else the highest tension."""
+    event = found.event
+    peak = event.peak_force_n if event is not None else found.peak_observed_n
+    predicted_force = found.predicted_force_n
+    predicted_mass = predicted_force / g if predicted_force is not None else None
+    slip_mass = peak / g if peak is not None else None
+    percentage_error = None
+    if (
+        event is not None
+        and predicted_mass is not None
+        and slip_mass is not None
+        and trial.kind == TrialKind.LINK_VALIDATION
+    ):
+        percentage_error = (predicted_mass - slip_mass) / slip_mass * 100.0
+    return TrialResult(
+        trial_id=trial.trial_id,
+        kind=TrialKind(trial.kind),
+        repeat=trial.repeat,
+        joint=trial.joint,
+        distance_m=trial.distance_m,
+        configuration_index=trial.configuration_index,
+        joint_angles_rad=found.joint_angles_rad,
+        start_time_ns=start_time_ns,
+        end_time_ns=end_time_ns,
+        outcome=found.outcome,
+        peak_force_n=peak,
+        slip_mass_kg=slip_mass,
+        predicted_force_n=predicted_force,
+        predicted_mass_kg=predicted_mass,
+        percentage_error=percentage_error,
+        slipped_joint=found.slipped_joint,
+        lever_arms_m=found.lever_arms_m,
+        tare_n=tare_n,
+    )
+
+
+def percentage_error_stats(results: Sequence[TrialResult]) -> PayloadErrorStats | None:
+    """Table IV statistics over the link-validation slips of a run, or None if there are none."""
+    rows = [
+        r
+        for r in results
+        if r.kind == TrialKind.LINK_VALIDATION and r.slipped and r.predicted_mass_kg and r.slip_mass_kg
+    ]
+    if not rows:
+        return None
+    return payload_error_stats([r.predicted_mass_kg for r in rows], [r.slip_mass_kg for r in rows])  # type: ignore[misc]
