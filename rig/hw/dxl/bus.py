@@ -42,10 +42,9 @@ from __future__ import annotations
 import contextlib
 import math
 import signal
-import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
-from types import FrameType, TracebackType
+from types import TracebackType
 from typing import Any, Protocol, TypeVar
 
 import serial
@@ -83,6 +82,7 @@ from rig.hw.dxl.errors import (
     hardware_fault,
     servo_label,
 )
+from rig.hw.interrupts import signals_deferred
 from rig.hw.seams import Clock, OperatingMode, ServoState
 
 T = TypeVar("T")
@@ -982,7 +982,7 @@ class DynamixelServoBus:
                 release()
             except BaseException as exc:
                 errors.append(exc)
-        with _deferred_sigint() as interrupted:
+        with signals_deferred(signal.SIGINT) as interrupted:
             if self._port is not None:
                 self._busy = False  # a transaction interrupted by an exception must not block this
                 errors.extend(self._torque_off_all())
@@ -1288,33 +1288,6 @@ def scan_port(
             with contextlib.suppress(Exception):
                 port.closePort()
     return found
-
-
-@contextlib.contextmanager
-def _deferred_sigint() -> Iterator[list[bool]]:
-    """Hold Ctrl-C back for the duration (main thread only); yields a flag list, truthy if one came."""
-    interrupted: list[bool] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield interrupted
-        return
-    try:
-        previous = signal.getsignal(signal.SIGINT)
-    except ValueError:  # pragma: no cover - no signal support here
-        yield interrupted
-        return
-
-    def hold(signum: int, frame: FrameType | None) -> None:
-        interrupted.append(True)
-
-    try:
-        signal.signal(signal.SIGINT, hold)
-    except ValueError:  # pragma: no cover
-        yield interrupted
-        return
-    try:
-        yield interrupted
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 __all__ = [
