@@ -87,18 +87,12 @@ from rig.hw.seams import Clock, OperatingMode, ServoState
 
 T = TypeVar("T")
 
-# Baud rates PortHandler.setBaudRate accepts (it has no 4.5 Mbps).
-SDK_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1_000_000,
-             1_152_000, 2_000_000, 2_500_000, 3_000_000, 3_500_000, 4_000_000)  # fmt: skip
-FAST_SYNC_READ_MIN_FIRMWARE = 45
-WATCHDOG_UNIT_MS = 20
 STATUS_RETURN_ALL = 2
 POSITION_MODES = (
     OperatingMode.POSITION,
     OperatingMode.EXTENDED_POSITION,
     OperatingMode.CURRENT_BASED_POSITION,
 )
-MULTI_TURN_GOAL_LIMIT_PULSES = 1_048_575  # modes 4 and 5: +-256 rev
 
 # Fields that bound the per-cycle state block (122..135); every X430 model has them.
 STATE_FIELDS = ("Moving", "Present Velocity", "Present Position")
@@ -209,21 +203,6 @@ def _require(table: ct.ControlTable, name: str) -> ct.Field:
     return field
 
 
-def model_number_for(name: str) -> int:
-    """Model number of a model name such as "XM430-W350"; `InputError` listing the known names."""
-    for number, table in ct.MODELS_BY_NUMBER.items():
-        if table.model_name == name:
-            return number
-    known = ", ".join(sorted(t.model_name for t in ct.MODELS_BY_NUMBER.values()))
-    raise InputError(f"servo model {name!r} is unknown; allowed: {known}")
-
-
-def model_name_for(number: int) -> str:
-    """Model name of a model number, or "unknown (N)"."""
-    table = ct.MODELS_BY_NUMBER.get(number)
-    return table.model_name if table is not None else f"unknown ({number})"
-
-
 class DynamixelServoBus:
     """A Dynamixel Protocol 2.0 bus on one serial port, owned by one thread.
 
@@ -262,8 +241,8 @@ class DynamixelServoBus:
         retry_settle_s: float = 0.002,
         release: Callable[[], None] | None = None,
     ) -> None:
-        if baud not in SDK_BAUDS:
-            raise InputError(f"servo bus baud {baud} cannot be set by dynamixel-sdk; allowed: {SDK_BAUDS}")
+        if baud not in ct.SDK_BAUDS:
+            raise InputError(f"servo bus baud {baud} cannot be set by dynamixel-sdk; allowed: {ct.SDK_BAUDS}")
         if not servos:
             raise InputError("servo bus: no servos configured; allowed: one or more IDs 0-252")
         ids = [s.servo_id for s in servos]
@@ -275,15 +254,15 @@ class DynamixelServoBus:
             raise InputError(f"servo ids {duplicates} appear more than once; each id must be unique")
         if not 0 <= retries <= 10:
             raise InputError(f"servo bus retries {retries} is out of range; allowed: 0-10")
-        if not 0 <= bus_watchdog_ms <= 127 * WATCHDOG_UNIT_MS:
+        if not 0 <= bus_watchdog_ms <= 127 * ct.BUS_WATCHDOG_UNIT_MS:
             raise InputError(f"bus watchdog {bus_watchdog_ms} ms is out of range; allowed: 0-2540 ms")
         if max_reboots < 0:
             raise InputError(f"max_reboots {max_reboots} is out of range; allowed: >= 0")
         self._servos: dict[int, _Servo] = {}
         for spec in servos:
-            number = model_number_for(spec.model)
+            number = ct.model_number_for(spec.model)
             self._servos[spec.servo_id] = _Servo(spec=spec, table=ct.MODELS_BY_NUMBER[number])
-        self._expected_numbers = {s.servo_id: model_number_for(s.model) for s in servos}
+        self._expected_numbers = {s.servo_id: ct.model_number_for(s.model) for s in servos}
         self.port_name = port_name
         self.baud = baud
         self._clock = clock
@@ -422,7 +401,7 @@ class DynamixelServoBus:
             if found != expected:
                 mismatched.append(
                     f"{servo.label} expected {servo.table.model_name} ({expected}), "
-                    f"found {model_name_for(found)} ({found})"
+                    f"found {ct.model_name_for(found)} ({found})"
                 )
                 continue
             servo.model_number = found
@@ -440,9 +419,7 @@ class DynamixelServoBus:
                 f"(after {1 + self._retries} tries per servo): " + " | ".join(problems)
             )
         if self._fast_sync_read_option is None:
-            self._use_fast_read = all(
-                s.firmware >= FAST_SYNC_READ_MIN_FIRMWARE for s in self._servos.values()
-            )
+            self._use_fast_read = all(s.firmware >= ct.FAST_READ_MIN_FIRMWARE for s in self._servos.values())
         else:
             self._use_fast_read = self._fast_sync_read_option
 
@@ -495,7 +472,7 @@ class DynamixelServoBus:
         # Writing 0 clears a tripped watchdog (it reads -1 after tripping), then arm it if asked.
         self._write(servo, "Bus Watchdog", 0, alerts="record")
         if self._bus_watchdog_ms > 0:
-            ticks = max(1, math.ceil(self._bus_watchdog_ms / WATCHDOG_UNIT_MS))
+            ticks = max(1, math.ceil(self._bus_watchdog_ms / ct.BUS_WATCHDOG_UNIT_MS))
             self._write(servo, "Bus Watchdog", ticks, alerts="record")
 
     # ------------------------------------------------------------------ reads
@@ -676,7 +653,7 @@ class DynamixelServoBus:
             if servo.mode == OperatingMode.POSITION:
                 low, high = servo.min_position_raw, servo.max_position_raw
             elif servo.mode in POSITION_MODES:
-                low, high = -MULTI_TURN_GOAL_LIMIT_PULSES, MULTI_TURN_GOAL_LIMIT_PULSES
+                low, high = -ct.GOAL_POSITION_LIMIT_PULSES, ct.GOAL_POSITION_LIMIT_PULSES
             else:
                 raise LimitError(
                     f"{servo.label} is in {OperatingMode(servo.mode).name} mode; "
@@ -1250,8 +1227,8 @@ def scan_port(
         CommunicationError: the replies were garbled beyond use.
     """
     for baud in bauds:
-        if baud not in SDK_BAUDS:
-            raise InputError(f"--baud {baud} cannot be set by dynamixel-sdk; allowed: {SDK_BAUDS}")
+        if baud not in ct.SDK_BAUDS:
+            raise InputError(f"--baud {baud} cannot be set by dynamixel-sdk; allowed: {ct.SDK_BAUDS}")
     ph = PacketHandler(2.0)
     found: list[ScannedServo] = []
     port: PortHandler | None = None
@@ -1281,7 +1258,7 @@ def scan_port(
                 )
             for servo_id, (model_number, firmware) in sorted(answers.items()):
                 found.append(
-                    ScannedServo(servo_id, model_number, model_name_for(model_number), firmware, baud)
+                    ScannedServo(servo_id, model_number, ct.model_name_for(model_number), firmware, baud)
                 )
     finally:
         if port is not None and port.is_open:
@@ -1299,7 +1276,5 @@ __all__ = [
     "ServoHealth",
     "ServoInfo",
     "describe_hardware_error",
-    "model_name_for",
-    "model_number_for",
     "scan_port",
 ]
