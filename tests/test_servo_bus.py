@@ -16,9 +16,10 @@ from rig.errors import (
     RigTimeoutError,
 )
 from rig.hw.dxl import units as units
-from rig.hw.dxl.bus import BusOwnershipError, DynamixelServoBus
+from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.dxl.control_table import XL430_W250
 from rig.hw.dxl.errors import InstructionRejected, ServoHardwareFault
+from rig.hw.dxl.transport import BusOwnershipError
 from rig.hw.seams import OperatingMode, ServoBus
 from rig.rig_config import ServoSpec
 from rig.sim.clock import VirtualClock
