@@ -102,8 +102,11 @@ class ServoInfo:
 
 
 @dataclass(frozen=True, slots=True)
-class ServoHealth:
-    """Slow-changing health values of one servo, in SI units."""
+class ServoHealthReport:
+    """One reading of a servo's slow-changing health values (`read_health`), in SI units.
+
+    Not to be confused with the runner's `interlocks.ServoHealth`, the check that trips on a fault.
+    """
 
     servo_id: int
     input_voltage_v: float
@@ -477,15 +480,15 @@ class DynamixelServoBus:
                 role = self._servos[servo_id].spec.role if servo_id in self._servos else None
                 raise hardware_fault(servo_id, role, state.hardware_error, "state read")
 
-    def read_health(self) -> dict[int, ServoHealth]:
+    def read_health(self) -> dict[int, ServoHealthReport]:
         """Input voltage, temperature and Hardware Error Status of every servo (unicast reads)."""
         self._require_connected()
-        health: dict[int, ServoHealth] = {}
+        health: dict[int, ServoHealthReport] = {}
         for servo_id, servo in self._servos.items():
             voltage = self._read(servo, "Present Input Voltage", alerts="record")
             temperature = self._read(servo, "Present Temperature", alerts="record")
             servo.hardware_error = self._read(servo, "Hardware Error Status", alerts="ignore")
-            health[servo_id] = ServoHealth(
+            health[servo_id] = ServoHealthReport(
                 servo_id=servo_id,
                 input_voltage_v=units.voltage_v_from_units(voltage),
                 temperature_c=float(temperature),
@@ -886,4 +889,4 @@ class DynamixelServoBus:
             )
 
 
-__all__ = ["DynamixelServoBus", "ServoHealth", "ServoInfo", "ServoSpecLike"]
+__all__ = ["DynamixelServoBus", "ServoHealthReport", "ServoInfo", "ServoSpecLike"]
