@@ -17,6 +17,9 @@ from rig.validate import Section
 
 RIG_KINDS = ("simulated", "hardware")
 SERVO_ROLES = ("winch", "bender")
+# SERVO_MODELS and STANDARD_BAUDS restate rig.hw.dxl.control_table (MODELS; the BAUD_RATES that are
+# also in SDK_BAUDS): this module sits below rig.hw in the import layers and cannot import it.
+# tests/test_dxl_control_table.py keeps the copies equal.
 SERVO_MODELS = ("XM430-W350", "XL430-W250")
 LOADCELL_FORMATS = ("rig-lc1", "indicator-st")
 SIM_PRESETS = ("link1", "link2")

@@ -9,14 +9,18 @@ import dynamixel_easy_sdk
 import pytest
 
 from rig.hw.dxl.control_table import (
+    BAUD_RATES,
+    MODELS,
     MODELS_BY_NUMBER,
     RAD_PER_PULSE,
+    SDK_BAUDS,
     TABLE_SIZE,
     XL430_W250,
     XM430_W350,
     Field,
     table_for_model,
 )
+from rig.rig_config import SERVO_MODELS, STANDARD_BAUDS
 
 MODEL_DIR = Path(dynamixel_easy_sdk.__file__).parent / "control_table"
 
@@ -99,3 +103,9 @@ def test_tables_reject_overlaps():
     b = Field("b", 1, 1, "R", "EEPROM", 0, 0, 1)
     with pytest.raises(ValueError, match="overlaps"):
         dataclasses.replace(XM430_W350, fields=(a, b))
+
+
+def test_rig_config_restates_the_control_table_exactly():
+    # rig.rig_config is below rig.hw in the import layers, so it keeps copies; they must not drift.
+    assert tuple(rate for rate in BAUD_RATES.values() if rate in SDK_BAUDS) == STANDARD_BAUDS
+    assert sorted(SERVO_MODELS) == sorted(MODELS)

@@ -12,7 +12,7 @@ from dynamixel_sdk import (
     PacketHandler,
 )
 
-from rig.hw.dxl.control_table import XM430_W350
+from rig.hw.dxl.control_table import XM430_W350, to_signed
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
@@ -23,7 +23,7 @@ def u32(value: int) -> int:
 
 
 def s32(raw: int) -> int:
-    return raw - (1 << 32) if raw >= 1 << 31 else raw
+    return to_signed(raw, 4)
 
 
 @pytest.fixture

@@ -17,7 +17,7 @@ from dynamixel_sdk import (
     PacketHandler,
 )
 
-from rig.hw.dxl.control_table import RAD_PER_PULSE, XM430_W350
+from rig.hw.dxl.control_table import RAD_PER_PULSE, XM430_W350, to_signed
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl import protocol as p
 from rig.sim.dxl.bus import EmulatedBus
@@ -34,11 +34,11 @@ def u32(v: int) -> int:
 
 
 def s32(raw: int) -> int:
-    return raw - (1 << 32) if raw >= 1 << 31 else raw
+    return to_signed(raw, 4)
 
 
 def s16(raw: int) -> int:
-    return raw - (1 << 16) if raw >= 1 << 15 else raw
+    return to_signed(raw, 2)
 
 
 class Rig:

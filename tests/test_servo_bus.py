@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+import signal
 
 import pytest
 from dynamixel_sdk import PacketHandler
@@ -16,9 +18,10 @@ from rig.errors import (
     RigTimeoutError,
 )
 from rig.hw.dxl import units as units
-from rig.hw.dxl.bus import BusOwnershipError, DynamixelServoBus
+from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.dxl.control_table import XL430_W250
 from rig.hw.dxl.errors import InstructionRejected, ServoHardwareFault
+from rig.hw.dxl.transport import BusOwnershipError
 from rig.hw.seams import OperatingMode, ServoBus
 from rig.rig_config import ServoSpec
 from rig.sim.clock import VirtualClock
@@ -554,6 +557,25 @@ def test_keyboard_interrupt_in_release_still_torques_off(rig):
     with pytest.raises(KeyboardInterrupt):
         rig.driver.shutdown(release)
     assert not rig.bus[1].torque_enabled and not rig.bus[3].torque_enabled
+
+
+def test_ctrl_c_during_torque_off_is_held_until_every_servo_is_off(rig):
+    rig.driver.set_torque([1, 2, 3], True)
+    port = rig.ports[0]
+    write = port.writePort
+    armed = []
+
+    def interrupted_write(packet):
+        if armed:  # the first packet after the release: the broadcast torque-off
+            armed.clear()
+            os.kill(os.getpid(), signal.SIGINT)
+        return write(packet)
+
+    port.writePort = interrupted_write
+    with pytest.raises(KeyboardInterrupt):
+        rig.driver.shutdown(lambda: armed.append(True))
+    assert [rig.bus[i].torque_enabled for i in (1, 2, 3)] == [False, False, False]
+    assert not port.is_open
 
 
 def test_context_manager_shuts_down_with_the_configured_release():

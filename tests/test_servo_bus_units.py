@@ -11,7 +11,8 @@ from rig.errors import HardwareFault, InputError
 from rig.hw.clock import SystemClock
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl import units as units
-from rig.hw.dxl.bus import DynamixelServoBus, model_name_for, model_number_for
+from rig.hw.dxl.bus import DynamixelServoBus
+from rig.hw.dxl.control_table import model_name_for, model_number_for
 from rig.hw.dxl.errors import (
     comm_result_name,
     describe_hardware_error,

@@ -1,41 +1,21 @@
 """Keeping Ctrl-C from skipping the safe-state sequence.
 
-`interrupts_deferred()` wraps the release/torque-off/flush sequence: a SIGINT (or SIGTERM)
-arriving inside it is remembered, not raised, and re-raised as KeyboardInterrupt once the block is
-done. A second Ctrl-C therefore cannot leave the line under tension or the torque on.
+`interrupts_deferred()` (defined in `rig.hw.interrupts`, shared with the servo bus) wraps the
+release/torque-off/flush sequence: a SIGINT (or SIGTERM) arriving inside it is remembered, not
+raised, and re-raised as KeyboardInterrupt once the block is done. A second Ctrl-C therefore cannot
+leave the line under tension or the torque on. `terminate_as_interrupt()` makes a `kill` end the
+run the same way.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from types import FrameType
-from typing import Any
 
+from rig.hw.interrupts import interrupts_deferred
 
-@contextmanager
-def interrupts_deferred() -> Iterator[None]:
-    """Defer SIGINT/SIGTERM until the block ends (no-op outside the main thread)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    received: list[int] = []
-
-    def remember(signum: int, frame: FrameType | None) -> None:
-        received.append(signum)
-
-    previous: dict[int, Any] = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        previous[sig] = signal.signal(sig, remember)
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    if received:
-        raise KeyboardInterrupt
+__all__ = ["interrupts_deferred", "terminate_as_interrupt"]
 
 
 def terminate_as_interrupt() -> None:

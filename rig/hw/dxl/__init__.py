@@ -1,1 +1,1 @@
-"""Dynamixel X-series over Protocol 2.0: control tables, units, error decoding and the servo bus."""
+"""Dynamixel X-series over Protocol 2.0: control tables, units, error decoding, transport, bus, scan."""

@@ -1,20 +1,12 @@
-"""The real Dynamixel bus driver on dynamixel-sdk: `DynamixelServoBus` implements `seams.ServoBus`.
+"""The real Dynamixel bus driver: `DynamixelServoBus` implements `seams.ServoBus` on dynamixel-sdk.
 
-What this module owns: the port, the handshake, every exchange with the servos (with explicit,
-counted retries), SI units at its boundary, hardware-fault detection and reboot recovery, and a
-shutdown that cannot be skipped.
+What this module owns: the servos' meaning. The handshake, SI units at its boundary, limits
+checked before anything is sent, hardware-fault detection and reboot recovery, and a shutdown that
+cannot be skipped. Every exchange goes through `rig.hw.dxl.transport.Transport` (retries, reply
+checks, counters, one owner); discovery without a config is `rig.hw.dxl.scan`.
 
 Design decisions (see notes/dynamixel.md for the facts behind them):
 
-* **One owner, not thread-safe.** dynamixel-sdk has no locking beyond `port.is_using`; one thread
-  must own the bus. A re-entrant call (e.g. from a signal handler in the middle of a transaction)
-  raises `BusOwnershipError` instead of corrupting the exchange.
-* **Every SDK call is wrapped.** The SDK can raise `IndexError` on short, late or param-less status
-  packets and matches replies to requests by ID only. Each exchange checks the result code, the
-  ERR byte and the parameter length, turns anything wrong into a retryable failure, and after
-  `retries` extra tries raises `RigTimeoutError` (nothing answered) or `CommunicationError`
-  (garbled), both saying "after N tries". Before a retry the driver waits `retry_settle_s` and
-  clears the input buffer so a late reply cannot be taken for the next answer.
 * **State in one transaction.** `read_states` reads the contiguous block Moving(122) ..
   Present Position(132..135) of every servo with one Fast Sync Read when every servo's firmware
   is >= 45, else one Sync Read. Hardware Error Status(70) is *not* read every cycle: the Alert bit
@@ -42,23 +34,12 @@ from __future__ import annotations
 import contextlib
 import math
 import signal
-import threading
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from types import FrameType, TracebackType
-from typing import Any, Protocol, TypeVar
+from types import TracebackType
+from typing import Protocol
 
-import serial
-from dynamixel_sdk import (
-    BROADCAST_ID,
-    COMM_RX_TIMEOUT,
-    COMM_SUCCESS,
-    INST_PING,
-    INST_READ,
-    INST_WRITE,
-    PacketHandler,
-    PortHandler,
-)
+from dynamixel_sdk import COMM_SUCCESS, PortHandler
 
 from rig.errors import (
     CommunicationError,
@@ -66,39 +47,29 @@ from rig.errors import (
     InputError,
     LimitError,
     NotConnectedError,
-    RigError,
     RigTimeoutError,
 )
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl import units as units
 from rig.hw.dxl.errors import (
     ALERT_BIT,
-    ERRNUM_CRC,
     ERROR_NUMBER_MASK,
     InstructionRejected,
     ServoHardwareFault,
-    comm_result_name,
-    describe_hardware_error,
     error_number_name,
     hardware_fault,
     servo_label,
 )
+from rig.hw.dxl.transport import BusStats, Transport
+from rig.hw.interrupts import signals_deferred
 from rig.hw.seams import Clock, OperatingMode, ServoState
 
-T = TypeVar("T")
-
-# Baud rates PortHandler.setBaudRate accepts (it has no 4.5 Mbps).
-SDK_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1_000_000,
-             1_152_000, 2_000_000, 2_500_000, 3_000_000, 3_500_000, 4_000_000)  # fmt: skip
-FAST_SYNC_READ_MIN_FIRMWARE = 45
-WATCHDOG_UNIT_MS = 20
 STATUS_RETURN_ALL = 2
 POSITION_MODES = (
     OperatingMode.POSITION,
     OperatingMode.EXTENDED_POSITION,
     OperatingMode.CURRENT_BASED_POSITION,
 )
-MULTI_TURN_GOAL_LIMIT_PULSES = 1_048_575  # modes 4 and 5: +-256 rev
 
 # Fields that bound the per-cycle state block (122..135); every X430 model has them.
 STATE_FIELDS = ("Moving", "Present Velocity", "Present Position")
@@ -119,28 +90,6 @@ class ServoSpecLike(Protocol):
     def model(self) -> str: ...
 
 
-class BusOwnershipError(RigError, RuntimeError):
-    """The bus was used re-entrantly (it has exactly one owner and is not thread-safe)."""
-
-
-@dataclass(slots=True)
-class BusStats:
-    """Counters of what happened on the bus since the driver was made (a run)."""
-
-    operations: int = 0  # logical exchanges asked for (a sync read is one)
-    attempts: int = 0  # SDK exchanges made, retries included
-    retries: int = 0  # attempts beyond the first
-    timeouts: int = 0  # attempts that got no status packet
-    corrupt: int = 0  # attempts with a garbled, short or mismatched reply
-    recovered: int = 0  # operations that succeeded after at least one retry
-    failures: int = 0  # operations that gave up after every try
-    alerts: int = 0  # status packets carrying the Alert bit
-    reboots: int = 0  # reboots started
-    fast_sync_reads: int = 0
-    sync_reads: int = 0
-    sync_writes: int = 0
-
-
 @dataclass(frozen=True, slots=True)
 class ServoInfo:
     """What the handshake found for one servo."""
@@ -153,8 +102,11 @@ class ServoInfo:
 
 
 @dataclass(frozen=True, slots=True)
-class ServoHealth:
-    """Slow-changing health values of one servo, in SI units."""
+class ServoHealthReport:
+    """One reading of a servo's slow-changing health values (`read_health`), in SI units.
+
+    Not to be confused with the runner's `interlocks.ServoHealth`, the check that trips on a fault.
+    """
 
     servo_id: int
     input_voltage_v: float
@@ -188,15 +140,6 @@ class _Servo:
         return servo_label(self.spec.servo_id, self.spec.role)
 
 
-class _AttemptFailed(Exception):
-    """One SDK exchange failed in a way a retry may fix."""
-
-    def __init__(self, detail: str, timeout: bool) -> None:
-        super().__init__(detail)
-        self.detail = detail
-        self.timeout = timeout
-
-
 def _field(table: ct.ControlTable, name: str) -> ct.Field | None:
     """The named field of a model's table, or None when the model does not have it."""
     return table.get(name)
@@ -207,21 +150,6 @@ def _require(table: ct.ControlTable, name: str) -> ct.Field:
     if field is None:
         raise NotConnectedError(f"model {table.model_name} has no control-table field {name!r}")
     return field
-
-
-def model_number_for(name: str) -> int:
-    """Model number of a model name such as "XM430-W350"; `InputError` listing the known names."""
-    for number, table in ct.MODELS_BY_NUMBER.items():
-        if table.model_name == name:
-            return number
-    known = ", ".join(sorted(t.model_name for t in ct.MODELS_BY_NUMBER.values()))
-    raise InputError(f"servo model {name!r} is unknown; allowed: {known}")
-
-
-def model_name_for(number: int) -> str:
-    """Model name of a model number, or "unknown (N)"."""
-    table = ct.MODELS_BY_NUMBER.get(number)
-    return table.model_name if table is not None else f"unknown ({number})"
 
 
 class DynamixelServoBus:
@@ -262,8 +190,8 @@ class DynamixelServoBus:
         retry_settle_s: float = 0.002,
         release: Callable[[], None] | None = None,
     ) -> None:
-        if baud not in SDK_BAUDS:
-            raise InputError(f"servo bus baud {baud} cannot be set by dynamixel-sdk; allowed: {SDK_BAUDS}")
+        if baud not in ct.SDK_BAUDS:
+            raise InputError(f"servo bus baud {baud} cannot be set by dynamixel-sdk; allowed: {ct.SDK_BAUDS}")
         if not servos:
             raise InputError("servo bus: no servos configured; allowed: one or more IDs 0-252")
         ids = [s.servo_id for s in servos]
@@ -275,33 +203,34 @@ class DynamixelServoBus:
             raise InputError(f"servo ids {duplicates} appear more than once; each id must be unique")
         if not 0 <= retries <= 10:
             raise InputError(f"servo bus retries {retries} is out of range; allowed: 0-10")
-        if not 0 <= bus_watchdog_ms <= 127 * WATCHDOG_UNIT_MS:
+        if not 0 <= bus_watchdog_ms <= 127 * ct.BUS_WATCHDOG_UNIT_MS:
             raise InputError(f"bus watchdog {bus_watchdog_ms} ms is out of range; allowed: 0-2540 ms")
         if max_reboots < 0:
             raise InputError(f"max_reboots {max_reboots} is out of range; allowed: >= 0")
         self._servos: dict[int, _Servo] = {}
         for spec in servos:
-            number = model_number_for(spec.model)
+            number = ct.model_number_for(spec.model)
             self._servos[spec.servo_id] = _Servo(spec=spec, table=ct.MODELS_BY_NUMBER[number])
-        self._expected_numbers = {s.servo_id: model_number_for(s.model) for s in servos}
+        self._expected_numbers = {s.servo_id: ct.model_number_for(s.model) for s in servos}
         self.port_name = port_name
         self.baud = baud
         self._clock = clock
-        self._retries = retries
-        self._port_factory = port_factory
+        self._link = Transport(
+            port_name,
+            clock,
+            {s.servo_id: s.role for s in servos},
+            retries=retries,
+            retry_settle_s=retry_settle_s,
+            port_factory=port_factory,
+        )
         self._fast_sync_read_option = fast_sync_read
         self._bus_watchdog_ms = bus_watchdog_ms
         self._max_reboots = max_reboots
         self._reboot_timeout_s = reboot_timeout_s
-        self._retry_settle_s = retry_settle_s
         self._release = release
-        self._ph = PacketHandler(2.0)
-        self._port: PortHandler | None = None
         self._connected = False
         self._shut_down = False
-        self._busy = False
         self._use_fast_read = False
-        self._stats = BusStats()
         self._reboots_done = 0
         # The state block: same addresses for every model on one bus (checked on connect).
         self._block_start = 0
@@ -334,7 +263,7 @@ class DynamixelServoBus:
     @property
     def stats(self) -> BusStats:
         """A copy of the bus counters."""
-        return replace(self._stats)
+        return replace(self._link.stats)
 
     @property
     def reboots_left(self) -> int:
@@ -382,28 +311,16 @@ class DynamixelServoBus:
             return
         if self._shut_down:
             raise NotConnectedError(f"servo bus on {self.port_name} was shut down; make a new one")
-        self._open_port()
+        self._link.open(self.baud)
         try:
             self._handshake()
             self._decide_state_block()
             for servo in self._servos.values():
                 self._configure(servo)
         except BaseException:
-            self._close_port_quietly()
+            self._link.close_quietly()
             raise
         self._connected = True
-
-    def _open_port(self) -> None:
-        try:
-            port = self._port_factory(self.port_name)
-            self._port = port
-            opened = port.openPort() and port.setBaudRate(self.baud)
-        except (OSError, serial.SerialException, ValueError) as exc:
-            self._close_port_quietly()
-            raise NotConnectedError(f"cannot open servo port {self.port_name}: {exc}") from exc
-        if not opened:
-            self._close_port_quietly()
-            raise NotConnectedError(f"cannot open servo port {self.port_name} at {self.baud} baud")
 
     def _handshake(self) -> None:
         missing: list[str] = []
@@ -411,7 +328,7 @@ class DynamixelServoBus:
         unreadable: list[str] = []
         for servo_id, servo in self._servos.items():
             try:
-                found = self._ping(servo_id)
+                found = self._link.ping(servo_id)
             except RigTimeoutError:
                 missing.append(servo.label)
                 continue
@@ -422,7 +339,7 @@ class DynamixelServoBus:
             if found != expected:
                 mismatched.append(
                     f"{servo.label} expected {servo.table.model_name} ({expected}), "
-                    f"found {model_name_for(found)} ({found})"
+                    f"found {ct.model_name_for(found)} ({found})"
                 )
                 continue
             servo.model_number = found
@@ -437,12 +354,10 @@ class DynamixelServoBus:
         if problems:
             raise HandshakeError(
                 f"servo handshake on {self.port_name} at {self.baud} baud failed "
-                f"(after {1 + self._retries} tries per servo): " + " | ".join(problems)
+                f"(after {1 + self._link.retries} tries per servo): " + " | ".join(problems)
             )
         if self._fast_sync_read_option is None:
-            self._use_fast_read = all(
-                s.firmware >= FAST_SYNC_READ_MIN_FIRMWARE for s in self._servos.values()
-            )
+            self._use_fast_read = all(s.firmware >= ct.FAST_READ_MIN_FIRMWARE for s in self._servos.values())
         else:
             self._use_fast_read = self._fast_sync_read_option
 
@@ -495,7 +410,7 @@ class DynamixelServoBus:
         # Writing 0 clears a tripped watchdog (it reads -1 after tripping), then arm it if asked.
         self._write(servo, "Bus Watchdog", 0, alerts="record")
         if self._bus_watchdog_ms > 0:
-            ticks = max(1, math.ceil(self._bus_watchdog_ms / WATCHDOG_UNIT_MS))
+            ticks = max(1, math.ceil(self._bus_watchdog_ms / ct.BUS_WATCHDOG_UNIT_MS))
             self._write(servo, "Bus Watchdog", ticks, alerts="record")
 
     # ------------------------------------------------------------------ reads
@@ -509,16 +424,17 @@ class DynamixelServoBus:
         """
         self._require_connected()
         try:
-            if self._use_fast_read:
-                errs_and_data = self._run("fast sync read of the servo state", self._fast_sync_read_once)
-                self._stats.fast_sync_reads += 1
-            else:
-                errs_and_data = self._run("sync read of the servo state", self._sync_read_once)
-                self._stats.sync_reads += 1
+            errs_and_data = self._link.sync_read(
+                self._block_start,
+                self._block_length,
+                self._state_ids,
+                fast=self._use_fast_read,
+                what="the servo state",
+            )
         except (RigTimeoutError, CommunicationError) as exc:
             if isinstance(exc, InstructionRejected):
                 raise
-            silent = self._silent_servos()
+            silent = [self._servos[i].label for i in self._link.unanswered(self._servos)]
             if not silent:
                 raise
             # A silent servo garbles a fast sync read (COMM_RX_CORRUPT); the cause is a timeout.
@@ -532,7 +448,7 @@ class DynamixelServoBus:
         for servo_id, (err, data) in errs_and_data.items():
             servo = self._servos[servo_id]
             if err & ALERT_BIT:
-                self._stats.alerts += 1
+                self._link.stats.alerts += 1
                 servo.hardware_error = self._read(servo, "Hardware Error Status", alerts="ignore")
                 if servo.hardware_error:
                     servo.torque_enabled = False  # a latched error drops torque
@@ -557,20 +473,6 @@ class DynamixelServoBus:
             )
         return states
 
-    def _silent_servos(self) -> list[str]:
-        """After a failed group read: ping each servo once to name the ones that are gone."""
-        silent = []
-        for servo_id, servo in self._servos.items():
-            self._stats.attempts += 1
-            try:
-                with self._transaction():
-                    _, result, _ = self._sdk_unchecked(self._ph.ping, self._port, servo_id)
-            except CommunicationError:
-                continue
-            if result == COMM_RX_TIMEOUT:
-                silent.append(servo.label)
-        return silent
-
     def raise_for_hardware_errors(self, states: Mapping[int, ServoState]) -> None:
         """Raise `ServoHardwareFault` for the first state with a non-zero hardware error."""
         for servo_id, state in states.items():
@@ -578,15 +480,15 @@ class DynamixelServoBus:
                 role = self._servos[servo_id].spec.role if servo_id in self._servos else None
                 raise hardware_fault(servo_id, role, state.hardware_error, "state read")
 
-    def read_health(self) -> dict[int, ServoHealth]:
+    def read_health(self) -> dict[int, ServoHealthReport]:
         """Input voltage, temperature and Hardware Error Status of every servo (unicast reads)."""
         self._require_connected()
-        health: dict[int, ServoHealth] = {}
+        health: dict[int, ServoHealthReport] = {}
         for servo_id, servo in self._servos.items():
             voltage = self._read(servo, "Present Input Voltage", alerts="record")
             temperature = self._read(servo, "Present Temperature", alerts="record")
             servo.hardware_error = self._read(servo, "Hardware Error Status", alerts="ignore")
-            health[servo_id] = ServoHealth(
+            health[servo_id] = ServoHealthReport(
                 servo_id=servo_id,
                 input_voltage_v=units.voltage_v_from_units(voltage),
                 temperature_c=float(temperature),
@@ -601,62 +503,6 @@ class DynamixelServoBus:
         servo = self._servo(servo_id)
         servo.hardware_error = self._read(servo, "Hardware Error Status", alerts="ignore")
         return servo.hardware_error
-
-    def _sync_read_once(self) -> dict[int, tuple[int, bytes]]:
-        port, ph = self._port, self._ph
-        ids = self._state_ids
-        length = self._block_length
-        result = self._sdk(ph.syncReadTx, port, self._block_start, length, ids, len(ids), False)
-        if result != COMM_SUCCESS:
-            raise _AttemptFailed(f"sync read not sent: {comm_result_name(result)}", timeout=False)
-        out: dict[int, tuple[int, bytes]] = {}
-        for servo_id in ids:
-            data, result, err = self._sdk(ph.readRx, port, servo_id, length)
-            if result != COMM_SUCCESS:
-                raise _AttemptFailed(
-                    f"{self._servos[servo_id].label}: {comm_result_name(result)}",
-                    timeout=result == COMM_RX_TIMEOUT,
-                )
-            self._check_error_number(servo_id, err)
-            if len(data) != length:
-                raise _AttemptFailed(
-                    f"{self._servos[servo_id].label}: {len(data)} data bytes, expected {length}",
-                    timeout=False,
-                )
-            out[servo_id] = (err, bytes(data))
-        return out
-
-    def _fast_sync_read_once(self) -> dict[int, tuple[int, bytes]]:
-        port, ph = self._port, self._ph
-        ids = self._state_ids
-        length = self._block_length
-        result = self._sdk(ph.syncReadTx, port, self._block_start, length, ids, len(ids), True)
-        if result != COMM_SUCCESS:
-            raise _AttemptFailed(f"fast sync read not sent: {comm_result_name(result)}", timeout=False)
-        packet, result = self._sdk(ph.rxPacket, port, True)
-        if result != COMM_SUCCESS:
-            raise _AttemptFailed(comm_result_name(result), timeout=result == COMM_RX_TIMEOUT)
-        stride = length + 4  # ERR, ID, data, CRC
-        expected = 8 + stride * len(ids)
-        if packet[4] != BROADCAST_ID or len(packet) != expected:
-            raise _AttemptFailed(
-                f"fast sync read reply of {len(packet)} bytes from id {packet[4]}, "
-                f"expected {expected} from 0xFE",
-                timeout=False,
-            )
-        raw = bytes(packet)
-        out: dict[int, tuple[int, bytes]] = {}
-        index = 8
-        for servo_id in ids:
-            err, found = raw[index], raw[index + 1]
-            if found != servo_id:
-                raise _AttemptFailed(
-                    f"fast sync read entry from id {found} where {servo_id} was due", timeout=False
-                )
-            self._check_error_number(servo_id, err)
-            out[servo_id] = (err, raw[index + 2 : index + 2 + length])
-            index += stride
-        return out
 
     # ------------------------------------------------------------------ writes
 
@@ -676,7 +522,7 @@ class DynamixelServoBus:
             if servo.mode == OperatingMode.POSITION:
                 low, high = servo.min_position_raw, servo.max_position_raw
             elif servo.mode in POSITION_MODES:
-                low, high = -MULTI_TURN_GOAL_LIMIT_PULSES, MULTI_TURN_GOAL_LIMIT_PULSES
+                low, high = -ct.GOAL_POSITION_LIMIT_PULSES, ct.GOAL_POSITION_LIMIT_PULSES
             else:
                 raise LimitError(
                     f"{servo.label} is in {OperatingMode(servo.mode).name} mode; "
@@ -725,15 +571,7 @@ class DynamixelServoBus:
         for servo_id, value in values.items():
             param.append(servo_id)
             param.extend(units.to_le_bytes(value, field.size))
-        size = field.size
-
-        def attempt() -> None:
-            result = self._sdk(self._ph.syncWriteTxOnly, self._port, field.address, size, param, len(param))
-            if result != COMM_SUCCESS:
-                raise _AttemptFailed(f"sync write not sent: {comm_result_name(result)}", timeout=False)
-
-        self._run(f"sync write of {name}", attempt)
-        self._stats.sync_writes += 1
+        self._link.sync_write(field.address, field.size, param, name)
 
     def set_torque(self, servo_ids: Sequence[int], enabled: bool) -> None:
         """Enable or disable torque, one confirmed write per servo.
@@ -910,9 +748,9 @@ class DynamixelServoBus:
                 servo.hardware_error,
             )
         self._reboots_done += 1
-        self._stats.reboots += 1
+        self._link.stats.reboots += 1
         want_torque = servo.torque_wanted
-        self._send_reboot(servo)
+        self._link.send_reboot(servo_id)  # one try; the ping poll below finds out either way
         self._wait_for_boot(servo)
         bits = self._read(servo, "Hardware Error Status", alerts="ignore")
         servo.hardware_error = bits
@@ -929,35 +767,17 @@ class DynamixelServoBus:
         if want_torque:
             self._torque_on_in_place(servo)
 
-    def _send_reboot(self, servo: _Servo) -> None:
-        # One attempt, no retry: if the reply was lost the servo may already be booting, and it
-        # ignores instructions while it boots. The ping poll below finds out either way.
-        self._stats.operations += 1
-        self._stats.attempts += 1
-        with self._transaction():
-            result, err = self._sdk_unchecked(self._ph.reboot, self._port, servo.spec.servo_id)
-        if result == COMM_SUCCESS and err & ERROR_NUMBER_MASK:
-            raise InstructionRejected(
-                f"{servo.label} refused the reboot: {error_number_name(err)}", servo.spec.servo_id, err
-            )
-
     def _wait_for_boot(self, servo: _Servo) -> None:
         poll_s = 0.05
         deadline_ns = self._clock.monotonic_ns() + round(self._reboot_timeout_s * 1e9)
         max_polls = math.ceil(self._reboot_timeout_s / poll_s) + 1  # bound even if the clock stalls
         for _ in range(max_polls):
             self._clock.sleep(poll_s)
-            try:
-                with self._transaction():
-                    self._stats.attempts += 1
-                    _, result, _ = self._sdk_unchecked(self._ph.ping, self._port, servo.spec.servo_id)
-            except CommunicationError:
-                result = -1
-            if result == COMM_SUCCESS:
+            if self._link.ping_once(servo.spec.servo_id) == COMM_SUCCESS:
                 return
             if self._clock.monotonic_ns() >= deadline_ns:
                 break
-        self._stats.failures += 1
+        self._link.stats.failures += 1
         raise RigTimeoutError(
             f"{servo.label} did not answer a ping within {self._reboot_timeout_s:g} s after its reboot"
         )
@@ -982,11 +802,11 @@ class DynamixelServoBus:
                 release()
             except BaseException as exc:
                 errors.append(exc)
-        with _deferred_sigint() as interrupted:
-            if self._port is not None:
-                self._busy = False  # a transaction interrupted by an exception must not block this
+        with signals_deferred(signal.SIGINT) as interrupted:
+            if self._link.has_port:
+                self._link.abandon_transaction()  # one cut short by an exception must not block this
                 errors.extend(self._torque_off_all())
-            self._close_port_quietly(errors)
+            self._link.close_quietly(errors)
         self._connected = False
         if interrupted:
             errors.append(KeyboardInterrupt())
@@ -1012,18 +832,7 @@ class DynamixelServoBus:
                 errors.append(exc)
         return errors
 
-    def _close_port_quietly(self, errors: list[BaseException] | None = None) -> None:
-        port, self._port = self._port, None
-        if port is None:
-            return
-        try:
-            if port.is_open:
-                port.closePort()
-        except Exception as exc:
-            if errors is not None:
-                errors.append(NotConnectedError(f"closing servo port {self.port_name} failed: {exc}"))
-
-    # ------------------------------------------------------------------ exchange machinery
+    # ------------------------------------------------------------------ field access
 
     def _servo(self, servo_id: int) -> _Servo:
         try:
@@ -1038,100 +847,10 @@ class DynamixelServoBus:
             state = "shut down" if self._shut_down else "not connected"
             raise NotConnectedError(f"servo bus on {self.port_name} is {state}")
 
-    @contextlib.contextmanager
-    def _transaction(self) -> Iterator[None]:
-        if self._busy:
-            raise BusOwnershipError(
-                f"servo bus on {self.port_name} used re-entrantly: it has one owner and is not thread-safe"
-            )
-        if self._port is None:
-            raise NotConnectedError(f"servo port {self.port_name} is closed")
-        self._busy = True
-        self._port.is_using = False  # we are the only user; a stale flag comes from an interrupted call
-        try:
-            yield
-        finally:
-            self._busy = False
-
-    def _sdk(self, fn: Callable[..., T], *args: Any) -> T:
-        """Call the SDK; its stray exceptions become a retryable failure or `NotConnectedError`."""
-        try:
-            return fn(*args)
-        except (serial.SerialException, OSError) as exc:
-            raise NotConnectedError(f"servo port {self.port_name} failed: {exc}") from exc
-        except (IndexError, ValueError, TypeError, KeyError) as exc:
-            if self._port is not None:
-                self._port.is_using = False
-            raise _AttemptFailed(
-                f"malformed reply (SDK raised {type(exc).__name__}: {exc})", timeout=False
-            ) from exc
-
-    def _sdk_unchecked(self, fn: Callable[..., T], *args: Any) -> T:
-        try:
-            return self._sdk(fn, *args)
-        except _AttemptFailed as exc:
-            raise CommunicationError(f"servo bus on {self.port_name}: {exc.detail}") from exc
-
-    def _settle(self) -> None:
-        self._clock.sleep(self._retry_settle_s)
-        port = self._port
-        if port is not None:
-            with contextlib.suppress(Exception):
-                port.clearPort()
-
-    def _run(self, what: str, attempt: Callable[[], T], *, retry: bool = True) -> T:
-        """One logical exchange with up to `retries` counted retries; typed error when all fail."""
-        stats = self._stats
-        stats.operations += 1
-        tries = 1 + (self._retries if retry else 0)
-        last: _AttemptFailed | None = None
-        all_timeouts = True
-        with self._transaction():
-            for n in range(tries):
-                if n:
-                    stats.retries += 1
-                    self._settle()
-                stats.attempts += 1
-                try:
-                    value = attempt()
-                except InstructionRejected:
-                    stats.failures += 1
-                    raise
-                except _AttemptFailed as failure:
-                    last = failure
-                    if failure.timeout:
-                        stats.timeouts += 1
-                    else:
-                        stats.corrupt += 1
-                        all_timeouts = False
-                    continue
-                if n:
-                    stats.recovered += 1
-                return value
-        stats.failures += 1
-        assert last is not None
-        message = (
-            f"{what} on {self.port_name} failed after {tries} tr{'y' if tries == 1 else 'ies'}: {last.detail}"
-        )
-        if all_timeouts:
-            raise RigTimeoutError(message)
-        raise CommunicationError(message)
-
-    def _check_error_number(self, servo_id: int, err: int) -> None:
-        number = err & ERROR_NUMBER_MASK
-        if number == 0:
-            return
-        label = self._servos[servo_id].label if servo_id in self._servos else f"servo {servo_id}"
-        if number == ERRNUM_CRC:  # our instruction was garbled on the way: worth a retry
-            raise _AttemptFailed(f"{label} reported a CRC error in the instruction", timeout=False)
-        raise InstructionRejected(
-            f"{label} rejected the instruction: {error_number_name(err)}", servo_id, number
-        )
-
     def _handle_alert(self, servo: _Servo, err: int, alerts: str, context: str) -> None:
         if not err & ALERT_BIT:
             return
-        self._stats.alerts += 1
+        self._link.stats.alerts += 1
         if alerts == "ignore":
             return
         bits = self._read(servo, "Hardware Error Status", alerts="ignore")
@@ -1141,192 +860,33 @@ class DynamixelServoBus:
         if alerts == "raise" and bits:
             raise hardware_fault(servo.spec.servo_id, servo.spec.role, bits, context)
 
-    def _unicast(
-        self, servo_id: int, instruction: int, params: Sequence[int], reply_params: int
-    ) -> tuple[int, bytes]:
-        """One instruction to one servo and its status: (ERR byte, params).
-
-        Built on the SDK's `txRxPacket`, which matches a reply by ID only; the reply's LEN is
-        checked here against what this instruction's status must carry, so a late status meant
-        for an earlier instruction (e.g. a param-less write status arriving during a 1-byte read,
-        which the SDK's `read1ByteTxRx` would return its CRC byte for) is caught and retried.
-        A refusal (non-zero error number) may carry no params and is returned as is.
-        """
-        packet = [0] * (10 + len(params))
-        packet[4] = servo_id
-        packet[5] = (len(params) + 3) & 0xFF
-        packet[6] = (len(params) + 3) >> 8
-        packet[7] = instruction
-        packet[8 : 8 + len(params)] = params
-        reply, result, err = self._sdk(self._ph.txRxPacket, self._port, packet)
-        if result != COMM_SUCCESS:
-            raise _AttemptFailed(comm_result_name(result), timeout=result == COMM_RX_TIMEOUT)
-        self._retry_on_crc_error(servo_id, err)
-        length = reply[5] | (reply[6] << 8)
-        if err & ERROR_NUMBER_MASK and length == 4:
-            return err, b""
-        if length != reply_params + 4:
-            raise _AttemptFailed(
-                f"status with {length - 4} params where {reply_params} were due (a late reply?)",
-                timeout=False,
-            )
-        return err, bytes(reply[9 : 9 + reply_params])
-
-    def _ping(self, servo_id: int) -> int:
-        def attempt() -> int:
-            _, data = self._unicast(servo_id, INST_PING, (), 3)
-            return data[0] | (data[1] << 8)
-
-        return self._run(f"ping of servo {servo_id}", attempt)
-
     def _read(self, servo: _Servo, name: str, *, alerts: str = "raise") -> int:
         """Read one named field (signed fields decoded); check the Alert bit per `alerts`."""
         field = _require(servo.table, name)
-        servo_id = servo.spec.servo_id
-        params = (field.address & 0xFF, field.address >> 8, field.size & 0xFF, field.size >> 8)
-
-        def attempt() -> tuple[int, int]:
-            err, data = self._unicast(servo_id, INST_READ, params, field.size)
-            if err & ERROR_NUMBER_MASK:
-                return 0, err  # reported after the alert check
-            return int.from_bytes(data, "little", signed=field.signed), err
-
-        value, err = self._run(f"read of {name} from {servo.label}", attempt)
+        value, err = self._link.read(
+            servo.spec.servo_id, field.address, field.size, field.signed, f"read of {name} from {servo.label}"
+        )
         self._after_reply(servo, err, alerts, f"read of {name}")
         return value
 
     def _write(self, servo: _Servo, name: str, value: int, *, alerts: str = "raise") -> None:
         """Write one named field and wait for the servo's status (confirmed write)."""
         field = _require(servo.table, name)
-        servo_id = servo.spec.servo_id
-        params = [field.address & 0xFF, field.address >> 8, *units.to_le_bytes(value, field.size)]
-
-        def attempt() -> int:
-            err, _ = self._unicast(servo_id, INST_WRITE, params, 0)
-            return err
-
-        err = self._run(f"write of {name}={value} to {servo.label}", attempt)
+        data = units.to_le_bytes(value, field.size)
+        err = self._link.write(
+            servo.spec.servo_id, field.address, data, f"write of {name}={value} to {servo.label}"
+        )
         self._after_reply(servo, err, alerts, f"write of {name}={value}")
-
-    def _retry_on_crc_error(self, servo_id: int, err: int) -> None:
-        if err & ERROR_NUMBER_MASK == ERRNUM_CRC:  # the instruction was garbled on the way
-            label = self._servos[servo_id].label if servo_id in self._servos else f"servo {servo_id}"
-            raise _AttemptFailed(f"{label} reported a CRC error in the instruction", timeout=False)
 
     def _after_reply(self, servo: _Servo, err: int, alerts: str, context: str) -> None:
         """Alert bit first (a faulted servo refuses torque with Result Fail), then the error number."""
         self._handle_alert(servo, err, alerts, context)
         number = err & ERROR_NUMBER_MASK
         if number:
-            self._stats.failures += 1
+            self._link.stats.failures += 1
             raise InstructionRejected(
                 f"{servo.label} rejected the {context}: {error_number_name(err)}", servo.spec.servo_id, number
             )
 
 
-@dataclass(frozen=True, slots=True)
-class ScannedServo:
-    """A servo found by `scan_port`."""
-
-    servo_id: int
-    model_number: int
-    model: str  # model name, or "unknown (N)"
-    firmware: int
-    baud: int
-
-
-def scan_port(
-    port_name: str, bauds: Sequence[int], *, port_factory: Callable[[str], PortHandler] = PortHandler
-) -> list[ScannedServo]:
-    """Broadcast-ping the bus at each baud rate; the servos that answered, sorted by baud then ID.
-
-    The SDK waits its whole broadcast window whatever answers (about 0.8 s at 1 Mbps and 1.4 s at
-    57600), so a scan takes about that long per baud rate. Ping status packets carry the firmware
-    version, so no further read is needed.
-
-    Raises:
-        InputError: a baud rate the SDK cannot set.
-        NotConnectedError: the port cannot be opened.
-        CommunicationError: the replies were garbled beyond use.
-    """
-    for baud in bauds:
-        if baud not in SDK_BAUDS:
-            raise InputError(f"--baud {baud} cannot be set by dynamixel-sdk; allowed: {SDK_BAUDS}")
-    ph = PacketHandler(2.0)
-    found: list[ScannedServo] = []
-    port: PortHandler | None = None
-    try:
-        try:
-            port = port_factory(port_name)
-            if not port.openPort():
-                raise NotConnectedError(f"cannot open servo port {port_name}")
-        except (OSError, serial.SerialException, ValueError) as exc:
-            raise NotConnectedError(f"cannot open servo port {port_name}: {exc}") from exc
-        for baud in bauds:
-            try:
-                if not port.setBaudRate(baud):
-                    raise NotConnectedError(f"cannot set {port_name} to {baud} baud")
-                port.is_using = False
-                answers, result = ph.broadcastPing(port)
-            except (OSError, serial.SerialException) as exc:
-                raise NotConnectedError(f"servo port {port_name} failed: {exc}") from exc
-            except (IndexError, ValueError, TypeError, KeyError) as exc:
-                raise CommunicationError(
-                    f"broadcast ping on {port_name} at {baud} baud: "
-                    f"malformed reply ({type(exc).__name__}: {exc})"
-                ) from exc
-            if result not in (COMM_SUCCESS, COMM_RX_TIMEOUT) and not answers:
-                raise CommunicationError(
-                    f"broadcast ping on {port_name} at {baud} baud failed: {comm_result_name(result)}"
-                )
-            for servo_id, (model_number, firmware) in sorted(answers.items()):
-                found.append(
-                    ScannedServo(servo_id, model_number, model_name_for(model_number), firmware, baud)
-                )
-    finally:
-        if port is not None and port.is_open:
-            with contextlib.suppress(Exception):
-                port.closePort()
-    return found
-
-
-@contextlib.contextmanager
-def _deferred_sigint() -> Iterator[list[bool]]:
-    """Hold Ctrl-C back for the duration (main thread only); yields a flag list, truthy if one came."""
-    interrupted: list[bool] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield interrupted
-        return
-    try:
-        previous = signal.getsignal(signal.SIGINT)
-    except ValueError:  # pragma: no cover - no signal support here
-        yield interrupted
-        return
-
-    def hold(signum: int, frame: FrameType | None) -> None:
-        interrupted.append(True)
-
-    try:
-        signal.signal(signal.SIGINT, hold)
-    except ValueError:  # pragma: no cover
-        yield interrupted
-        return
-    try:
-        yield interrupted
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-__all__ = [
-    "BusOwnershipError",
-    "BusStats",
-    "DynamixelServoBus",
-    "ScannedServo",
-    "ServoHardwareFault",
-    "ServoHealth",
-    "ServoInfo",
-    "describe_hardware_error",
-    "model_name_for",
-    "model_number_for",
-    "scan_port",
-]
+__all__ = ["DynamixelServoBus", "ServoHealthReport", "ServoInfo", "ServoSpecLike"]

@@ -1,8 +1,10 @@
 """Dynamixel X-series (Protocol 2.0) control tables as data: the single source of truth for addresses.
 
 One frozen `Field` per row (name, address, size, access, area, default, range, sign, unit, scale)
-and one `ControlTable` per model with O(1) lookup by name and by address. The hardware driver and
-the servo emulator (`rig.sim.dxl`) both import from here, so an address is written down once.
+and one `ControlTable` per model with O(1) lookup by name and by address. The hardware driver, the
+servo emulator (`rig.sim.dxl`) and the CLI all import from here, so each fact is written down once:
+addresses, unit constants, the baud-rate tables (the Baud Rate register's rates and the rates
+dynamixel-sdk can set), model name <-> number lookup, and two's-complement decoding (`to_signed`).
 
 Models: XM430-W350 (model number 1020) and XL430-W250 (1060), from the ROBOTIS e-manual as
 summarised in `notes/dynamixel.md`. The XL430 has no Current Limit (38) or Goal Current (102),
@@ -22,6 +24,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Literal
 
+from rig.errors import InputError
+
 # Conversion constants for raw control-table units.
 PULSES_PER_REV = 4096
 RAD_PER_PULSE = 2.0 * math.pi / PULSES_PER_REV
@@ -33,12 +37,14 @@ PWM_UNIT_PERCENT = 0.113
 ACCELERATION_UNIT_REV_MIN2 = 214.577
 RAD_S2_PER_ACCELERATION_UNIT = ACCELERATION_UNIT_REV_MIN2 * 2.0 * math.pi / 3600.0
 RETURN_DELAY_UNIT_S = 2e-6
-BUS_WATCHDOG_UNIT_S = 0.020
+BUS_WATCHDOG_UNIT_MS = 20
+BUS_WATCHDOG_UNIT_S = BUS_WATCHDOG_UNIT_MS / 1000
 LOAD_UNIT_PERCENT = 0.1  # XL430 Present Load
 
 EEPROM_END = 64  # addresses below this are EEPROM (locked while Torque Enable = 1)
 TABLE_SIZE = 662  # the table ends at Indirect Data 56 (661)
 FAST_READ_MIN_FIRMWARE = 45
+GOAL_POSITION_LIMIT_PULSES = 1_048_575  # Goal Position range in modes 4 and 5: +-256 rev
 
 # Addresses shared by every X430/X540 table (kept as names for readability in the emulator/driver).
 ADDR_MODEL_NUMBER = 0
@@ -62,6 +68,9 @@ BAUD_RATES: Mapping[int, int] = MappingProxyType(
     {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000, 7: 4_500_000}
 )
 BAUD_REGISTER_BY_RATE: Mapping[int, int] = MappingProxyType({v: k for k, v in BAUD_RATES.items()})
+# Baud rates dynamixel-sdk's PortHandler.setBaudRate accepts (it has no 4.5 Mbps).
+SDK_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1_000_000,
+             1_152_000, 2_000_000, 2_500_000, 3_000_000, 3_500_000, 4_000_000)  # fmt: skip
 
 # Hardware Error Status (70) / Shutdown (63) bits.
 HW_ERROR_INPUT_VOLTAGE = 0x01
@@ -74,6 +83,13 @@ INDIRECT_ADDRESS_BLOCKS = ((168, 224, 28, 1), (578, 634, 28, 29))  # (address ba
 
 Access = Literal["R", "RW"]
 Area = Literal["EEPROM", "RAM"]
+
+
+def to_signed(raw: int, size_bytes: int) -> int:
+    """Interpret an unsigned `size_bytes`-wide value as two's complement."""
+    bits = 8 * size_bytes
+    raw &= (1 << bits) - 1
+    return raw - (1 << bits) if raw >= 1 << (bits - 1) else raw
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,9 +127,7 @@ class Field:
 
     def decode(self, raw: int) -> int:
         """Unsigned wire value -> the field's integer value (two's complement when signed)."""
-        if self.signed and raw >= 1 << (8 * self.size - 1):
-            return raw - (1 << (8 * self.size))
-        return raw
+        return to_signed(raw, self.size) if self.signed else raw
 
     def encode(self, value: int) -> int:
         """The field's integer value -> the unsigned wire value."""
@@ -223,7 +237,6 @@ def _f(
     )
 
 
-_GOAL_POSITION_MAX = 1_048_575
 _U32 = 0xFFFFFFFF
 _RPM_UNIT = ("rad/s", RAD_S_PER_VELOCITY_UNIT)
 
@@ -316,8 +329,8 @@ def _x430_fields(
         _f(108, 4, "Profile Acceleration", "RW", 0, 0, 32767, unit="rad/s^2",
            scale=RAD_S2_PER_ACCELERATION_UNIT),
         _f(112, 4, "Profile Velocity", "RW", 0, 0, 32767, unit=vel_unit, scale=vel_scale),
-        _f(116, 4, "Goal Position", "RW", 0, -_GOAL_POSITION_MAX, _GOAL_POSITION_MAX, signed=True, unit="rad",
-           scale=RAD_PER_PULSE),
+        _f(116, 4, "Goal Position", "RW", 0, -GOAL_POSITION_LIMIT_PULSES, GOAL_POSITION_LIMIT_PULSES,
+           signed=True, unit="rad", scale=RAD_PER_PULSE),
         _f(120, 2, "Realtime Tick", "R", 0, 0, 32767, unit="s", scale=1e-3),
         _f(122, 1, "Moving", "R", 0, 0, 1),
         _f(123, 1, "Moving Status", "R", 0, 0, 255),
@@ -401,3 +414,17 @@ def table_for_model(name_or_number: str | int) -> ControlTable:
         known = ", ".join(f"{t.model_name} ({t.model_number})" for t in MODELS.values())
         raise KeyError(f"unknown Dynamixel model {name_or_number!r}; known: {known}")
     return table
+
+
+def model_number_for(name: str) -> int:
+    """Model number of a model name such as "XM430-W350"; `InputError` listing the known names."""
+    table = MODELS.get(name)
+    if table is None:
+        raise InputError(f"servo model {name!r} is unknown; allowed: {', '.join(sorted(MODELS))}")
+    return table.model_number
+
+
+def model_name_for(number: int) -> str:
+    """Model name of a model number, or "unknown (N)"."""
+    table = MODELS_BY_NUMBER.get(number)
+    return table.model_name if table is not None else f"unknown ({number})"

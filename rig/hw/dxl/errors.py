@@ -21,30 +21,37 @@ from dynamixel_sdk import (
 )
 
 from rig.errors import CommunicationError, HardwareFault
+from rig.hw.dxl import control_table as ct
 
 ALERT_BIT = 0x80
 ERROR_NUMBER_MASK = 0x7F
 
 # Hardware Error Status (70) bits, X-series; the same bits select the Shutdown (63) conditions.
 HARDWARE_ERROR_BITS: dict[int, str] = {
-    0x01: "input voltage",
-    0x04: "overheating",
-    0x08: "encoder",
-    0x10: "electrical shock",
-    0x20: "overload",
+    ct.HW_ERROR_INPUT_VOLTAGE: "input voltage",
+    ct.HW_ERROR_OVERHEATING: "overheating",
+    ct.HW_ERROR_ENCODER: "encoder",
+    ct.HW_ERROR_ELECTRICAL_SHOCK: "electrical shock",
+    ct.HW_ERROR_OVERLOAD: "overload",
 }
 
-# Protocol 2.0 status ERR byte, bits 0-6.
-ERROR_NUMBERS: dict[int, str] = {
-    1: "result fail",
-    2: "instruction error",
-    3: "CRC error",
-    4: "data range error",
-    5: "data length error",
-    6: "data limit error",
-    7: "access error",
-}
+# Protocol 2.0 status ERR byte, bits 0-6 (the emulator, rig.sim.dxl.protocol, answers with these).
+ERRNUM_RESULT_FAIL = 1
+ERRNUM_INSTRUCTION = 2
 ERRNUM_CRC = 3
+ERRNUM_DATA_RANGE = 4
+ERRNUM_DATA_LENGTH = 5
+ERRNUM_DATA_LIMIT = 6
+ERRNUM_ACCESS = 7
+ERROR_NUMBERS: dict[int, str] = {
+    ERRNUM_RESULT_FAIL: "result fail",
+    ERRNUM_INSTRUCTION: "instruction error",
+    ERRNUM_CRC: "CRC error",
+    ERRNUM_DATA_RANGE: "data range error",
+    ERRNUM_DATA_LENGTH: "data length error",
+    ERRNUM_DATA_LIMIT: "data limit error",
+    ERRNUM_ACCESS: "access error",
+}
 
 COMM_RESULTS: dict[int, str] = {
     COMM_SUCCESS: "success",

@@ -5,7 +5,7 @@ pulse 0 = 0 rad), velocities in rad/s (0.229 rpm per unit), currents in A (2.69 
 profile accelerations in rad/s^2 (214.577 rev/min^2 per unit), voltages in V (0.1 V per unit),
 temperatures in degC (1 degC per unit). The constants come from `rig.hw.dxl.control_table`, the one
 source of truth shared with the emulator. The SDK hands every value back unsigned; `to_signed`
-restores the sign of the signed fields.
+(defined in `control_table`, re-exported here) restores the sign of the signed fields.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from rig.hw.dxl.control_table import (
     RAD_S_PER_VELOCITY_UNIT,
     VELOCITY_UNIT_RPM,
     VOLTAGE_UNIT_V,
+    to_signed,
 )
 
 __all__ = [
@@ -32,14 +33,8 @@ __all__ = [
     "RAD_S_PER_VELOCITY_UNIT",
     "VELOCITY_UNIT_RPM",
     "VOLTAGE_UNIT_V",
+    "to_signed",
 ]
-
-
-def to_signed(raw: int, size_bytes: int) -> int:
-    """Interpret an unsigned `size_bytes`-wide value as two's complement."""
-    bits = 8 * size_bytes
-    raw &= (1 << bits) - 1
-    return raw - (1 << bits) if raw >= 1 << (bits - 1) else raw
 
 
 def to_unsigned(value: int, size_bytes: int) -> int:

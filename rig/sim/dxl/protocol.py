@@ -20,6 +20,8 @@ from array import array
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from rig.hw.dxl import errors as _errors
+
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
 MAX_ID = 252
@@ -45,15 +47,15 @@ BULK_READ = 0x92
 BULK_WRITE = 0x93
 FAST_BULK_READ = 0x9A
 
-# ERR byte: bit 7 alert, bits 0-6 the error number.
-ERR_ALERT = 0x80
-ERR_RESULT_FAIL = 1
-ERR_INSTRUCTION = 2
-ERR_CRC = 3
-ERR_DATA_RANGE = 4
-ERR_DATA_LENGTH = 5
-ERR_DATA_LIMIT = 6
-ERR_ACCESS = 7
+# ERR byte: bit 7 alert, bits 0-6 the error number; defined once, with the driver's decoding.
+ERR_ALERT = _errors.ALERT_BIT
+ERR_RESULT_FAIL = _errors.ERRNUM_RESULT_FAIL
+ERR_INSTRUCTION = _errors.ERRNUM_INSTRUCTION
+ERR_CRC = _errors.ERRNUM_CRC
+ERR_DATA_RANGE = _errors.ERRNUM_DATA_RANGE
+ERR_DATA_LENGTH = _errors.ERRNUM_DATA_LENGTH
+ERR_DATA_LIMIT = _errors.ERRNUM_DATA_LIMIT
+ERR_ACCESS = _errors.ERRNUM_ACCESS
 
 CLEAR_MULTI_TURN_PARAMS = b"\x01\x44\x58\x4c\x22"
 
