@@ -26,7 +26,7 @@ from model.slip_detector import DetectorParams, detect_slips
 from rig.sim.physics.article_presets import PRESET_NAMES, make_preset
 from rig.sim.physics.world import SimWorld
 
-PAPER = {  # MODEL.md §4: k, SSE, R², RMSE
+PAPER = {  # docs/model.md §4: k, SSE, R², RMSE
     "link1": {"k": 0.1615, "sse": 0.1112, "r2": 0.9937, "rmse": 0.1261},
     "link2": {"k": 0.2627, "sse": 0.1432, "r2": 0.9963, "rmse": 0.1261},
 }

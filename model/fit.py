@@ -1,4 +1,4 @@
-"""The joint-estimation fit `m_s = k / l_s` (MODEL.md §4) and the joint capacity it implies.
+"""The joint-estimation fit `m_s = k / l_s` (docs/model.md §4) and the joint capacity it implies.
 
 One-parameter least squares through the origin in x = 1/l, with MATLAB `cftool` conventions:
 `k̂ = Σxm / Σx²`, `SSE = Σ(m − k̂x)²`, `SST = Σ(m − m̄)²`, `R² = 1 − SSE/SST`, `dfe = n − 1`,
@@ -43,7 +43,7 @@ _SCALE_SQUARED: Final[int] = 1 << (2 * _SCALE_BITS)
 
 @dataclass(frozen=True)
 class InverseFit:
-    """Result of fitting `m = k / l` through the origin (MATLAB cftool conventions, MODEL §4).
+    """Result of fitting `m = k / l` through the origin (MATLAB cftool conventions, docs/model.md §4).
 
     Attributes:
         n: number of (distance, mass) pairs.
@@ -213,7 +213,7 @@ def fit_inverse_distance(
 
 @dataclass(frozen=True)
 class CapacityEstimate:
-    """The joint capacity and μs·δ0 implied by a fit (MODEL §4): capacity = k·g, μs·δ0 = k·g/(c·R³).
+    """The joint capacity and μs·δ0 implied by a fit (docs/model.md §4): capacity = k·g, μs·δ0 = k·g/(c·R³).
 
     Attributes:
         constant: name of the constant c ('paper', 'derived' or 'custom').
@@ -302,7 +302,7 @@ def _plain_pair(pair: Iterable[float]) -> list[float]:
 
 
 def fit_summary_dict(fit: InverseFit, capacity: CapacityEstimate) -> dict[str, Any]:
-    """The DESIGN §5 `rig fit` JSON object, keys in the contract's order, plain Python values.
+    """The `rig fit` JSON object (docs/formats.md §4), keys in the contract's order, plain Python values.
 
     R² may be NaN (SST = 0); the CLI's strict JSON writer turns it into null.
     """

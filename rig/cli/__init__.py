@@ -1,6 +1,6 @@
 """The `rig` command: one subcommand per module in this package, dispatched by argparse.
 
-Exit codes (DESIGN §5): 0 done; 1 stopped by a fault or abort, hardware left safe; 2 invalid
+Exit codes (docs/design.md §5): 0 done; 1 stopped by a fault or abort, hardware left safe; 2 invalid
 input, nothing started; 130 interrupted, hardware left safe. User errors are one line on stderr,
 never a traceback.
 """

@@ -4,7 +4,7 @@ What this module owns: the port, the handshake, every exchange with the servos (
 counted retries), SI units at its boundary, hardware-fault detection and reboot recovery, and a
 shutdown that cannot be skipped.
 
-Design decisions (see notes/dynamixel.md for the facts behind them):
+Design decisions (see docs/design.md §7 for the facts behind them):
 
 * **One owner, not thread-safe.** dynamixel-sdk has no locking beyond `port.is_using`; one thread
   must own the bus. A re-entrant call (e.g. from a signal handler in the middle of a transaction)
