@@ -25,7 +25,7 @@ Where the numbers come from (docs/model.md §4 and the paper's text; its Tables 
   paper's fits imply (SST = SSE/(1-R²) = 17.65 and 38.7 kg²; these distances give 17.7 and 37.9).
 * **Per-trial variation** of each joint's capacity (multiplicative, normal, clipped at ±3 sd) is
   chosen so that a joint-estimation fit on those distances has an RMSE near the paper's 0.126 kg;
-  `benchmarks/calibrate_sim_noise.py` measures it (see benchmarks/README.md).
+  `studies/calibrate_sim_noise.py` measures it (see studies/README.md).
 * **Kinetic ratio** 0.8: after a slip the joint turns until its moment is 80 % of the static
   capacity.
 * **Winch and line.** Drum radius 0.01 m and a braided line of 5000 N/m, so 1 rad of winch rotation

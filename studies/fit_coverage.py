@@ -6,7 +6,7 @@ one-parameter least squares of docs/model.md §4 (`model.fit.fit_inverse_distanc
 the data sets and checked against it on the first few). Prints coverage, median RMSE and the mean
 |error| of k for each design.
 
-    .venv/bin/python benchmarks/fit_coverage.py [--datasets 20000] [--relative-sd 0.085] [--additive-kg 0]
+    .venv/bin/python studies/fit_coverage.py [--datasets 20000] [--relative-sd 0.085] [--additive-kg 0]
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ Printed per preset: the RMSE distribution (median, IQR) against the paper's 0.12
 against the paper's, the median fitted k against the true k (the specimen's capacity / g), and the
 coverage of the 99 % bounds over the true k.
 
-    .venv/bin/python benchmarks/calibrate_sim_noise.py [--datasets 300] [--seed 0] [--rate 4.0]
+    .venv/bin/python studies/calibrate_sim_noise.py [--datasets 300] [--seed 0] [--rate 4.0]
 """
 
 from __future__ import annotations
