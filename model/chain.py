@@ -1,6 +1,6 @@
-"""Statics of a chain of spherical joints (MODEL.md §3): kinematics, joint moments, tolerance, slip load.
+"""Statics of a chain of spherical joints (docs/model.md §3): kinematics, joint moments, tolerance, slip load.
 
-Conventions (MODEL §1): joint i (1..J) is centred at the origin o_i of frame {i}; `T_i` (4x4) is the
+Conventions (docs/model.md §1): joint i (1..J) is centred at the origin o_i of frame {i}; `T_i` (4x4) is the
 pose of {i} in {i-1}; world poses `G_0 = I`, `G_i = G_{i-1} T_i`. The tip load is a force at point Q,
 given in the tip frame {J}; forces and directions are given in the base frame {0}.
 
@@ -132,7 +132,7 @@ def forward_kinematics(transforms: ArrayLike) -> FloatArray:
 
 
 def planar_transforms(joint_angles_rad: ArrayLike, segment_lengths_m: ArrayLike) -> FloatArray:
-    """Planar chain (..., J, 4, 4): `T_i = [Rot_y(φ_i), (0, 0, L_i)]` (MODEL test vector 4).
+    """Planar chain (..., J, 4, 4): `T_i = [Rot_y(φ_i), (0, 0, L_i)]` (docs/model.md §1; §8 value 4).
 
     `segment_lengths_m` is a scalar or (J,), broadcasting against the angles.
     """

@@ -1,4 +1,4 @@
-"""The joint-estimation fit `m_s = k / l_s` (MODEL.md §4) and the joint capacity it implies.
+"""The joint-estimation fit `m_s = k / l_s` (docs/model.md §4) and the joint capacity it implies.
 
 One-parameter least squares through the origin in x = 1/l, with MATLAB `cftool` conventions:
 `k̂ = Σxm / Σx²`, `SSE = Σ(m − k̂x)²`, `SST = Σ(m − m̄)²`, `R² = 1 − SSE/SST`, `dfe = n − 1`,
@@ -43,7 +43,7 @@ _SCALE_SQUARED: Final[int] = 1 << (2 * _SCALE_BITS)
 
 @dataclass(frozen=True)
 class InverseFit:
-    """Result of fitting `m = k / l` through the origin (MATLAB cftool conventions, MODEL §4).
+    """Result of fitting `m = k / l` through the origin (MATLAB cftool conventions, docs/model.md §4).
 
     Attributes:
         n: number of (distance, mass) pairs.
@@ -213,7 +213,7 @@ def fit_inverse_distance(
 
 @dataclass(frozen=True)
 class CapacityEstimate:
-    """The joint capacity and μs·δ0 implied by a fit (MODEL §4): capacity = k·g, μs·δ0 = k·g/(c·R³).
+    """The joint capacity and μs·δ0 implied by a fit (docs/model.md §4): capacity = k·g, μs·δ0 = k·g/(c·R³).
 
     Attributes:
         constant: name of the constant c ('paper', 'derived' or 'custom').
@@ -278,7 +278,7 @@ def capacity_from_fit(
 
 @dataclass(frozen=True, slots=True)
 class FitSummary:
-    """A joint-estimation fit with the capacity it implies: the `rig fit --json` object, typed.
+    """A joint-estimation fit with the capacity it implies: the `rig fit --json` object (docs/formats.md §4).
 
     Field order is the JSON contract's key order. Floats may be NaN where a statistic is undefined
     (R² when SST = 0); JSON shows those as null.

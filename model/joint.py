@@ -1,4 +1,4 @@
-"""Statics of one preloaded spherical joint (MODEL.md §2): capacity, contact solution, stress quadrature.
+"""Statics of one preloaded spherical joint (docs/model.md §2): capacity, contact solution, stress quadrature.
 
 The ball of radius R sits in a socket that touches it over the whole sphere. The contact carries a
 normal stress `σ(n) = δ0 + δmax (n·e)` and a friction stress `μ σ` along `t = (n × m̂)/|n × m̂|`,
@@ -97,7 +97,7 @@ def mu_delta0_pa_from_capacity(
 
 @dataclass(frozen=True)
 class ContactSolution:
-    """Equilibrium of one joint under a force at a point (MODEL §2), in the joint's own frame.
+    """Equilibrium of one joint under a force at a point (docs/model.md §2), in the joint's own frame.
 
     `contact_frame` is a rotation whose columns are the solution axes written in the input frame:
     x along the force, y along the applied moment Q × F (the friction axis), z = x × y. In that
@@ -144,7 +144,7 @@ def solve_contact(
 ) -> ContactSolution:
     """Solve the joint's contact for force `force_n` (3,) acting at `point_m` (3,) from the ball centre.
 
-    Any force at any point reduces to f = |F| and l = |Q × F| / |F| (MODEL §1). Then
+    Any force at any point reduces to f = |F| and l = |Q × F| / |F| (docs/model.md §2). Then
     `μ = f l / (c δ0 R³)`, `θ = atan(3πμ/8)`, `δmax = 3 f cos θ / (4π R²)`.
     """
     c = resolve_constant(constant)

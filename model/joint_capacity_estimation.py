@@ -1,6 +1,6 @@
 """Per-joint capacity estimates from link-validation slips: a Bayesian grid filter, pure step functions.
 
-Observation (MODEL §3, Corollary 2). A link-validation trial loads the tip along one direction
+Observation (docs/model.md §3, Corollary 2; §5). A link-validation trial loads the tip along one direction
 until the link slips at peak tension f. With lever arms d_i (joint i's moment per newton of load),
 the joint j that slipped carried moment f·d_j ≈ its capacity C_j, and every other joint i held,
 so C_i ≳ f·d_i. When the slipping joint is not identified, only `min_i C_i/d_i ≈ f` is known.

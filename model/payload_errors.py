@@ -1,4 +1,4 @@
-"""Errors of predicted against measured maximum payloads: the paper's Table IV statistics (MODEL §4).
+"""Errors of predicted against measured maximum payloads: the paper's Table IV statistics (docs/model.md §6).
 
 Definitions (the paper's text lost its equations; these reproduce what it reports):
 * absolute error `|m_pred − m_meas|` [kg];

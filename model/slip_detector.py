@@ -3,7 +3,7 @@
 The runner steps it live in the acquisition loop (up to 1 kHz) and `rig replay` steps it again over
 the logged samples; both call the same `detector_step`, so both find the same events.
 
-Detector (load-cell practice, notes/practice.md §3.4):
+Detector (docs/model.md §7):
 1. **Arm** when the force reaches `arm_threshold_n`: below it the signal is handling noise.
 2. While armed, **track the running peak** (a plateau's peak time is its last sample at the peak).
 3. **Fire** on any enabled trigger, always only once the force is at least `min_drop_n` below the peak

@@ -1,4 +1,4 @@
-"""The link file (DESIGN §5): a deformable link's geometry, joint capacities and tip load, validated.
+"""The link file (docs/formats.md §3): a deformable link's geometry, joint capacities and tip load, validated.
 
 Used by `rig predict` and, through `parse_link`, by the `article:` section of rig configs. Every bad
 input raises `InputError` with one line: the file, the field path (e.g. `joints[2].transform`, the
@@ -217,7 +217,7 @@ def _joint_capacity(ctx: _Context, field: str, joint: Mapping[str, Any], number:
 
 
 def parse_link(data: Mapping[str, Any] | Any, source: str, *, field_prefix: str = "") -> LinkSpec:
-    """Validate a parsed link mapping (DESIGN §5) into a `LinkSpec`.
+    """Validate a parsed link mapping (docs/formats.md §3) into a `LinkSpec`.
 
     `source` names the file in error messages; `field_prefix` (e.g. 'article.') is put before
     every field path when the link is a section of a larger file.

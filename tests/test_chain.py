@@ -1,4 +1,4 @@
-"""Chain statics: kinematics, joint moments, tolerance and slip load (MODEL §3, test vectors 4-8)."""
+"""Chain statics: kinematics, joint moments, tolerance and slip load (docs/model.md §3; §8 values 4-8)."""
 
 import math
 
@@ -30,7 +30,7 @@ def vector_4_transforms():
     return planar_transforms(VECTOR_4_ANGLES, 0.03)
 
 
-# ---------------------------------------------------------------- MODEL test vectors
+# ---------------------------------------------------------------- docs/model.md §8 reference values
 
 
 def test_vector_4_forward_kinematics():
@@ -41,7 +41,7 @@ def test_vector_4_forward_kinematics():
     np.testing.assert_allclose(poses[2, :3, 3], [0, 0, 0.06], rtol=REL, atol=1e-15)
     np.testing.assert_allclose(poses[3, :3, 3], [0.015, 0, 0.0859808], rtol=REL, atol=1e-15)
     q_world = poses[3] @ np.append(Q_TIP, 1.0)
-    # MODEL prints these to 1e-7 m, which is 2e-6 relative for x: compare to half the last digit.
+    # docs/model.md §8 prints these to 1e-7 m, which is 2e-6 relative for x: compare to half the last digit.
     np.testing.assert_allclose(q_world[:3], [0.0202094, 0, 0.1155250], rtol=0, atol=5e-8)
     np.testing.assert_allclose(
         q_world[:3],

@@ -1,4 +1,4 @@
-"""The batch fit m = k/l (MODEL §4): test vectors, an independent implementation, exactness, errors."""
+"""The batch fit m = k/l (docs/model.md §4): §8 values, an independent implementation, exactness, errors."""
 
 import dataclasses
 import json

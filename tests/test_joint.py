@@ -1,4 +1,4 @@
-"""One joint: capacity constant, capacity, contact solution and its stress quadrature (MODEL §2, §5)."""
+"""One joint: capacity constant, capacity, contact solution, stress quadrature (docs/model.md §2, §8)."""
 
 import math
 

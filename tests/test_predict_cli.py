@@ -1,4 +1,4 @@
-"""`rig predict`: MODEL vectors via the CLI, human output, help, and one-line errors for bad link files."""
+"""`rig predict`: docs/model.md §8 values via the CLI, human output, help, one-line errors for bad links."""
 
 import json
 import math

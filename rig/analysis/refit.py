@@ -1,6 +1,6 @@
 """Offline refits and link-validation statistics from a run's trial table.
 
-* `refit(distances, masses, ...)`: the joint-estimation fit `m = k/l` (MODEL §4) as the `rig fit
+* `refit(distances, masses, ...)`: the joint-estimation fit `m = k/l` (docs/model.md §4) as the `rig fit
   --json` keys, with the run's level, constant, radius and g. The online fit the runner logs keeps
   the same exact sums and evaluator, so the offline refit of the logged results equals the last
   `/rig/estimate` bit for bit; `compare_estimates` measures any difference.

@@ -1,8 +1,8 @@
 """The `rig` command: one subcommand per module in this package, dispatched by argparse.
 
-Exit codes: `rig.errors.ExitCode` (0 done; 1 stopped by a fault or abort, hardware left safe; 2
-invalid input, nothing started; 130 interrupted, hardware left safe). User errors are one line on stderr,
-never a traceback.
+Exit codes (`rig.errors.ExitCode`, docs/design.md §5): 0 done; 1 stopped by a fault or abort, hardware
+left safe; 2 invalid input, nothing started; 130 interrupted, hardware left safe. User errors are one
+line on stderr, never a traceback.
 """
 
 from __future__ import annotations

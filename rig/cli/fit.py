@@ -31,9 +31,9 @@ ALLOWED_COLUMNS = (DISTANCE_COLUMN, MASS_COLUMN, FORCE_COLUMN)
 ALLOWED_COLUMNS_TEXT = "distance_m and mass_kg (or force_n instead of mass_kg)"
 
 DESCRIPTION = """\
-Fit the joint-estimation data (MODEL.md §4): slip masses m_s hung at distances l_s from a joint
-follow m_s = k / l_s. One-parameter least squares through the origin in 1/l, with MATLAB cftool
-conventions (dfe = n - 1, bounds k ± t_{(1+level)/2, n-1}·se). From k: the joint capacity
+Fit the joint-estimation data (docs/model.md §4): slip masses m_s hung at distances l_s from a
+joint follow m_s = k / l_s. One-parameter least squares through the origin in 1/l, with MATLAB
+cftool conventions (dfe = n - 1, bounds k ± t_{(1+level)/2, n-1}·se). From k: the joint capacity
 N_max = k·g [N·m] and mu_s·delta0 = k·g / (c·R³) [Pa].
 
 DATA.csv has a header line and one row per slip trial:
@@ -49,9 +49,9 @@ protocols/example_fit.csv.
 """
 
 EPILOG = """\
-The constant c (MODEL.md §2): 'paper' = 5.4397 as printed in the paper (default, so mu_s·delta0
-compares with it), 'derived' = pi² from the sphere integrals, or a positive number. c changes
-mu_s·delta0 only; the capacity k·g does not depend on it.
+The constant c (docs/model.md §2.1): 'paper' = 5.4397 as printed in the paper (default, so
+mu_s·delta0 compares with it), 'derived' = pi² from the sphere integrals, or a positive number.
+c changes mu_s·delta0 only; the capacity k·g does not depend on it.
 
 JSON (--json): n, k, k_ci, sse, sst, r2, rmse, dfe, se, level, constant, c, radius_m,
 mu_delta0_pa, mu_delta0_ci_pa, capacity_nm, capacity_ci_nm. r2 is null when all masses are equal.

@@ -13,8 +13,8 @@ from rig.cli.output import emit_json, format_table
 from rig.linkfile import LinkSpec, load_link_file
 
 DESCRIPTION = """\
-Predict, from the static model (MODEL.md §3), the moment each joint of a link must hold, the load
-at which the first joint slips, which joint that is, and the link's capacity.
+Predict, from the static model (docs/model.md §3), the moment each joint of a link must hold,
+the load at which the first joint slips, which joint that is, and the link's capacity.
 
 The link file (YAML, SI units) lists the joints from the base to the tip and the tip load:
 
@@ -73,7 +73,7 @@ def _finite_or_none(value: float) -> float | None:
 
 
 def result_dict(spec: LinkSpec, prediction: SlipPrediction) -> dict[str, Any]:
-    """The `--json` object of DESIGN §5 (exactly these keys)."""
+    """The `--json` object of docs/formats.md §3 (exactly these keys)."""
     moments = _moments_nm(spec, prediction)
     slips = int(prediction.first_slip_joint) > 0
     return {

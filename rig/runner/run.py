@@ -4,7 +4,7 @@
 device is opened; invalid input raises `InputError` and nothing is written. It then builds the
 session (simulated or hardware), opens a new MCAP file for this invocation, writes the metadata
 and attachments, runs the remaining trials through `TrialRunner`, and returns a `RunReport`
-whose `as_json()` is the DESIGN §5 object.
+whose `as_json()` is the `rig run --json` object (docs/design.md §5).
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ class RunReport:
     truth: dict[str, Any] | None = None
 
     def as_json(self) -> dict[str, Any]:
-        """The `rig run --json` object (DESIGN §5)."""
+        """The `rig run --json` object (docs/design.md §5)."""
         out: dict[str, Any] = {
             "run_id": self.run_id,
             "log": self.log,

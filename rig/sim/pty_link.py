@@ -1,7 +1,7 @@
 """A pseudo-terminal that stands in for a serial device, reachable through a symlink.
 
 Used by `rig sim servos` and `rig sim loadcell`: the emulator owns the master side, a client
-opens the symlink with pyserial as if it were `/dev/ttyUSB0`. Hygiene (see notes/dynamixel.md):
+opens the symlink with pyserial as if it were `/dev/ttyUSB0`. Hygiene (see docs/design.md §7):
 the slave is put in raw mode before any client opens it (else ECHO reflects the emulator's
 replies back to it) and kept open here so that a client's `close()` does not make the master's
 reads fail with EIO.

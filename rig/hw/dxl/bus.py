@@ -5,7 +5,7 @@ checked before anything is sent, hardware-fault detection and reboot recovery, a
 cannot be skipped. Every exchange goes through `rig.hw.dxl.transport.Transport` (retries, reply
 checks, counters, one owner); discovery without a config is `rig.hw.dxl.scan`.
 
-Design decisions (see notes/dynamixel.md for the facts behind them):
+Design decisions (see docs/design.md §7 for the facts behind them):
 
 * **State in one transaction.** `read_states` reads the contiguous block Moving(122) ..
   Present Position(132..135) of every servo with one Fast Sync Read when every servo's firmware

@@ -7,7 +7,7 @@ addresses, unit constants, the baud-rate tables (the Baud Rate register's rates 
 dynamixel-sdk can set), model name <-> number lookup, and two's-complement decoding (`to_signed`).
 
 Models: XM430-W350 (model number 1020) and XL430-W250 (1060), from the ROBOTIS e-manual as
-summarised in `notes/dynamixel.md`. The XL430 has no Current Limit (38) or Goal Current (102),
+summarised in docs/design.md §7. The XL430 has no Current Limit (38) or Goal Current (102),
 reports Present Load (0.1 % of stall torque) at 126 instead of Present Current, and supports
 operating modes 1, 3, 4 and 16 only.
 

@@ -5,7 +5,7 @@ the host wrote at `now_ns` and returns the `Reply`s the servos send, each with t
 which its last byte reaches the host (request transfer time at the line rate with 10 bits per
 byte, then per servo its Return Delay Time and its own transfer time; replies never overlap).
 
-Who answers (notes/dynamixel.md): unicast instructions are answered by the addressed servo subject
+Who answers (docs/design.md §7): unicast instructions are answered by the addressed servo subject
 to its Status Return Level; broadcast Ping is answered by every servo in ID order; Sync/Bulk Read
 by one status per listed servo in the order of the instruction; Fast Sync/Bulk Read by one
 combined, unstuffed packet; every other broadcast runs silently (a broadcast Factory Reset with

@@ -1,6 +1,6 @@
 """Dynamixel Protocol 2.0 on the wire, pure: CRC-16, byte stuffing, packet builders, a streaming framer.
 
-No I/O and no clock: times are passed in as integer nanoseconds. Facts (notes/dynamixel.md):
+No I/O and no clock: times are passed in as integer nanoseconds. Facts (docs/design.md §7):
 
 * Packet: `FF FF FD 00 | ID | LEN_L LEN_H | INST | PARAM... | CRC_L CRC_H`; LEN counts the
   instruction byte, the (stuffed) params and the CRC. Status packets use INST = 0x55 followed by ERR.

@@ -4,7 +4,7 @@ Pure and clock-free: every entry point takes `now_ns` (integer ns on the bus's c
 (`rig.sim.dxl.bus`) frames packets and decides who answers and when; this class decides what a
 servo does with one instruction and what it answers.
 
-Semantics (notes/dynamixel.md; *assumption* where the manual is silent):
+Semantics (docs/design.md §7; *assumption* where the manual is silent):
 
 * Writes are validated completely before anything is applied. Checks, first failure wins:
   Access (7) for undefined or read-only bytes and for EEPROM (< 64) while Torque Enable = 1;

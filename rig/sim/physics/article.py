@@ -1,6 +1,6 @@
 """The simulated test article: a chain of spherical joints, its geometry and each joint's slip criterion.
 
-`ChainArticle` holds the current configuration (transforms `T_i`, MODEL.md §1), the capacities in
+`ChainArticle` holds the current configuration (transforms `T_i`, docs/model.md §1), the capacities in
 force for the current trial, the acting point Q (tip frame) and the line direction u (base frame,
 constant: the winch is far from the link, so the line keeps its direction as Q moves). The statics
 come from `model.chain`; this module only adds what a simulator needs on top:

@@ -5,7 +5,7 @@ true joint capacities and geometry, the friction behaviour (per-trial variation,
 optional torsion-weak joint), the winch drum and line, the bending fixture, and the noise levels of
 the simulated sensors. `SimWorld.truth()` reports it as ground truth.
 
-Where the numbers come from (MODEL.md §4 and the paper's text; its Tables I-III were lost):
+Where the numbers come from (docs/model.md §4 and the paper's text; its Tables I-III were lost):
 
 * **Capacities.** The paper's fits give k = 0.1615 kg·m (link 1, 8 joints) and 0.2627 kg·m
   (link 2, 10 joints), i.e. joint capacities k·g = 1.583 N·m and 2.574 N·m. The joint-estimation
@@ -17,7 +17,7 @@ Where the numbers come from (MODEL.md §4 and the paper's text; its Tables I-III
   ball joint). R only converts capacity to μs·δ0 and back; it never changes a slip load.
 * **Geometry.** Segments of 0.03 m, the acting point 0.03 m beyond the tip joint. The straight link
   lies along the base z axis, configurations bend about y (the x-z plane is horizontal) and the line
-  pulls vertically along -y, out of the plane, as in MODEL.md's test vectors and §6.4. Straight,
+  pulls vertically along -y, out of the plane, as in docs/model.md §8 and §9.4. Straight,
   link 1 then slips at its base joint with a base moment of 1.78 N·m and link 2 of 2.83 N·m, close
   to the paper's Table V means (1.77 and 2.79 N·m); this is a plausibility check, not a fit.
 * **Joint-estimation distances.** The paper's distances are unknown. 8 distances evenly spaced over
@@ -25,7 +25,7 @@ Where the numbers come from (MODEL.md §4 and the paper's text; its Tables I-III
   paper's fits imply (SST = SSE/(1-R²) = 17.65 and 38.7 kg²; these distances give 17.7 and 37.9).
 * **Per-trial variation** of each joint's capacity (multiplicative, normal, clipped at ±3 sd) is
   chosen so that a joint-estimation fit on those distances has an RMSE near the paper's 0.126 kg;
-  `benchmarks/calibrate_sim_noise.py` measures it (see benchmarks/README.md).
+  `studies/calibrate_sim_noise.py` measures it (see studies/README.md).
 * **Kinetic ratio** 0.8: after a slip the joint turns until its moment is 80 % of the static
   capacity.
 * **Winch and line.** Drum radius 0.01 m and a braided line of 5000 N/m, so 1 rad of winch rotation

@@ -4,7 +4,7 @@
   estimate is from it;
 * link validation: the share of percentage errors below 15 % (paper: 80.4 %), mean and sd.
 
-    .venv/bin/python benchmarks/runner_accuracy.py [--seeds 20] [--link-seeds 5]
+    .venv/bin/python studies/runner_accuracy.py [--seeds 20] [--link-seeds 5]
 """
 
 from __future__ import annotations

@@ -2,11 +2,11 @@
 
 Bare statistics, no simulator: slip masses m = k/l · (1 + s·e1) + a·e2 (e1, e2 standard normal;
 s the relative trial-to-trial scatter of the capacity, a an additive scatter in kg), fitted by the
-one-parameter least squares of MODEL §4 (`model.fit.fit_inverse_distance`, vectorised here over
+one-parameter least squares of docs/model.md §4 (`model.fit.fit_inverse_distance`, vectorised here over
 the data sets and checked against it on the first few). Prints coverage, median RMSE and the mean
 |error| of k for each design.
 
-    .venv/bin/python benchmarks/fit_coverage.py [--datasets 20000] [--relative-sd 0.085] [--additive-kg 0]
+    .venv/bin/python studies/fit_coverage.py [--datasets 20000] [--relative-sd 0.085] [--additive-kg 0]
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ Printed per preset: the RMSE distribution (median, IQR) against the paper's 0.12
 against the paper's, the median fitted k against the true k (the specimen's capacity / g), and the
 coverage of the 99 % bounds over the true k.
 
-    .venv/bin/python benchmarks/calibrate_sim_noise.py [--datasets 300] [--seed 0] [--rate 4.0]
+    .venv/bin/python studies/calibrate_sim_noise.py [--datasets 300] [--seed 0] [--rate 4.0]
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from model.slip_detector import DetectorParams, detect_slips
 from rig.sim.physics.article_presets import PRESET_NAMES, make_preset
 from rig.sim.physics.world import SimWorld
 
-PAPER = {  # MODEL.md §4: k, SSE, R², RMSE
+PAPER = {  # docs/model.md §4: k, SSE, R², RMSE
     "link1": {"k": 0.1615, "sse": 0.1112, "r2": 0.9937, "rmse": 0.1261},
     "link2": {"k": 0.2627, "sse": 0.1432, "r2": 0.9963, "rmse": 0.1261},
 }
