@@ -125,7 +125,8 @@ def _unit_perpendicular(v: NDArray[np.float64]) -> NDArray[np.float64]:
     """A unit vector orthogonal to unit vector v (deterministic)."""
     helper = np.array([0.0, 1.0, 0.0]) if abs(v[1]) < 0.9 else np.array([0.0, 0.0, 1.0])
     w = np.cross(helper, v)
-    return w / np.linalg.norm(w)
+    unit: NDArray[np.float64] = w / np.linalg.norm(w)
+    return unit
 
 
 def _three_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:

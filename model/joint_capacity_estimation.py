@@ -204,7 +204,8 @@ def link_estimator_init(
 
 
 def _normalised(log_weights: NDArray[np.float64]) -> NDArray[np.float64]:
-    return log_weights - special.logsumexp(log_weights, axis=1, keepdims=True)
+    normalised: NDArray[np.float64] = log_weights - special.logsumexp(log_weights, axis=1, keepdims=True)
+    return normalised
 
 
 def link_estimator_update(

@@ -87,9 +87,9 @@ def compare_estimates(offline: Mapping[str, Any] | None, online: Mapping[str, An
             worst = math.inf
             continue
         for a, b in zip(a_values, b_values, strict=True):
-            a_missing = a is None or math.isnan(a)
-            b_missing = b is None or math.isnan(b)
-            if a_missing or b_missing:
+            if a is None or b is None or math.isnan(a) or math.isnan(b):
+                a_missing = a is None or math.isnan(a)
+                b_missing = b is None or math.isnan(b)
                 if a_missing != b_missing:
                     differing.append(key)
                     worst = math.inf

@@ -170,11 +170,12 @@ def replay(
             )
     table = trial_table(records, settings)
 
-    fit_settings = {"level": level, "constant": constant, "radius_m": radius, "g": settings.g}
     distances, masses, _ = joint_estimation_pairs(table)
-    estimate = refit(distances, masses, **fit_settings)
+    estimate = refit(distances, masses, level=level, constant=constant, radius_m=radius, g=settings.g)
     re_distances, re_masses, _ = joint_estimation_pairs(table, "redetected_slip_mass_kg")
-    redetected_estimate = refit(re_distances, re_masses, **fit_settings)
+    redetected_estimate = refit(
+        re_distances, re_masses, level=level, constant=constant, radius_m=radius, g=settings.g
+    )
     agreement = compare_estimates(estimate, online)
     if agreement["compared"] and not agreement["agree"]:
         warnings.append(

@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from model.fit import t_quantile
 from rig.analysis import summary
@@ -239,7 +240,7 @@ def _errors_figure(result: ReplayResult) -> tuple[Figure, str] | str:
     fig = Figure(figsize=(7.5, 4.0), layout="constrained")
     ax = fig.add_subplot()
     top = max(20.0, 2.5 * math.ceil(errors.max() / 2.5 + 1))
-    ax.hist(errors, bins=np.arange(0, top + 2.5, 2.5), color=MEASURED_COLOR, edgecolor="white")
+    ax.hist(errors, bins=list(np.arange(0, top + 2.5, 2.5)), color=MEASURED_COLOR, edgecolor="white")
     for threshold, share in pe["share_below_pct"].items():
         value = float(threshold)
         ax.axvline(
@@ -251,7 +252,7 @@ def _errors_figure(result: ReplayResult) -> tuple[Figure, str] | str:
         )
     ax.set_xlabel("percentage error |predicted − measured| / measured [%]")
     ax.set_ylabel("trials")
-    ax.yaxis.get_major_locator().set_params(integer=True)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     std = pe["std_pct"]
     std_text = f"{std:.2f}" if std is not None and not math.isnan(std) else "n/a"
     ax.set_title(
@@ -320,7 +321,7 @@ def _or_nan(value: float | None) -> float:
 
 
 def _traces_figure(result: ReplayResult) -> tuple[Figure, str] | str:
-    records = [r for r in result.records if r.ramp_start_ns is not None]
+    records = [(r, r.ramp_start_ns) for r in result.records if r.ramp_start_ns is not None]
     if not records:
         return "no trial has a logged ramp"
     columns = min(6, len(records))
@@ -329,14 +330,13 @@ def _traces_figure(result: ReplayResult) -> tuple[Figure, str] | str:
     axes = fig.subplots(rows, columns, squeeze=False)
     samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     by_trial = {int(r.trial_id): r for r in result.table.itertuples()}
-    for index, record in enumerate(records):
+    for index, (record, start) in enumerate(records):
         ax = axes[index // columns][index % columns]
         key = id(record.part)
         if key not in samples:
             loadcell = record.part.log.topic(schemas.LOADCELL)
             samples[key] = (loadcell["log_time_ns"].to_numpy(np.int64), loadcell["force_n"].to_numpy(float))
         times, forces = samples[key]
-        start = record.ramp_start_ns
         end = record.unloading_ns if record.unloading_ns is not None else record.result.end_time_ns
         end += int(TRACE_SECONDS_AFTER_UNLOADING * 1e9)
         lo, hi = np.searchsorted(times, start), np.searchsorted(times, end)

@@ -273,7 +273,7 @@ def _decompress(compression: str, data: bytes, uncompressed_size: int) -> bytes:
     if compression == "lz4":
         if lz4_frame is None:  # pragma: no cover
             raise ValueError("lz4 is not installed")
-        return lz4_frame.decompress(data)
+        return bytes(lz4_frame.decompress(data))
     if compression == "":
         return bytes(data)
     raise ValueError(f"unknown compression {compression!r}")
@@ -444,7 +444,7 @@ def _plausible_chunk(f: IO[bytes], pos: int, size: int) -> bool:
     if head[41 : 41 + name_length] not in (b"", b"lz4", b"zstd"):
         return False
     (records_length,) = struct.unpack_from("<Q", head, 41 + name_length)
-    return (
+    return bool(
         length == 32 + name_length + 8 + records_length
         and pos + 9 + length <= size
         and start <= end
@@ -459,7 +459,7 @@ def _plausible_message_index(f: IO[bytes], pos: int, length: int) -> bool:
     if len(head) < 6:
         return False
     (entries_length,) = struct.unpack_from("<I", head, 2)
-    return length == 6 + entries_length and entries_length % 16 == 0
+    return bool(length == 6 + entries_length and entries_length % 16 == 0)
 
 
 def _next_chunk(f: IO[bytes], start: int, size: int) -> int | None:

@@ -113,7 +113,7 @@ class WriterProcess:
                     self._writer.add_attachment(*request[1])
                 elif op == "finish":
                     try:
-                        self._writer.finish()
+                        self._writer.finish()  # type: ignore[no-untyped-call]  # mcap: unannotated
                         self._file.flush()
                         os.fsync(self._file.fileno())
                     finally:
@@ -170,7 +170,7 @@ class WriterProcess:
         return channel_id
 
     def _flush(self, *, fsync: bool) -> None:
-        self._writer.flush()
+        self._writer.flush()  # type: ignore[no-untyped-call]  # mcap: unannotated
         if fsync:
             os.fsync(self._file.fileno())
         self._unflushed = False

@@ -78,4 +78,6 @@ def percentage_error_stats(results: Sequence[TrialResult]) -> PayloadErrorStats 
     ]
     if not rows:
         return None
-    return payload_error_stats([r.predicted_mass_kg for r in rows], [r.slip_mass_kg for r in rows])  # type: ignore[misc]
+    predicted = [r.predicted_mass_kg for r in rows if r.predicted_mass_kg is not None]
+    measured = [r.slip_mass_kg for r in rows if r.slip_mass_kg is not None]
+    return payload_error_stats(predicted, measured)

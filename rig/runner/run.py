@@ -106,6 +106,7 @@ class PreparedRun:
 def prepare_run(request: RunRequest) -> PreparedRun:
     """Validate the request and load or create the journal; raises InputError on bad input."""
     config = load_rig_config(request.rig_path)
+    journal: RunJournal | None
     if request.resume is not None:
         run_id = _check_run_id(request.resume, "--resume")
         journal = RunJournal.load(RunJournal.path_for(request.out_dir, run_id))
@@ -119,7 +120,7 @@ def prepare_run(request: RunRequest) -> PreparedRun:
             )
     else:
         seed = request.seed
-        journal = None  # type: ignore[assignment]
+        journal = None
     protocol = load_protocol(request.protocol_path, seed=seed, joint_count=config.article.joint_count)
     check_limits(protocol, config)
     protocol_hash = content_hash(protocol.text)

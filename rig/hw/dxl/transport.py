@@ -237,7 +237,7 @@ class Transport:
                 _, result, _ = self._sdk_unchecked(self._ph.ping, self._port, servo_id)
         except CommunicationError:
             result = -1
-        return result
+        return int(result)
 
     def send_reboot(self, servo_id: int) -> None:
         """Send Reboot once, no retry; `InstructionRejected` if the servo refused it.

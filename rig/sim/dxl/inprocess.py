@@ -109,7 +109,7 @@ class SimSerial:
         self._clock.advance_to_ns(target)
 
 
-class SimPortHandler(PortHandler):
+class SimPortHandler(PortHandler):  # type: ignore[misc]  # dynamixel-sdk has no type information
     """A `PortHandler` on an `EmulatedBus` in virtual time (construct as `SimPortHandler(bus, clock)`)."""
 
     def __init__(self, bus: EmulatedBus, clock: VirtualClock, port_name: str = "sim://dxl") -> None:
@@ -119,7 +119,7 @@ class SimPortHandler(PortHandler):
 
     def setupPort(self, cflag_baud: int) -> bool:
         """Install the emulated serial port at `self.baudrate`; the bus line runs at that rate."""
-        if self.is_open:
+        if self.is_open:  # type: ignore[has-type]  # set by the untyped PortHandler
             self.closePort()
         self.ser = SimSerial(self.bus, self.clock, self)
         self.bus.baud = self.baudrate

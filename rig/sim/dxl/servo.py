@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from rig.hw.dxl import control_table as ct
@@ -135,12 +136,13 @@ class Servo:
         # World hook and fault switches.
         self.external_torque_nm = 0.0
         self.silent = False
-        self.on_id_change: list = []  # callables(servo, old_id) notified after an ID write
+        # Called as (servo, old_id) after an ID write.
+        self.on_id_change: list[Callable[[Servo, int], None]] = []
         # Field handles used on hot paths.
         self._f = {name: table[name] for name in table.names()}
         self._has_current = "Current Limit" in table
         self._mem = bytearray(table.size)
-        self._present_key: tuple | None = None  # inputs of the last _refresh_present
+        self._present_key: tuple[object, ...] | None = None  # inputs of the last _refresh_present
         self._load_defaults(keep_id=False, keep_baud=False)
         self._set("ID", servo_id)
         self._set("Baud Rate", ct.BAUD_REGISTER_BY_RATE[baud])

@@ -107,7 +107,7 @@ class ChainArticle:
         """Capacities in force for the current trial (N·m), joint 1 first."""
         return tuple(float(c) for c in self._capacities)
 
-    def set_joint_angles(self, joint_angles_rad: Sequence[float]) -> None:
+    def set_joint_angles(self, joint_angles_rad: Sequence[float] | np.ndarray) -> None:
         """Set a planar configuration: `T_i = [Rot_y(φ_i), (0, 0, L_i)]`."""
         angles = np.asarray(joint_angles_rad, dtype=float)
         if angles.shape != (self.joint_count,) or not np.all(np.isfinite(angles)):
@@ -122,7 +122,7 @@ class ChainArticle:
             self._ref_point_w = self._point_w(forward_kinematics(self._transforms))
         self._refresh()
 
-    def set_capacities(self, capacities_nm: Sequence[float]) -> None:
+    def set_capacities(self, capacities_nm: Sequence[float] | np.ndarray) -> None:
         """Set the capacities of this trial (N·m, > 0)."""
         caps = np.asarray(capacities_nm, dtype=float)
         if caps.shape != (self.joint_count,) or not np.all(caps > 0):
@@ -185,7 +185,8 @@ class ChainArticle:
     # --- internals ---------------------------------------------------------------------------
     def _point_w(self, poses: np.ndarray) -> np.ndarray:
         tip = poses[-1]
-        return tip[:3, :3] @ self._point + tip[:3, 3]
+        point: np.ndarray = tip[:3, :3] @ self._point + tip[:3, 3]
+        return point
 
     def _refresh(self) -> None:
         self._poses = forward_kinematics(self._transforms)

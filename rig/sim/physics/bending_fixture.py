@@ -48,7 +48,7 @@ class BendingFixture:
         self._target_angles = np.zeros(joint_count)
         self._exact = True
 
-    def goal_for(self, joint_angles_rad: Sequence[float]) -> float:
+    def goal_for(self, joint_angles_rad: Sequence[float] | np.ndarray) -> float:
         """The bender angle that sets `joint_angles_rad`."""
         return self.rest_angle_rad + self.travel_per_bend * float(np.sum(np.abs(joint_angles_rad)))
 
