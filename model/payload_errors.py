@@ -97,6 +97,11 @@ def _shares(values: NDArray[np.float64], thresholds: tuple[float, ...]) -> tuple
     return tuple((t, float(np.count_nonzero(values < t)) / values.size) for t in thresholds)
 
 
+def signed_percentage_error(predicted_kg: float, measured_kg: float) -> float:
+    """One trial's error of the predicted payload, (predicted − measured) / measured · 100 [%]."""
+    return (predicted_kg - measured_kg) / measured_kg * 100.0
+
+
 def payload_error_stats(
     predicted_kg: ArrayLike,
     measured_kg: ArrayLike,

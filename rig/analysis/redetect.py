@@ -22,7 +22,7 @@ naming it and its allowed range.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -87,15 +87,7 @@ def detector_params(
 def _same_event(event: SlipEvent, logged: SlipEvent) -> list[str]:
     """Fields in which a re-detected event differs from the logged one (empty: identical)."""
     differences = []
-    for name in (
-        "onset_time_ns",
-        "detection_time_ns",
-        "peak_time_ns",
-        "peak_force_n",
-        "force_after_n",
-        "drop_fraction",
-        "trigger",
-    ):
+    for name in (f.name for f in fields(SlipEvent)):
         mine, theirs = getattr(event, name), getattr(logged, name)
         if mine != theirs:
             differences.append(f"{name} {mine!r} vs logged {theirs!r}")

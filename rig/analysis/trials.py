@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from model.chain import lever_arms_m, planar_transforms
+from model.payload_errors import signed_percentage_error
 from model.slip_detector import SlipEvent
 from rig.analysis.runlog import LogPart, RunSettings
 from rig.errors import InputError
@@ -192,7 +193,7 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
         predicted = r.predicted_mass_kg
         pct = None
         if record.slipped and predicted is not None and slip_mass:
-            pct = (predicted - slip_mass) / slip_mass * 100.0
+            pct = signed_percentage_error(predicted, slip_mass)
         base_arm = base_lever_arm_m(settings, record.joint_angles_rad) if record.joint_angles_rad else None
         base_moment = (
             peak * base_arm if (record.slipped and peak is not None and base_arm is not None) else None

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from model.payload_errors import PayloadErrorStats, payload_error_stats
+from model.payload_errors import PayloadErrorStats, payload_error_stats, signed_percentage_error
 from model.slip_detector import SlipEvent
 from rig.log.records import TrialKind, TrialOutcome, TrialResult
 from rig.protocol import TrialPlan
@@ -46,7 +46,7 @@ def trial_result(
         and slip_mass is not None
         and trial.kind == TrialKind.LINK_VALIDATION
     ):
-        percentage_error = (predicted_mass - slip_mass) / slip_mass * 100.0
+        percentage_error = signed_percentage_error(predicted_mass, slip_mass)
     return TrialResult(
         trial_id=trial.trial_id,
         kind=TrialKind(trial.kind),
