@@ -1,0 +1,23 @@
+"""Logs written before a payload change still replay, with the very same results as on the day."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from rig.cli import main
+
+DATA = Path(__file__).parent / "data"
+
+
+def test_a_log_from_before_the_typed_records_replays_exactly_as_it_did(capsys):
+    code = main(["replay", str(DATA / "legacy-2026-11-22.mcap"), "--json"])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    out.pop("files")
+    expected = json.loads((DATA / "legacy-2026-11-22.replay.json").read_text())
+    assert out.keys() == expected.keys()
+    for key, value in expected.items():
+        assert out[key] == value, key
+    link = [t for t in out["trials"] if t["kind"] == "link_validation"]
+    assert len(link) == 1 and link[0]["joint_angles_rad"] is not None
