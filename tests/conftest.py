@@ -52,6 +52,18 @@ from tests.helpers import s32, u32
 os.environ.setdefault("RIG_LOG_STRICT", "1")
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """A test that starts `rig sim servos` (`dxl_server`) must be marked `pty` and `subprocess`."""
+    unmarked = [
+        item.nodeid
+        for item in items
+        if "dxl_server" in getattr(item, "fixturenames", ())
+        and not {"pty", "subprocess"} <= {mark.name for mark in item.iter_markers()}
+    ]
+    if unmarked:
+        raise pytest.UsageError("mark these pty and subprocess (they use dxl_server): " + ", ".join(unmarked))
+
+
 # ------------------------------------------------------------------------------------------ files, CLI
 
 

@@ -21,6 +21,8 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
+pytestmark = [pytest.mark.pty, pytest.mark.subprocess]
+
 MAX_RETRIES_PER_TEST = 1
 
 
@@ -45,6 +47,7 @@ class Client:
         self.port.closePort()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("baud", [57_600, 1_000_000])
 def test_sdk_over_pty(dxl_server, baud):
     server = dxl_server(ids=[1, 2, 3], baud=baud)

@@ -98,6 +98,8 @@ def test_model_vector_9_through_the_cli(write_file, cli_json):
     assert summary["dfe"] == 3 and summary["n"] == 4 and summary["level"] == 0.99
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_subprocess_of_the_installed_console_script():
     example = REPO / "protocols" / "example_fit.csv"
     proc = subprocess.run(
@@ -216,6 +218,7 @@ def test_missing_file_and_missing_radius(tmp_path, capsys):
     assert "--radius-m" in capsys.readouterr().err
 
 
+@pytest.mark.subprocess
 def test_subprocess_bad_input_has_no_traceback(write_file):
     path = write_file("distance_m,mass_kg\n0.1,1\n0,0.5\n", "data.csv")
     proc = subprocess.run(

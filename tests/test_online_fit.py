@@ -78,6 +78,7 @@ def test_estimate_rejects_bad_level():
             online_fit_estimate(state, level=level)
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=nasty_data(), level=st.sampled_from([0.9, 0.99]))
 def test_online_equals_batch_after_every_update(data, level):

@@ -154,6 +154,8 @@ def test_help_teaches_the_format(capsys):
         assert needle in out
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_installed_console_script(write_file):
     result = subprocess.run(
         [str(RIG), "predict", str(EXAMPLE), "--json"], capture_output=True, text=True, timeout=60, check=False

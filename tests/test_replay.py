@@ -299,6 +299,7 @@ def test_resumed_run_parts_combine(logs, replay_json):
 # The report
 
 
+@pytest.mark.slow
 def test_report_has_every_file_and_round_trips_the_table(logs, tmp_path, replay_json):
     report = tmp_path / "nested" / "report"
     code, out = replay_json(logs["link"].log, "--report", str(report))
@@ -328,6 +329,7 @@ def test_report_has_every_file_and_round_trips_the_table(logs, tmp_path, replay_
     assert json.loads((report / "replay.json").read_text())["estimate"] == out["estimate"]
 
 
+@pytest.mark.slow
 def test_report_without_link_validation_leaves_out_its_figures(logs, tmp_path, capsys):
     report = tmp_path / "smoke_report"
     report.mkdir()  # an empty directory is accepted

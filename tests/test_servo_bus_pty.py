@@ -18,6 +18,8 @@ from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import OperatingMode
 from rig.rig_config import ServoSpec
 
+pytestmark = [pytest.mark.pty, pytest.mark.subprocess]
+
 SPECS = [ServoSpec(1, "winch", "XM430-W350"), ServoSpec(2, "bender", "XM430-W350")]
 
 
