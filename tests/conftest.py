@@ -1,6 +1,445 @@
-"""Test-wide settings."""
+"""Test-wide settings and the shared fixtures.
 
+Files and the CLI:
+  `write_file(text, name)`, `protocol_file(body, name="p.yaml")`: files in tmp_path.
+  `run_cli(*argv)`: `rig.cli.main` in-process, with its exit code, stdout, stderr and JSON.
+  `cli_json(*argv, quiet=False)`: the same, asserting exit 0 (and an empty stderr if `quiet`).
+Dynamixel:
+  `emulated_dxl(ids=..., **driver_kwargs)`: an emulated bus with the real `DynamixelServoBus` on it,
+  in-process and in virtual time (shut down after the test).
+  `sdk_on_emulated_bus(ids=..., coupled=True)`: the raw dynamixel-sdk on an emulated bus.
+  `dxl_server(ids=..., baud=...)`: `rig sim servos` in a subprocess on a pty (always terminated).
+Runs:
+  `run_on_simulated_rig` (session scope): runs a protocol on the simulated rig into any directory.
+  `sim_run(protocol, ...)`: the same into tmp_path/out; returns (report, SimulatedRig).
+  `assert_safe(sim)`: the line released and every servo torque-off after a run.
+Signals:
+  `signal_handlers`: SIGINT/SIGTERM handlers restored after the test, whatever it installed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
 import os
+import select
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+from dynamixel_sdk import PacketHandler
+
+from rig.cli import main as cli_main
+from rig.hw.dxl.bus import DynamixelServoBus
+from rig.rig_config import ServoSpec
+from rig.rigs import open_simulated_rig
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
+from rig.sim.clock import VirtualClock
+from rig.sim.dxl.bus import EmulatedBus
+from rig.sim.dxl.inprocess import SimPortHandler
+from rig.sim.simulated_rig import SimulatedRig
+from tests.helpers import s32, u32
 
 # Every payload a test logs is checked against its topic schema (rig/log/schemas.py).
 os.environ.setdefault("RIG_LOG_STRICT", "1")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """A test that starts `rig sim servos` (`dxl_server`) must be marked `pty` and `subprocess`."""
+    unmarked = [
+        item.nodeid
+        for item in items
+        if "dxl_server" in getattr(item, "fixturenames", ())
+        and not {"pty", "subprocess"} <= {mark.name for mark in item.iter_markers()}
+    ]
+    if unmarked:
+        raise pytest.UsageError("mark these pty and subprocess (they use dxl_server): " + ", ".join(unmarked))
+
+
+# ------------------------------------------------------------------------------------------ files, CLI
+
+
+@pytest.fixture
+def write_file(tmp_path: Path) -> Callable[[str, str], Path]:
+    """`write_file(text, name)` -> tmp_path/name holding `text` (UTF-8)."""
+
+    def write(text: str, name: str) -> Path:
+        path = tmp_path / name
+        path.write_text(text, encoding="utf-8")
+        return path
+
+    return write
+
+
+@pytest.fixture
+def protocol_file(write_file: Callable[[str, str], Path]) -> Callable[..., Path]:
+    """`protocol_file(body, name="p.yaml")` -> a protocol YAML in tmp_path (`body` is dedented)."""
+
+    def write(body: str, name: str = "p.yaml") -> Path:
+        return write_file(textwrap.dedent(body), name)
+
+    return write
+
+
+@dataclass
+class CliRun:
+    """One in-process `rig` invocation."""
+
+    code: int
+    out: str
+    err: str
+
+    @property
+    def data(self) -> Any:
+        """stdout parsed as JSON ({} when it is empty)."""
+        return json.loads(self.out) if self.out.strip() else {}
+
+
+@pytest.fixture
+def run_cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., CliRun]:
+    """`run_cli(*argv)` -> CliRun: `rig.cli.main` with the arguments as strings, output captured."""
+
+    def run(*argv: object) -> CliRun:
+        capsys.readouterr()  # only this invocation's output
+        code = cli_main([str(a) for a in argv])
+        captured = capsys.readouterr()
+        return CliRun(code, captured.out, captured.err)
+
+    return run
+
+
+@pytest.fixture
+def cli_json(run_cli: Callable[..., CliRun]) -> Callable[..., Any]:
+    """`cli_json(*argv, quiet=False)` -> parsed stdout; asserts exit 0, and nothing on stderr if `quiet`."""
+
+    def run(*argv: object, quiet: bool = False) -> Any:
+        result = run_cli(*argv)
+        assert result.code == 0, result.err
+        if quiet:
+            assert result.err == ""
+        return json.loads(result.out)
+
+    return run
+
+
+# ------------------------------------------------------------------------------------------ Dynamixel
+
+DXL_ROLES = {1: "winch", 2: "bender", 3: "bender"}
+
+
+@dataclass
+class EmulatedDxl:
+    """An emulated bus (virtual time) and the real driver on it through the in-process port."""
+
+    clock: VirtualClock
+    bus: EmulatedBus
+    specs: list[ServoSpec]
+    driver: DynamixelServoBus = field(init=False)
+    ports: list[SimPortHandler] = field(default_factory=list)
+
+    def make_port(self, name: str) -> SimPortHandler:
+        """A new in-process port on the bus (the driver's port factory)."""
+        port = SimPortHandler(self.bus, self.clock, name)
+        self.ports.append(port)
+        return port
+
+    def reg(self, servo_id: int, name: str) -> int:
+        """A register of an emulated servo, read behind the driver's back."""
+        return self.bus[servo_id].register(name)
+
+
+@pytest.fixture
+def emulated_dxl() -> Iterator[Callable[..., EmulatedDxl]]:
+    """Factory: `emulated_dxl(ids=(1, 2, 3), model=..., specs=None, firmware=None, **driver_kwargs)`.
+
+    The driver is not connected yet; every driver made is shut down after the test (idempotent).
+    Roles: 1 is the winch, the others benders.
+    """
+    made: list[EmulatedDxl] = []
+
+    def make(
+        ids: Sequence[int] = (1, 2, 3),
+        *,
+        model: str = "XM430-W350",
+        specs: list[ServoSpec] | None = None,
+        firmware: int | None = None,
+        **driver_kwargs: Any,
+    ) -> EmulatedDxl:
+        clock = VirtualClock()
+        servo_kwargs = {} if firmware is None else {"firmware": firmware}
+        bus = EmulatedBus.with_servos(clock, ids=list(ids), model=model, **servo_kwargs)
+        specs = specs or [ServoSpec(i, DXL_ROLES.get(i, "bender"), model) for i in ids]
+        rig = EmulatedDxl(clock, bus, specs)
+        rig.driver = DynamixelServoBus(
+            "sim://dxl", 1_000_000, specs, clock, port_factory=rig.make_port, **driver_kwargs
+        )
+        made.append(rig)
+        return rig
+
+    yield make
+    for rig in made:
+        with contextlib.suppress(Exception):
+            rig.driver.shutdown()
+
+
+class SdkOnEmulatedBus:
+    """The raw dynamixel-sdk (Protocol 2.0) on an emulated bus through an open in-process port."""
+
+    def __init__(
+        self,
+        ids: Sequence[int] = (1, 2, 3),
+        model: str = "XM430-W350",
+        baud: int = 1_000_000,
+        *,
+        coupled: bool = True,
+        **servo_kwargs: Any,
+    ) -> None:
+        self.clock = VirtualClock()
+        self.bus = EmulatedBus.with_servos(self.clock, ids=list(ids), model=model, baud=baud, **servo_kwargs)
+        if coupled:
+            self.clock.on_advance(self.bus.advance_to)  # as the simulated world does
+        self.port = SimPortHandler(self.bus, self.clock)
+        assert self.port.openPort() and self.port.setBaudRate(baud)
+        self.ph = PacketHandler(2.0)
+
+    def w1(self, i: int, addr: int, v: int) -> tuple[int, int]:
+        return self.ph.write1ByteTxRx(self.port, i, addr, v)
+
+    def w2(self, i: int, addr: int, v: int) -> tuple[int, int]:
+        return self.ph.write2ByteTxRx(self.port, i, addr, v & 0xFFFF)
+
+    def w4(self, i: int, addr: int, v: int) -> tuple[int, int]:
+        return self.ph.write4ByteTxRx(self.port, i, addr, u32(v))
+
+    def r1(self, i: int, addr: int) -> tuple[int, int, int]:
+        return self.ph.read1ByteTxRx(self.port, i, addr)
+
+    def r2(self, i: int, addr: int) -> tuple[int, int, int]:
+        return self.ph.read2ByteTxRx(self.port, i, addr)
+
+    def r4(self, i: int, addr: int) -> tuple[int, int, int]:
+        return self.ph.read4ByteTxRx(self.port, i, addr)
+
+    def position(self, i: int) -> int:
+        """Present Position (132) in pulses, signed."""
+        value, result, _ = self.r4(i, 132)
+        assert result == 0
+        return s32(value)
+
+    def sleep(self, s: float) -> None:
+        self.clock.sleep(s)
+
+
+@pytest.fixture
+def sdk_on_emulated_bus() -> Callable[..., SdkOnEmulatedBus]:
+    """Factory: `sdk_on_emulated_bus(ids=(1, 2, 3), model=..., baud=..., coupled=True, **servo_kwargs)`.
+
+    `coupled` moves the servos on every clock advance, as the simulated world does.
+    """
+    return SdkOnEmulatedBus
+
+
+STARTUP_TIMEOUT_S = 10.0
+STOP_TIMEOUT_S = 5.0
+
+
+@dataclass
+class ServoServer:
+    """A running `rig sim servos` process."""
+
+    link: str
+    pty: str
+    process: subprocess.Popen[str]
+
+    def stop(self, sig: int = signal.SIGTERM) -> tuple[int, str]:
+        """Signal the server, wait (bounded) and return (exit code, stderr)."""
+        if self.process.poll() is None:
+            self.process.send_signal(sig)
+        try:
+            _, err = self.process.communicate(timeout=STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            _, err = self.process.communicate(timeout=STOP_TIMEOUT_S)
+        return self.process.returncode, err
+
+
+@contextlib.contextmanager
+def _servo_server(
+    link: str | os.PathLike[str],
+    ids: Sequence[int] = (1,),
+    *,
+    baud: int = 1_000_000,
+    model: str = "XM430-W350",
+    faults: Sequence[str] = (),
+    extra_args: Sequence[str] = (),
+) -> Iterator[ServoServer]:
+    """Start `python -m rig.cli.sim_servos`, wait for its `PTY ... LINK ...` line, always terminate it."""
+    cmd = [
+        sys.executable,
+        "-m",
+        "rig.cli.sim_servos",
+        "--ids",
+        ",".join(str(i) for i in ids),
+        "--baud",
+        str(baud),
+        "--model",
+        model,
+        "--link",
+        str(link),
+        *(f"--fault={f}" for f in faults),
+        *extra_args,
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        line = ""
+        while not line:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or proc.poll() is not None:
+                break
+            ready, _, _ = select.select([proc.stdout], [], [], remaining)
+            if ready:
+                line = proc.stdout.readline()  # type: ignore[union-attr]
+                if not line:
+                    break
+        words = line.split()
+        if len(words) != 4 or words[0] != "PTY" or words[2] != "LINK":
+            proc.kill()
+            _, err = proc.communicate(timeout=STOP_TIMEOUT_S)
+            raise RuntimeError(
+                f"servo server did not start (line {line!r}, exit {proc.returncode}): {err.strip()}"
+            )
+        yield ServoServer(link=words[3], pty=words[1], process=proc)
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=STOP_TIMEOUT_S)
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()
+
+
+@pytest.fixture
+def dxl_server(tmp_path: Path) -> Iterator[Callable[..., ServoServer]]:
+    """Factory: `dxl_server(ids=[1, 2], baud=57600, model=..., faults=[...], extra_args=[...])`.
+
+    Each is a ServoServer: `rig sim servos` (the same code) in a subprocess on a pty; every server
+    is terminated after the test.
+    """
+    with contextlib.ExitStack() as stack:
+        count = 0
+
+        def start(**kwargs: Any) -> ServoServer:
+            nonlocal count
+            count += 1
+            return stack.enter_context(_servo_server(tmp_path / f"dxl{count}", **kwargs))
+
+        yield start
+
+
+# ------------------------------------------------------------------------------------------ runs
+
+SimRun = Callable[..., tuple[RunReport, SimulatedRig]]
+
+
+def _run_on_simulated_rig(
+    protocol: Path,
+    out_dir: Path,
+    *,
+    run_id: str = "r1",
+    resume: bool = False,
+    seed: int = 3,
+    patch: Callable[[SimulatedRig], None] | None = None,
+) -> tuple[RunReport, SimulatedRig]:
+    """Start run `run_id` (or resume it) and run it to its end as `rig run` does.
+
+    `patch(sim)` may alter the rig first.
+    """
+    request = RunRequest(
+        protocol_path=protocol,
+        rig_path=None,
+        out_dir=out_dir,
+        seed=seed,
+        run_id=None if resume else run_id,
+        resume=run_id if resume else None,
+    )
+    prepared = prepare_run(request)
+    sim = open_simulated_rig(prepared)
+    if patch is not None:
+        patch(sim)
+    return execute_run(prepared, sim.session, SilentProgress()), sim
+
+
+@pytest.fixture(scope="session")
+def run_on_simulated_rig() -> SimRun:
+    """`run_on_simulated_rig(protocol, out_dir, run_id="r1", resume=False, seed=3, patch=None)`.
+
+    Runs a protocol on the built-in simulated rig through `prepare_run`, `open_simulated_rig` and
+    `execute_run` (what `rig run` does); returns (report, SimulatedRig). Session-scoped, for
+    fixtures that build logs once.
+    """
+    return _run_on_simulated_rig
+
+
+@pytest.fixture
+def sim_run(tmp_path: Path) -> SimRun:
+    """`sim_run(protocol, run_id="r1", resume=None, seed=3, patch=None)` into tmp_path/out.
+
+    `resume` is the id of the run to resume; `patch(sim)` may alter the rig before the run.
+    Returns (report, SimulatedRig).
+    """
+
+    def run(
+        protocol: Path,
+        *,
+        run_id: str = "r1",
+        resume: str | None = None,
+        seed: int = 3,
+        patch: Callable[[SimulatedRig], None] | None = None,
+    ) -> tuple[RunReport, SimulatedRig]:
+        return _run_on_simulated_rig(
+            protocol,
+            tmp_path / "out",
+            run_id=resume or run_id,
+            resume=resume is not None,
+            seed=seed,
+            patch=patch,
+        )
+
+    return run
+
+
+@pytest.fixture
+def assert_safe() -> Callable[[SimulatedRig], None]:
+    """`assert_safe(sim)`: the line is released (no tension left) and every servo is torque-off."""
+
+    def check(sim: SimulatedRig) -> None:
+        for servo in sim.devices.bus.servos:
+            assert not servo.torque_enabled, f"servo {servo.servo_id} left with torque on"
+        assert sim.devices.world.tension_n < 1.0
+
+    return check
+
+
+# ------------------------------------------------------------------------------------------ signals
+
+
+@pytest.fixture
+def signal_handlers() -> Iterator[None]:
+    """Whatever a test installs for SIGINT and SIGTERM, the handlers before it are back after it."""
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in saved.items():
+        signal.signal(sig, handler)

@@ -9,31 +9,16 @@ from dynamixel_sdk import (
     COMM_SUCCESS,
     GroupSyncRead,
     GroupSyncWrite,
-    PacketHandler,
 )
 
-from rig.hw.dxl.control_table import XM430_W350, to_signed
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl.bus import EmulatedBus
-from rig.sim.dxl.inprocess import SimPortHandler
-
-
-def u32(value: int) -> int:
-    return value & 0xFFFFFFFF
-
-
-def s32(raw: int) -> int:
-    return to_signed(raw, 4)
+from rig.hw.dxl.control_table import XM430_W350
+from tests.helpers import s32, u32
 
 
 @pytest.fixture
-def rig3():
-    clock = VirtualClock()
-    bus = EmulatedBus.with_servos(clock, ids=[1, 2, 3], model="XM430-W350", baud=1_000_000)
-    port = SimPortHandler(bus, clock)
-    assert port.openPort()
-    assert port.setBaudRate(1_000_000)
-    return clock, bus, port, PacketHandler(2.0)
+def rig3(sdk_on_emulated_bus):
+    rig = sdk_on_emulated_bus(ids=[1, 2, 3], model="XM430-W350", baud=1_000_000, coupled=False)
+    return rig.clock, rig.bus, rig.port, rig.ph
 
 
 def test_ping_reports_model_and_takes_wire_time(rig3):

@@ -11,7 +11,6 @@ import signal
 import time
 
 import pytest
-from dxl_fixtures import dxl_server  # noqa: F401  (fixture)
 from dynamixel_sdk import (
     COMM_RX_TIMEOUT,
     COMM_SUCCESS,
@@ -21,6 +20,8 @@ from dynamixel_sdk import (
     PacketHandler,
     PortHandler,
 )
+
+pytestmark = [pytest.mark.pty, pytest.mark.subprocess]
 
 MAX_RETRIES_PER_TEST = 1
 
@@ -46,8 +47,9 @@ class Client:
         self.port.closePort()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("baud", [57_600, 1_000_000])
-def test_sdk_over_pty(dxl_server, baud):  # noqa: F811
+def test_sdk_over_pty(dxl_server, baud):
     server = dxl_server(ids=[1, 2, 3], baud=baud)
     c = Client(server.link, baud)
     try:
@@ -103,7 +105,7 @@ def test_sdk_over_pty(dxl_server, baud):  # noqa: F811
     print(f"retries at {baud}: {c.retries}")
 
 
-def test_wrong_baud_is_silent_and_sigterm_removes_link(dxl_server):  # noqa: F811
+def test_wrong_baud_is_silent_and_sigterm_removes_link(dxl_server):
     server = dxl_server(ids=[5, 6], baud=57_600, faults=["silent:6"])
     c = Client(server.link, 1_000_000)
     try:

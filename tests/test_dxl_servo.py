@@ -14,14 +14,11 @@ from dynamixel_sdk import (
     GroupBulkRead,
     GroupBulkWrite,
     GroupSyncRead,
-    PacketHandler,
 )
 
-from rig.hw.dxl.control_table import RAD_PER_PULSE, XM430_W350, to_signed
-from rig.sim.clock import VirtualClock
+from rig.hw.dxl.control_table import RAD_PER_PULSE, XM430_W350
 from rig.sim.dxl import protocol as p
-from rig.sim.dxl.bus import EmulatedBus
-from rig.sim.dxl.inprocess import SimPortHandler
+from tests.helpers import s16, s32, u32
 
 ACCESS, LIMIT, RANGE, LENGTH, FAIL, INSTRUCTION, CRC = 7, 6, 4, 5, 1, 2, 3
 ALERT = 0x80
@@ -29,57 +26,9 @@ ALERT = 0x80
 TORQUE, MODE, GOAL_POS, PRESENT_POS, HW_ERR, GOAL_CUR, PRESENT_CUR = 64, 11, 116, 132, 70, 102, 126
 
 
-def u32(v: int) -> int:
-    return v & 0xFFFFFFFF
-
-
-def s32(raw: int) -> int:
-    return to_signed(raw, 4)
-
-
-def s16(raw: int) -> int:
-    return to_signed(raw, 2)
-
-
-class Rig:
-    def __init__(self, ids=(1, 2, 3), model="XM430-W350", baud=1_000_000, **kw):
-        self.clock = VirtualClock()
-        self.bus = EmulatedBus.with_servos(self.clock, ids=list(ids), model=model, baud=baud, **kw)
-        self.clock.on_advance(self.bus.advance_to)  # as the simulated world does
-        self.port = SimPortHandler(self.bus, self.clock)
-        assert self.port.openPort() and self.port.setBaudRate(baud)
-        self.ph = PacketHandler(2.0)
-
-    def w1(self, i, addr, v):
-        return self.ph.write1ByteTxRx(self.port, i, addr, v)
-
-    def w2(self, i, addr, v):
-        return self.ph.write2ByteTxRx(self.port, i, addr, v & 0xFFFF)
-
-    def w4(self, i, addr, v):
-        return self.ph.write4ByteTxRx(self.port, i, addr, u32(v))
-
-    def r1(self, i, addr):
-        return self.ph.read1ByteTxRx(self.port, i, addr)
-
-    def r2(self, i, addr):
-        return self.ph.read2ByteTxRx(self.port, i, addr)
-
-    def r4(self, i, addr):
-        return self.ph.read4ByteTxRx(self.port, i, addr)
-
-    def position(self, i):
-        value, result, _ = self.r4(i, PRESENT_POS)
-        assert result == COMM_SUCCESS
-        return s32(value)
-
-    def sleep(self, s):
-        self.clock.sleep(s)
-
-
 @pytest.fixture
-def rig():
-    return Rig()
+def rig(sdk_on_emulated_bus):
+    return sdk_on_emulated_bus()
 
 
 # ----- reads and writes of every size ------------------------------------------------------------------
@@ -247,8 +196,8 @@ def test_sync_read_replies_come_in_instruction_order(rig):
     assert [p.parse_status(r.data).servo_id for r in ping] == [1, 2, 3]
 
 
-def test_fast_sync_read_and_firmware_gate():
-    rig = Rig(ids=(1, 2))
+def test_fast_sync_read_and_firmware_gate(sdk_on_emulated_bus):
+    rig = sdk_on_emulated_bus(ids=(1, 2))
     for i in (1, 2):
         rig.w4(i, 112, 10 * i)
     sr = GroupSyncRead(rig.port, rig.ph, 112, 4)
@@ -256,7 +205,7 @@ def test_fast_sync_read_and_firmware_gate():
     sr.addParam(1)
     assert sr.fastSyncRead() == COMM_SUCCESS
     assert (sr.getData(1, 112, 4), sr.getData(2, 112, 4)) == (10, 20)
-    old = Rig(ids=(1,), firmware=44)
+    old = sdk_on_emulated_bus(ids=(1,), firmware=44)
     sr = GroupSyncRead(old.port, old.ph, 112, 4)
     sr.addParam(1)
     assert sr.fastSyncRead() == COMM_RX_TIMEOUT
@@ -475,8 +424,8 @@ def test_world_hook_advance_is_idempotent(rig):
     assert rig.bus[1].present_position_rad == pos
 
 
-def test_xl430_has_no_current_mode():
-    rig = Rig(ids=(1,), model="XL430-W250")
+def test_xl430_has_no_current_mode(sdk_on_emulated_bus):
+    rig = sdk_on_emulated_bus(ids=(1,), model="XL430-W250")
     assert rig.ph.ping(rig.port, 1)[0] == 1060
     assert rig.w1(1, MODE, 5) == (COMM_SUCCESS, RANGE)
     assert rig.w1(1, MODE, 16) == (COMM_SUCCESS, 0)

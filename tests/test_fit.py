@@ -6,13 +6,6 @@ import math
 
 import numpy as np
 import pytest
-from fit_reference import (
-    VECTOR9_DISTANCES_M,
-    VECTOR9_MASSES_KG,
-    assert_matches_exact,
-    exact_reference,
-    nasty_data,
-)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy import stats
@@ -22,6 +15,13 @@ from model.fit import (
     capacity_from_fit,
     fit_inverse_distance,
     fit_summary,
+)
+from tests.fit_reference import (
+    VECTOR9_DISTANCES_M,
+    VECTOR9_MASSES_KG,
+    assert_matches_exact,
+    exact_reference,
+    nasty_data,
 )
 
 

@@ -20,20 +20,6 @@ DESIGN_KEYS = [
 ]  # fmt: skip
 
 
-def write_csv(tmp_path, text, name="data.csv"):
-    path = tmp_path / name
-    path.write_text(text, encoding="utf-8")
-    return path
-
-
-def run_json(capsys, *argv):
-    code = main(["fit", *map(str, argv), "--json"])
-    out, err = capsys.readouterr()
-    assert code == 0, err
-    assert err == ""
-    return json.loads(out)
-
-
 def independent(distances, masses, level, radius, c, g):
     """numpy lstsq on the column 1/l and scipy's t: no code shared with model.fit."""
     x = 1.0 / np.asarray(distances)
@@ -62,7 +48,7 @@ def assert_matches(summary, ref, rel=1e-9):
 
 
 @pytest.mark.parametrize("seed", range(8))
-def test_json_agrees_with_an_independent_fit(tmp_path, capsys, seed):
+def test_json_agrees_with_an_independent_fit(seed, write_file, cli_json):
     rng = np.random.default_rng(100 + seed)
     n = int(rng.integers(2, 30))
     distances = rng.uniform(0.03, 0.5, n)
@@ -75,10 +61,23 @@ def test_json_agrees_with_an_independent_fit(tmp_path, capsys, seed):
         f"{float(d)!r},{float(v)!r},trial-{i}\n"
         for i, (d, v) in enumerate(zip(distances, values, strict=True))
     )
-    path = write_csv(tmp_path, f"distance_m,{column},note\n{rows}")
+    path = write_file(f"distance_m,{column},note\n{rows}", "data.csv")
     level = [0.9, 0.95, 0.99][seed % 3]
     constant, c = [("paper", 5.4397), ("derived", math.pi**2), ("7.5", 7.5)][seed % 3]
-    summary = run_json(capsys, path, "--radius-m", 0.012, "--constant", constant, "--level", level, "--g", g)
+    summary = cli_json(
+        "fit",
+        path,
+        "--radius-m",
+        0.012,
+        "--constant",
+        constant,
+        "--level",
+        level,
+        "--g",
+        g,
+        "--json",
+        quiet=True,
+    )
     assert list(summary) == DESIGN_KEYS
     ref_masses = values / g if use_force else masses
     assert_matches(summary, independent(distances, ref_masses, level, 0.012, c, g))
@@ -86,9 +85,9 @@ def test_json_agrees_with_an_independent_fit(tmp_path, capsys, seed):
     assert summary["c"] == pytest.approx(c, rel=1e-15)
 
 
-def test_model_vector_9_through_the_cli(tmp_path, capsys):
-    path = write_csv(tmp_path, "distance_m,mass_kg\n0.1,1.7\n0.2,0.78\n0.4,0.41\n0.5,0.33\n")
-    summary = run_json(capsys, path, "--radius-m", "0.01", "--constant", "derived")
+def test_model_vector_9_through_the_cli(write_file, cli_json):
+    path = write_file("distance_m,mass_kg\n0.1,1.7\n0.2,0.78\n0.4,0.41\n0.5,0.33\n", "data.csv")
+    summary = cli_json("fit", path, "--radius-m", "0.01", "--constant", "derived", "--json", quiet=True)
     assert summary["k"] == pytest.approx(0.16698706, rel=1e-6)
     assert summary["sse"] == pytest.approx(0.00399723, rel=1e-6)
     assert summary["sst"] == pytest.approx(1.1833, rel=1e-6)
@@ -99,7 +98,9 @@ def test_model_vector_9_through_the_cli(tmp_path, capsys):
     assert summary["dfe"] == 3 and summary["n"] == 4 and summary["level"] == 0.99
 
 
-def test_subprocess_of_the_installed_console_script(tmp_path):
+@pytest.mark.slow
+@pytest.mark.subprocess
+def test_subprocess_of_the_installed_console_script():
     example = REPO / "protocols" / "example_fit.csv"
     proc = subprocess.run(
         [str(RIG), "fit", str(example), "--radius-m", "0.01", "--json"],
@@ -115,15 +116,15 @@ def test_subprocess_of_the_installed_console_script(tmp_path):
     assert summary["constant"] == "paper"
 
 
-def test_all_equal_masses_print_null_r2(tmp_path, capsys):
-    path = write_csv(tmp_path, "distance_m,mass_kg\n0.1,0.5\n0.2,0.5\n0.3,0.5\n")
-    summary = run_json(capsys, path, "--radius-m", "0.01")
+def test_all_equal_masses_print_null_r2(capsys, write_file, cli_json):
+    path = write_file("distance_m,mass_kg\n0.1,0.5\n0.2,0.5\n0.3,0.5\n", "data.csv")
+    summary = cli_json("fit", path, "--radius-m", "0.01", "--json", quiet=True)
     assert summary["r2"] is None and summary["sst"] == 0.0
     assert main(["fit", str(path), "--radius-m", "0.01"]) == 0
     assert "undefined (all masses equal)" in capsys.readouterr().out
 
 
-def test_human_output_is_a_table_with_units(tmp_path, capsys):
+def test_human_output_is_a_table_with_units(capsys):
     code = main(["fit", str(REPO / "protocols" / "example_fit.csv"), "--radius-m", "0.01"])
     out = capsys.readouterr().out
     assert code == 0
@@ -134,10 +135,10 @@ def test_human_output_is_a_table_with_units(tmp_path, capsys):
     assert "[" in k_line and "kg·m" in k_line
 
 
-def test_comments_blank_lines_bom_and_spaces_are_accepted(tmp_path, capsys):
+def test_comments_blank_lines_bom_and_spaces_are_accepted(write_file, cli_json):
     text = "\ufeff# rig 2 joint 3\n\n distance_m , mass_kg \n# repeat\n0.1, 1.7\n\n0.2 ,0.78\n0.4,0.41\n"
     text += "0.5,0.33\n"
-    summary = run_json(capsys, write_csv(tmp_path, text), "--radius-m", "0.01")
+    summary = cli_json("fit", write_file(text, "data.csv"), "--radius-m", "0.01", "--json", quiet=True)
     assert summary["n"] == 4 and summary["k"] == pytest.approx(0.16698706, rel=1e-6)
 
 
@@ -171,8 +172,8 @@ BAD_FILES = [
 
 
 @pytest.mark.parametrize(("text", "message"), [b[1:] for b in BAD_FILES], ids=[b[0] for b in BAD_FILES])
-def test_bad_files_exit_2_with_one_line(tmp_path, capsys, text, message):
-    path = write_csv(tmp_path, text)
+def test_bad_files_exit_2_with_one_line(capsys, text, message, write_file):
+    path = write_file(text, "data.csv")
     code = main(["fit", str(path), "--radius-m", "0.01", "--json"])
     out, err = capsys.readouterr()
     assert code == 2
@@ -199,8 +200,8 @@ BAD_OPTIONS = [
 @pytest.mark.parametrize(
     ("options", "message"), [b[1:] for b in BAD_OPTIONS], ids=[b[0] for b in BAD_OPTIONS]
 )
-def test_bad_options_exit_2_with_one_line(tmp_path, capsys, options, message):
-    path = write_csv(tmp_path, "distance_m,mass_kg\n0.1,1.7\n0.2,0.78\n")
+def test_bad_options_exit_2_with_one_line(capsys, options, message, write_file):
+    path = write_file("distance_m,mass_kg\n0.1,1.7\n0.2,0.78\n", "data.csv")
     code = main(["fit", str(path), *options])
     out, err = capsys.readouterr()
     assert code == 2 and out == ""
@@ -217,8 +218,9 @@ def test_missing_file_and_missing_radius(tmp_path, capsys):
     assert "--radius-m" in capsys.readouterr().err
 
 
-def test_subprocess_bad_input_has_no_traceback(tmp_path):
-    path = write_csv(tmp_path, "distance_m,mass_kg\n0.1,1\n0,0.5\n")
+@pytest.mark.subprocess
+def test_subprocess_bad_input_has_no_traceback(write_file):
+    path = write_file("distance_m,mass_kg\n0.1,1\n0,0.5\n", "data.csv")
     proc = subprocess.run(
         [str(RIG), "fit", str(path), "--radius-m", "0.01"],
         capture_output=True,

@@ -30,6 +30,7 @@ def simulate_link_trials(seed, *, identify, n_trials=8, level=0.9, sigma=0.05, p
     return truth, est
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("identify", "tolerance"), [(True, 0.035), (False, 0.06)], ids=["identified", "unknown"]
 )

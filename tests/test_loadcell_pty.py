@@ -70,6 +70,9 @@ def read_for(driver, seconds):
     return samples
 
 
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
 def test_rig_lc1_over_pyserial_then_sigterm_removes_link(tmp_path):
     with sim_loadcell(tmp_path, "--rate", "1000", "--profile", "sawtooth:20:1") as (link, proc):
         driver = SerialLoadCell(str(link), calibration=SIM_CAL, stale_timeout_s=0.5)
@@ -90,6 +93,9 @@ def test_rig_lc1_over_pyserial_then_sigterm_removes_link(tmp_path):
         assert not link.exists() and not link.is_symlink()
 
 
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
 def test_indicator_format_over_pyserial_and_sigint(tmp_path):
     args = ("--format", "indicator-st", "--rate", "100", "--baud", "115200", "--profile", "constant:12.2583")
     with sim_loadcell(tmp_path, *args, stop_signal=signal.SIGINT) as (link, proc):
@@ -108,6 +114,9 @@ def test_indicator_format_over_pyserial_and_sigint(tmp_path):
         assert not link.is_symlink()
 
 
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
 def test_faults_from_cli_flags_are_counted(tmp_path):
     faults = (
         "--fault",
@@ -129,6 +138,9 @@ def test_faults_from_cli_flags_are_counted(tmp_path):
     assert stats.bytes_discarded > 0
 
 
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
 def test_staleness_in_real_time_after_silence(tmp_path):
     with (
         sim_loadcell(tmp_path, "--rate", "1000", "--fault", "silence:1.0:1.0") as (link, _),

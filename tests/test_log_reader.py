@@ -167,6 +167,7 @@ def test_damaged_record_header_resynchronizes_on_the_next_chunk(finished_log, tm
     assert list(run.topic(S.LOADCELL)["raw"]) == [i for i in range(3000) if i not in lost]
 
 
+@pytest.mark.slow
 def test_several_files_combine_into_one_run_sorted_by_time(tmp_path):
     later = write_loadcell_log(tmp_path / "run.part2.mcap", 1000, start=1000)
     earlier = write_loadcell_log(tmp_path / "run.mcap", 1000)
@@ -254,6 +255,7 @@ def test_small_batches_out_of_order_times_and_fields_added_mid_run(tmp_path):
     assert frame["device_time_us"].isna().all() and frame["device_time_us"].dtype == "Int64"
 
 
+@pytest.mark.slow
 @settings(max_examples=15, deadline=None)
 @given(
     rows=st.lists(

@@ -21,10 +21,13 @@ TS_READER = Path(__file__).parent / "ts_reader"
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
 
-pytestmark = pytest.mark.skipif(
-    shutil.which("node") is None or not (TS_READER / "node_modules" / "@mcap" / "core").is_dir(),
-    reason="needs node and `npm ci --prefix tests/ts_reader`",
-)
+pytestmark = [
+    pytest.mark.subprocess,
+    pytest.mark.skipif(
+        shutil.which("node") is None or not (TS_READER / "node_modules" / "@mcap" / "core").is_dir(),
+        reason="needs node and `npm ci --prefix tests/ts_reader`",
+    ),
+]
 
 
 def ts_read(path: Path, *args: str) -> dict:

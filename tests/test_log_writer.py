@@ -268,6 +268,7 @@ KILLED_WRITER = textwrap.dedent(
 )
 
 
+@pytest.mark.subprocess
 def test_a_run_killed_with_sigkill_keeps_every_flushed_message(tmp_path):
     path = tmp_path / "killed.mcap"
     done = subprocess.run(

@@ -3,18 +3,18 @@
 import math
 
 import pytest
-from fit_reference import (
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from model.fit import InverseFit, fit_inverse_distance
+from model.online_fit import OnlineFitState, online_fit_estimate, online_fit_init, online_fit_update
+from tests.fit_reference import (
     VECTOR9_DISTANCES_M,
     VECTOR9_MASSES_KG,
     assert_matches_exact,
     exact_reference,
     nasty_data,
 )
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-
-from model.fit import InverseFit, fit_inverse_distance
-from model.online_fit import OnlineFitState, online_fit_estimate, online_fit_init, online_fit_update
 
 FIELDS = ("k", "sse", "sst", "r2", "rmse", "se", "t")
 
@@ -78,6 +78,7 @@ def test_estimate_rejects_bad_level():
             online_fit_estimate(state, level=level)
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=nasty_data(), level=st.sampled_from([0.9, 0.99]))
 def test_online_equals_batch_after_every_update(data, level):

@@ -27,29 +27,20 @@ load:
 """
 
 
-def write(tmp_path, text, name="link.yaml"):
-    path = tmp_path / name
-    path.write_text(text)
-    return path
-
-
-def predict_json(capsys, path):
-    code = main(["predict", str(path), "--json"])
-    captured = capsys.readouterr()
-    assert code == 0, captured.err
-    return json.loads(captured.out)
-
-
-def test_vector_6_through_cli(tmp_path, capsys):
-    path = write(tmp_path, VECTOR_4 % {"c1": 1.2, "c2": 0.9, "c3": 0.8, "load": "direction: [0, -1, 0]"})
-    out = predict_json(capsys, path)
+def test_vector_6_through_cli(write_file, cli_json):
+    path = write_file(
+        VECTOR_4 % {"c1": 1.2, "c2": 0.9, "c3": 0.8, "load": "direction: [0, -1, 0]"}, "link.yaml"
+    )
+    out = cli_json("predict", path, "--json")
     assert out["slip_mass_kg"] == pytest.approx(1.3933610, rel=1e-6)
     assert out["first_slip_joint"] == 1
 
 
-def test_vector_7_through_cli(tmp_path, capsys):
-    path = write(tmp_path, VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "direction: [0, -1, 0]"})
-    out = predict_json(capsys, path)
+def test_vector_7_through_cli(write_file, cli_json):
+    path = write_file(
+        VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "direction: [0, -1, 0]"}, "link.yaml"
+    )
+    out = cli_json("predict", path, "--json")
     assert out["slip_force_n"] == pytest.approx(15.231399, rel=1e-6)
     assert out["slip_mass_kg"] == pytest.approx(1.5542244, rel=1e-6)
     assert out["first_slip_joint"] == 2
@@ -58,9 +49,11 @@ def test_vector_7_through_cli(tmp_path, capsys):
     assert out["joint_moments_nm"][1] == pytest.approx(0.9, rel=1e-12)  # joint 2 on its capacity
 
 
-def test_vector_5_moments_under_force_n(tmp_path, capsys):
-    path = write(tmp_path, VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "force_n: [0, -9.8, 0]"})
-    out = predict_json(capsys, path)
+def test_vector_5_moments_under_force_n(write_file, cli_json):
+    path = write_file(
+        VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "force_n: [0, -9.8, 0]"}, "link.yaml"
+    )
+    out = cli_json("predict", path, "--json")
     assert out["base_moment_nm"] == pytest.approx(1.1493376, rel=1e-6)
     assert out["joint_moments_nm"] == pytest.approx([0.8612269, 0.5790670, 0.2940000], rel=1e-6)
     # The slip values do not depend on the magnitude of force_n, only its direction.
@@ -68,29 +61,35 @@ def test_vector_5_moments_under_force_n(tmp_path, capsys):
     assert out["tip_moment_nm"] == pytest.approx(0.4569420, rel=1e-6)
 
 
-def test_vector_8_single_joint(tmp_path, capsys):
+def test_vector_8_single_joint(write_file, cli_json):
     text = "joints:\n  - {transform: [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]], capacity_nm: 1}\n"
     text += "load: {point_m: [0, 0, 0.1], force_n: [2, 0, 0]}\n"
-    out = predict_json(capsys, write(tmp_path, text))
+    out = cli_json("predict", write_file(text, "link.yaml"), "--json")
     assert out["joint_moments_nm"] == pytest.approx([0.2])
     assert out["base_moment_nm"] == pytest.approx(0.2)
     assert out["slip_force_n"] == pytest.approx(10.0)
     assert out["first_slip_joint"] == 1 and out["tip_moment_nm"] == pytest.approx(1.0)
 
 
-def test_capacity_from_radius_and_mu_delta0(tmp_path, capsys):
+def test_capacity_from_radius_and_mu_delta0(tmp_path, write_file, cli_json):
     # Vector 1: R = 0.01, mu_delta0 = 1e5 -> 0.98696044 N·m (derived), 0.54397 N·m (paper, default).
     base = "load: {point_m: [0, 0, 0.1], direction: [1, 0, 0]}\njoints:\n  - {xyz: [0,0,0], rpy: [0,0,0], "
-    derived = predict_json(
-        capsys, write(tmp_path, base + "radius_m: 0.01, mu_delta0_pa: 1.0e+5, constant: derived}\n")
+    derived = cli_json(
+        "predict",
+        write_file(base + "radius_m: 0.01, mu_delta0_pa: 1.0e+5, constant: derived}\n", "link.yaml"),
+        "--json",
     )
     assert derived["tip_moment_nm"] == pytest.approx(0.98696044, rel=1e-6)
-    paper = predict_json(
-        capsys, write(tmp_path, base + "radius_m: 0.01, mu_delta0_pa: 1e5}\n")
+    paper = cli_json(
+        "predict",
+        write_file(base + "radius_m: 0.01, mu_delta0_pa: 1e5}\n", "link.yaml"),
+        "--json",
     )  # "1e5" is a str
     assert paper["tip_moment_nm"] == pytest.approx(0.54397, rel=1e-6)
-    custom = predict_json(
-        capsys, write(tmp_path, base + "radius_m: 0.01, mu_delta0_pa: 100000, constant: 2.0}\n")
+    custom = cli_json(
+        "predict",
+        write_file(base + "radius_m: 0.01, mu_delta0_pa: 100000, constant: 2.0}\n", "link.yaml"),
+        "--json",
     )
     assert custom["tip_moment_nm"] == pytest.approx(0.2, rel=1e-12)
     spec = load_link_file(tmp_path / "link.yaml")
@@ -98,32 +97,38 @@ def test_capacity_from_radius_and_mu_delta0(tmp_path, capsys):
     assert spec.capacity_sources[0].kind == "radius_mu_delta0"
 
 
-def test_example_file_and_human_output(capsys):
+def test_example_file_and_human_output(capsys, cli_json):
     assert main(["predict", str(EXAMPLE)]) == 0
     out = capsys.readouterr().out
     assert "slips first" in out and "lever arm [m]" in out and "capacity [N·m]" in out
     assert "15.2314 N" in out and "1.55422 kg" in out and "joint 2" in out and "0.456942 N·m" in out
     assert "c=paper (5.4397)" in out  # joint 3's capacity says which constant made it
     assert "100.0 %" in out
-    out = predict_json(capsys, EXAMPLE)
+    out = cli_json("predict", EXAMPLE, "--json")
     assert out["first_slip_joint"] == 2
     assert out["slip_force_n"] == pytest.approx(15.231399, rel=1e-6)
 
 
-def test_human_output_under_force_says_whether_tolerated(tmp_path, capsys):
-    ok = write(tmp_path, VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "force_n: [0, -9.8, 0]"})
+def test_human_output_under_force_says_whether_tolerated(capsys, write_file):
+    ok = write_file(
+        VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "force_n: [0, -9.8, 0]"}, "link.yaml"
+    )
     assert main(["predict", str(ok)]) == 0
     out = capsys.readouterr().out
     assert "under force_n" in out and "tolerated" in out and "NOT" not in out
-    heavy = write(tmp_path, VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "force_n: [0, -20, 0]"})
+    heavy = write_file(
+        VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "force_n: [0, -20, 0]"}, "link.yaml"
+    )
     assert main(["predict", str(heavy)]) == 0
     assert "NOT tolerated" in capsys.readouterr().out
 
 
-def test_nothing_slips_when_every_joint_is_on_the_load_line(tmp_path, capsys):
-    path = write(tmp_path, VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "direction: [0, 0, -1]"})
+def test_nothing_slips_when_every_joint_is_on_the_load_line(capsys, write_file, cli_json):
+    path = write_file(
+        VECTOR_4 % {"c1": 2.0, "c2": 0.9, "c3": 0.8, "load": "direction: [0, 0, -1]"}, "link.yaml"
+    )
     path.write_text(path.read_text().replace("0.5235987755982988", "0").replace("-0.3490658503988659", "0"))
-    out = predict_json(capsys, path)
+    out = cli_json("predict", path, "--json")
     assert out["slip_force_n"] is None and out["first_slip_joint"] is None and out["tip_moment_nm"] is None
     assert out["joint_moments_nm"] == [0.0, 0.0, 0.0]
     assert main(["predict", str(path)]) == 0
@@ -149,14 +154,16 @@ def test_help_teaches_the_format(capsys):
         assert needle in out
 
 
-def test_installed_console_script(tmp_path):
+@pytest.mark.slow
+@pytest.mark.subprocess
+def test_installed_console_script(write_file):
     result = subprocess.run(
         [str(RIG), "predict", str(EXAMPLE), "--json"], capture_output=True, text=True, timeout=60, check=False
     )
     assert result.returncode == 0, result.stderr
     out = json.loads(result.stdout)
     assert out["tip_moment_nm"] == pytest.approx(0.4569420, rel=1e-6)
-    bad = write(tmp_path, "joints: []\nload: {point_m: [0,0,0], direction: [1,0,0]}\n")
+    bad = write_file("joints: []\nload: {point_m: [0,0,0], direction: [1,0,0]}\n", "link.yaml")
     result = subprocess.run(
         [str(RIG), "predict", str(bad)], capture_output=True, text=True, timeout=60, check=False
     )
@@ -292,8 +299,8 @@ BAD_INPUTS = [
 
 
 @pytest.mark.parametrize(("text", "expected"), BAD_INPUTS)
-def test_bad_link_file_exits_2_with_one_line(tmp_path, capsys, text, expected):
-    path = write(tmp_path, text, name="bad_link.yaml")
+def test_bad_link_file_exits_2_with_one_line(capsys, text, expected, write_file):
+    path = write_file(text, "bad_link.yaml")
     code = main(["predict", str(path), "--json"])
     captured = capsys.readouterr()
     assert code == 2

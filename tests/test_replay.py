@@ -14,7 +14,6 @@ from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
 from mcap.records import Chunk
 from mcap.stream_reader import breakup_chunk
-from sim_runs import run_on_simulated_rig
 
 from model.chain import lever_arms_m, planar_transforms
 from rig.analysis import redetect as rd
@@ -58,14 +57,6 @@ REPORT_FILES = (
 )
 
 
-def _run(out: Path, protocol: Path, run_id: str, *, resume: bool = False, operator=None):
-    def use_operator(sim) -> None:
-        sim.session.operator = operator
-
-    patch = use_operator if operator is not None else None
-    return run_on_simulated_rig(protocol, out, run_id=run_id, resume=resume, patch=patch)[0]
-
-
 class _InterruptAtTrial2:
     def confirm(self, text, trial):
         if trial is not None and trial.trial_id == 2:
@@ -73,31 +64,44 @@ class _InterruptAtTrial2:
 
 
 @pytest.fixture(scope="session")
-def logs(tmp_path_factory):
+def logs(tmp_path_factory, run_on_simulated_rig):
     """A smoke run, a small link-validation run, and a smoke run interrupted then resumed."""
+
+    def run(out: Path, protocol: Path, run_id: str, *, resume: bool = False, operator=None):
+        def use_operator(sim) -> None:
+            sim.session.operator = operator
+
+        patch = use_operator if operator is not None else None
+        return run_on_simulated_rig(protocol, out, run_id=run_id, resume=resume, patch=patch)[0]
+
     root = tmp_path_factory.mktemp("replay_logs")
-    smoke = _run(root / "smoke", PROTOCOLS / "smoke.yaml", "smoke")
+    smoke = run(root / "smoke", PROTOCOLS / "smoke.yaml", "smoke")
     link_protocol = root / "link_small.yaml"
     link_protocol.write_text(LINK)
-    link = _run(root / "link", link_protocol, "link")
-    first = _run(root / "resumed", PROTOCOLS / "smoke.yaml", "res", operator=_InterruptAtTrial2())
-    resumed = _run(root / "resumed", PROTOCOLS / "smoke.yaml", "res", resume=True)
+    link = run(root / "link", link_protocol, "link")
+    first = run(root / "resumed", PROTOCOLS / "smoke.yaml", "res", operator=_InterruptAtTrial2())
+    resumed = run(root / "resumed", PROTOCOLS / "smoke.yaml", "res", resume=True)
     assert smoke.exit_code == 0 and link.exit_code == 0 and first.exit_code == 130 and resumed.exit_code == 0
     return {"root": root, "smoke": smoke, "link": link, "resumed": resumed}
 
 
-def _cli_json(capsys, *argv: str) -> tuple[int, dict]:
-    code = main(["replay", *argv, "--json"])
-    out = capsys.readouterr().out
-    return code, json.loads(out) if out.strip() else {}
+@pytest.fixture
+def replay_json(run_cli):
+    """`replay_json(*argv)` -> (exit code, parsed stdout) of `rig replay ... --json`."""
+
+    def replay_cli(*argv: str) -> tuple[int, dict]:
+        result = run_cli("replay", *argv, "--json")
+        return result.code, result.data
+
+    return replay_cli
 
 
 # ---------------------------------------------------------------------------------------------
 # A fresh run is reproduced exactly
 
 
-def test_fresh_run_reproduces_online_estimate_and_slip_events(logs, capsys):
-    code, out = _cli_json(capsys, logs["smoke"].log)
+def test_fresh_run_reproduces_online_estimate_and_slip_events(logs, replay_json):
+    code, out = replay_json(logs["smoke"].log)
     assert code == 0
     assert out["complete"] is True and out["warnings"] == []
     assert out["files"] == [logs["smoke"].log]
@@ -135,8 +139,8 @@ def test_every_redetected_event_equals_the_logged_one_field_by_field(logs):
             assert getattr(found.event, name) == getattr(found.logged, name)
 
 
-def test_link_validation_tables_iv_and_v(logs, capsys):
-    code, out = _cli_json(capsys, logs["link"].log)
+def test_link_validation_tables_iv_and_v(logs, replay_json):
+    code, out = replay_json(logs["link"].log)
     assert code == 0 and out["complete"]
     run_trials = logs["link"].as_json()["trials"]
     link_trials = [t for t in out["trials"] if t["kind"] == "link_validation"]
@@ -233,7 +237,7 @@ def _results_in_intact_chunks(path: Path, cut: int, broken: set[int] = frozenset
     return sorted(ids)
 
 
-def test_log_cut_at_70_percent_replays_every_trial_before_the_cut(logs, tmp_path, capsys):
+def test_log_cut_at_70_percent_replays_every_trial_before_the_cut(logs, tmp_path, capsys, replay_json):
     source = Path(logs["link"].log)
     data = source.read_bytes()
     cut = int(len(data) * 0.7)
@@ -241,7 +245,7 @@ def test_log_cut_at_70_percent_replays_every_trial_before_the_cut(logs, tmp_path
     damaged.write_bytes(data[:cut])
     expected = _results_in_intact_chunks(source, cut)
     assert 0 < len(expected) < 4
-    code, out = _cli_json(capsys, str(damaged))
+    code, out = replay_json(str(damaged))
     assert code == 0
     assert out["complete"] is False and any("no footer" in w for w in out["warnings"])
     assert [t["trial_id"] for t in out["trials"]] == expected
@@ -254,7 +258,7 @@ def test_log_cut_at_70_percent_replays_every_trial_before_the_cut(logs, tmp_path
     assert "INCOMPLETE" in text and "warning:" in text
 
 
-def test_corrupted_chunk_is_skipped_with_a_warning(logs, tmp_path, capsys):
+def test_corrupted_chunk_is_skipped_with_a_warning(logs, tmp_path, replay_json):
     source = Path(logs["link"].log)
     with open(source, "rb") as f:
         indexes = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
@@ -267,17 +271,17 @@ def test_corrupted_chunk_is_skipped_with_a_warning(logs, tmp_path, capsys):
     data[middle : middle + 16] = bytes(b ^ 0xFF for b in data[middle : middle + 16])
     damaged = tmp_path / "corrupt.mcap"
     damaged.write_bytes(bytes(data))
-    code, out = _cli_json(capsys, str(damaged))
+    code, out = replay_json(str(damaged))
     assert code == 0 and out["complete"] is False
     assert any(f"chunk at byte {target.chunk_start_offset}" in w for w in out["warnings"])
     expected = _results_in_intact_chunks(source, len(data), {target.chunk_start_offset})
     assert [t["trial_id"] for t in out["trials"]] == expected and 1 not in expected
 
 
-def test_resumed_run_parts_combine(logs, capsys):
+def test_resumed_run_parts_combine(logs, replay_json):
     resumed = logs["resumed"]
     assert len(resumed.logs) == 2
-    code, out = _cli_json(capsys, str(Path(resumed.log).parent))
+    code, out = replay_json(str(Path(resumed.log).parent))
     assert code == 0 and out["complete"]
     assert out["files"] == resumed.logs  # run order: the first invocation's file, then part 2
     assert [t["trial_id"] for t in out["trials"]] == [1, 2]
@@ -287,7 +291,7 @@ def test_resumed_run_parts_combine(logs, capsys):
     assert out["online_agreement"]["agree"] is True and out["estimate"]["n"] == 2
     assert out["estimate"]["k"] == resumed.estimate.k
     # The same files given one by one, in any order, give the same replay.
-    code, again = _cli_json(capsys, *reversed(resumed.logs))
+    code, again = replay_json(*reversed(resumed.logs))
     assert code == 0 and again["trials"] == out["trials"]
 
 
@@ -295,9 +299,10 @@ def test_resumed_run_parts_combine(logs, capsys):
 # The report
 
 
-def test_report_has_every_file_and_round_trips_the_table(logs, tmp_path, capsys):
+@pytest.mark.slow
+def test_report_has_every_file_and_round_trips_the_table(logs, tmp_path, replay_json):
     report = tmp_path / "nested" / "report"
-    code, out = _cli_json(capsys, logs["link"].log, "--report", str(report))
+    code, out = replay_json(logs["link"].log, "--report", str(report))
     assert code == 0
     assert sorted(p.name for p in report.iterdir()) == sorted(REPORT_FILES)
     assert sorted(Path(p).name for p in out["report"]) == sorted(REPORT_FILES)
@@ -324,6 +329,7 @@ def test_report_has_every_file_and_round_trips_the_table(logs, tmp_path, capsys)
     assert json.loads((report / "replay.json").read_text())["estimate"] == out["estimate"]
 
 
+@pytest.mark.slow
 def test_report_without_link_validation_leaves_out_its_figures(logs, tmp_path, capsys):
     report = tmp_path / "smoke_report"
     report.mkdir()  # an empty directory is accepted

@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import json
 import math
-import textwrap
 from pathlib import Path
 
 import pytest
-from sim_runs import run_on_simulated_rig
 
 from model.fit import SUMMARY_KEYS
 from rig.cli import main
@@ -18,12 +16,6 @@ from rig.rig_config import load_rig_config
 from rig.runner.journal import RunJournal
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
-
-
-def write_protocol(tmp_path: Path, body: str, name: str = "p.yaml") -> Path:
-    path = tmp_path / name
-    path.write_text(textwrap.dedent(body))
-    return path
 
 
 QUICK = """\
@@ -39,21 +31,6 @@ blocks:
     repeats: 1
     steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
 """
-
-
-def run_api(tmp_path: Path, protocol: Path, *, run_id: str = "r1", resume: str | None = None, patch=None):
-    """Run (or resume, `resume` = the run id) in tmp_path/out; returns (report, simulated rig)."""
-    return run_on_simulated_rig(
-        protocol, tmp_path / "out", run_id=resume or run_id, resume=resume is not None, patch=patch
-    )
-
-
-def assert_safe(sim) -> None:
-    """The line is released (winch back near its zero-tension angle) and every servo is torque-off."""
-    bus = sim.devices.bus
-    for servo in bus.servos:
-        assert not servo.torque_enabled, f"servo {servo.servo_id} left with torque on"
-    assert sim.devices.world.tension_n < 1.0
 
 
 def test_smoke_run_json(tmp_path, capsys):
@@ -74,8 +51,8 @@ def test_smoke_run_json(tmp_path, capsys):
     assert journal.status == "completed" and journal.completed_ids == {1, 2}
 
 
-def test_joint_estimation_recovers_the_true_capacity(tmp_path):
-    report, sim = run_api(tmp_path, write_protocol(tmp_path, QUICK))
+def test_joint_estimation_recovers_the_true_capacity(sim_run, protocol_file, assert_safe):
+    report, sim = sim_run(protocol_file(QUICK))
     assert report.exit_code == 0 and report.completed == 3
     truth = report.truth
     # Three slips with the preset's trial-to-trial scatter (sd 8.5 %): within 15 % of the hidden k.
@@ -123,8 +100,8 @@ def test_dry_run_moves_nothing_and_writes_nothing(tmp_path, capsys):
         "joint",
     ],
 )
-def test_bad_protocol_exits_2_and_starts_nothing(tmp_path, capsys, edit, needle):
-    path = write_protocol(tmp_path, edit(QUICK))
+def test_bad_protocol_exits_2_and_starts_nothing(tmp_path, capsys, edit, needle, protocol_file):
+    path = protocol_file(edit(QUICK))
     code = main(["run", str(path), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2
@@ -133,13 +110,13 @@ def test_bad_protocol_exits_2_and_starts_nothing(tmp_path, capsys, edit, needle)
     assert not (tmp_path / "o").exists()
 
 
-def test_limit_check_against_the_rig_exits_2(tmp_path, capsys):
-    path = write_protocol(tmp_path, QUICK.replace("force_ceiling_n: 75.0", "force_ceiling_n: 95.0"))
+def test_limit_check_against_the_rig_exits_2(tmp_path, capsys, protocol_file):
+    path = protocol_file(QUICK.replace("force_ceiling_n: 75.0", "force_ceiling_n: 95.0"))
     assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 2
     assert "limit check failed" in capsys.readouterr().err
 
 
-def test_force_ceiling_interlock_stops_safely(tmp_path):
+def test_force_ceiling_interlock_stops_safely(tmp_path, sim_run, protocol_file, assert_safe):
     # A fast ramp straight to a low ceiling: the tension overshoots the ceiling within one tick.
     body = (
         QUICK.replace("arm_threshold_n: 2.0", "arm_threshold_n: 9.5")
@@ -147,24 +124,24 @@ def test_force_ceiling_interlock_stops_safely(tmp_path):
         .replace("max_force_n: 70.0", "max_force_n: 9.8")
         .replace("force_ceiling_n: 75.0", "force_ceiling_n: 10.0")
     )
-    report, sim = run_api(tmp_path, write_protocol(tmp_path, body))
+    report, sim = sim_run(protocol_file(body))
     assert report.exit_code == 1 and report.aborted
     assert "above the ceiling" in report.reason
     assert_safe(sim)
     assert RunJournal.load(tmp_path / "out" / "r1.journal.json").status == "faulted"
 
 
-def test_stale_load_cell_stops_safely(tmp_path):
+def test_stale_load_cell_stops_safely(sim_run, protocol_file, assert_safe):
     def unplug_during_first_ramp(sim):
         sim.devices.loadcell_emulator.inject_silence(5.0, at_ns=3_000_000_000)
 
-    report, sim = run_api(tmp_path, write_protocol(tmp_path, QUICK), patch=unplug_during_first_ramp)
+    report, sim = sim_run(protocol_file(QUICK), patch=unplug_during_first_ramp)
     assert report.exit_code == 1
     assert "StaleDataError" in report.reason
     assert_safe(sim)
 
 
-def test_servo_hardware_error_stops_safely(tmp_path):
+def test_servo_hardware_error_stops_safely(sim_run, protocol_file, assert_safe):
     def overload_after_first_trial(sim):
         world = sim.devices.world
         bus = sim.devices.bus
@@ -178,14 +155,14 @@ def test_servo_hardware_error_stops_safely(tmp_path):
         sim.session.begin_trial = begin
         assert world is not None
 
-    report, sim = run_api(tmp_path, write_protocol(tmp_path, QUICK), patch=overload_after_first_trial)
+    report, sim = sim_run(protocol_file(QUICK), patch=overload_after_first_trial)
     assert report.exit_code == 1 and report.completed == 1
     assert "overload" in report.reason
     assert_safe(sim)
 
 
-def test_interrupt_then_resume_completes_without_repeats(tmp_path):
-    protocol = write_protocol(tmp_path, QUICK)
+def test_interrupt_then_resume_completes_without_repeats(tmp_path, sim_run, protocol_file, assert_safe):
+    protocol = protocol_file(QUICK)
 
     def interrupt_at_trial_2(sim):
         class Operator:
@@ -195,12 +172,12 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path):
 
         sim.session.operator = Operator()
 
-    report, sim = run_api(tmp_path, protocol, patch=interrupt_at_trial_2)
+    report, sim = sim_run(protocol, patch=interrupt_at_trial_2)
     assert report.exit_code == 130 and report.completed == 1
     assert_safe(sim)
     assert RunJournal.load(tmp_path / "out" / "r1.journal.json").status == "interrupted"
 
-    resumed, sim2 = run_api(tmp_path, protocol, resume="r1")
+    resumed, sim2 = sim_run(protocol, resume="r1")
     assert resumed.exit_code == 0
     ids = [t.trial_id for t in resumed.trials]
     assert ids == [1, 2, 3]
@@ -210,11 +187,11 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path):
     assert resumed.estimate.n == 3
     assert_safe(sim2)
     with pytest.raises(InputError, match="already completed"):
-        run_api(tmp_path, protocol, resume="r1")
+        sim_run(protocol, resume="r1")
 
 
-def test_resume_refuses_an_edited_protocol(tmp_path):
-    protocol = write_protocol(tmp_path, QUICK)
+def test_resume_refuses_an_edited_protocol(sim_run, protocol_file):
+    protocol = protocol_file(QUICK)
 
     def stop_early(sim):
         class Operator:
@@ -223,13 +200,13 @@ def test_resume_refuses_an_edited_protocol(tmp_path):
 
         sim.session.operator = Operator()
 
-    run_api(tmp_path, protocol, patch=stop_early)
+    sim_run(protocol, patch=stop_early)
     protocol.write_text(QUICK.replace("repeats: 1", "repeats: 2"))
     with pytest.raises(InputError, match="changed since run r1 started"):
-        run_api(tmp_path, protocol, resume="r1")
+        sim_run(protocol, resume="r1")
 
 
-def test_link_validation_predicts_from_the_rigs_own_estimates(tmp_path):
+def test_link_validation_predicts_from_the_rigs_own_estimates(sim_run, protocol_file, assert_safe):
     body = """\
     format: rig-protocol/1
     detector: {arm_threshold_n: 1.0, drop_fraction: 0.15}
@@ -246,7 +223,7 @@ def test_link_validation_predicts_from_the_rigs_own_estimates(tmp_path):
           - [10, -10, 10, -10, 10, -10, 10, -10]
         steps: [bend, measure, {tare: {settle_s: 0.1}}, ramp_until_slip, unload, reset]
     """
-    report, sim = run_api(tmp_path, write_protocol(tmp_path, body))
+    report, sim = sim_run(protocol_file(body))
     assert report.exit_code == 0 and report.completed == 4
     estimation = [t for t in report.trials if t.kind == "joint_estimation"]
     validation = [t for t in report.trials if t.kind == "link_validation"]

@@ -10,12 +10,16 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from rig.log.reader import read_run
 from rig.runner.journal import RunJournal
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_sigkill_mid_run_then_resume(tmp_path):
     protocol = ROOT / "protocols" / "joint_estimation.yaml"
     journal_path = tmp_path / "k1.journal.json"

@@ -39,7 +39,27 @@ def test_current_at_limit_trips_only_when_held():
     assert reason is not None and "1.00 s" in reason and "0.990 A" in reason
 
 
-def test_a_second_ctrl_c_cannot_interrupt_the_safe_state_sequence():
+def _operator_handler(signum, frame):
+    raise AssertionError("the handler installed before the deferral ran inside it")
+
+
+def _terminate_handler(signum, frame):
+    raise AssertionError("the SIGTERM handler installed before the deferral ran inside it")
+
+
+@pytest.mark.parametrize(
+    "sigint_before",
+    ["as found", signal.default_int_handler, signal.SIG_IGN, _operator_handler],
+    ids=["as-found", "python-default", "ignored", "custom"],
+)
+def test_a_second_ctrl_c_cannot_interrupt_the_safe_state_sequence(signal_handlers, sigint_before):
+    # The deferral must put back exactly the handlers it found, not Python's defaults: a process
+    # started with SIGINT ignored (nohup, a background job) must stay that way after a safe stop.
+    if sigint_before == "as found":
+        sigint_before = signal.getsignal(signal.SIGINT)
+    else:
+        signal.signal(signal.SIGINT, sigint_before)
+    signal.signal(signal.SIGTERM, _terminate_handler)
     steps = []
     with pytest.raises(KeyboardInterrupt), interrupts_deferred():
         os.kill(os.getpid(), signal.SIGINT)
@@ -47,4 +67,5 @@ def test_a_second_ctrl_c_cannot_interrupt_the_safe_state_sequence():
         os.kill(os.getpid(), signal.SIGTERM)
         steps.append("torque off")
     assert steps == ["released", "torque off"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is sigint_before
+    assert signal.getsignal(signal.SIGTERM) is _terminate_handler

@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 
 import pytest
-from dxl_fixtures import dxl_server  # noqa: F401  (fixture)
 
 from rig.cli import main
 
 
-def test_scan_finds_emulated_servos_at_their_baud_only(dxl_server, capsys):  # noqa: F811
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
+def test_scan_finds_emulated_servos_at_their_baud_only(dxl_server, capsys):
     server = dxl_server(ids=[3, 1], baud=57_600)
     assert main(["scan", "--port", server.link, "--json"]) == 0  # default: 57600 and 1000000
     out = json.loads(capsys.readouterr().out)
@@ -23,7 +25,10 @@ def test_scan_finds_emulated_servos_at_their_baud_only(dxl_server, capsys):  # n
     }
 
 
-def test_scan_at_1m_prints_a_table(dxl_server, capsys):  # noqa: F811
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
+def test_scan_at_1m_prints_a_table(dxl_server, capsys):
     server = dxl_server(ids=[5], baud=1_000_000, model="XL430-W250", extra_args=["--firmware", "44"])
     assert main(["scan", "--port", server.link, "--baud", "1000000"]) == 0
     out = capsys.readouterr().out
@@ -33,7 +38,10 @@ def test_scan_at_1m_prints_a_table(dxl_server, capsys):  # noqa: F811
     assert "1 servo(s) at 1000000 baud" in lines[-1]
 
 
-def test_scan_with_nothing_answering(dxl_server, capsys):  # noqa: F811
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
+def test_scan_with_nothing_answering(dxl_server, capsys):
     server = dxl_server(ids=[1], baud=57_600)
     assert main(["scan", "--port", server.link, "--baud", "1000000", "--json"]) == 0
     assert json.loads(capsys.readouterr().out) == {"port": server.link, "servos": []}

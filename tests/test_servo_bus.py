@@ -29,37 +29,13 @@ from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
 from rig.sim.dxl.servo import Servo
 
-ROLES = {1: "winch", 2: "bender", 3: "bender"}
-
-
-class Rig:
-    """An emulated bus plus a driver on it."""
-
-    def __init__(self, ids=(1, 2, 3), *, model="XM430-W350", specs=None, firmware=None, **driver_kwargs):
-        self.clock = VirtualClock()
-        servo_kwargs = {} if firmware is None else {"firmware": firmware}
-        self.bus = EmulatedBus.with_servos(self.clock, ids=list(ids), model=model, **servo_kwargs)
-        self.specs = specs or [ServoSpec(i, ROLES.get(i, "bender"), model) for i in ids]
-        self.ports: list[SimPortHandler] = []
-        self.driver = DynamixelServoBus(
-            "sim://dxl", 1_000_000, self.specs, self.clock, port_factory=self.make_port, **driver_kwargs
-        )
-
-    def make_port(self, name: str) -> SimPortHandler:
-        port = SimPortHandler(self.bus, self.clock, name)
-        self.ports.append(port)
-        return port
-
-    def reg(self, servo_id: int, name: str) -> int:
-        return self.bus[servo_id].register(name)
-
 
 @pytest.fixture
-def rig():
-    r = Rig()
+def rig(emulated_dxl):
+    r = emulated_dxl()
     r.driver.connect()
     yield r
-    r.driver.shutdown()
+    r.driver.shutdown()  # strict: a shutdown error fails the test
 
 
 # ----------------------------------------------------------------------------- connect / handshake
@@ -79,8 +55,8 @@ def test_connect_configures_every_servo(rig):
     assert rig.driver.uses_fast_sync_read  # firmware 48 >= 45
 
 
-def test_return_delay_is_written_with_torque_off_when_torque_was_on():
-    r = Rig(ids=(1,))
+def test_return_delay_is_written_with_torque_off_when_torque_was_on(emulated_dxl):
+    r = emulated_dxl(ids=(1,))
     port = r.make_port("setup")
     assert port.openPort() and port.setBaudRate(1_000_000)
     ph = PacketHandler(2.0)
@@ -91,8 +67,8 @@ def test_return_delay_is_written_with_torque_off_when_torque_was_on():
     r.driver.shutdown()
 
 
-def test_old_firmware_uses_plain_sync_read():
-    r = Rig(firmware=44)
+def test_old_firmware_uses_plain_sync_read(emulated_dxl):
+    r = emulated_dxl(firmware=44)
     r.driver.connect()
     assert not r.driver.uses_fast_sync_read
     r.driver.read_states()
@@ -100,8 +76,8 @@ def test_old_firmware_uses_plain_sync_read():
     r.driver.shutdown()
 
 
-def test_handshake_lists_missing_ids_and_wrong_models_in_one_error():
-    r = Rig(ids=(1, 2))
+def test_handshake_lists_missing_ids_and_wrong_models_in_one_error(emulated_dxl):
+    r = emulated_dxl(ids=(1, 2))
     r.bus.add_servo(Servo(XL430_W250, 3))
     specs = [ServoSpec(1, "winch", "XM430-W350"), ServoSpec(3, "bender", "XM430-W350"),
              ServoSpec(7, "bender", "XM430-W350")]  # fmt: skip
@@ -117,8 +93,8 @@ def test_handshake_lists_missing_ids_and_wrong_models_in_one_error():
     assert not driver.connected
 
 
-def test_servo_at_another_baud_is_missing():
-    r = Rig(ids=(1, 2), retries=0)
+def test_servo_at_another_baud_is_missing(emulated_dxl):
+    r = emulated_dxl(ids=(1, 2), retries=0)
     r.bus[2].set_baud(57_600)
     with pytest.raises(HandshakeError, match=r"missing: servo 2 \(bender\)"):
         r.driver.connect()
@@ -137,8 +113,8 @@ def test_port_that_cannot_open_is_not_connected_error():
     driver.shutdown()  # nothing to do, no error
 
 
-def test_calls_before_connect_raise_not_connected():
-    r = Rig()
+def test_calls_before_connect_raise_not_connected(emulated_dxl):
+    r = emulated_dxl()
     with pytest.raises(NotConnectedError, match="not connected"):
         r.driver.read_states()
 
@@ -147,8 +123,8 @@ def test_calls_before_connect_raise_not_connected():
 
 
 @pytest.mark.parametrize("fast", [True, False], ids=["fast-sync-read", "sync-read"])
-def test_read_states_in_si_units_with_signs(fast):
-    r = Rig(fast_sync_read=fast)
+def test_read_states_in_si_units_with_signs(fast, emulated_dxl):
+    r = emulated_dxl(fast_sync_read=fast)
     d = r.driver
     d.connect()
     for i in (1, 2, 3):
@@ -184,8 +160,8 @@ def test_read_states_in_si_units_with_signs(fast):
     d.shutdown()
 
 
-def test_xl430_reports_no_current():
-    r = Rig(ids=(4,), model="XL430-W250")
+def test_xl430_reports_no_current(emulated_dxl):
+    r = emulated_dxl(ids=(4,), model="XL430-W250")
     r.driver.connect()
     state = r.driver.read_states()[4]
     assert math.isnan(state.current_a)
@@ -309,8 +285,8 @@ def test_injected_hardware_error_is_recorded_in_the_state_and_raised_on_commands
     assert d.hardware_errors()[2] == 0x20
 
 
-def test_real_overload_then_reboot_restores_ram_settings():
-    r = Rig(ids=(1, 2))
+def test_real_overload_then_reboot_restores_ram_settings(emulated_dxl):
+    r = emulated_dxl(ids=(1, 2))
     d = r.driver
     d.connect()
     d.set_current_limit(1, 1.0)
@@ -333,8 +309,8 @@ def test_real_overload_then_reboot_restores_ram_settings():
     d.shutdown()
 
 
-def test_reboots_are_bounded_per_run():
-    r = Rig(ids=(1,), max_reboots=1)
+def test_reboots_are_bounded_per_run(emulated_dxl):
+    r = emulated_dxl(ids=(1,), max_reboots=1)
     r.driver.connect()
     r.driver.reboot(1)
     with pytest.raises(
@@ -345,8 +321,8 @@ def test_reboots_are_bounded_per_run():
     r.driver.shutdown()
 
 
-def test_reboot_of_a_servo_that_never_comes_back_times_out_in_bounded_time():
-    r = Rig(ids=(1, 2), reboot_timeout_s=0.5)
+def test_reboot_of_a_servo_that_never_comes_back_times_out_in_bounded_time(emulated_dxl):
+    r = emulated_dxl(ids=(1, 2), reboot_timeout_s=0.5)
     r.driver.connect()
     t0 = r.clock.monotonic_ns()
     r.bus.set_silent(2)
@@ -362,8 +338,8 @@ def test_reboot_of_a_servo_that_never_comes_back_times_out_in_bounded_time():
 
 @pytest.mark.parametrize("fast", [True, False], ids=["fast-sync-read", "sync-read"])
 @pytest.mark.parametrize("fault", ["drop", "corrupt", "delay"])
-def test_one_bad_reply_is_retried_and_counted(fault, fast):
-    r = Rig(fast_sync_read=fast)
+def test_one_bad_reply_is_retried_and_counted(fault, fast, emulated_dxl):
+    r = emulated_dxl(fast_sync_read=fast)
     d = r.driver
     d.connect()
     before = d.stats
@@ -407,8 +383,8 @@ def test_persistent_corruption_is_a_communication_error(rig):
     rig.bus.faults.clear()
 
 
-def test_retries_zero_means_one_try():
-    r = Rig(ids=(1,), retries=0)
+def test_retries_zero_means_one_try(emulated_dxl):
+    r = emulated_dxl(ids=(1,), retries=0)
     r.driver.connect()
     r.bus.faults.drop_next(1)
     with pytest.raises(RigTimeoutError, match="after 1 try"):
@@ -416,8 +392,8 @@ def test_retries_zero_means_one_try():
     r.driver.shutdown()
 
 
-def test_dropped_replies_during_handshake_are_recovered():
-    r = Rig(retries=2)
+def test_dropped_replies_during_handshake_are_recovered(emulated_dxl):
+    r = emulated_dxl(retries=2)
     r.bus.faults.drop_next(2, servo_id=2)
     r.driver.connect()
     assert r.driver.stats.recovered >= 1
@@ -426,11 +402,11 @@ def test_dropped_replies_during_handshake_are_recovered():
 
 
 @pytest.mark.parametrize("settle_s", [0.002, 0.0], ids=["settle-and-clear", "length-check-only"])
-def test_late_write_status_is_not_taken_for_a_read_reply(settle_s):
+def test_late_write_status_is_not_taken_for_a_read_reply(settle_s, emulated_dxl):
     # The write's status arrives just after the SDK gave up on it. Two defences: the driver settles
     # and clears the port before a retry, and it checks every status's LEN against what was asked
     # (the SDK's read1ByteTxRx would return the late write status's CRC byte, 0xA1, as the value).
-    r = Rig(ids=(1,), retry_settle_s=settle_s)
+    r = emulated_dxl(ids=(1,), retry_settle_s=settle_s)
     r.driver.connect()
     r.bus.faults.delay_next(1, delay_s=0.0345, servo_id=1)
     r.driver.set_profile(1, velocity_rad_s=1.0)
@@ -501,8 +477,8 @@ def test_reentrant_use_is_refused():
     d.shutdown()
 
 
-def test_bus_watchdog_is_set_when_asked():
-    r = Rig(ids=(1,), bus_watchdog_ms=100)
+def test_bus_watchdog_is_set_when_asked(emulated_dxl):
+    r = emulated_dxl(ids=(1,), bus_watchdog_ms=100)
     r.driver.connect()
     assert r.reg(1, "Bus Watchdog") == 5  # 20 ms units
     r.driver.shutdown()
@@ -578,9 +554,9 @@ def test_ctrl_c_during_torque_off_is_held_until_every_servo_is_off(rig):
     assert not port.is_open
 
 
-def test_context_manager_shuts_down_with_the_configured_release():
+def test_context_manager_shuts_down_with_the_configured_release(emulated_dxl):
     calls = []
-    r = Rig(ids=(1,), release=lambda: calls.append("release"))
+    r = emulated_dxl(ids=(1,), release=lambda: calls.append("release"))
     with pytest.raises(RuntimeError, match="boom"), r.driver as d:
         d.set_torque([1], True)
         raise RuntimeError("boom")

@@ -10,7 +10,6 @@ import math
 import time
 
 import pytest
-from dxl_fixtures import dxl_server  # noqa: F401  (fixture)
 from dynamixel_sdk import PacketHandler, PortHandler
 
 from rig.errors import HandshakeError
@@ -18,6 +17,8 @@ from rig.hw.clock import SystemClock
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import OperatingMode
 from rig.rig_config import ServoSpec
+
+pytestmark = [pytest.mark.pty, pytest.mark.subprocess]
 
 SPECS = [ServoSpec(1, "winch", "XM430-W350"), ServoSpec(2, "bender", "XM430-W350")]
 
@@ -40,7 +41,7 @@ def torque_registers(link: str, baud: int, ids) -> dict[int, int]:
 
 
 @pytest.mark.parametrize("baud", [1_000_000, 57_600])
-def test_state_read_loop_over_a_pty(dxl_server, baud):  # noqa: F811
+def test_state_read_loop_over_a_pty(dxl_server, baud):
     server = dxl_server(ids=[1, 2], baud=baud)
     bus = DynamixelServoBus(server.link, baud, SPECS, SystemClock(), retries=2)
     with bus:
@@ -66,7 +67,7 @@ def test_state_read_loop_over_a_pty(dxl_server, baud):  # noqa: F811
     assert torque_registers(server.link, baud, [1, 2]) == {1: 0, 2: 0}
 
 
-def test_dropped_replies_over_a_pty_are_retried(dxl_server):  # noqa: F811
+def test_dropped_replies_over_a_pty_are_retried(dxl_server):
     server = dxl_server(ids=[1, 2], faults=["drop:2:2"])
     bus = DynamixelServoBus(server.link, 1_000_000, SPECS, SystemClock(), retries=3)
     with bus:
@@ -76,7 +77,7 @@ def test_dropped_replies_over_a_pty_are_retried(dxl_server):  # noqa: F811
         assert bus.stats.failures == 0
 
 
-def test_silent_servo_over_a_pty_fails_the_handshake(dxl_server):  # noqa: F811
+def test_silent_servo_over_a_pty_fails_the_handshake(dxl_server):
     server = dxl_server(ids=[1, 2], faults=["silent:2"])
     bus = DynamixelServoBus(server.link, 1_000_000, SPECS, SystemClock(), retries=0)
     with pytest.raises(HandshakeError, match=r"missing: servo 2 \(bender\)"):
@@ -84,7 +85,7 @@ def test_silent_servo_over_a_pty_fails_the_handshake(dxl_server):  # noqa: F811
     bus.shutdown()
 
 
-def test_latched_hardware_error_over_a_pty_is_recovered_by_reboot(dxl_server):  # noqa: F811
+def test_latched_hardware_error_over_a_pty_is_recovered_by_reboot(dxl_server):
     server = dxl_server(ids=[1, 2], faults=["hwerror:1:0x20"])
     bus = DynamixelServoBus(server.link, 1_000_000, SPECS, SystemClock(), retries=2)
     with bus:

@@ -15,17 +15,10 @@ from model.chain import planar_transforms, predict_slip
 from model.joint import PAPER_CONSTANT
 from rig.sim.physics.article_presets import PRESET_NAMES, SimPreset, make_preset
 from rig.sim.physics.world import SimWorld, TrialKind, WorldBendingFixture
+from tests.helpers import ScriptedShaft
 
 MS = 1_000_000
 S = 1_000_000_000
-
-
-class ScriptedShaft:
-    """A servo test double: its angle is set by the test; it records the torque the world applies."""
-
-    def __init__(self, position_rad: float = 0.0) -> None:
-        self.present_position_rad = position_rad
-        self.external_torque_nm = 0.0
 
 
 class Ramp:

@@ -14,14 +14,9 @@ from rig.sim.clock import VirtualClock
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
+from tests.helpers import ScriptedShaft
 
 MS = 1_000_000
-
-
-class ScriptedShaft:
-    def __init__(self) -> None:
-        self.present_position_rad = 0.0
-        self.external_torque_nm = 0.0
 
 
 def test_planar_readings_have_the_configured_noise() -> None:

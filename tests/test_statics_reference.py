@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from model.chain import joint_moment_norms, predict_slip
-from rig.cli import main
 
 # ---------------------------------------------------------------- the independent reference
 
@@ -181,16 +180,8 @@ def write_link(path, entries, point, load_key, load, g=None):
     return path
 
 
-def run_predict_json(capsys, path):
-    code = main(["predict", str(path), "--json"])
-    captured = capsys.readouterr()
-    assert code == 0, captured.err
-    assert captured.err == ""
-    return json.loads(captured.out)
-
-
 @pytest.mark.parametrize("seed", range(20))
-def test_rig_predict_json_agrees_with_reference(tmp_path, capsys, seed):
+def test_rig_predict_json_agrees_with_reference(tmp_path, seed, cli_json):
     rng = random.Random(1000 + seed)
     joints, entries, capacities, point, load = random_link(rng)
     use_force = seed % 2 == 1
@@ -198,7 +189,7 @@ def test_rig_predict_json_agrees_with_reference(tmp_path, capsys, seed):
     path = write_link(
         tmp_path / "link.yaml", entries, point, "force_n" if use_force else "direction", load, g
     )
-    out = run_predict_json(capsys, path)
+    out = cli_json("predict", path, "--json", quiet=True)
     assert set(out) == {
         "joint_moments_nm",
         "base_moment_nm",

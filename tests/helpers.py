@@ -1,0 +1,31 @@
+"""Plain test helpers (no fixtures): register value conversions and a scripted world shaft.
+
+Import as `from tests.helpers import ...`; fixtures live in tests/conftest.py.
+"""
+
+from __future__ import annotations
+
+from rig.hw.dxl.control_table import to_signed
+
+
+def u32(value: int) -> int:
+    """A signed register value as the unsigned 32-bit word the SDK sends."""
+    return value & 0xFFFFFFFF
+
+
+def s32(raw: int) -> int:
+    """An unsigned 32-bit register word as a signed value."""
+    return to_signed(raw, 4)
+
+
+def s16(raw: int) -> int:
+    """An unsigned 16-bit register word as a signed value."""
+    return to_signed(raw, 2)
+
+
+class ScriptedShaft:
+    """A servo double for `SimWorld`: the test sets its angle; it records the torque the world applies."""
+
+    def __init__(self, position_rad: float = 0.0) -> None:
+        self.present_position_rad = position_rad
+        self.external_torque_nm = 0.0

@@ -1,0 +1,234 @@
+"""The runner on object-level fakes (rig/sim/fakes.py): what it commands, in what order, and how it ends.
+
+Through the public API `prepare_run` / `execute_run`, with a session built from the fakes: no
+bytes, no emulators. The byte-level simulated rig (tests/test_runner.py) stays the end-to-end path.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from rig.runner.journal import RunJournal
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunRequest, execute_run, prepare_run
+from rig.sim.fakes import FakeRig, fake_rig
+
+G = 9.8
+CAPACITY_NM = 2.4  # the fake link slips at F = capacity / distance
+DISTANCES_M = (0.12, 0.2, 0.25)
+SLIP_FORCES_N = [CAPACITY_NM / d for d in DISTANCES_M]  # 20, 12, 9.6 N
+
+PROTOCOL = """\
+format: rig-protocol/1
+name: fakes
+detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
+ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
+limits: {force_ceiling_n: 75.0}
+blocks:
+  - kind: joint_estimation
+    joint: 1
+    distances_m: [0.12, 0.2, 0.25]
+    repeats: 1
+    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
+"""
+
+
+@pytest.fixture
+def run_on_fakes(tmp_path, protocol_file):
+    """`run_on_fakes(rig)` -> RunReport: the protocol above on the fake rig, as `rig run` would run it."""
+    protocol = protocol_file(PROTOCOL)
+
+    def run(rig: FakeRig):
+        request = RunRequest(
+            protocol_path=protocol, rig_path=None, out_dir=tmp_path / "out", seed=1, run_id="f1"
+        )
+        return execute_run(prepare_run(request), rig.session, SilentProgress())
+
+    return run
+
+
+def when_tension_reaches(rig: FakeRig, force_n: float, action) -> None:
+    """Call `action(t_ns)` once, at the first load-cell sample with at least `force_n` on the line."""
+    tension = rig.load_cell.tension
+    fired = []
+
+    def watched(t_ns: int) -> float:
+        force = tension(t_ns)
+        if force >= force_n and not fired:
+            fired.append(t_ns)
+            action(t_ns)
+        return force
+
+    rig.load_cell.tension = watched
+
+
+def assert_released_then_torque_off(rig: FakeRig, zero_rad: float = 0.0) -> None:
+    """Once the shutdown began: the winch sent back to its zero, then torque off; it ends there, slack."""
+    calls = [c for c in rig.servos.calls if c.name != "read_states"]
+    names = [c.name for c in calls]
+    start = names.index("shutdown")
+    release = [
+        i
+        for i, c in enumerate(calls)
+        if i > start and c.name == "write_goal_positions" and c.args["goals_rad"] == {1: zero_rad}
+    ]
+    assert release, names[start:]
+    assert release[0] < names.index("torque_off"), names[start:]
+    assert names[-2:] == ["torque_off", "close"]
+    assert not rig.winch.torque_enabled and rig.servos.closed and not rig.load_cell.is_open
+    # Back at zero within the runner's position tolerance (0.02 rad): at most 1 N left on the line.
+    assert rig.servos.position_rad(1) == pytest.approx(zero_rad, abs=0.02)
+    assert rig.line.stiffness_n_per_rad * (rig.servos.position_rad(1) - rig.line.zero_rad) < 1.0
+
+
+def journal_status(tmp_path) -> str:
+    return RunJournal.load(tmp_path / "out" / "f1.journal.json").status
+
+
+# ------------------------------------------------------------------------------------------ slips
+
+
+def test_slips_give_outcome_slip_and_the_estimate_follows(run_on_fakes):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    report = run_on_fakes(rig)
+    assert report.exit_code == 0 and report.completed == 3 and not report.aborted
+    assert [t.outcome for t in report.trials] == ["slip"] * 3
+    assert [s.force_n for s in rig.line.slips] == pytest.approx(SLIP_FORCES_N, abs=0.05)
+    for trial, force in zip(report.trials, SLIP_FORCES_N, strict=True):
+        assert trial.peak_force_n == pytest.approx(force, abs=0.05)  # 1 kHz at 15 N/s: 0.015 N a sample
+    # Trial 1 has no prediction; trial 3 is planned from the fit of trials 1 and 2, which is exact here.
+    assert report.trials[0].predicted_mass_kg is None
+    third = report.trials[2]
+    assert third.predicted_mass_kg == pytest.approx(third.slip_mass_kg, rel=0.01)
+    assert report.estimate.n == 3
+    assert report.estimate.k == pytest.approx(CAPACITY_NM / G, rel=0.01)
+    # Each trial: tare, reel in (fast, then slow from the arm threshold), hold after the slip, unload.
+    goals = [c.args["goals_rad"][1] for c in rig.servos.calls_to("write_goal_positions")]
+    assert goals.count(0.0) == 3 + 1  # one unload per trial, and the release at the end
+    assert rig.operator.prompts and [t for t, _ in rig.operator.prompts] == [1, 2, 3]
+    assert_released_then_torque_off(rig)
+
+
+def test_connect_sets_up_the_winch_before_torque_on(run_on_fakes):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    run_on_fakes(rig)
+    names = rig.servos.call_names()
+    assert names[:4] == ["connect", "set_current_limit", "set_operating_mode", "set_torque"]
+    mode = rig.servos.calls_to("set_operating_mode")[0].args
+    assert (
+        mode["mode"] == 5
+        and mode["goal_current_a"] == rig.servos.calls_to("set_current_limit")[0].args["current_limit_a"]
+    )
+    assert rig.servos.calls_to("set_torque")[0].args == {"servo_ids": [1], "enabled": True}
+    assert [c.name for c in rig.load_cell.calls] == ["open", "close"]
+
+
+# ------------------------------------------------------------------------------------------ faults
+
+
+def test_stale_load_cell_during_the_ramp_stops_released_then_torque_off(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    unplugged = []
+
+    def unplug(t_ns: int) -> None:
+        unplugged.append(rig.servos.position_rad(1))
+        rig.load_cell.silence(at_ns=t_ns + 1)
+
+    when_tension_reaches(rig, 5.0, unplug)
+    report = run_on_fakes(rig)
+    assert report.exit_code == 1 and report.aborted and report.completed == 0
+    assert "StaleDataError" in report.reason and "no valid sample" in report.reason
+    assert journal_status(tmp_path) == "faulted"
+    assert unplugged and unplugged[0] > 0.05  # the line was loaded when the data stopped
+    assert rig.line.slips == []
+    assert_released_then_torque_off(rig)
+
+
+def test_hardware_error_on_the_winch_stops_with_torque_off(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    when_tension_reaches(rig, 5.0, lambda t_ns: rig.servos.inject_hardware_error(1, 0x20))
+    report = run_on_fakes(rig)
+    assert report.exit_code == 1 and report.completed == 0
+    assert "InterlockTripped" in report.reason and "overload" in report.reason
+    assert journal_status(tmp_path) == "faulted"
+    names = rig.servos.call_names()
+    assert names[-3:] == ["shutdown", "torque_off", "close"]
+    # The fault dropped the torque, so the runner does not drive the winch back: nothing is written
+    # to a faulted servo between the shutdown and the torque off.
+    assert not rig.winch.torque_enabled and rig.winch.hardware_error == 0x20
+    assert rig.servos.closed and not rig.load_cell.is_open
+
+
+def test_servo_bus_going_silent_still_attempts_torque_off(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+
+    def cable_pulled(t_ns: int) -> None:
+        rig.servos.silent = True
+
+    when_tension_reaches(rig, 5.0, cable_pulled)
+    report = run_on_fakes(rig)
+    assert report.exit_code == 1 and report.completed == 0
+    assert "CommunicationError" in report.reason
+    assert journal_status(tmp_path) == "faulted"
+    names = rig.servos.call_names()
+    assert names[-2:] == ["torque_off", "close"] and "shutdown" in names
+    assert not rig.load_cell.is_open
+
+
+# ------------------------------------------------------------------------------------------ Ctrl-C
+
+
+def test_ctrl_c_at_the_operator_prompt_exits_130_released_then_torque_off(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    rig.operator.interrupt_at_trial = 2
+    report = run_on_fakes(rig)
+    assert report.exit_code == 130 and report.aborted and report.completed == 1
+    assert report.reason == "interrupted by the operator"
+    assert journal_status(tmp_path) == "interrupted"
+    assert_released_then_torque_off(rig)
+
+
+def test_ctrl_c_during_the_ramp_exits_130_released_then_torque_off(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    loaded = []
+
+    def ctrl_c(t_ns: int) -> None:
+        loaded.append(rig.servos.position_rad(1))
+        raise KeyboardInterrupt  # as a SIGINT arriving in the middle of a control tick
+
+    when_tension_reaches(rig, 8.0, ctrl_c)
+    report = run_on_fakes(rig)
+    assert report.exit_code == 130 and report.completed == 0
+    assert journal_status(tmp_path) == "interrupted"
+    assert loaded[0] == pytest.approx(8.0 / rig.line.stiffness_n_per_rad, abs=0.01)
+    assert_released_then_torque_off(rig)
+
+
+# ------------------------------------------------------------------------------------------ runner bugs
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="runner bug: _release_tension_without_interlocks catches only StaleDataError from the load cell; "
+    "a failed port (NotConnectedError) aborts the release and the torque goes off with the line loaded",
+)
+def test_load_cell_cable_pulled_during_the_ramp_still_releases_before_torque_off(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    when_tension_reaches(rig, 8.0, lambda t_ns: rig.load_cell.disconnect("cable pulled"))
+    report = run_on_fakes(rig)
+    assert report.exit_code == 1 and "NotConnectedError" in report.reason
+    assert journal_status(tmp_path) == "faulted"
+    assert_released_then_torque_off(rig)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="runner bug: when the safe state fails after a fault or Ctrl-C, TrialRunner.run keeps only the "
+    "first reason; the failed release / torque off is logged but missing from the report (rig run --json)",
+)
+def test_a_failed_safe_state_after_a_fault_is_in_the_report(run_on_fakes):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    when_tension_reaches(rig, 5.0, lambda t_ns: setattr(rig.servos, "silent", True))
+    report = run_on_fakes(rig)
+    assert report.exit_code == 1 and "CommunicationError" in report.reason
+    assert "torque off failed" in report.reason
