@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from model.gravity import PAPER_G_M_S2
+
 FloatArray = NDArray[np.float64]
 
 # Two candidates within this relative distance of the minimum slip force count as tied.
@@ -298,7 +300,7 @@ def predict_slip(
     capacities_nm: ArrayLike,
     point_m: ArrayLike,
     direction_w: ArrayLike,
-    g: float = 9.8,
+    g: float = PAPER_G_M_S2,
 ) -> SlipPrediction:
     """Slip load, first joint to slip, link capacity and payload (Corollary 2), vectorised over a batch."""
     if not (math.isfinite(g) and g > 0):

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from model.gravity import PAPER_G_M_S2
 from rig.errors import ConfigError
 from rig.files import load_yaml_file
 from rig.validate import Section
@@ -246,7 +247,7 @@ def _article(sec: Section) -> ArticleConfig:
         ),
         point_m=tuple(load.numbers("point_m", length=3)),  # type: ignore[arg-type]
         direction=tuple(direction),  # type: ignore[arg-type]
-        g=sec.number("g", default=9.8, min_value=0.0, max_value=100.0, min_exclusive=True),
+        g=sec.number("g", default=PAPER_G_M_S2, min_value=0.0, max_value=100.0, min_exclusive=True),
     )
 
 

@@ -136,7 +136,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
                 f"rig config attachment {rig_attachment.name}: unreadable ({exc}); geometry unknown"
             )
     elif parts and any(p.log.message_counts for p in parts):
-        warnings.append("no rig config attachment: geometry unknown, g = 9.8 m/s^2 assumed")
+        warnings.append(f"no rig config attachment: geometry unknown, g = {DEFAULT_G:g} m/s^2 assumed")
 
     detector_text = protocol_meta.get("detector")
     if detector_text:

@@ -18,11 +18,11 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
+from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import InputError, RigError
 from rig.files import atomic_write_text
 from rig.hw.seams import Clock, LoadCell, LoadCellSample
 
-STANDARD_GRAVITY_M_S2 = 9.80665
 CALIBRATION_KIND = "rig.loadcell.calibration"
 CALIBRATION_VERSION = 1
 INDICATOR_UNIT_MASS_KG = {"kg": 1.0, "g": 1e-3, "t": 1e3, "lb": 0.45359237}

@@ -24,6 +24,7 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
+from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import InputError
 from rig.hw.loadcell.formats import (
     DEVICE_TIME_MODULUS_US,
@@ -186,7 +187,7 @@ class LoadCellEmulator:
         start_ns: int = 0,
         seq_start: int = 0,
         device_time_start_us: int = 0,
-        indicator_g: float = 9.80665,
+        indicator_g: float = STANDARD_GRAVITY_M_S2,
     ) -> None:
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
             raise InputError(f"--rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
