@@ -278,4 +278,4 @@ def parse_link(data: Mapping[str, Any] | Any, source: str, *, field_prefix: str 
 
 def load_link_file(path: str | os.PathLike[str]) -> LinkSpec:
     """Read and validate a link file; every problem is an `InputError` naming the file and field."""
-    return parse_link(load_yaml_file(path), str(path))
+    return parse_link(load_yaml_file(path, what="a link YAML file"), str(path))

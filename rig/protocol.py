@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from rig.errors import ConfigError
-from rig.files import load_yaml_file
+from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
 
 PROTOCOL_FORMAT = "rig-protocol/1"
@@ -116,11 +116,11 @@ class Protocol:
 def load_protocol(path: str | Path, *, seed: int = 0, joint_count: int | None = None) -> Protocol:
     """Load, validate and expand a protocol file; `seed` drives shuffling."""
     p = Path(path)
-    data = load_yaml_file(p)
+    text = read_text_file(p, what="a protocol YAML file")
     return parse_protocol(
-        data,
+        parse_yaml(text, str(p)),
         source=str(p),
-        text=p.read_text(encoding="utf-8"),
+        text=text,
         seed=seed,
         joint_count=joint_count,
         base_dir=p.parent,

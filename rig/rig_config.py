@@ -13,7 +13,7 @@ from typing import Any
 
 from model.gravity import PAPER_G_M_S2
 from rig.errors import ConfigError
-from rig.files import load_yaml_file
+from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
 
 RIG_KINDS = ("simulated", "hardware")
@@ -138,9 +138,8 @@ class RigConfig:
 def load_rig_config(path: str | Path | None = None) -> RigConfig:
     """Load and validate a rig config; the built-in simulated rig when `path` is None."""
     p = Path(path) if path is not None else DEFAULT_RIG_CONFIG
-    data = load_yaml_file(p)
-    text = p.read_text(encoding="utf-8")
-    return parse_rig_config(data, source=str(p), text=text, base_dir=p.parent)
+    text = read_text_file(p, what="a rig config YAML file")
+    return parse_rig_config(parse_yaml(text, str(p)), source=str(p), text=text, base_dir=p.parent)
 
 
 def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path | None = None) -> RigConfig:

@@ -23,6 +23,7 @@ from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, resolve_constant
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
+from rig.files import read_text_file
 
 DISTANCE_COLUMN = "distance_m"
 MASS_COLUMN = "mass_kg"
@@ -168,16 +169,7 @@ def read_fit_csv(path: str | Path, g: float = PAPER_G_M_S2) -> FitData:
     Raises InputError naming the file, the line and data row, the column and what is allowed.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{p}: is a directory; allowed: a CSV file") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{p}: not UTF-8 text; allowed: a CSV file") from None
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    text = read_text_file(p, what="a CSV file")
 
     reader = csv.reader(text.splitlines(keepends=True))
     header: list[str] | None = None
