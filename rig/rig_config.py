@@ -1,13 +1,15 @@
 """The rig config: which devices, on which ports, with which roles, limits and test article.
 
-A rig config is YAML (see `protocols/rigs/*.yaml`), validated on load: every error names the file,
-the field path and what is allowed. `kind: simulated` builds the byte-level simulated rig;
-`kind: hardware` opens real serial ports.
+A rig config is YAML, validated on load: every error names the file, the field path and what is
+allowed. `kind: simulated` builds the byte-level simulated rig (the built-in default is package
+data, `rig/data/simulated.yaml`, so that an installed `rig` has it); `kind: hardware` opens real
+serial ports (template: `protocols/rigs/hardware.example.yaml`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +23,9 @@ SERVO_ROLES = ("winch", "bender")
 SERVO_MODELS = ("XM430-W350", "XL430-W250")
 LOADCELL_FORMATS = ("rig-lc1", "indicator-st")
 SIM_PRESETS = ("link1", "link2")
-DEFAULT_RIG_CONFIG = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "simulated.yaml"
+# The built-in simulated rig, shipped as package data. A package installed as a directory (a wheel or
+# an editable install) gives a real path, which the journal records for `--resume`.
+DEFAULT_RIG_CONFIG = Path(str(files("rig") / "data" / "simulated.yaml"))
 STANDARD_BAUDS = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 
 
