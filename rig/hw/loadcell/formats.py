@@ -327,17 +327,14 @@ class LineDecoder:
         r"""Decode the lines of `block` (which ends with `\n`) one by one, resynchronising after damage."""
         segments = block.split(b"\n")
         segments.pop()  # the empty string after the final terminator
-        decode = self.codec.decode
         lines: list[DecodedLine] = []
-        append = lines.append
         for segment in segments:
             try:
-                line = decode(segment)
+                lines.append(self.codec.decode(segment))
             except LineError:
-                line = self._resync(segment)
-                if line is None:
-                    continue
-            append(line)
+                resynced = self._resync(segment)
+                if resynced is not None:
+                    lines.append(resynced)
         if lines:
             self.lines_ok += len(lines)
             if self.codec.has_sequence:
