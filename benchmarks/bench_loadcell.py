@@ -26,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.loadcell.formats import DeviceReading, RigLc1Codec
@@ -33,7 +34,7 @@ from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.loadcell.profiles import SawtoothTension
 
-CAL = Calibration(1.25e-5, 120000.0, None, 9.80665, "2026-01-01", "", "rig-lc1")
+CAL = Calibration(1.25e-5, 120000.0, None, STANDARD_GRAVITY_M_S2, "2026-01-01", "", "rig-lc1")
 
 
 class MemoryPort:

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from model.gravity import PAPER_G_M_S2
+
 FloatArray = NDArray[np.float64]
 
 # Two candidates within this relative distance of the minimum slip force count as tied.
@@ -215,7 +217,8 @@ def joint_moments_frame_free(transforms: ArrayLike, point_m: ArrayLike, force_w:
 
 def joint_moment_norms(transforms: ArrayLike, point_m: ArrayLike, force_w: ArrayLike) -> FloatArray:
     """‖N_i‖ (..., J+1) [N·m]: index 0 the base moment, index i what joint i must hold."""
-    return np.linalg.norm(joint_moments_frame_free(transforms, point_m, force_w), axis=-1)
+    norms: FloatArray = np.linalg.norm(joint_moments_frame_free(transforms, point_m, force_w), axis=-1)
+    return norms
 
 
 def lever_arms_m(transforms: ArrayLike, point_m: ArrayLike, direction_w: ArrayLike) -> FloatArray:
@@ -261,7 +264,8 @@ def tolerated(
     t = _transforms(transforms)
     capacities = _capacities(capacities_nm, t.shape[-3])
     norms = joint_moment_norms(t, point_m, force_w)[..., 1:]
-    return np.all(norms <= capacities * (1.0 + rtol), axis=-1)
+    held: NDArray[np.bool_] = np.all(norms <= capacities * (1.0 + rtol), axis=-1)
+    return held
 
 
 @dataclass(frozen=True)
@@ -298,7 +302,7 @@ def predict_slip(
     capacities_nm: ArrayLike,
     point_m: ArrayLike,
     direction_w: ArrayLike,
-    g: float = 9.8,
+    g: float = PAPER_G_M_S2,
 ) -> SlipPrediction:
     """Slip load, first joint to slip, link capacity and payload (Corollary 2), vectorised over a batch."""
     if not (math.isfinite(g) and g > 0):

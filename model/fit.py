@@ -31,10 +31,11 @@ from typing import Any, Final
 import numpy as np
 from numpy.typing import ArrayLike
 
+from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, mu_delta0_pa_from_capacity, resolve_constant
 
 DEFAULT_LEVEL: Final[float] = 0.99
-DEFAULT_G: Final[float] = 9.8
+DEFAULT_G: Final[float] = PAPER_G_M_S2  # the fit's default g: the paper's
 
 # Every finite double is an integer multiple of 2**-1074 (the smallest subnormal).
 _SCALE_BITS: Final[int] = 1074

@@ -1,4 +1,4 @@
-"""Small file helpers shared by commands: YAML loading with clear errors, atomic writes."""
+"""Small file helpers shared by commands: reading text and YAML with clear errors, atomic writes."""
 
 from __future__ import annotations
 
@@ -12,22 +12,39 @@ import yaml
 from rig.errors import InputError
 
 
-def load_yaml_file(path: str | os.PathLike[str]) -> Any:
-    """Parse a YAML file; a missing file or malformed YAML is an `InputError` naming the file."""
+def read_text_file(path: str | os.PathLike[str], *, what: str = "a text file") -> str:
+    """The whole of a UTF-8 text file; `InputError` naming the file when it cannot be read.
+
+    `what` completes "allowed: ..." in the messages (e.g. "a CSV file"). A leading byte-order mark,
+    as some Windows editors write, is dropped.
+    """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        return p.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"{p}: file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a directory; allowed: {what}") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not UTF-8 text; allowed: {what}") from None
     except OSError as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+        raise InputError(f"{p}: cannot read ({exc.strerror or exc})") from None
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """Parse YAML text read from `source`; malformed YAML is an `InputError` naming it and the place."""
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or "invalid YAML"
-        raise InputError(f"{p}: malformed YAML{where}: {problem}") from None
+        raise InputError(f"{source}: malformed YAML{where}: {problem}") from None
+
+
+def load_yaml_file(path: str | os.PathLike[str], *, what: str = "a YAML file") -> Any:
+    """Read and parse a YAML file; every problem is an `InputError` naming the file."""
+    return parse_yaml(read_text_file(path, what=what), str(Path(path)))
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:

@@ -17,11 +17,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from model.chain import check_rigid_motion, pose_from_xyz_rpy
+from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, joint_capacity_nm, resolve_constant
 from rig.errors import InputError
 from rig.files import load_yaml_file
-
-DEFAULT_G = 9.8
 
 _TOP_KEYS = ("g", "joints", "load")
 _JOINT_KEYS = ("transform", "xyz", "rpy", "capacity_nm", "radius_m", "mu_delta0_pa", "constant")
@@ -228,7 +227,7 @@ def parse_link(data: Mapping[str, Any] | Any, source: str, *, field_prefix: str 
         if key not in top:
             raise ctx.error(key, "missing", "a link has `joints` (list, base to tip) and `load`")
 
-    g = DEFAULT_G if "g" not in top else _positive(ctx, "g", top["g"], "gravity [m/s²]")
+    g = PAPER_G_M_S2 if "g" not in top else _positive(ctx, "g", top["g"], "gravity [m/s²]")
 
     joints = top["joints"]
     if not isinstance(joints, Sequence) or isinstance(joints, str) or len(joints) == 0:
@@ -279,4 +278,4 @@ def parse_link(data: Mapping[str, Any] | Any, source: str, *, field_prefix: str 
 
 def load_link_file(path: str | os.PathLike[str]) -> LinkSpec:
     """Read and validate a link file; every problem is an `InputError` naming the file and field."""
-    return parse_link(load_yaml_file(path), str(path))
+    return parse_link(load_yaml_file(path, what="a link YAML file"), str(path))

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from rig.errors import ConfigError
-from rig.files import load_yaml_file
+from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
 
 PROTOCOL_FORMAT = "rig-protocol/1"
@@ -87,7 +87,7 @@ class Protocol:
     text: str
     name: str
     description: str
-    detector: dict[str, float]
+    detector: dict[str, float | None]
     ramp: RampSettings
     force_ceiling_n: float | None
     step_timeout_margin_s: float
@@ -116,11 +116,11 @@ class Protocol:
 def load_protocol(path: str | Path, *, seed: int = 0, joint_count: int | None = None) -> Protocol:
     """Load, validate and expand a protocol file; `seed` drives shuffling."""
     p = Path(path)
-    data = load_yaml_file(p)
+    text = read_text_file(p, what="a protocol YAML file")
     return parse_protocol(
-        data,
+        parse_yaml(text, str(p)),
         source=str(p),
-        text=p.read_text(encoding="utf-8"),
+        text=text,
         seed=seed,
         joint_count=joint_count,
         base_dir=p.parent,
@@ -199,7 +199,7 @@ def parse_protocol(
     )
 
 
-def _detector(sec: Section) -> dict[str, float]:
+def _detector(sec: Section) -> dict[str, float | None]:
     """Detector settings, validated by the model's own parameter type."""
     from model.slip_detector import DetectorParams
 
@@ -244,7 +244,7 @@ def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
     steps: list[StepSpec] = []
     for i, item in enumerate(raw):
         if isinstance(item, str):
-            name, options = item, {}
+            name, options = item, dict[str, Any]()
         elif isinstance(item, dict) and len(item) == 1:
             name, options = next(iter(item.items()))
             options = {} if options is None else options

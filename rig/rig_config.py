@@ -1,18 +1,21 @@
 """The rig config: which devices, on which ports, with which roles, limits and test article.
 
-A rig config is YAML (see `protocols/rigs/*.yaml`), validated on load: every error names the file,
-the field path and what is allowed. `kind: simulated` builds the byte-level simulated rig;
-`kind: hardware` opens real serial ports.
+A rig config is YAML, validated on load: every error names the file, the field path and what is
+allowed. `kind: simulated` builds the byte-level simulated rig (the built-in default is package
+data, `rig/data/simulated.yaml`, so that an installed `rig` has it); `kind: hardware` opens real
+serial ports (template: `protocols/rigs/hardware.example.yaml`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
+from model.gravity import PAPER_G_M_S2
 from rig.errors import ConfigError
-from rig.files import load_yaml_file
+from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
 
 RIG_KINDS = ("simulated", "hardware")
@@ -23,7 +26,9 @@ SERVO_ROLES = ("winch", "bender")
 SERVO_MODELS = ("XM430-W350", "XL430-W250")
 LOADCELL_FORMATS = ("rig-lc1", "indicator-st")
 SIM_PRESETS = ("link1", "link2")
-DEFAULT_RIG_CONFIG = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "simulated.yaml"
+# The built-in simulated rig, shipped as package data. A package installed as a directory (a wheel or
+# an editable install) gives a real path, which the journal records for `--resume`.
+DEFAULT_RIG_CONFIG = Path(str(files("rig") / "data" / "simulated.yaml"))
 STANDARD_BAUDS = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 
 
@@ -140,9 +145,8 @@ class RigConfig:
 def load_rig_config(path: str | Path | None = None) -> RigConfig:
     """Load and validate a rig config; the built-in simulated rig when `path` is None."""
     p = Path(path) if path is not None else DEFAULT_RIG_CONFIG
-    data = load_yaml_file(p)
-    text = p.read_text(encoding="utf-8")
-    return parse_rig_config(data, source=str(p), text=text, base_dir=p.parent)
+    text = read_text_file(p, what="a rig config YAML file")
+    return parse_rig_config(parse_yaml(text, str(p)), source=str(p), text=text, base_dir=p.parent)
 
 
 def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path | None = None) -> RigConfig:
@@ -249,7 +253,7 @@ def _article(sec: Section) -> ArticleConfig:
         ),
         point_m=tuple(load.numbers("point_m", length=3)),  # type: ignore[arg-type]
         direction=tuple(direction),  # type: ignore[arg-type]
-        g=sec.number("g", default=9.8, min_value=0.0, max_value=100.0, min_exclusive=True),
+        g=sec.number("g", default=PAPER_G_M_S2, min_value=0.0, max_value=100.0, min_exclusive=True),
     )
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
+from typing import Any, cast
 
 from rig.errors import ConfigError
 
@@ -71,7 +71,7 @@ class Section:
         """A finite real number within [min, max] (or (min, max] with `min_exclusive`)."""
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
-            return value
+            return cast(float, value)  # the caller's default, as given
         return check_number(self, key, value, min_value, max_value, min_exclusive)
 
     def integer(
@@ -80,7 +80,7 @@ class Section:
         """An integer within [min, max]."""
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
-            return value
+            return cast(int, value)  # the caller's default, as given
         if isinstance(value, bool) or not isinstance(value, int):
             allowed = _range(min_value, max_value)
             raise self.error(key, f"expected an integer, got {value!r}; allowed: {allowed}")
@@ -92,7 +92,7 @@ class Section:
         """A string, optionally one of `choices`."""
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
-            return value
+            return cast(str, value)  # the caller's default, as given
         if not isinstance(value, str):
             raise self.error(key, f"expected a string, got {value!r}")
         if choices is not None and value not in choices:
@@ -135,7 +135,7 @@ class Section:
         """A list of finite numbers, each within range, of a fixed `length` if given."""
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
-            return value
+            return cast(list[float], value)  # the caller's default, as given
         if not isinstance(value, list):
             raise self.error(key, f"expected a list of numbers, got {_kind(value)}")
         if length is not None and len(value) != length:

@@ -5,12 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from rig.cli import main
+from rig.rig_config import DEFAULT_RIG_CONFIG
 
 RIGS = Path(__file__).resolve().parent.parent / "protocols" / "rigs"
 
 
 def test_simulated_rig_config_is_refused_with_a_hint(capsys):
-    assert main(["calibrate", "--rig", str(RIGS / "simulated.yaml"), "--reference-kg", "1"]) == 2
+    assert main(["calibrate", "--rig", str(DEFAULT_RIG_CONFIG), "--reference-kg", "1"]) == 2
     err = capsys.readouterr().err
     assert "hardware rig" in err and "--sim" in err and err.count("\n") == 1
 

@@ -6,9 +6,9 @@ import math
 
 import pytest
 
+from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import InputError
 from rig.hw.loadcell.calibration import (
-    STANDARD_GRAVITY_M_S2,
     Calibration,
     CalibrationError,
     CalibrationStep,

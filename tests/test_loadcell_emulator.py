@@ -1,5 +1,7 @@
 """The load-cell emulator core and its in-process serial transport (virtual time)."""
 
+import math
+import random
 import statistics
 
 import pytest
@@ -232,7 +234,8 @@ def test_fast_path_makes_the_same_bytes_counts_and_draws_as_sample_by_sample(rat
             if step == 120:
                 emulator.inject_silence(0.013)
             out += emulator.lines_until(123_456 + step * 7_300_001)
-        return out, emulator.counts, emulator._rng.getstate(), emulator.next_sample_ns
+        draws = emulator._rng.getstate(), emulator._spare_normal
+        return out, emulator.counts, draws, emulator.next_sample_ns
 
     fast, slow = run(True), run(False)
     assert fast == slow
@@ -256,3 +259,14 @@ def test_fast_path_keeps_the_samples_made_before_the_tension_source_fails():
         emulator.lines_until(9_000_000)
     assert emulator.counts.samples == emulator.counts.lines_sent == 5
     assert emulator.next_sample_ns == 5_000_000
+
+
+def test_noise_is_box_muller_pairs_from_the_seeded_random():
+    emulator = LoadCellEmulator(ConstantTension(0.0), seed=7)
+    draws = [emulator._normal() for _ in range(1001)]
+    uniform = random.Random(7).random
+    expected = []
+    for _ in range(501):  # the algorithm (and so the numbers) of CPython's `random.gauss`
+        angle, radius = uniform() * math.tau, math.sqrt(-2.0 * math.log(1.0 - uniform()))
+        expected += [math.cos(angle) * radius, math.sin(angle) * radius]
+    assert draws == expected[:1001] and emulator._spare_normal == expected[1001]

@@ -3,7 +3,7 @@
 import random
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rig.errors import InputError
@@ -16,6 +16,7 @@ from rig.hw.loadcell.formats import (
     RigLc1Codec,
     get_codec,
     nmea_checksum,
+    nmea_checksums,
 )
 
 LC1 = RigLc1Codec()
@@ -220,63 +221,91 @@ def test_decoder_accounts_for_every_byte(chunks, data):
     assert c.lines_ok == len(out)
 
 
-@pytest.mark.parametrize("length", range(41))
-def test_nmea_checksum_fold_matches_a_byte_by_byte_xor(length):
-    rng = random.Random(length)
-    for _ in range(20):
-        body = bytes(rng.randrange(256) for _ in range(length))
-        expected = 0
-        for byte in body:
-            expected ^= byte
-        assert nmea_checksum(body) == expected
+@pytest.mark.parametrize("count", [1, 7, 8, 50])
+def test_nmea_checksums_equal_nmea_checksum_of_each_body(count):
+    rng = random.Random(count)
+    bodies = [bytes(rng.randrange(256) for _ in range(rng.randrange(33))) for _ in range(count)]
+    assert nmea_checksums(bodies) == [nmea_checksum(body) for body in bodies]
 
 
-def test_decode_block_equals_line_by_line_decode():
+def feed_both(chunks):
+    """The same chunks through `feed` (the plain decoder) and `feed_columns` (the fast path)."""
+    by_line, by_block = LineDecoder(LC1), LineDecoder(LC1)
+    for chunk in chunks:
+        lines = by_line.feed(chunk)
+        columns = by_block.feed_columns(chunk)
+        assert columns == ([d.raw for d in lines], [d.seq for d in lines], [d.device_time_us for d in lines])
+    assert by_block.counts() == by_line.counts()
+    assert by_block.pending_bytes == by_line.pending_bytes
+    return by_block
+
+
+def test_feed_columns_equals_feed_on_valid_blocks_and_on_each_kind_of_damage():
     lines = [LC1.encode(DeviceReading(raw, seq, t)) for raw, seq, t in [(-5, 65535, 0), (7, 0, 2**32 - 1)]]
     lines += lc1_lines(20)
     block = b"".join(lines)
-    raws, seqs, times = LC1.decode_block(block)
-    decoded = [LC1.decode(line[:-1]) for line in lines]
-    assert (raws, seqs, times) == (
-        [d.raw for d in decoded],
-        [d.seq for d in decoded],
-        [d.device_time_us for d in decoded],
-    )
-    assert LC1.decode_block(block.replace(b"\r\n", b"\n")) == (raws, seqs, times)  # bare LF
+    assert feed_both([block]).counts().lines_ok == len(lines)
+    assert feed_both([block.replace(b"\r\n", b"\n")]).counts().lines_ok == len(lines)  # bare LF
     lower_hex = b"".join(line[:-4] + line[-4:-2].lower() + b"\r\n" for line in lines)
-    assert lower_hex != block and LC1.decode_block(lower_hex) == (raws, seqs, times)
-    # Anything but a block of valid lines is left to the line-by-line path.
+    assert lower_hex != block and feed_both([lower_hex]).counts().lines_ok == len(lines)
     star = lines[3].index(b"*")
     bad_checksum = lines[3][: star + 1] + b"%02X" % (int(lines[3][star + 1 : star + 3], 16) ^ 1) + b"\r\n"
     seq_too_big = b"$LC,70000,1,1*%02X\r\n" % nmea_checksum(b"LC,70000,1,1")
     for broken in (b"x", b"\n", lines[4][:-2], bad_checksum, seq_too_big):
-        assert LC1.decode_block(b"".join(lines[:3]) + broken + b"".join(lines[4:])) is None
-    assert LC1.decode_block(b"no lines\n") is None
-    assert IND.decode_block(IND.encode(DeviceReading(5))) is None
+        counts = feed_both([b"".join(lines[:3]) + broken + b"".join(lines[4:])]).counts()
+        assert counts.lines_ok < len(lines)
+    assert feed_both([b"no lines\n"]).counts().bytes_discarded == 9
 
 
-@given(
-    st.lists(st.one_of(st.sampled_from(lc1_lines(40)), st.binary(max_size=40), st.just(b"$")), max_size=60),
-    st.data(),
+def garble(line, kind, rng):
+    """A rig-lc1 line damaged as a serial link or a firmware bug might (`kind` 0-9): most are then invalid."""
+    i = rng.randrange(len(line))
+    if kind == 0:
+        return line[:i] + line[i + 1 :]  # a byte lost
+    if kind == 1:
+        return line[:i] + bytes([line[i] ^ (1 << rng.randrange(8))]) + line[i + 1 :]  # a bit flipped
+    if kind == 2:
+        return line[:i] + bytes([rng.randrange(256)]) + line[i:]  # a byte inserted
+    if kind == 3:
+        return line[:i]  # truncated
+    if kind == 4:
+        return line[:-4] + line[-4:-2].lower() + b"\r\n"  # lower-case hex: still valid
+    if kind == 5:
+        return line.replace(b"\r\n", b"\n")  # bare LF: still valid
+    # Well-formed with a correct checksum, but a field out of its range (a firmware bug).
+    seq, t_us, raw = (int(field) for field in line[4 : line.index(b"*")].split(b","))
+    big = rng.randrange(2**32, 10**10)  # at most 10 digits, as the format allows
+    fields = [(seq % 34464 + 65536, t_us, raw), (seq, big, raw), (seq, t_us, big), (seq, t_us, -big)]
+    body = b"LC,%d,%d,%d" % fields[kind - 6]
+    return b"$%b*%02X\r\n" % (body, nmea_checksum(body))
+
+
+VALID = st.one_of(
+    st.sampled_from(lc1_lines(40)),
+    st.builds(  # an unbroken run of sequence numbers, possibly across the wrap
+        lambda n, start: b"".join(lc1_lines(n, start)), st.integers(1, 20), st.integers(65500, 65535)
+    ),
 )
-def test_feed_columns_equals_feed(chunks, data):
+DAMAGE = st.one_of(
+    st.builds(garble, st.sampled_from(lc1_lines(40)), st.integers(0, 9), st.randoms(use_true_random=False)),
+    st.binary(max_size=40),
+    st.just(b"$"),
+)
+
+
+@settings(max_examples=800)  # the fast path is easy to get subtly wrong: look harder
+@given(st.lists(VALID, max_size=40), st.lists(st.tuples(st.integers(0, 40), DAMAGE), max_size=4), st.data())
+def test_feed_columns_equals_feed(valid, damage, data):
+    chunks = list(valid)
+    for at, bad in damage:
+        chunks.insert(at, bad)
     stream = b"".join(chunks)
     cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
-    by_line, by_block = LineDecoder(LC1), LineDecoder(LC1)
-    for lo, hi in zip([0, *cuts], [*cuts, len(stream)], strict=True):
-        lines = by_line.feed(stream[lo:hi])
-        columns = by_block.feed_columns(stream[lo:hi])
-        assert columns == ([d.raw for d in lines], [d.seq for d in lines], [d.device_time_us for d in lines])
-    assert by_block.counts() == by_line.counts()
-    assert by_block.pending_bytes == by_line.pending_bytes
+    feed_both([stream[lo:hi] for lo, hi in zip([0, *cuts], [*cuts, len(stream)], strict=True)])
 
 
 def test_feed_columns_counts_gaps_and_wraps_like_feed():
     lines = [LC1.encode(DeviceReading(k, seq, 1000 * k)) for k, seq in enumerate([65534, 65535, 0, 1, 5, 6])]
     lines += lc1_lines(30)  # seq 0.. again: a gap back to 0
-    by_line, by_block = LineDecoder(LC1), LineDecoder(LC1)
-    for part in (lines[:2], lines[2:5], lines[5:]):
-        by_line.feed(b"".join(part))
-        by_block.feed_columns(b"".join(part))
-    assert by_block.counts() == by_line.counts()
+    by_block = feed_both([b"".join(part) for part in (lines[:2], lines[2:5], lines[5:])])
     assert by_block.counts().sequence_gaps == 2

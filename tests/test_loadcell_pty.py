@@ -13,8 +13,9 @@ from pathlib import Path
 import pytest
 import serial
 
+from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import StaleDataError
-from rig.hw.loadcell.calibration import STANDARD_GRAVITY_M_S2, Calibration, indicator_calibration
+from rig.hw.loadcell.calibration import Calibration, indicator_calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.sim.loadcell.emulator import SignalModel
 

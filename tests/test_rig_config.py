@@ -7,13 +7,14 @@ from pathlib import Path
 import pytest
 
 from rig.errors import ConfigError, InputError
-from rig.rig_config import load_rig_config
+from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
 
 RIGS = Path(__file__).resolve().parent.parent / "protocols" / "rigs"
 
 
 def test_shipped_configs_load():
-    sim = load_rig_config(RIGS / "simulated.yaml")
+    sim = load_rig_config()
+    assert sim.source == DEFAULT_RIG_CONFIG and sim.text == DEFAULT_RIG_CONFIG.read_text(encoding="utf-8")
     assert sim.kind == "simulated" and sim.servos.winch.servo_id == 1 and sim.article.joint_count == 8
     hw = load_rig_config(RIGS / "hardware.example.yaml")
     assert hw.kind == "hardware" and hw.servos.watchdog_ms == 500
@@ -35,7 +36,7 @@ def test_shipped_configs_load():
     ],
 )
 def test_bad_field_is_named(tmp_path, old, new, needle):
-    text = (RIGS / "simulated.yaml").read_text()
+    text = DEFAULT_RIG_CONFIG.read_text(encoding="utf-8")
     assert old in text
     path = tmp_path / "rig.yaml"
     path.write_text(text.replace(old, new))

@@ -107,7 +107,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
     for part in parts:
         for name, values in part.log.metadata.items():
             metadata.setdefault(name, values)
-    run_ids = {p.log.metadata.get("session", {}).get("run_id") for p in parts} - {None}
+    run_ids = {r for p in parts if (r := p.log.metadata.get("session", {}).get("run_id")) is not None}
     if len(run_ids) > 1:
         warnings.append(f"the files belong to different runs ({', '.join(sorted(run_ids))}); combined anyway")
     session = metadata.get("session", {})
@@ -136,7 +136,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
                 f"rig config attachment {rig_attachment.name}: unreadable ({exc}); geometry unknown"
             )
     elif parts and any(p.log.message_counts for p in parts):
-        warnings.append("no rig config attachment: geometry unknown, g = 9.8 m/s^2 assumed")
+        warnings.append(f"no rig config attachment: geometry unknown, g = {DEFAULT_G:g} m/s^2 assumed")
 
     detector_text = protocol_meta.get("detector")
     if detector_text:

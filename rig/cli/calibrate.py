@@ -8,11 +8,11 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.hw.clock import SystemClock
 from rig.hw.loadcell.calibration import (
-    STANDARD_GRAVITY_M_S2,
     Calibration,
     CalibrationError,
     CalibrationStep,

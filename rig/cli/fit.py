@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 from model.fit import (
-    DEFAULT_G,
     DEFAULT_LEVEL,
     CapacityEstimate,
     InverseFit,
@@ -20,9 +19,11 @@ from model.fit import (
     fit_inverse_distance,
     fit_summary,
 )
+from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, resolve_constant
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
+from rig.files import read_text_file
 
 DISTANCE_COLUMN = "distance_m"
 MASS_COLUMN = "mass_kg"
@@ -83,7 +84,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help=f"confidence level of the bounds, in (0, 1) (default {DEFAULT_LEVEL})",
     )
     parser.add_argument(
-        "--g", default=str(DEFAULT_G), metavar="G", help=f"gravity [m/s²], > 0 (default {DEFAULT_G})"
+        "--g",
+        default=str(PAPER_G_M_S2),
+        metavar="G",
+        help=f"gravity [m/s²], > 0 (default {PAPER_G_M_S2}, the paper's)",
     )
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
@@ -108,7 +112,7 @@ def _options(args: argparse.Namespace) -> tuple[float, CapacityConstant, float, 
         raise InputError(f"--level {args.level}: allowed: a number in the open interval (0, 1), e.g. 0.99")
     g = _number_option("--g", args.g, "a finite number > 0 [m/s²]")
     if not (math.isfinite(g) and g > 0):
-        raise InputError(f"--g {args.g}: allowed: a finite number > 0 [m/s²], e.g. 9.8")
+        raise InputError(f"--g {args.g}: allowed: a finite number > 0 [m/s²], e.g. {PAPER_G_M_S2}")
     spec: str | float = args.constant
     with contextlib.suppress(ValueError):
         spec = float(args.constant)  # a number; else a name for resolve_constant
@@ -159,22 +163,13 @@ def _cell_value(path: Path, where: str, column: str, cell: str) -> float:
     return value
 
 
-def read_fit_csv(path: str | Path, g: float = DEFAULT_G) -> FitData:
+def read_fit_csv(path: str | Path, g: float = PAPER_G_M_S2) -> FitData:
     """Read (distance, mass) pairs from a fit CSV; `force_n` is converted to mass with `g`.
 
     Raises InputError naming the file, the line and data row, the column and what is allowed.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{p}: is a directory; allowed: a CSV file") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{p}: not UTF-8 text; allowed: a CSV file") from None
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    text = read_text_file(p, what="a CSV file")
 
     reader = csv.reader(text.splitlines(keepends=True))
     header: list[str] | None = None

@@ -59,7 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         type=Path,
         default=None,
         metavar="CONFIG",
-        help=f"rig config YAML (default: the simulated rig, {DEFAULT_RIG_CONFIG.name})",
+        help=f"rig config YAML (default: the built-in simulated rig, {DEFAULT_RIG_CONFIG})",
     )
     p.add_argument(
         "--out", type=Path, default=Path("logs"), metavar="DIR", help="where logs go (default: logs/)"

@@ -28,6 +28,7 @@ from model.joint_capacity_estimation import (
 )
 from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
 from rig.errors import InputError
+from rig.files import read_text_file
 from rig.log.records import Estimate, JointCapacity, TrialKind, TrialResult
 from rig.rig_config import ArticleConfig
 
@@ -190,8 +191,8 @@ def load_estimates_file(path: str | Path) -> FitSummary:
     """Read an estimates JSON (a `rig fit --json` object, or a run's `.estimates.json`)."""
     p = Path(path)
     try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
+        data = json.loads(read_text_file(p, what="an estimates JSON file"))
+    except json.JSONDecodeError as exc:
         raise InputError(f"{p}: cannot read estimates ({exc})") from None
     summary = data.get("estimate", data) if isinstance(data, dict) else None
     if not isinstance(summary, dict):

@@ -18,11 +18,11 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
+from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import InputError, RigError
-from rig.files import atomic_write_text
+from rig.files import atomic_write_text, read_text_file
 from rig.hw.seams import Clock, LoadCell, LoadCellSample
 
-STANDARD_GRAVITY_M_S2 = 9.80665
 CALIBRATION_KIND = "rig.loadcell.calibration"
 CALIBRATION_VERSION = 1
 INDICATOR_UNIT_MASS_KG = {"kg": 1.0, "g": 1e-3, "t": 1e3, "lb": 0.45359237}
@@ -128,12 +128,7 @@ class Calibration:
     def load(cls, path: str | os.PathLike[str]) -> Calibration:
         """Read a calibration file; `InputError` naming the file (and field) when it is unusable."""
         p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise InputError(f"{p}: file not found") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(f"{p}: cannot read ({exc})") from None
+        text = read_text_file(p, what="a calibration JSON file")
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:

@@ -119,7 +119,7 @@ class SerialLoadCell:
         if self._reader_mode == "auto" and isinstance(ser, serial.SerialBase):
             threaded = True
             ser.timeout = _READ_TIMEOUT_S
-        ser.reset_input_buffer()
+        ser.reset_input_buffer()  # type: ignore[union-attr]  # every port class has it; the stubs' base not
         self._decoder = LineDecoder(self._decoder.codec)
         self._device_clock.reset()
         self._queue.clear()
@@ -226,6 +226,7 @@ class SerialLoadCell:
         time_ns = self._anchor_ns + receipt_mono_ns
         cal = self.calibration
         with self._lock:
+            # The decoder's fast path: the same lines and counters as `LineDecoder.feed`, as columns.
             raws, seqs, device_times_us = self._decoder.feed_columns(data)
             if not raws:
                 return
@@ -235,8 +236,9 @@ class SerialLoadCell:
             else:
                 factor, offset = cal.factor_n_per_count, cal.offset_counts
                 forces = [(raw - offset) * factor for raw in raws]
-            # What `LoadCellSample(*fields)` does (a NamedTuple's __new__ is `tuple.__new__(cls, fields)`),
-            # without a Python-level call per sample.
+            # `LoadCellSample(*fields)` for each sample, without a Python-level call per sample (a
+            # NamedTuple's __new__ is `tuple.__new__(cls, fields)`): part of the fast path that
+            # benchmarks/bench_loadcell.py (simulated chain) demanded, with `feed_columns`.
             fields = zip(times_ns, raws, forces, seqs, device_times_us, strict=True)
             samples = list(map(tuple.__new__, repeat(LoadCellSample), fields))
             queue = self._queue

@@ -5,6 +5,10 @@ one received line back into a `DecodedLine` (`decode`, used by the driver). `Lin
 byte stream into lines, resynchronises after garbage and truncated lines, and counts what it had
 to throw away. The formats are specified for firmware writers in `protocols/loadcell-formats.md`.
 
+The plain decoder (`decode` of each codec, `LineDecoder.feed`) is the specification. The one fast
+path, `LineDecoder.feed_columns` (what the driver calls), comes after it in this module, gives the
+same lines and counters, and is tested against `feed` (tests/test_loadcell_formats.py).
+
 * `rig-lc1`, the rig's own: `$LC,<seq>,<t_us>,<raw>*<hh>\r\n` with an NMEA-style XOR checksum.
 * `indicator-st`, a commercial weighing-indicator style: `ST,GS,+0001.23kg\r\n` (no sequence
   number, no device clock, no checksum).
@@ -89,58 +93,16 @@ class LineCodec(Protocol):
         """How many line starts `segment` contains (each one a truncated line when discarded)."""
         ...
 
-    def decode_block(self, block: bytes) -> Columns | None:
-        r"""Decode complete lines (`block` ends with `\n`) if every one is valid, else None.
-
-        A fast path with exactly the results of `decode` on each line; None (any line invalid, or
-        no fast path for the format) tells the caller to decode line by line.
-        """
-        ...
-
-
-# XOR of the two bytes of every 16-bit word: the last step of `nmea_checksum`'s fold.
-_WORDS = np.arange(1 << 16)
-_XOR_OF_WORD = (((_WORDS >> 8) ^ _WORDS) & 0xFF).astype(np.uint8).tobytes()
-
 
 def nmea_checksum(body: bytes) -> int:
     """XOR of every byte of `body` (the bytes between `$` and `*`)."""
-    if len(body) > 32:
-        checksum = 0
-        for byte in body:
-            checksum ^= byte
-        return checksum
-    # Up to 32 bytes: read them as one integer and XOR its halves together down to one 16-bit
-    # word (bits of equal position within a byte stay aligned), which is 4 big-int steps instead
-    # of a Python step per byte.
-    folded = int.from_bytes(body, "little")
-    folded ^= folded >> 128
-    folded ^= folded >> 64
-    folded ^= folded >> 32
-    return _XOR_OF_WORD[(folded ^ (folded >> 16)) & 0xFFFF]
-
-
-_NUMPY_CHECKSUM_MIN_LINES = 8  # below this, numpy's per-call overhead exceeds what it saves
-_CHECKSUM_SLOT_BYTES = 32  # every rig-lc1 body fits: at most 31 bytes
-
-
-def nmea_checksums(bodies: Sequence[bytes]) -> list[int]:
-    """`nmea_checksum` of each body (each at most 32 bytes), in one numpy reduction for many bodies."""
-    if len(bodies) < _NUMPY_CHECKSUM_MIN_LINES:
-        return list(map(nmea_checksum, bodies))
-    # One zero-padded 32-byte row per body (zeros do not change an XOR), reduced along the rows.
-    padded = b"".join(map(bytes.ljust, bodies, repeat(_CHECKSUM_SLOT_BYTES), repeat(b"\0")))
-    rows = np.frombuffer(padded, np.uint8).reshape(-1, _CHECKSUM_SLOT_BYTES)
-    return np.bitwise_xor.reduce(rows, axis=1).tolist()
+    checksum = 0
+    for byte in body:
+        checksum ^= byte
+    return checksum
 
 
 _LC1_LINE = re.compile(rb"\$LC,([0-9]{1,5}),([0-9]{1,10}),(-?[0-9]{1,10})\*([0-9A-Fa-f]{2})\r?")
-# The same line with its terminator, the checksummed body and the optional CR as groups too.
-_LC1_TERMINATED_LINE = re.compile(
-    rb"\$(LC,([0-9]{1,5}),([0-9]{1,10}),(-?[0-9]{1,10}))\*([0-9A-Fa-f]{2})(\r?)\n"
-)
-_UPPER_HEX = [b"%02X" % byte for byte in range(256)]
-_LC1_FIXED_BYTES = len(b"$*hh\n")  # bytes of a terminated line outside its body and CR groups
 
 
 class RigLc1Codec:
@@ -177,38 +139,6 @@ class RigLc1Codec:
         if seq >= SEQ_MODULUS or device_time_us >= DEVICE_TIME_MODULUS_US or not RAW_MIN <= raw <= RAW_MAX:
             raise LineError("rig-lc1 field out of range")
         return DecodedLine(raw, seq, device_time_us)
-
-    def decode_block(self, block: bytes) -> Columns | None:
-        r"""All lines of `block` (which ends with `\n`) as columns if every one is valid, else None.
-
-        `findall` runs in C; the matches tile the block exactly (so each one is a whole line, as
-        `decode` sees it) iff their lengths add up to the block's. Checksums, then field ranges, are
-        checked as in `decode`.
-        """
-        found = _LC1_TERMINATED_LINE.findall(block)
-        if not found:
-            return None
-        bodies, seq_texts, time_texts, raw_texts, checksum_texts, crs = zip(*found, strict=True)
-        tiled = sum(map(len, bodies)) + sum(map(len, crs)) + _LC1_FIXED_BYTES * len(found)
-        if tiled != len(block):
-            return None
-        checksums = nmea_checksums(bodies)
-        # Compared as text (devices send upper case); lower-case hex is compared as numbers.
-        if list(map(_UPPER_HEX.__getitem__, checksums)) != list(checksum_texts) and checksums != list(
-            map(int, checksum_texts, repeat(16))
-        ):
-            return None
-        seqs = list(map(int, seq_texts))
-        times = list(map(int, time_texts))
-        raws = list(map(int, raw_texts))
-        if (
-            max(seqs) >= SEQ_MODULUS
-            or max(times) >= DEVICE_TIME_MODULUS_US
-            or min(raws) < RAW_MIN
-            or max(raws) > RAW_MAX
-        ):
-            return None
-        return raws, seqs, times
 
     def last_line_start(self, segment: bytes) -> int:
         """The last `$`."""
@@ -291,10 +221,6 @@ class IndicatorStCodec:
             decimals=decimals,
         )
 
-    def decode_block(self, block: bytes) -> Columns | None:
-        """No fast path for this format: always None (decode line by line)."""
-        return None
-
     def last_line_start(self, segment: bytes) -> int:
         """Start of the last `ST,GS,`-style header."""
         start = -1
@@ -350,6 +276,7 @@ class LineDecoder:
 
     def __init__(self, codec: LineCodec, max_line_bytes: int | None = None) -> None:
         self.codec = codec
+        self._fast_lc1 = isinstance(codec, RigLc1Codec)  # `feed_columns` has a fast path for rig-lc1
         self.max_line_bytes = max_line_bytes or 2 * codec.max_line_bytes
         self._pending = b""
         self._last_seq: int | None = None
@@ -385,24 +312,6 @@ class LineDecoder:
         block = self._take_block(data)
         return self._decode_lines(block) if block else []
 
-    def feed_columns(self, data: bytes) -> Columns:
-        """`feed` with the valid lines as columns (raw, seq, device_time_us): same lines, same counters.
-
-        A block of complete lines that are all valid is decoded by the codec's `decode_block` fast
-        path; anything else goes line by line through `feed`'s resynchronising path.
-        """
-        block = self._take_block(data)
-        if not block:
-            return [], [], []
-        columns = self.codec.decode_block(block)
-        if columns is not None:
-            self.lines_ok += len(columns[0])
-            if self.codec.has_sequence:
-                self._account_sequence(columns[1])  # type: ignore[arg-type]  # never None with a sequence
-            return columns  # no overload flag in a format with a fast path (rig-lc1)
-        lines = self._decode_lines(block)
-        return [ln.raw for ln in lines], [ln.seq for ln in lines], [ln.device_time_us for ln in lines]
-
     def _take_block(self, data: bytes) -> bytes:
         r"""Count `data` in; return the complete lines now buffered (up to the last `\n`), keep the rest."""
         self.bytes_received += len(data)
@@ -418,17 +327,14 @@ class LineDecoder:
         r"""Decode the lines of `block` (which ends with `\n`) one by one, resynchronising after damage."""
         segments = block.split(b"\n")
         segments.pop()  # the empty string after the final terminator
-        decode = self.codec.decode
         lines: list[DecodedLine] = []
-        append = lines.append
         for segment in segments:
             try:
-                line = decode(segment)
+                lines.append(self.codec.decode(segment))
             except LineError:
-                line = self._resync(segment)
-                if line is None:
-                    continue
-            append(line)
+                resynced = self._resync(segment)
+                if resynced is not None:
+                    lines.append(resynced)
         if lines:
             self.lines_ok += len(lines)
             if self.codec.has_sequence:
@@ -439,15 +345,12 @@ class LineDecoder:
     def _account_sequence(self, seqs: Sequence[int]) -> None:
         """Count the gaps in the sequence numbers of consecutive valid lines."""
         last = self._last_seq
-        expected = seqs[0] if last is None else (last + 1) % SEQ_MODULUS
-        # The usual case, an unbroken run without a wrap, in one comparison made in C.
-        if expected + len(seqs) > SEQ_MODULUS or seqs != list(range(expected, expected + len(seqs))):
-            for seq in seqs:
-                if last is not None and seq != (last + 1) % SEQ_MODULUS:
-                    self.sequence_gaps += 1
-                    self.missing_samples += (seq - last - 1) % SEQ_MODULUS
-                last = seq
-        self._last_seq = seqs[-1]
+        for seq in seqs:
+            if last is not None and seq != (last + 1) % SEQ_MODULUS:
+                self.sequence_gaps += 1
+                self.missing_samples += (seq - last - 1) % SEQ_MODULUS
+            last = seq
+        self._last_seq = last
 
     def _resync(self, segment: bytes) -> DecodedLine | None:
         """Handle a segment that is not one valid line: find the last line start in it."""
@@ -478,3 +381,78 @@ class LineDecoder:
         self.bytes_discarded += len(dropped)
         self.corrupt_lines += self.codec.count_line_starts(dropped)
         return keep
+
+    # -- the fast path ----------------------------------------------------------------------------
+    def feed_columns(self, data: bytes) -> Columns:
+        """`feed` with the valid lines as columns (raw, seq, device_time_us): same lines, same counters.
+
+        FAST PATH, for the driver (`SerialLoadCell`): `benchmarks/bench_loadcell.py` (parse and
+        simulated chain) demanded it; before it the driver decoded 2.2-2.8x slower than a bare
+        readline+split+int loop, after it about as fast (benchmarks/README.md). What it speeds up: a
+        rig-lc1 block of complete lines that are all valid, the usual case, is matched by one C-level
+        `findall` (no per-line `decode`, no `DecodedLine`), its checksums are computed together
+        (`nmea_checksums`) and an unbroken sequence is checked in one comparison. Any other block
+        (damage, a partial line, another format) goes line by line through `feed`'s code.
+        """
+        block = self._take_block(data)
+        if not block:
+            return [], [], []
+        found = _LC1_TERMINATED_LINE.findall(block) if self._fast_lc1 else []
+        valid = bool(found)
+        if valid:
+            bodies, seq_texts, time_texts, raw_texts, checksum_texts, crs = zip(*found, strict=True)
+            # The matches tile the block exactly (so each one is a whole line, as `decode` sees it)
+            # iff their lengths add up to the block's.
+            valid = sum(map(len, bodies)) + sum(map(len, crs)) + _LC1_FIXED_BYTES * len(found) == len(block)
+        if valid:
+            checksums = nmea_checksums(bodies)
+            # Compared as text (devices send upper case); lower-case hex is compared as numbers.
+            valid = list(map(_UPPER_HEX.__getitem__, checksums)) == list(checksum_texts) or checksums == list(
+                map(int, checksum_texts, repeat(16))
+            )
+        if valid:
+            seqs = list(map(int, seq_texts))
+            times = list(map(int, time_texts))
+            raws = list(map(int, raw_texts))
+            valid = (
+                max(seqs) < SEQ_MODULUS
+                and max(times) < DEVICE_TIME_MODULUS_US
+                and min(raws) >= RAW_MIN
+                and max(raws) <= RAW_MAX
+            )
+        if not valid:
+            lines = self._decode_lines(block)
+            return [ln.raw for ln in lines], [ln.seq for ln in lines], [ln.device_time_us for ln in lines]
+        self.lines_ok += len(raws)
+        last = self._last_seq
+        first = seqs[0] if last is None else (last + 1) % SEQ_MODULUS
+        if seqs == list(range(first, first + len(seqs))):  # never true across the wrap: seqs < 2**16
+            self._last_seq = seqs[-1]  # unbroken: no gap to count
+        else:
+            self._account_sequence(seqs)
+        return raws, seqs, times  # rig-lc1 has no overload flag to count
+
+
+# -- for the fast paths: `LineDecoder.feed_columns` and the emulator's fault-free rig-lc1 lines ----
+
+_NUMPY_CHECKSUM_MIN_LINES = 8  # below this, numpy's per-call overhead exceeds what it saves
+_CHECKSUM_SLOT_BYTES = 32  # every rig-lc1 body fits: at most 31 bytes
+
+
+def nmea_checksums(bodies: Sequence[bytes]) -> list[int]:
+    """`nmea_checksum` of each body (each at most 32 bytes), in one numpy reduction for many bodies."""
+    if len(bodies) < _NUMPY_CHECKSUM_MIN_LINES:
+        return list(map(nmea_checksum, bodies))
+    # One zero-padded 32-byte row per body (zeros do not change an XOR), reduced along the rows.
+    padded = b"".join(map(bytes.ljust, bodies, repeat(_CHECKSUM_SLOT_BYTES), repeat(b"\0")))
+    rows = np.frombuffer(padded, np.uint8).reshape(-1, _CHECKSUM_SLOT_BYTES)
+    checksums: list[int] = np.bitwise_xor.reduce(rows, axis=1).tolist()
+    return checksums
+
+
+# A rig-lc1 line (`_LC1_LINE`) with its terminator; the checksummed body and the optional CR as groups too.
+_LC1_TERMINATED_LINE = re.compile(
+    rb"\$(LC,([0-9]{1,5}),([0-9]{1,10}),(-?[0-9]{1,10}))\*([0-9A-Fa-f]{2})(\r?)\n"
+)
+_LC1_FIXED_BYTES = len(b"$*hh\n")  # bytes of a terminated line outside its body and CR groups
+_UPPER_HEX = [b"%02X" % byte for byte in range(256)]

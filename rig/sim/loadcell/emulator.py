@@ -10,6 +10,9 @@ ADC with a +-20 mV input range, sampled at 1 kHz):
     counts = offset + gain * tension + drift * t + N(0, noise), quantised, clamped to the ADC range
 gain 80 000 counts/N puts the rated 49 N at about half of full scale (saturation near 103 N);
 noise 400 counts RMS is about 5 mN, typical of a 24-bit converter run at 1 kSPS.
+The noise is seeded: Box-Muller pairs from `random.Random(seed).random()` (`LoadCellEmulator._normal`),
+the same algorithm and numbers as CPython's `random.gauss`, but with the spare of a pair kept by the
+emulator, so that the rig-lc1 fast path can draw inline and continue the plain path's sequence.
 
 Faults (per-line probabilities, scheduled silences, or one-shot injections for tests):
 garbage bytes before a line, a truncated line (its tail, terminator included, lost), a bad
@@ -23,7 +26,9 @@ import math
 import random
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
+from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import InputError
 from rig.hw.loadcell.formats import (
     DEVICE_TIME_MODULUS_US,
@@ -139,7 +144,8 @@ def parse_fault(spec: str, plan: FaultPlan) -> FaultPlan:
             "checksum": "bad_checksum_per_line",
             "gap": "gap_per_line",
         }[kind]
-        return replace(plan, **{name: float(rest)})
+        rate: dict[str, Any] = {name: float(rest)}
+        return replace(plan, **rate)
     except (KeyError, ValueError):
         raise InputError(
             f"--fault {spec!r}; allowed: garbage|truncate|checksum|gap:PROBABILITY_PER_LINE "
@@ -186,7 +192,7 @@ class LoadCellEmulator:
         start_ns: int = 0,
         seq_start: int = 0,
         device_time_start_us: int = 0,
-        indicator_g: float = 9.80665,
+        indicator_g: float = STANDARD_GRAVITY_M_S2,
     ) -> None:
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
             raise InputError(f"--rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
@@ -214,6 +220,7 @@ class LoadCellEmulator:
         self.start_ns = start_ns
         self.counts = EmulatorCounts()
         self._rng = random.Random(seed)
+        self._spare_normal: float | None = None  # the second draw of the last Box-Muller pair
         self._k = 0  # index of the next sample
         self._seq = seq_start
         self._device_time_start_us = device_time_start_us
@@ -286,6 +293,18 @@ class LoadCellEmulator:
             if data:
                 out.append((t_sample, data))
 
+    def _normal(self) -> float:
+        """A N(0, 1) noise draw (Box-Muller; the second of each pair is kept for the next call)."""
+        spare = self._spare_normal
+        if spare is not None:
+            self._spare_normal = None
+            return spare
+        uniform = self._rng.random
+        angle = uniform() * math.tau
+        radius = math.sqrt(-2.0 * math.log(1.0 - uniform()))
+        self._spare_normal = math.sin(angle) * radius
+        return math.cos(angle) * radius
+
     def _pending_faults(self) -> bool:
         pending = self._pending
         return bool(pending.garbage_bytes or pending.truncate or pending.bad_checksum or pending.gap_samples)
@@ -293,8 +312,8 @@ class LoadCellEmulator:
     def _lc1_lines_until(self, t_ns: int, out: list[tuple[int, bytes]]) -> None:
         """`_sample` for every sample up to `t_ns`, for rig-lc1 with no fault due.
 
-        The same lines, counters and random draws, with `SignalModel.counts` and `RigLc1Codec.encode`
-        inlined and no per-sample objects.
+        The same lines, counters and random draws, with `SignalModel.counts`, `RigLc1Codec.encode` and
+        `_normal` inlined and no per-sample objects.
         """
         signal = self.signal
         offset, gain = signal.offset_counts, signal.gain_counts_per_n
@@ -307,9 +326,7 @@ class LoadCellEmulator:
         add_time, add_body = times.append, bodies.append
         rng = self._rng
         uniform, tau, sqrt, log, cos, sin = rng.random, math.tau, math.sqrt, math.log, math.cos, math.sin
-        # `rng.gauss(0.0, 1.0)` inlined: CPython draws normals in Box-Muller pairs and keeps the
-        # second of a pair in `gauss_next` for the next call; this loop does the same with `spare`.
-        spare, rng.gauss_next = rng.gauss_next, None
+        spare = self._spare_normal  # `_normal` inlined, its spare in a local until the loop ends
         k = k0 = self._k
         seq = self._seq
         try:
@@ -343,7 +360,7 @@ class LoadCellEmulator:
             tails = map(_LC1_TAILS.__getitem__, nmea_checksums(bodies))
             out.extend(zip(times, map(b"$%b%b".__mod__, zip(bodies, tails, strict=True)), strict=True))
         finally:  # also when the tension source raises: the samples made so far count
-            rng.gauss_next = spare
+            self._spare_normal = spare
             self._k, self._seq = k, seq
             self.counts.samples += k - k0
             self.counts.lines_sent += k - k0
@@ -356,7 +373,7 @@ class LoadCellEmulator:
     def _sample(self, t_ns: int) -> bytes:
         elapsed_ns = t_ns - self.start_ns
         rng = self._rng
-        counts = self.signal.counts(self.tension_n(t_ns), elapsed_ns / 1e9, rng.gauss(0.0, 1.0))
+        counts = self.signal.counts(self.tension_n(t_ns), elapsed_ns / 1e9, self._normal())
         seq = self._seq
         device_time_us = self._device_time_start_us + elapsed_ns // 1000
         self._k += 1

@@ -14,7 +14,8 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from rig.hw.loadcell.calibration import STANDARD_GRAVITY_M_S2, Calibration, indicator_calibration
+from model.gravity import STANDARD_GRAVITY_M_S2
+from rig.hw.loadcell.calibration import Calibration, indicator_calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.loadcell.formats import IndicatorStCodec
 from rig.sim.clock import VirtualClock

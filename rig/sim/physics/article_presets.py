@@ -41,9 +41,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from model.gravity import PAPER_G_M_S2
 from model.joint import resolve_constant
 
-G_STANDARD = 9.8  # the paper's g [m/s²]
 PAPER_K_LINK1_KG_M = 0.1615
 PAPER_K_LINK2_KG_M = 0.2627
 JOINT_SPREAD_SD = 0.10  # relative sd of true joint capacities about the nominal one
@@ -218,8 +218,8 @@ def make_preset(
     if not (math.isfinite(noise_scale) and noise_scale >= 0):
         raise ValueError(f"noise_scale = {noise_scale!r}; allowed: finite and >= 0")
     spec = _LINKS[name]
-    g_value = G_STANDARD if g is None else float(g)
-    nominal_nm = spec.k_kg_m * G_STANDARD  # the paper's capacity, whatever g the rig uses
+    g_value = PAPER_G_M_S2 if g is None else float(g)
+    nominal_nm = spec.k_kg_m * PAPER_G_M_S2  # the paper's capacity, whatever g the rig uses
     spread = stream_rng(seed, STREAM_ARTICLE).standard_normal(spec.joints)
     factors = 1.0 + JOINT_SPREAD_SD * np.clip(spread, -3.0, 3.0)
     lengths = (spec.segment_m,) * spec.joints if segment_lengths_m is None else tuple(segment_lengths_m)
