@@ -204,14 +204,9 @@ def test_ctrl_c_during_the_ramp_exits_130_released_then_torque_off(run_on_fakes,
     assert_released_then_torque_off(rig)
 
 
-# ------------------------------------------------------------------------------------------ runner bugs
+# ------------------------------------------------------------------- runner bugs these fakes found
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="runner bug: _release_tension_without_interlocks catches only StaleDataError from the load cell; "
-    "a failed port (NotConnectedError) aborts the release and the torque goes off with the line loaded",
-)
 def test_load_cell_cable_pulled_during_the_ramp_still_releases_before_torque_off(run_on_fakes, tmp_path):
     rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
     when_tension_reaches(rig, 8.0, lambda t_ns: rig.load_cell.disconnect("cable pulled"))
@@ -221,11 +216,6 @@ def test_load_cell_cable_pulled_during_the_ramp_still_releases_before_torque_off
     assert_released_then_torque_off(rig)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="runner bug: when the safe state fails after a fault or Ctrl-C, TrialRunner.run keeps only the "
-    "first reason; the failed release / torque off is logged but missing from the report (rig run --json)",
-)
 def test_a_failed_safe_state_after_a_fault_is_in_the_report(run_on_fakes):
     rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
     when_tension_reaches(rig, 5.0, lambda t_ns: setattr(rig.servos, "silent", True))

@@ -144,8 +144,11 @@ class TrialRunner:
         finally:
             with interrupts_deferred():
                 safe_error = self._make_safe()
-                if safe_error is not None and outcome.exit_code == ExitCode.OK:
-                    outcome = RunOutcome(ExitCode.FAULT, "faulted", safe_error, outcome.new_results)
+                if safe_error is not None:  # never hidden behind the reason the run stopped for
+                    reason = safe_error if outcome.reason is None else f"{outcome.reason}; then {safe_error}"
+                    exit_code = ExitCode.FAULT if outcome.exit_code == ExitCode.OK else outcome.exit_code
+                    status = "faulted" if outcome.exit_code == ExitCode.OK else outcome.status
+                    outcome = RunOutcome(exit_code, status, reason, outcome.new_results)
                 if outcome.exit_code != ExitCode.OK and self.phases.phase not in (
                     Phase.ABORTED,
                     Phase.FAULTED,
@@ -506,13 +509,18 @@ class TrialRunner:
         self._wait_until(done, move_timeout_s(travel, speed, margin_s), "unload", step)
 
     def _tick_without_interlocks(self) -> None:
-        """One control period of the safe state: read and log, no interlocks, stale data ignored."""
+        """One control period of the safe state: read the servos and log; the load cell is optional.
+
+        The load cell may be what failed (stale, unplugged, a port error): the release goes on
+        without it, since only the winch's position is waited for.
+        """
         self.clock.sleep(self.protocol.control_period_s)
         self.states = self.session.servos.read_states()
         try:
-            self._ingest(self.session.load_cell.poll())
-        except StaleDataError:
-            self.tick_samples = []
+            samples = self.session.load_cell.poll()
+        except Exception:  # whatever the load cell's failure, the line still has to be released
+            samples = []
+        self._ingest(samples)
 
     # ------------------------------------------------------------------ safety
 
