@@ -29,3 +29,19 @@ class ScriptedShaft:
     def __init__(self, position_rad: float = 0.0) -> None:
         self.present_position_rad = position_rad
         self.external_torque_nm = 0.0
+
+
+# Three joint-estimation slips on joint 1, quick to run: the runner tests' protocol.
+QUICK_PROTOCOL = """\
+format: rig-protocol/1
+name: quick
+detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
+ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
+limits: {force_ceiling_n: 75.0}
+blocks:
+  - kind: joint_estimation
+    joint: 1
+    distances_m: [0.12, 0.2, 0.25]
+    repeats: 1
+    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
+"""

@@ -14,23 +14,9 @@ from rig.errors import InputError
 from rig.protocol import TrialPlan
 from rig.rig_config import load_rig_config
 from rig.runner.journal import RunJournal
+from tests.helpers import QUICK_PROTOCOL
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
-
-
-QUICK = """\
-format: rig-protocol/1
-name: quick
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12, 0.2, 0.25]
-    repeats: 1
-    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
-"""
 
 
 def test_smoke_run_json(tmp_path, capsys):
@@ -52,7 +38,7 @@ def test_smoke_run_json(tmp_path, capsys):
 
 
 def test_joint_estimation_recovers_the_true_capacity(sim_run, protocol_file, assert_safe):
-    report, sim = sim_run(protocol_file(QUICK))
+    report, sim = sim_run(protocol_file(QUICK_PROTOCOL))
     assert report.exit_code == 0 and report.completed == 3
     truth = report.truth
     # Three slips with the preset's trial-to-trial scatter (sd 8.5 %): within 15 % of the hidden k.
@@ -101,7 +87,7 @@ def test_dry_run_moves_nothing_and_writes_nothing(tmp_path, capsys):
     ],
 )
 def test_bad_protocol_exits_2_and_starts_nothing(tmp_path, capsys, edit, needle, protocol_file):
-    path = protocol_file(edit(QUICK))
+    path = protocol_file(edit(QUICK_PROTOCOL))
     code = main(["run", str(path), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2
@@ -111,7 +97,7 @@ def test_bad_protocol_exits_2_and_starts_nothing(tmp_path, capsys, edit, needle,
 
 
 def test_limit_check_against_the_rig_exits_2(tmp_path, capsys, protocol_file):
-    path = protocol_file(QUICK.replace("force_ceiling_n: 75.0", "force_ceiling_n: 95.0"))
+    path = protocol_file(QUICK_PROTOCOL.replace("force_ceiling_n: 75.0", "force_ceiling_n: 95.0"))
     assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 2
     assert "limit check failed" in capsys.readouterr().err
 
@@ -119,7 +105,7 @@ def test_limit_check_against_the_rig_exits_2(tmp_path, capsys, protocol_file):
 def test_force_ceiling_interlock_stops_safely(tmp_path, sim_run, protocol_file, assert_safe):
     # A fast ramp straight to a low ceiling: the tension overshoots the ceiling within one tick.
     body = (
-        QUICK.replace("arm_threshold_n: 2.0", "arm_threshold_n: 9.5")
+        QUICK_PROTOCOL.replace("arm_threshold_n: 2.0", "arm_threshold_n: 9.5")
         .replace("fast_speed_rad_s: 1.0", "fast_speed_rad_s: 15.0")
         .replace("max_force_n: 70.0", "max_force_n: 9.8")
         .replace("force_ceiling_n: 75.0", "force_ceiling_n: 10.0")
@@ -135,7 +121,7 @@ def test_stale_load_cell_stops_safely(sim_run, protocol_file, assert_safe):
     def unplug_during_first_ramp(sim):
         sim.devices.loadcell_emulator.inject_silence(5.0, at_ns=3_000_000_000)
 
-    report, sim = sim_run(protocol_file(QUICK), patch=unplug_during_first_ramp)
+    report, sim = sim_run(protocol_file(QUICK_PROTOCOL), patch=unplug_during_first_ramp)
     assert report.exit_code == 1
     assert "StaleDataError" in report.reason
     assert_safe(sim)
@@ -155,14 +141,14 @@ def test_servo_hardware_error_stops_safely(sim_run, protocol_file, assert_safe):
         sim.session.begin_trial = begin
         assert world is not None
 
-    report, sim = sim_run(protocol_file(QUICK), patch=overload_after_first_trial)
+    report, sim = sim_run(protocol_file(QUICK_PROTOCOL), patch=overload_after_first_trial)
     assert report.exit_code == 1 and report.completed == 1
     assert "overload" in report.reason
     assert_safe(sim)
 
 
 def test_interrupt_then_resume_completes_without_repeats(tmp_path, sim_run, protocol_file, assert_safe):
-    protocol = protocol_file(QUICK)
+    protocol = protocol_file(QUICK_PROTOCOL)
 
     def interrupt_at_trial_2(sim):
         class Operator:
@@ -191,7 +177,7 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path, sim_run, prot
 
 
 def test_resume_refuses_an_edited_protocol(sim_run, protocol_file):
-    protocol = protocol_file(QUICK)
+    protocol = protocol_file(QUICK_PROTOCOL)
 
     def stop_early(sim):
         class Operator:
@@ -201,7 +187,7 @@ def test_resume_refuses_an_edited_protocol(sim_run, protocol_file):
         sim.session.operator = Operator()
 
     sim_run(protocol, patch=stop_early)
-    protocol.write_text(QUICK.replace("repeats: 1", "repeats: 2"))
+    protocol.write_text(QUICK_PROTOCOL.replace("repeats: 1", "repeats: 2"))
     with pytest.raises(InputError, match="changed since run r1 started"):
         sim_run(protocol, resume="r1")
 

@@ -12,31 +12,18 @@ from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
 from rig.sim.fakes import FakeRig, fake_rig
+from tests.helpers import QUICK_PROTOCOL
 
 G = 9.8
 CAPACITY_NM = 2.4  # the fake link slips at F = capacity / distance
 DISTANCES_M = (0.12, 0.2, 0.25)
 SLIP_FORCES_N = [CAPACITY_NM / d for d in DISTANCES_M]  # 20, 12, 9.6 N
 
-PROTOCOL = """\
-format: rig-protocol/1
-name: fakes
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12, 0.2, 0.25]
-    repeats: 1
-    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
-"""
-
 
 @pytest.fixture
 def run_on_fakes(tmp_path, protocol_file):
     """`run_on_fakes(rig)` -> RunReport: the protocol above on the fake rig, as `rig run` would run it."""
-    protocol = protocol_file(PROTOCOL)
+    protocol = protocol_file(QUICK_PROTOCOL)
 
     def run(rig: FakeRig):
         request = RunRequest(

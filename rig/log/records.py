@@ -14,6 +14,7 @@ Decoders accept the payloads of older logs (fields added since are None there).
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum, StrEnum
@@ -89,7 +90,7 @@ class LogLevel(IntEnum):
 
 def stamp(time_ns: int) -> dict[str, int]:
     """Epoch nanoseconds as a `{sec, nsec}` timestamp (foxglove.Timestamp)."""
-    t = _int(time_ns, "time_ns")
+    t = integer(time_ns, "time_ns")
     if t < 0:
         raise ValueError(f"time_ns: {t} is before the epoch")
     sec, nsec = divmod(t, NS_PER_S)
@@ -101,7 +102,8 @@ def stamp_name(time_field: str) -> str:
     return time_field.removesuffix("_time_ns")
 
 
-def _num(value: Any, name: str) -> float:
+def finite_number(value: Any, name: str) -> float:
+    """A finite number as a plain float; ValueError naming `name` otherwise."""
     if value is None or isinstance(value, bool):
         raise ValueError(f"{name}: {value!r} is not a number")
     x = float(value)
@@ -110,8 +112,8 @@ def _num(value: Any, name: str) -> float:
     return x
 
 
-def _num_or_none(value: Any, name: str) -> float | None:
-    """A nullable number: None and non-finite values become null."""
+def number_or_none(value: Any, name: str) -> float | None:
+    """A nullable number as a plain float: None and non-finite values become None (JSON null)."""
     if value is None:
         return None
     if isinstance(value, bool):
@@ -120,27 +122,25 @@ def _num_or_none(value: Any, name: str) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def _int(value: Any, name: str) -> int:
+def integer(value: Any, name: str) -> int:
+    """An integer (numpy ones too) as a plain int; ValueError naming `name` otherwise."""
     if value is None or isinstance(value, bool):
         raise ValueError(f"{name}: {value!r} is not an integer")
-    if isinstance(value, float):
-        if not value.is_integer():
-            raise ValueError(f"{name}: {value!r} is not an integer")
-        return int(value)
     try:
-        return int(value.__index__())
-    except (AttributeError, TypeError):
+        return operator.index(value)
+    except TypeError:
         raise ValueError(f"{name}: {value!r} is not an integer") from None
 
 
-def _int_or_none(value: Any, name: str) -> int | None:
-    return None if value is None else _int(value, name)
+def integer_or_none(value: Any, name: str) -> int | None:
+    """`integer`, or None."""
+    return None if value is None else integer(value, name)
 
 
 def _numbers_or_none(values: Sequence[Any] | None, name: str) -> list[float] | None:
     if values is None:
         return None
-    return [_num(v, f"{name}[{i}]") for i, v in enumerate(values)]
+    return [finite_number(v, f"{name}[{i}]") for i, v in enumerate(values)]
 
 
 def _tuple_or_none(values: Sequence[Any] | None) -> tuple[float, ...] | None:
@@ -171,10 +171,10 @@ class ServoCommand:
     def to_payload(self) -> dict[str, Any]:
         """The `/rig/servo/command` payload."""
         return {
-            "servo_id": _int(self.servo_id, "servo_id"),
+            "servo_id": integer(self.servo_id, "servo_id"),
             "role": str(self.role),
             "command": ServoCommandName(self.command).value,
-            "value": _num_or_none(self.value, "value"),
+            "value": number_or_none(self.value, "value"),
             "unit": str(self.unit),
         }
 
@@ -182,10 +182,10 @@ class ServoCommand:
     def from_payload(cls, payload: Mapping[str, Any]) -> ServoCommand:
         """Decode a `/rig/servo/command` payload."""
         return cls(
-            servo_id=_int(payload["servo_id"], "servo_id"),
+            servo_id=integer(payload["servo_id"], "servo_id"),
             role=str(payload["role"]),
             command=ServoCommandName(payload["command"]),
-            value=_num_or_none(payload.get("value"), "value"),
+            value=number_or_none(payload.get("value"), "value"),
             unit=str(payload.get("unit", "")),
         )
 
@@ -201,7 +201,7 @@ class TrialState:
     def to_payload(self) -> dict[str, Any]:
         """The `/rig/trial/state` payload."""
         return {
-            "trial_id": _int_or_none(self.trial_id, "trial_id"),
+            "trial_id": integer_or_none(self.trial_id, "trial_id"),
             "phase": TrialPhase(self.phase).value,
             "step": None if self.step is None else str(self.step),
         }
@@ -210,7 +210,7 @@ class TrialState:
     def from_payload(cls, payload: Mapping[str, Any]) -> TrialState:
         """Decode a `/rig/trial/state` payload."""
         return cls(
-            trial_id=_int_or_none(payload.get("trial_id"), "trial_id"),
+            trial_id=integer_or_none(payload.get("trial_id"), "trial_id"),
             phase=TrialPhase(payload["phase"]),
             step=payload.get("step"),
         )
@@ -230,16 +230,16 @@ class SlipMessage:
         e = self.event
         return _with_stamps(
             {
-                "trial_id": _int(self.trial_id, "trial_id"),
-                "onset_time_ns": _int(e.onset_time_ns, "onset_time_ns"),
-                "detection_time_ns": _int(e.detection_time_ns, "detection_time_ns"),
-                "peak_time_ns": _int(e.peak_time_ns, "peak_time_ns"),
-                "peak_force_n": _num(e.peak_force_n, "peak_force_n"),
-                "force_after_n": _num(e.force_after_n, "force_after_n"),
-                "drop_fraction": _num(e.drop_fraction, "drop_fraction"),
+                "trial_id": integer(self.trial_id, "trial_id"),
+                "onset_time_ns": integer(e.onset_time_ns, "onset_time_ns"),
+                "detection_time_ns": integer(e.detection_time_ns, "detection_time_ns"),
+                "peak_time_ns": integer(e.peak_time_ns, "peak_time_ns"),
+                "peak_force_n": finite_number(e.peak_force_n, "peak_force_n"),
+                "force_after_n": finite_number(e.force_after_n, "force_after_n"),
+                "drop_fraction": finite_number(e.drop_fraction, "drop_fraction"),
                 "trigger": str(e.trigger),
-                "detector": {str(k): _num_or_none(v, f"detector.{k}") for k, v in self.detector.items()},
-                "joint": _int_or_none(self.joint, "joint"),
+                "detector": {str(k): number_or_none(v, f"detector.{k}") for k, v in self.detector.items()},
+                "joint": integer_or_none(self.joint, "joint"),
             }
         )
 
@@ -247,9 +247,9 @@ class SlipMessage:
     def from_payload(cls, payload: Mapping[str, Any]) -> SlipMessage:
         """Decode a `/rig/slip` payload back into the `SlipEvent` the detector emitted."""
         event = SlipEvent(
-            onset_time_ns=_int(payload["onset_time_ns"], "onset_time_ns"),
-            detection_time_ns=_int(payload["detection_time_ns"], "detection_time_ns"),
-            peak_time_ns=_int(payload["peak_time_ns"], "peak_time_ns"),
+            onset_time_ns=integer(payload["onset_time_ns"], "onset_time_ns"),
+            detection_time_ns=integer(payload["detection_time_ns"], "detection_time_ns"),
+            peak_time_ns=integer(payload["peak_time_ns"], "peak_time_ns"),
             peak_force_n=float(payload["peak_force_n"]),
             force_after_n=float(payload["force_after_n"]),
             drop_fraction=float(payload["drop_fraction"]),
@@ -257,10 +257,10 @@ class SlipMessage:
         )
         detector = payload.get("detector") or {}
         return cls(
-            trial_id=_int(payload["trial_id"], "trial_id"),
+            trial_id=integer(payload["trial_id"], "trial_id"),
             event=event,
-            detector={str(k): _num_or_none(v, k) for k, v in detector.items()},
-            joint=_int_or_none(payload.get("joint"), "joint"),
+            detector={str(k): number_or_none(v, k) for k, v in detector.items()},
+            joint=integer_or_none(payload.get("joint"), "joint"),
         )
 
 
@@ -312,22 +312,22 @@ class TrialResult:
     def from_json(cls, data: Mapping[str, Any]) -> TrialResult:
         """Read a journal entry back; KeyError or ValueError name a missing or bad field."""
         return cls(
-            trial_id=_int(data["trial_id"], "trial_id"),
+            trial_id=integer(data["trial_id"], "trial_id"),
             kind=TrialKind(data["kind"]),
-            repeat=_int(data.get("repeat", 0), "repeat"),
-            joint=_int_or_none(data.get("joint"), "joint"),
-            distance_m=_num_or_none(data.get("distance_m"), "distance_m"),
-            configuration_index=_int_or_none(data.get("configuration_index"), "configuration_index"),
+            repeat=integer(data.get("repeat", 0), "repeat"),
+            joint=integer_or_none(data.get("joint"), "joint"),
+            distance_m=number_or_none(data.get("distance_m"), "distance_m"),
+            configuration_index=integer_or_none(data.get("configuration_index"), "configuration_index"),
             joint_angles_rad=_tuple_or_none(data.get("joint_angles_rad")),
-            start_time_ns=_int(data["start_time_ns"], "start_time_ns"),
-            end_time_ns=_int(data["end_time_ns"], "end_time_ns"),
+            start_time_ns=integer(data["start_time_ns"], "start_time_ns"),
+            end_time_ns=integer(data["end_time_ns"], "end_time_ns"),
             outcome=TrialOutcome(data["outcome"]),
-            peak_force_n=_num_or_none(data.get("peak_force_n"), "peak_force_n"),
-            slip_mass_kg=_num_or_none(data.get("slip_mass_kg"), "slip_mass_kg"),
-            predicted_force_n=_num_or_none(data.get("predicted_force_n"), "predicted_force_n"),
-            predicted_mass_kg=_num_or_none(data.get("predicted_mass_kg"), "predicted_mass_kg"),
-            percentage_error=_num_or_none(data.get("percentage_error"), "percentage_error"),
-            slipped_joint=_int_or_none(data.get("slipped_joint"), "slipped_joint"),
+            peak_force_n=number_or_none(data.get("peak_force_n"), "peak_force_n"),
+            slip_mass_kg=number_or_none(data.get("slip_mass_kg"), "slip_mass_kg"),
+            predicted_force_n=number_or_none(data.get("predicted_force_n"), "predicted_force_n"),
+            predicted_mass_kg=number_or_none(data.get("predicted_mass_kg"), "predicted_mass_kg"),
+            percentage_error=number_or_none(data.get("percentage_error"), "percentage_error"),
+            slipped_joint=integer_or_none(data.get("slipped_joint"), "slipped_joint"),
             lever_arms_m=_tuple_or_none(data.get("lever_arms_m")),
             tare_n=float(data.get("tare_n") or 0.0),
         )
@@ -336,24 +336,24 @@ class TrialResult:
         """The `/rig/trial/result` payload: every field (non-finite numbers as null) and time twins."""
         return _with_stamps(
             {
-                "trial_id": _int(self.trial_id, "trial_id"),
+                "trial_id": integer(self.trial_id, "trial_id"),
                 "kind": TrialKind(self.kind).value,
-                "repeat": _int(self.repeat, "repeat"),
-                "joint": _int_or_none(self.joint, "joint"),
-                "distance_m": _num_or_none(self.distance_m, "distance_m"),
-                "configuration_index": _int_or_none(self.configuration_index, "configuration_index"),
+                "repeat": integer(self.repeat, "repeat"),
+                "joint": integer_or_none(self.joint, "joint"),
+                "distance_m": number_or_none(self.distance_m, "distance_m"),
+                "configuration_index": integer_or_none(self.configuration_index, "configuration_index"),
                 "joint_angles_rad": _numbers_or_none(self.joint_angles_rad, "joint_angles_rad"),
-                "start_time_ns": _int(self.start_time_ns, "start_time_ns"),
-                "end_time_ns": _int(self.end_time_ns, "end_time_ns"),
+                "start_time_ns": integer(self.start_time_ns, "start_time_ns"),
+                "end_time_ns": integer(self.end_time_ns, "end_time_ns"),
                 "outcome": TrialOutcome(self.outcome).value,
-                "peak_force_n": _num_or_none(self.peak_force_n, "peak_force_n"),
-                "slip_mass_kg": _num_or_none(self.slip_mass_kg, "slip_mass_kg"),
-                "predicted_force_n": _num_or_none(self.predicted_force_n, "predicted_force_n"),
-                "predicted_mass_kg": _num_or_none(self.predicted_mass_kg, "predicted_mass_kg"),
-                "percentage_error": _num_or_none(self.percentage_error, "percentage_error"),
-                "slipped_joint": _int_or_none(self.slipped_joint, "slipped_joint"),
+                "peak_force_n": number_or_none(self.peak_force_n, "peak_force_n"),
+                "slip_mass_kg": number_or_none(self.slip_mass_kg, "slip_mass_kg"),
+                "predicted_force_n": number_or_none(self.predicted_force_n, "predicted_force_n"),
+                "predicted_mass_kg": number_or_none(self.predicted_mass_kg, "predicted_mass_kg"),
+                "percentage_error": number_or_none(self.percentage_error, "percentage_error"),
+                "slipped_joint": integer_or_none(self.slipped_joint, "slipped_joint"),
                 "lever_arms_m": _numbers_or_none(self.lever_arms_m, "lever_arms_m"),
-                "tare_n": _num(self.tare_n, "tare_n"),
+                "tare_n": finite_number(self.tare_n, "tare_n"),
             }
         )
 
@@ -385,20 +385,20 @@ class JointCapacity:
     def to_json(self) -> dict[str, Any]:
         """As in `/rig/estimate` and `rig run --json`."""
         return {
-            "joint": _int(self.joint, "joint"),
-            "capacity_nm": _num_or_none(self.capacity_nm, "capacity_nm"),
-            "ci_lo_nm": _num_or_none(self.ci_lo_nm, "ci_lo_nm"),
-            "ci_hi_nm": _num_or_none(self.ci_hi_nm, "ci_hi_nm"),
+            "joint": integer(self.joint, "joint"),
+            "capacity_nm": number_or_none(self.capacity_nm, "capacity_nm"),
+            "ci_lo_nm": number_or_none(self.ci_lo_nm, "ci_lo_nm"),
+            "ci_hi_nm": number_or_none(self.ci_hi_nm, "ci_hi_nm"),
         }
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> JointCapacity:
         """Decode one joint of `/rig/estimate`."""
         return cls(
-            joint=_int(data["joint"], "joint"),
-            capacity_nm=_num_or_none(data.get("capacity_nm"), "capacity_nm"),
-            ci_lo_nm=_num_or_none(data.get("ci_lo_nm"), "ci_lo_nm"),
-            ci_hi_nm=_num_or_none(data.get("ci_hi_nm"), "ci_hi_nm"),
+            joint=integer(data["joint"], "joint"),
+            capacity_nm=number_or_none(data.get("capacity_nm"), "capacity_nm"),
+            ci_lo_nm=number_or_none(data.get("ci_lo_nm"), "ci_lo_nm"),
+            ci_hi_nm=number_or_none(data.get("ci_hi_nm"), "ci_hi_nm"),
         )
 
 
@@ -420,7 +420,7 @@ class Estimate:
 
     def to_payload(self) -> dict[str, Any]:
         """The `/rig/estimate` payload: the `rig fit --json` keys (null before a fit; n = 0) and joints."""
-        payload: dict[str, Any] = {"trial_id": _int(self.trial_id, "trial_id")}
+        payload: dict[str, Any] = {"trial_id": integer(self.trial_id, "trial_id")}
         summary = self.fit.as_json() if self.fit is not None else {}
         for f in fields(FitSummary):
             payload[f.name] = _fit_value(f.name, summary.get(f.name))
@@ -436,7 +436,7 @@ class Estimate:
         if payload.get("n") and payload.get("k") is not None:
             fit = FitSummary.from_json(payload)
         joints = tuple(JointCapacity.from_json(j) for j in payload.get("joints") or ())
-        return cls(trial_id=_int(payload["trial_id"], "trial_id"), fit=fit, joints=joints)
+        return cls(trial_id=integer(payload["trial_id"], "trial_id"), fit=fit, joints=joints)
 
 
 _FIT_INTEGER_KEYS = frozenset({"n", "dfe"})
@@ -446,12 +446,12 @@ def _fit_value(key: str, value: Any) -> Any:
     if value is None:
         return None
     if key in _FIT_INTEGER_KEYS:
-        return _int(value, key)
+        return integer(value, key)
     if key == "constant":
         return str(value)
     if isinstance(value, list | tuple):
-        return [_num_or_none(b, key) for b in value]
-    return _num_or_none(value, key)
+        return [number_or_none(b, key) for b in value]
+    return number_or_none(value, key)
 
 
 @dataclass(frozen=True, slots=True)
@@ -473,7 +473,7 @@ class LogMessage:
             "message": str(self.message),
             "name": str(self.name),
             "file": str(self.file),
-            "line": _int(self.line, "line"),
+            "line": integer(self.line, "line"),
         }
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 import functools
 import json
 import math
-import operator
 import types
 import typing
 from collections.abc import Mapping
@@ -36,6 +35,9 @@ from rig.log.records import (
     SlipMessage,
     TrialResult,
     TrialState,
+    finite_number,
+    integer,
+    integer_or_none,
     stamp_name,
 )
 
@@ -332,28 +334,6 @@ def json_types(schema: Mapping[str, Any]) -> tuple[str, ...]:
 # Payloads of the seams' value types (the records make their own: `record.to_payload()`)
 
 
-def _num(value: Any, field: str) -> float:
-    if value is None or isinstance(value, bool):
-        raise ValueError(f"{field}: {value!r} is not a number")
-    x = float(value)
-    if not math.isfinite(x):
-        raise ValueError(f"{field}: {x} is not a finite number")
-    return x
-
-
-def _int(value: Any, field: str) -> int:
-    if value is None or isinstance(value, bool):
-        raise ValueError(f"{field}: {value!r} is not an integer")
-    try:
-        return operator.index(value)
-    except TypeError:
-        raise ValueError(f"{field}: {value!r} is not an integer") from None
-
-
-def _int_or_none(value: Any, field: str) -> int | None:
-    return None if value is None else _int(value, field)
-
-
 def loadcell_sample(
     *, raw: int, force_n: float, seq: int | None = None, device_time_us: int | None = None
 ) -> dict[str, Any]:
@@ -368,10 +348,10 @@ def loadcell_sample(
         # The common case (1 kHz from the driver): already the exact types the checks below produce.
         return {"seq": seq, "raw": raw, "force_n": force_n, "device_time_us": device_time_us}
     return {
-        "seq": _int_or_none(seq, "seq"),
-        "raw": _int(raw, "raw"),
-        "force_n": _num(force_n, "force_n"),
-        "device_time_us": _int_or_none(device_time_us, "device_time_us"),
+        "seq": integer_or_none(seq, "seq"),
+        "raw": integer(raw, "raw"),
+        "force_n": finite_number(force_n, "force_n"),
+        "device_time_us": integer_or_none(device_time_us, "device_time_us"),
     }
 
 
@@ -400,12 +380,12 @@ def servo_state(
 ) -> dict[str, Any]:
     """A `/rig/servo/state` payload."""
     return {
-        "servo_id": _int(servo_id, "servo_id"),
+        "servo_id": integer(servo_id, "servo_id"),
         "role": str(role),
-        "position_rad": _num(position_rad, "position_rad"),
-        "velocity_rad_s": _num(velocity_rad_s, "velocity_rad_s"),
-        "current_a": _num(current_a, "current_a"),
-        "hardware_error": _int(hardware_error, "hardware_error"),
+        "position_rad": finite_number(position_rad, "position_rad"),
+        "velocity_rad_s": finite_number(velocity_rad_s, "velocity_rad_s"),
+        "current_a": finite_number(current_a, "current_a"),
+        "hardware_error": integer(hardware_error, "hardware_error"),
         "moving": bool(moving),
     }
 
