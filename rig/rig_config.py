@@ -98,6 +98,36 @@ class ArticleConfig:
         return len(self.segment_lengths_m)
 
 
+# Which faults each simulated device can be given (`simulation.faults:`, docs in protocols/README.md).
+SERVO_FAULT_KINDS = ("drop", "corrupt", "delay", "silent", "disconnect", "overload")
+FAULT_KINDS: dict[str, tuple[str, ...]] = {
+    "servos": SERVO_FAULT_KINDS,
+    "winch": SERVO_FAULT_KINDS,
+    "bender": SERVO_FAULT_KINDS,
+    "loadcell": ("garble", "checksum", "gap", "silent", "disconnect"),
+    "logger": ("write_error",),
+}
+# Kinds that happen per reply or per line with a probability (`rate`); the others happen at a time.
+RATE_FAULT_KINDS = frozenset({"drop", "corrupt", "delay", "garble", "checksum"})
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """One fault to inject into the simulated rig: a rate (per reply or line) or an event at `at_s`.
+
+    `at_s` counts from the start of the invocation's virtual clock; `duration_s` None means to the
+    end of the run. A `logger` `write_error` fails the log's writes once it holds `after_bytes`.
+    """
+
+    device: str
+    kind: str
+    rate: float | None = None
+    at_s: float | None = None
+    duration_s: float | None = None
+    delay_ms: float | None = None
+    after_bytes: int | None = None
+
+
 @dataclass(frozen=True)
 class SimulationConfig:
     """Simulated-world settings (only for `kind: simulated`)."""
@@ -106,6 +136,7 @@ class SimulationConfig:
     loadcell_rate_hz: float
     noise_scale: float
     torsion_weak_joint: int | None
+    faults: tuple[FaultConfig, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -146,7 +177,30 @@ def load_rig_config(path: str | Path | None = None) -> RigConfig:
     """Load and validate a rig config; the built-in simulated rig when `path` is None."""
     p = Path(path) if path is not None else DEFAULT_RIG_CONFIG
     text = read_text_file(p, what="a rig config YAML file")
-    return parse_rig_config(parse_yaml(text, str(p)), source=str(p), text=text, base_dir=p.parent)
+    data = parse_yaml(text, str(p))
+    if isinstance(data, dict) and "extends" in data:
+        data = _extended(Section(data, str(p)))
+    return parse_rig_config(data, source=str(p), text=text, base_dir=p.parent)
+
+
+# `extends: simulated` starts a config from the built-in simulated rig; the file's own fields are
+# merged over it (mappings key by key, anything else replaced), so a scenario states only what differs.
+BASE_CONFIGS = {"simulated": DEFAULT_RIG_CONFIG}
+
+
+def _extended(top: Section) -> dict[str, Any]:
+    name = top.string("extends", choices=list(BASE_CONFIGS))
+    base_path = BASE_CONFIGS[name]
+    base = parse_yaml(read_text_file(base_path, what="a rig config YAML file"), str(base_path))
+    own = {k: v for k, v in top.data.items() if k != "extends"}
+    merged: dict[str, Any] = _merged(base, own)
+    return merged
+
+
+def _merged(base: Any, override: Any) -> Any:
+    if isinstance(base, dict) and isinstance(override, dict):
+        return {**base, **{k: _merged(base.get(k), v) for k, v in override.items()}}
+    return override
 
 
 def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path | None = None) -> RigConfig:
@@ -272,16 +326,42 @@ def _limits(sec: Section) -> RigLimits:
 
 
 def _simulation(sec: Section, article: ArticleConfig) -> SimulationConfig:
-    sec.reject_unknown(["preset", "loadcell_rate_hz", "noise_scale", "torsion_weak_joint"])
+    sec.reject_unknown(["preset", "loadcell_rate_hz", "noise_scale", "torsion_weak_joint", "faults"])
     weak = sec.raw("torsion_weak_joint", default=None)
     if weak is not None:
         weak = sec.integer("torsion_weak_joint", min_value=1, max_value=article.joint_count)
+    faults = tuple(
+        _fault(Section(item, sec.source, sec.field("faults") + f"[{i}]"))
+        for i, item in enumerate(sec.sequence("faults", default=[]))
+    )
     return SimulationConfig(
         preset=sec.string("preset", default="link1", choices=SIM_PRESETS),
         loadcell_rate_hz=sec.number("loadcell_rate_hz", default=1000.0, min_value=10.0, max_value=2000.0),
         noise_scale=sec.number("noise_scale", default=1.0, min_value=0.0, max_value=10.0),
         torsion_weak_joint=weak,
+        faults=faults,
     )
+
+
+def _fault(sec: Section) -> FaultConfig:
+    """One entry of `simulation.faults`: which fields it needs depends on its kind."""
+    sec.reject_unknown(["device", "kind", "rate", "at_s", "duration_s", "delay_ms", "after_bytes"])
+    device = sec.string("device", choices=list(FAULT_KINDS))
+    kind = sec.string("kind", choices=FAULT_KINDS[device])
+    if device == "logger":
+        after = sec.integer("after_bytes", min_value=1, max_value=2**40)
+        return FaultConfig(device, kind, after_bytes=after)
+    if kind in RATE_FAULT_KINDS:
+        rate = sec.number("rate", min_value=0.0, max_value=1.0)
+        delay = None
+        if kind == "delay":
+            delay = sec.number("delay_ms", default=50.0, min_value=0.0, max_value=10_000.0)
+        return FaultConfig(device, kind, rate=rate, delay_ms=delay)
+    at_s = sec.number("at_s", min_value=0.0, max_value=1e6)
+    duration = sec.raw("duration_s", default=None)
+    if duration is not None:
+        duration = sec.number("duration_s", min_value=0.0, max_value=1e6, min_exclusive=True)
+    return FaultConfig(device, kind, at_s=at_s, duration_s=duration)
 
 
 def require_simulated(config: RigConfig) -> SimulationConfig:

@@ -131,18 +131,19 @@ def test_stale_load_cell_during_the_ramp_stops_released_then_torque_off(run_on_f
     assert_released_then_torque_off(rig)
 
 
-def test_hardware_error_on_the_winch_stops_with_torque_off(run_on_fakes, tmp_path):
+def test_hardware_error_on_the_winch_reboots_it_then_releases_the_line(run_on_fakes, tmp_path):
     rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
     when_tension_reaches(rig, 5.0, lambda t_ns: rig.servos.inject_hardware_error(1, 0x20))
     report = run_on_fakes(rig)
     assert report.exit_code == 1 and report.completed == 0
     assert "InterlockTripped" in report.reason and "overload" in report.reason
+    assert report.safe_state_verified, report.reason
     assert journal_status(tmp_path) == "faulted"
     names = rig.servos.call_names()
-    assert names[-3:] == ["shutdown", "torque_off", "close"]
-    # The fault dropped the torque, so the runner does not drive the winch back: nothing is written
-    # to a faulted servo between the shutdown and the torque off.
-    assert not rig.winch.torque_enabled and rig.winch.hardware_error == 0x20
+    # The fault dropped the torque with the line loaded: the winch is rebooted, unwinds, then torque off.
+    assert names.index("reboot") > names.index("shutdown")
+    assert_released_then_torque_off(rig)
+    assert not rig.winch.torque_enabled and rig.winch.hardware_error == 0
     assert rig.servos.closed and not rig.load_cell.is_open
 
 

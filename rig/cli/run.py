@@ -30,8 +30,8 @@ Everything is logged to OUT/RUN_ID.mcap; OUT/RUN_ID.journal.json lets `--resume 
 an interrupted run without repeating or losing a trial. Every way out of a run releases the line
 tension and then turns torque off.
 
-exit codes: 0 done; 1 stopped by a fault or an interlock (hardware left safe); 2 invalid input
-(nothing started); 130 interrupted (hardware left safe).
+exit codes: 0 done; 1 stopped by a fault or an interlock (the summary and --json say whether the
+safe state was verified); 2 invalid input (nothing started); 130 interrupted.
 """
 
 EXAMPLES = """\
@@ -155,7 +155,12 @@ def _dry_run(args: argparse.Namespace) -> int:
 def _summary(report: RunReport) -> str:
     lines = [f"run {report.run_id}: {report.completed}/{report.planned} trials done; log {report.log}"]
     if report.aborted:
-        lines.append(f"STOPPED: {report.reason} (hardware left safe; `--resume {report.run_id}` continues)")
+        if report.safe_state_verified:
+            lines.append(
+                f"STOPPED: {report.reason} (hardware left safe; `--resume {report.run_id}` continues)"
+            )
+        else:
+            lines.append(f"STOPPED, SAFE STATE NOT VERIFIED: {report.reason}")
     est = report.estimate
     if est is not None:
         lo, hi = est.k_ci

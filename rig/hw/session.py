@@ -65,3 +65,4 @@ class RigSession:
     truth: GroundTruth | None = None  # simulation only: what the rig should find
     attachments: list[tuple[str, str, bytes]] = field(default_factory=list)  # (name, media type, data)
     close: Callable[[], None] = field(default=lambda: None)
+    log_limit_bytes: int | None = None  # the most the run's log file may hold (writes beyond fail)

@@ -75,6 +75,8 @@ class RunLogger:
     :param strict: check every payload against its schema in `log()` (slow; for tests). None reads
         the environment variable RIG_LOG_STRICT ("1" enables).
     :param max_pending: queued messages above which `log()` waits for the writer to catch up.
+    :param max_file_bytes: the most the file may hold; the writer's writes beyond it fail (as on a
+        full disk) and the logger raises `LogWriteError`. None: no limit but the disk's.
     """
 
     def __init__(
@@ -87,6 +89,7 @@ class RunLogger:
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         strict: bool | None = None,
         max_pending: int = DEFAULT_MAX_PENDING,
+        max_file_bytes: int | None = None,
     ) -> None:
         if compression not in COMPRESSION:
             raise ValueError(f"compression: {compression!r} not allowed; allowed: {', '.join(COMPRESSION)}")
@@ -128,6 +131,7 @@ class RunLogger:
                     str(chunk_size),
                     compression,
                     str(round(flush_interval_s * 1e9)),
+                    str(max_file_bytes or 0),
                 ],
                 pass_fds=child_fds,
                 stdin=subprocess.DEVNULL,

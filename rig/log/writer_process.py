@@ -28,6 +28,7 @@ import json
 import math
 import os
 import pickle
+import resource
 import signal
 import sys
 import time
@@ -222,11 +223,22 @@ def _loadcell_row_json(row: tuple[Any, ...]) -> bytes | None:
 
 
 def main(argv: list[str]) -> int:
-    """Entry point: REQUEST_FD REPLY_FD FILE_FD LIBRARY CHUNK_SIZE COMPRESSION FLUSH_INTERVAL_NS."""
+    """Entry point: REQUEST_FD REPLY_FD FILE_FD LIBRARY CHUNK_SIZE COMPRESSION FLUSH_INTERVAL_NS MAX_BYTES.
+
+    MAX_BYTES 0 (or absent) means no limit but the disk's.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     request_fd, reply_fd, file_fd = (int(a) for a in argv[:3])
     library, chunk_size, compression, interval_ns = argv[3], int(argv[4]), argv[5], int(argv[6])
+    max_file_bytes = int(argv[7]) if len(argv) > 7 else 0
+    if max_file_bytes > 0:
+        # The operating system's own file-size limit: a write beyond it fails (EFBIG) as one on a
+        # full disk does, instead of killing the process with SIGXFSZ.
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        hard = resource.getrlimit(resource.RLIMIT_FSIZE)[1]
+        limit = max_file_bytes if hard == resource.RLIM_INFINITY else min(max_file_bytes, hard)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, hard))
     requests = Connection(request_fd, writable=False)
     replies = Connection(reply_fd, readable=False)
     stream = os.fdopen(file_fd, "wb")

@@ -9,6 +9,7 @@ whose `as_json()` is the `rig run --json` object (docs/design.md §5).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import platform
 import re
@@ -25,7 +26,7 @@ from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text
 from rig.hw.session import RigSession
 from rig.log.records import JointCapacity, TrialResult
-from rig.log.writer import RunLogger
+from rig.log.writer import LogWriteError, RunLogger
 from rig.protocol import Protocol, TrialPlan, load_protocol
 from rig.rig_config import RigConfig, load_rig_config
 from rig.runner.estimation import RunEstimator, load_estimates_file
@@ -33,7 +34,7 @@ from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
 from rig.runner.progress import ProgressReporter
 from rig.runner.results import percentage_error_stats
-from rig.runner.trial_runner import TrialRunner
+from rig.runner.trial_runner import RunOutcome, TrialRunner
 
 _RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 
@@ -68,6 +69,7 @@ class RunReport:
     percentage_errors: PayloadErrorStats | None
     joints: tuple[JointCapacity, ...] = ()
     truth: dict[str, Any] | None = None
+    safe_state_verified: bool = True
 
     def as_json(self) -> dict[str, Any]:
         """The `rig run --json` object (docs/design.md §5)."""
@@ -80,6 +82,7 @@ class RunReport:
             "planned": self.planned,
             "aborted": self.aborted,
             "reason": self.reason,
+            "safe_state_verified": self.safe_state_verified,
             "estimate": self.estimate.as_json() if self.estimate is not None else None,
             "joints": [j.to_json() for j in self.joints],
         }
@@ -178,7 +181,7 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
     journal.logs.append(str(log_path))
     journal.status = "running"
     journal.save()
-    logger = RunLogger(log_path, clock=session.clock)
+    logger = RunLogger(log_path, clock=session.clock, max_file_bytes=session.log_limit_bytes)
     try:
         _write_metadata(logger, prepared, session)
         progress.start(journal.run_id, len(protocol.trials), len(journal.completed))
@@ -193,11 +196,23 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
             line_stiffness_n_per_m=config.line_stiffness_n_per_m,
         )
         outcome = runner.run(prepared.remaining)
-        if session.truth is not None:  # at the end, so it includes every trial's hidden draws
-            logger.add_metadata("sim_truth", {"json": json.dumps(session.truth.detail(), allow_nan=False)})
     finally:
         progress.stop()
-        logger.finish()
+        log_error: LogWriteError | None = None
+        try:
+            if session.truth is not None:  # at the end, so it includes every trial's hidden draws
+                truth_json = json.dumps(session.truth.detail(), allow_nan=False)
+                logger.add_metadata("sim_truth", {"json": truth_json})
+            logger.finish()
+        except LogWriteError as exc:  # the run's own outcome says what stopped it; the rig is safe
+            log_error = exc
+            with contextlib.suppress(LogWriteError):
+                logger.finish()
+    if log_error is not None and outcome.exit_code == ExitCode.OK:  # the rig is safe; the log is not whole
+        reason = f"LogWriteError: {log_error}"
+        outcome = RunOutcome(
+            ExitCode.FAULT, "faulted", reason, outcome.new_results, outcome.safe_state_verified
+        )
     journal.status = outcome.status
     journal.save()
     summary = prepared.estimator.summary()
@@ -220,6 +235,7 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
         aborted=outcome.exit_code != ExitCode.OK,
         reason=outcome.reason,
         exit_code=outcome.exit_code,
+        safe_state_verified=outcome.safe_state_verified,
         estimate=summary,
         percentage_errors=percentage_error_stats(journal.completed),
         joints=joints,

@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import math
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 from model.slip_detector import DetectorParams, SlipEvent, detector_init, detector_step
@@ -41,7 +41,7 @@ from rig.log.records import (
     TrialResult,
     TrialState,
 )
-from rig.log.writer import RunLogger
+from rig.log.writer import LogWriteError, RunLogger
 from rig.protocol import Protocol, StepSpec, TrialPlan
 from rig.rig_config import RigConfig
 from rig.runner.estimation import RunEstimator
@@ -59,6 +59,10 @@ _BENDER_SPEED_RAD_S = 2.0
 # The safe state waits this long beyond the winch's travel time: interlocks are off by then, and
 # the load cell may be what failed, so arrival at the zero-tension angle is all it waits for.
 _SAFE_STATE_MARGIN_S = 2.0
+LINE_MAY_BE_LOADED = (
+    "THE LINE MAY BE LOADED: switch off the servos' power before touching the link, then release the "
+    "winch by hand"
+)
 
 
 @dataclass
@@ -69,6 +73,7 @@ class RunOutcome:
     status: str  # journal status: completed, faulted, interrupted
     reason: str | None = None
     new_results: list[TrialResult] = field(default_factory=list)
+    safe_state_verified: bool = True  # line released and torque off, both read back or confirmed
 
 
 class TrialRunner:
@@ -112,6 +117,10 @@ class TrialRunner:
         self.winch_zero_rad: float | None = None
         self.trial: TrialPlan | None = None
         self.connected = False
+        self.release_report: list[str] = []  # what the safe state's release did and verified
+        self.release_verified = False
+        self._log_failed: LogWriteError | None = None
+        self._best_effort = False
 
     # ------------------------------------------------------------------ run
 
@@ -148,7 +157,7 @@ class TrialRunner:
                     reason = safe_error if outcome.reason is None else f"{outcome.reason}; then {safe_error}"
                     exit_code = ExitCode.FAULT if outcome.exit_code == ExitCode.OK else outcome.exit_code
                     status = "faulted" if outcome.exit_code == ExitCode.OK else outcome.status
-                    outcome = RunOutcome(exit_code, status, reason, outcome.new_results)
+                    outcome = RunOutcome(exit_code, status, reason, outcome.new_results, False)
                 if outcome.exit_code != ExitCode.OK and self.phases.phase not in (
                     Phase.ABORTED,
                     Phase.FAULTED,
@@ -195,6 +204,8 @@ class TrialRunner:
 
     def _tick(self) -> None:
         """One control period: wait, read everything, log it, check the interlocks."""
+        if self._log_failed is not None:
+            raise self._log_failed  # a run whose log cannot be written stops (a fault)
         self._next_tick_ns += self.period_ns
         now = self.clock.monotonic_ns()
         if self._next_tick_ns > now:
@@ -218,21 +229,27 @@ class TrialRunner:
         self.tick_samples = [(s.time_ns, s.force_n - tare) for s in samples]
         if samples:
             self.force_n = self.tick_samples[-1][1]
-            # Rows in schemas.ROW_FIELDS order (seq, raw, force_n, device_time_us): no dict per sample.
-            self.log.log_many(
-                schemas.LOADCELL,
-                [
-                    (t_ns, (s.seq, s.raw, force, s.device_time_us))
-                    for s, (t_ns, force) in zip(samples, self.tick_samples, strict=True)
-                ],
-            )
-        roles = self.session.roles
-        for state in self.states.values():
-            self.log.log(
-                schemas.SERVO_STATE,
-                state.time_ns,
-                schemas.servo_state_payload(state, roles.get(state.servo_id, "")),
-            )
+        if self._log_failed is not None:
+            return
+        try:
+            if samples:
+                # Rows in schemas.ROW_FIELDS order (seq, raw, force_n, device_time_us): no dict per sample.
+                self.log.log_many(
+                    schemas.LOADCELL,
+                    [
+                        (t_ns, (s.seq, s.raw, force, s.device_time_us))
+                        for s, (t_ns, force) in zip(samples, self.tick_samples, strict=True)
+                    ],
+                )
+            roles = self.session.roles
+            for state in self.states.values():
+                self.log.log(
+                    schemas.SERVO_STATE,
+                    state.time_ns,
+                    schemas.servo_state_payload(state, roles.get(state.servo_id, "")),
+                )
+        except LogWriteError as exc:
+            self._logger_failed(exc)
 
     def _ticks_for(self, seconds: float) -> None:
         end = self.clock.monotonic_ns() + round(seconds * 1e9)
@@ -271,9 +288,12 @@ class TrialRunner:
         self.estimator.apply_result(result)
         estimate = self.estimator.estimate(trial.trial_id)
         log_time = self.clock.time_ns()
-        self.log.log(schemas.TRIAL_RESULT, log_time, result.to_payload())
-        self.log.log(schemas.ESTIMATE, log_time, estimate.to_payload())
-        self.log.flush(wait=True)
+        self._log(schemas.TRIAL_RESULT, result.to_payload(), log_time)
+        self._log(schemas.ESTIMATE, estimate.to_payload(), log_time)
+        try:
+            self.log.flush(wait=True)
+        except LogWriteError as exc:
+            self._logger_failed(exc)
         self.journal.record_trial(result)
         self.progress.trial_finished(result, estimate)
         return result
@@ -489,24 +509,81 @@ class TrialRunner:
             return
         servos = self.session.servos
         speed = self.protocol.ramp.unload_speed_rad_s
+        if safe_state:
+            self._release_in_safe_state(zero)
+            return
         servos.set_profile(winch, velocity_rad_s=speed)
         servos.write_goal_positions({winch: zero})
         self._command(winch, ServoCommandName.GOAL_POSITION, zero, "rad")
 
-        def winch_home() -> bool:
-            return abs(self.states[winch].position_rad - zero) < _POSITION_TOLERANCE_RAD
+        def done() -> bool:
+            home = abs(self.states[winch].position_rad - zero) < _POSITION_TOLERANCE_RAD
+            return home and self.force_n < _RELEASED_TENSION_N + abs(self.tare_n)
 
-        if safe_state:
-            self.states = servos.read_states()  # the last tick's states may be old
-            margin_s, step, done = _SAFE_STATE_MARGIN_S, self._tick_without_interlocks, winch_home
-        else:
-
-            def done() -> bool:
-                return winch_home() and self.force_n < _RELEASED_TENSION_N + abs(self.tare_n)
-
-            margin_s, step = self.protocol.step_timeout_margin_s, self._tick
         travel = self.states[winch].position_rad - zero
-        self._wait_until(done, move_timeout_s(travel, speed, margin_s), "unload", step)
+        self._wait_until(done, move_timeout_s(travel, speed, self.protocol.step_timeout_margin_s), "unload")
+
+    def _release_in_safe_state(self, zero_rad: float) -> None:
+        """The safe state's release: whatever failed, get the winch back to zero tension if it hears.
+
+        Each stage goes on when an earlier one failed, and what was verified is recorded in
+        `self.release_report`: a winch with a latched hardware error is rebooted first (its turn
+        count is lost, so the zero is carried over into the new count); the goal goes out as a
+        broadcast sync write, which needs no reply; the wait reads the winch's position back, and
+        if the winch stops answering it waits the travel time blind. The load cell is optional.
+        """
+        winch = self.session.winch_id
+        servos = self.session.servos
+        report = self.release_report
+        zero_rad = self._recover_winch(zero_rad)
+        speed = self.protocol.ramp.unload_speed_rad_s
+        try:
+            servos.set_profile(winch, velocity_rad_s=speed)
+        except RigError as exc:
+            # The profile in force is one the ramp set: wait as long as the slowest would take.
+            speed = min(speed, self.protocol.ramp.slow_speed_rad_s, self.protocol.ramp.fast_speed_rad_s)
+            report.append(f"release speed not confirmed ({exc})")
+        servos.write_goal_positions({winch: zero_rad})
+        self._command(winch, ServoCommandName.GOAL_POSITION, zero_rad, "rad")
+        last = self.states.get(winch)
+        travel = abs(last.position_rad - zero_rad) if last is not None else 2 * math.pi
+        wait_s = move_timeout_s(travel, speed, _SAFE_STATE_MARGIN_S)
+        deadline = self.clock.monotonic_ns() + round(wait_s * 1e9)
+        answered = False
+        while self.clock.monotonic_ns() < deadline:
+            try:
+                self._tick_without_interlocks()
+            except RigError:
+                self.clock.sleep(self.protocol.control_period_s)  # not answering: wait out the travel
+                continue
+            answered = True
+            if abs(self.states[winch].position_rad - zero_rad) < _POSITION_TOLERANCE_RAD:
+                self.release_verified = True
+                report.append("winch back at its zero-tension angle (read back)")
+                return
+        if answered:
+            raise RigTimeoutError("winch did not return to zero tension within its timeout")
+        report.append(
+            f"winch not answering: its zero-tension goal went out by broadcast; it was given {wait_s:.1f} s"
+            " (not verified)"
+        )
+
+    def _recover_winch(self, zero_rad: float) -> float:
+        """Reboot a winch whose hardware error dropped its torque; the zero-tension angle after it.
+
+        A reboot folds the multi-turn position into one turn, and the shaft does not move while
+        its torque is off, so the turns lost are the difference of the positions before and after.
+        """
+        winch = self.session.winch_id
+        state = self.states.get(winch)
+        if state is None or not state.hardware_error:
+            return zero_rad
+        servos = self.session.servos
+        servos.reboot(winch)
+        self.states = servos.read_states()
+        turns = round((state.position_rad - self.states[winch].position_rad) / (2 * math.pi))
+        self.release_report.append(f"winch rebooted after hardware error 0x{state.hardware_error:02X}")
+        return zero_rad - turns * 2 * math.pi
 
     def _tick_without_interlocks(self) -> None:
         """One control period of the safe state: read the servos and log; the load cell is optional.
@@ -525,28 +602,60 @@ class TrialRunner:
     # ------------------------------------------------------------------ safety
 
     def _make_safe(self) -> str | None:
-        """Release the line, then torque off every servo, then close; returns an error text or None."""
+        """Release the line, then torque off every servo, then close; an error text, or None if verified.
+
+        Says what was verified, never what was only attempted: the release is verified when the
+        winch's position was read back at its zero-tension angle, the torque-off when every servo
+        confirmed it.
+        """
+        self.release_report = []
+        self.release_verified = not self.connected or self.winch_zero_rad is None  # never loaded
 
         def release() -> None:
-            if not self.connected or self.winch_zero_rad is None:
+            if self.release_verified:
                 return
-            winch_state = self.states.get(self.session.winch_id)
-            if winch_state is not None and winch_state.hardware_error:
-                return  # torque already dropped by the fault: the line is slack
             self._phase_quiet(Phase.UNLOADING)
             self._release_tension(safe_state=True)
 
-        errors = enter_safe_state(self.session, release)
-        if errors:
-            self._note(LogLevel.ERROR, "; ".join(errors))
-            return "; ".join(errors)
-        self._note(LogLevel.INFO, "safe state: line released, torque off")
-        return None
+        with self._logging_best_effort():
+            errors = enter_safe_state(self.session, release)
+            done = "; ".join(self.release_report)
+            if not errors and self.release_verified:
+                self._note(
+                    LogLevel.INFO, "safe state: " + (done + "; " if done else "") + "torque off (confirmed)"
+                )
+                return None
+            problem = "; ".join(p for p in (done, *errors) if p)
+            if not self.release_verified or any(e.startswith("torque off failed") for e in errors):
+                problem += f" — {LINE_MAY_BE_LOADED}"
+            self._note(LogLevel.ERROR, "safe state not verified: " + problem)
+            return problem
 
     # ------------------------------------------------------------------ logging
 
     def _log(self, topic: str, payload: dict[str, object], time_ns: int | None = None) -> None:
-        self.log.log(topic, self.clock.time_ns() if time_ns is None else time_ns, payload)
+        if self._log_failed is not None:
+            return
+        try:
+            self.log.log(topic, self.clock.time_ns() if time_ns is None else time_ns, payload)
+        except LogWriteError as exc:
+            self._logger_failed(exc)
+
+    def _logger_failed(self, exc: LogWriteError) -> None:
+        """The log cannot be written: stop logging; outside the safe state, stop the run (a fault)."""
+        self._log_failed = exc
+        self.progress.message(f"log write failed, logging stopped: {exc}")
+        if not self._best_effort:
+            raise exc
+
+    @contextlib.contextmanager
+    def _logging_best_effort(self) -> Iterator[None]:
+        """Inside, a failing log never stops the rig: the first failure ends logging (the safe state)."""
+        self._best_effort = True
+        try:
+            yield
+        finally:
+            self._best_effort = False
 
     def _command(self, servo_id: int, command: ServoCommandName, value: float | None, unit: str) -> None:
         role = self.session.roles.get(servo_id, "")

@@ -87,6 +87,7 @@ class FakeServo:
     current_limit_a: float | None = None
     current_a: float = 0.0  # what read_states reports; tests may set it
     reboots: int = 0
+    torque_wanted: bool = False  # what the host last asked for; a reboot restores it, as the driver does
     segments: list[_Segment] = field(default_factory=list)
     pending_errors: list[tuple[int, int]] = field(default_factory=list)  # (at monotonic ns, bits)
 
@@ -224,7 +225,7 @@ class FakeServoBus:
             servo = self._servo(sid)
             if enabled and servo.hardware_error:
                 raise HardwareFault(f"servo {sid}: hardware error 0x{servo.hardware_error:02x} is latched")
-            servo.torque_enabled = enabled
+            servo.torque_enabled = servo.torque_wanted = enabled
             self._rebase(servo)
 
     def set_profile(
@@ -272,6 +273,7 @@ class FakeServoBus:
         servo.hardware_error = 0
         servo.reboots += 1
         servo.goal_rad = self.position_rad(servo_id)
+        servo.torque_enabled = servo.torque_wanted
         self._rebase(servo)
 
     def shutdown(self, release: Callable[[], None] | None = None) -> None:

@@ -30,6 +30,7 @@ from rig.rig_config import RigConfig, require_simulated
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
+from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults, log_limit_bytes
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.physics.article_presets import make_preset
@@ -86,6 +87,7 @@ class SimulatedDevices:
     bus: EmulatedBus
     world: SimWorld
     loadcell_emulator: LoadCellEmulator
+    faults: FaultSchedule  # the config's timed faults, and which of them fired
 
 
 @dataclass(frozen=True)
@@ -99,11 +101,15 @@ class SimulatedRig:
 class WorldTruth:
     """The world's hidden truth as the run reports it (`rig.hw.session.GroundTruth`)."""
 
-    def __init__(self, world: SimWorld) -> None:
+    def __init__(self, world: SimWorld, bus: EmulatedBus) -> None:
         self.world = world
+        self.bus = bus
 
     def summary(self) -> dict[str, Any]:
-        """True k, capacities and world settings; the per-trial draws and slips go to the log only."""
+        """True k, capacities, world settings and the rig's state now (the line's tension, torque).
+
+        The per-trial draws and slips go to the log only.
+        """
         full = self.world.truth()
         return self._with_headline({k: v for k, v in full.items() if k not in ("trials", "slips")})
 
@@ -111,10 +117,11 @@ class WorldTruth:
         """The summary with every trial's hidden draws and slip records."""
         return self._with_headline(self.world.truth())
 
-    @staticmethod
-    def _with_headline(world: dict[str, Any]) -> dict[str, Any]:
+    def _with_headline(self, world: dict[str, Any]) -> dict[str, Any]:
         estimated = world["joints"][0]
         return {
+            "final_tension_n": float(self.world.tension_n),
+            "torque_off": not any(servo.torque_enabled for servo in self.bus.servos),
             "k": estimated["k_kg_m"],
             "capacity_nm": estimated["capacity_nm"],
             "mu_delta0_pa": estimated["mu_delta0_pa"],
@@ -178,15 +185,18 @@ def simulated_rig(
         format_name=config.loadcell.format,
         rate_hz=sim.loadcell_rate_hz,
         signal=SignalModel(noise_counts=preset.loadcell_noise_n * gain),
+        faults=loadcell_rate_faults(sim.faults),
         seed=seed,
         stale_timeout_s=config.limits.stale_timeout_s,
     )
+    schedule = apply_faults(config, sim.faults, bus=bus, loadcell=loadcell_emulator, clock=clock, seed=seed)
     servos = DynamixelServoBus(
         config.servos.port,
         config.servos.baud,
         config.servos.servos,
         clock,
         retries=config.servos.retries,
+        bus_watchdog_ms=config.servos.watchdog_ms,
         port_factory=lambda name: SimPortHandler(bus, clock, name),
     )
 
@@ -207,10 +217,11 @@ def simulated_rig(
         winch_id=winch_spec.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
         begin_trial=begin_trial,
-        truth=WorldTruth(world),
+        truth=WorldTruth(world, bus),
         attachments=[("loadcell-calibration.json", "application/json", _calibration_json(load_cell))],
+        log_limit_bytes=log_limit_bytes(sim.faults),
     )
-    return SimulatedRig(session, SimulatedDevices(bus, world, loadcell_emulator))
+    return SimulatedRig(session, SimulatedDevices(bus, world, loadcell_emulator, schedule))
 
 
 def _calibration_json(load_cell: Any) -> bytes:

@@ -279,11 +279,14 @@ class EmulatedBus:
             answers.append((servo, servo_id, servo.read(address, length, now_ns), length))
         if not fast:
             return [self._status(servo, result) for servo, _, result, _ in answers]
-        if not answers:
-            return []
+        if not answers or answers[0][1] in self.faults.muted:
+            return []  # the first servo sends the header: without it there is no packet
+        # Each servo drives its own part of the combined packet: a muted one leaves a hole, so the
+        # packet falls short of its announced length and the host's read fails.
         parts = [
             (servo.status_error(result.error), sid, result.params if not result.error else bytes(length))
             for servo, sid, result, length in answers
+            if sid not in self.faults.muted
         ]
         announced = 1 + sum(length + 4 for _, _, length in entries)
         packet = p.build_fast_status(parts, announced_length=announced)

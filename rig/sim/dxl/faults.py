@@ -15,6 +15,7 @@ Spec grammar (one per `--fault`):
 
 from __future__ import annotations
 
+import random
 from dataclasses import dataclass, field
 
 from rig.errors import InputError
@@ -29,14 +30,44 @@ class _ReplyFault:
     delay_ns: int = 0
 
 
+@dataclass(slots=True)
+class _RateFault:
+    kind: str  # "drop" | "corrupt" | "delay"
+    probability: float
+    servo_id: int | None
+    delay_ns: int = 0
+
+
 @dataclass
 class ReplyFaults:
-    """Queued reply faults, consumed in the order they were added."""
+    """Reply faults: queued ones (consumed in the order added), random ones at a rate, muted servos.
+
+    A muted servo still hears and obeys every instruction; only its replies are lost (a broken
+    return line, or a transceiver that no longer drives the bus).
+    """
 
     _queue: list[_ReplyFault] = field(default_factory=list)
+    _rates: list[_RateFault] = field(default_factory=list)
+    muted: set[int] = field(default_factory=set)
+    rng: random.Random = field(default_factory=lambda: random.Random(0))
     dropped: int = 0
     corrupted: int = 0
     delayed: int = 0
+
+    def at_rate(
+        self, kind: str, probability: float, servo_id: int | None = None, delay_s: float = 0.05
+    ) -> None:
+        """Drop, corrupt or delay each reply (of `servo_id` only, when given) with `probability`."""
+        if kind not in ("drop", "corrupt", "delay") or not 0.0 <= probability <= 1.0:
+            raise ValueError(f"reply fault {kind!r} at rate {probability}; allowed: drop/corrupt/delay, 0-1")
+        self._rates.append(_RateFault(kind, probability, servo_id, round(delay_s * 1e9)))
+
+    def mute(self, servo_id: int, muted: bool = True) -> None:
+        """Lose every reply of `servo_id` (it still obeys), or stop doing so."""
+        if muted:
+            self.muted.add(servo_id)
+        else:
+            self.muted.discard(servo_id)
 
     def drop_next(self, n: int = 1, servo_id: int | None = None) -> None:
         """Drop the next `n` replies (of `servo_id` only, when given)."""
@@ -56,8 +87,8 @@ class ReplyFaults:
 
     @property
     def active(self) -> bool:
-        """Whether any fault is still queued."""
-        return bool(self._queue)
+        """Whether any fault is queued, at a rate, or a servo is muted."""
+        return bool(self._queue or self._rates or self.muted)
 
     def _add(self, fault: _ReplyFault) -> None:
         if fault.remaining < 1:
@@ -66,20 +97,29 @@ class ReplyFaults:
 
     def apply(self, servo_id: int, data: bytes) -> tuple[bytes | None, int]:
         """Pass one reply through the first matching fault: (bytes or None if dropped, extra delay ns)."""
+        if servo_id in self.muted:
+            self.dropped += 1
+            return None, 0
+        for rate in self._rates:
+            if (rate.servo_id is None or rate.servo_id == servo_id) and self.rng.random() < rate.probability:
+                return self._fault(rate.kind, data, rate.delay_ns)
         for fault in self._queue:
             if fault.servo_id is None or fault.servo_id == servo_id:
                 fault.remaining -= 1
                 if fault.remaining == 0:
                     self._queue.remove(fault)
-                if fault.kind == "drop":
-                    self.dropped += 1
-                    return None, 0
-                if fault.kind == "corrupt":
-                    self.corrupted += 1
-                    return data[:-1] + bytes((data[-1] ^ 0x01,)), 0
-                self.delayed += 1
-                return data, fault.delay_ns
+                return self._fault(fault.kind, data, fault.delay_ns)
         return data, 0
+
+    def _fault(self, kind: str, data: bytes, delay_ns: int) -> tuple[bytes | None, int]:
+        if kind == "drop":
+            self.dropped += 1
+            return None, 0
+        if kind == "corrupt":
+            self.corrupted += 1
+            return data[:-1] + bytes((data[-1] ^ 0x01,)), 0
+        self.delayed += 1
+        return data, delay_ns
 
 
 @dataclass(frozen=True, slots=True)

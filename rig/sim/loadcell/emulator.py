@@ -207,6 +207,7 @@ class LoadCellEmulator:
                 f"needs >= {needed_baud:.0f} baud; --baud {baud}; allowed: a faster baud or a lower rate"
             )
         self.faults = faults or FaultPlan()
+        self.unplugged = False  # the cable is out: the host's port fails (in-process transport)
         if not self.codec.has_checksum and self.faults.bad_checksum_per_line:
             raise InputError(f"--fault checksum: format {format_name} has no checksum; allowed with rig-lc1")
         if not self.codec.has_sequence and self.faults.gap_per_line:

@@ -14,6 +14,8 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+import serial
+
 from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.hw.loadcell.calibration import Calibration, indicator_calibration
 from rig.hw.loadcell.driver import SerialLoadCell
@@ -133,7 +135,9 @@ class InProcessLoadCellSerial:
 
     @property
     def in_waiting(self) -> int:
-        """Bytes received and not yet read."""
+        """Bytes received and not yet read (an unplugged device reports one, as the kernel does)."""
+        if self.emulator.unplugged:
+            return 1
         self._arrive(self.clock.monotonic_ns())
         return len(self._rx)
 
@@ -141,6 +145,11 @@ class InProcessLoadCellSerial:
         """Up to `size` bytes already received; never waits, whatever `timeout` says."""
         if not self.is_open:
             raise OSError(f"{self.port}: port not open")
+        if self.emulator.unplugged:  # what pyserial raises when a USB adapter is pulled out
+            raise serial.SerialException(
+                "device reports readiness to read but returned no data (device disconnected or "
+                "multiple access on port?)"
+            )
         self._arrive(self.clock.monotonic_ns())
         data = bytes(self._rx[:size])
         del self._rx[:size]

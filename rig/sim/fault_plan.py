@@ -1,0 +1,165 @@
+"""Faults from a simulated rig config (`simulation.faults:`) applied to the emulated devices.
+
+Rate faults are set up once: replies of the emulated servos lost, corrupted or delayed at random
+(seeded), load-cell lines garbled or with bad checksums. Timed faults are events on the virtual
+clock, `at_s` after the invocation's start and, with `duration_s`, undone after it:
+
+* `silent` servo: its replies are lost but it still obeys (a broken return line);
+* `disconnect` servo: it neither hears nor answers (a cut cable; its Bus Watchdog trips);
+* `overload` servo: Hardware Error Status 0x20 latches and its torque drops, as a real overload;
+* `gap` / `silent` load cell: no lines for `duration_s` / from then on (stale data);
+* `disconnect` load cell: the host's serial port fails, as when a USB adapter is pulled out.
+
+Rate kinds (drop, corrupt, delay, garble, checksum) need `rate`; the others need `at_s`.
+
+A `logger` `write_error` is not an event: it caps the log file (`RigSession.log_limit_bytes`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from rig.rig_config import FaultConfig, RigConfig
+from rig.sim.clock import VirtualClock
+from rig.sim.dxl.bus import EmulatedBus
+from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator
+
+OVERLOAD_BIT = 0x20
+_FOREVER_S = 1e9
+
+
+def loadcell_rate_faults(faults: tuple[FaultConfig, ...]) -> FaultPlan:
+    """The load cell's per-line faults (built into the emulator when it is made)."""
+    garbage = sum(f.rate or 0.0 for f in faults if f.device == "loadcell" and f.kind == "garble")
+    checksum = sum(f.rate or 0.0 for f in faults if f.device == "loadcell" and f.kind == "checksum")
+    return FaultPlan(garbage_per_line=min(garbage, 1.0), bad_checksum_per_line=min(checksum, 1.0))
+
+
+def log_limit_bytes(faults: tuple[FaultConfig, ...]) -> int | None:
+    """The log-file cap of a `logger` `write_error` fault (the smallest if several)."""
+    limits = [f.after_bytes for f in faults if f.device == "logger" and f.after_bytes is not None]
+    return min(limits) if limits else None
+
+
+@dataclass
+class _Event:
+    at_ns: int
+    action: Callable[[], None]
+    done: bool = False
+
+
+class FaultSchedule:
+    """The timed faults of one run, fired by the virtual clock (register after the world)."""
+
+    def __init__(self) -> None:
+        self._events: list[_Event] = []
+        self.fired: list[str] = []
+
+    def at(self, at_ns: int, what: str, action: Callable[[], None]) -> None:
+        """Run `action` once the clock reaches `at_ns`."""
+
+        def logged() -> None:
+            self.fired.append(what)
+            action()
+
+        self._events.append(_Event(at_ns, logged))
+        self._events.sort(key=lambda e: e.at_ns)
+
+    def advance_to(self, now_ns: int) -> None:
+        """Clock listener: fire every event that is due."""
+        for event in self._events:
+            if event.at_ns > now_ns:
+                break
+            if not event.done:
+                event.done = True
+                event.action()
+
+
+def apply_faults(
+    config: RigConfig,
+    faults: tuple[FaultConfig, ...],
+    *,
+    bus: EmulatedBus,
+    loadcell: LoadCellEmulator,
+    clock: VirtualClock,
+    seed: int,
+) -> FaultSchedule:
+    """Set up every servo and load-cell fault of the config; returns the schedule of timed ones."""
+    start_ns = clock.monotonic_ns()
+    schedule = FaultSchedule()
+    bus.faults.rng.seed(seed)
+    for fault in faults:
+        if fault.device == "loadcell":
+            _loadcell_fault(fault, loadcell, schedule, start_ns)
+        elif fault.device != "logger":
+            for servo_id in _servo_ids(config, fault.device):
+                _servo_fault(fault, servo_id, bus, schedule, start_ns)
+    if schedule._events:
+        clock.on_advance(schedule.advance_to)
+    return schedule
+
+
+def _servo_ids(config: RigConfig, device: str) -> list[int | None]:
+    if device == "servos":
+        return [None]
+    return [s.servo_id for s in config.servos.servos if s.role == device]
+
+
+def _window_ns(fault: FaultConfig, start_ns: int) -> tuple[int, int | None]:
+    assert fault.at_s is not None
+    begin = start_ns + round(fault.at_s * 1e9)
+    end = None if fault.duration_s is None else begin + round(fault.duration_s * 1e9)
+    return begin, end
+
+
+def _servo_fault(
+    fault: FaultConfig, servo_id: int | None, bus: EmulatedBus, schedule: FaultSchedule, start_ns: int
+) -> None:
+    name = f"{fault.device} {fault.kind}"
+    if fault.rate is not None:
+        delay_s = (fault.delay_ms or 0.0) / 1e3
+        bus.faults.at_rate(fault.kind, fault.rate, servo_id, delay_s)
+        return
+    ids = bus.ids if servo_id is None else [servo_id]
+    begin, end = _window_ns(fault, start_ns)
+    for sid in ids:
+        start, stop = _servo_actions(fault.kind, sid, bus)
+        schedule.at(begin, name, start)
+        if end is not None and stop is not None:
+            schedule.at(end, f"{name} ends", stop)
+
+
+def _servo_actions(
+    kind: str, servo_id: int, bus: EmulatedBus
+) -> tuple[Callable[[], None], Callable[[], None] | None]:
+    """What starts a timed servo fault, and what ends it (None: it stays, as a latched error does)."""
+    if kind == "silent":
+        return (lambda: bus.faults.mute(servo_id)), (lambda: bus.faults.mute(servo_id, False))
+    if kind == "disconnect":
+        return (lambda: bus.set_silent(servo_id)), (lambda: bus.set_silent(servo_id, False))
+    return (lambda: bus.set_hardware_error(servo_id, OVERLOAD_BIT)), None
+
+
+def _loadcell_fault(
+    fault: FaultConfig, loadcell: LoadCellEmulator, schedule: FaultSchedule, start_ns: int
+) -> None:
+    if fault.rate is not None:
+        return  # built into the emulator (`loadcell_rate_faults`)
+    begin, end = _window_ns(fault, start_ns)
+    name = f"loadcell {fault.kind}"
+    if fault.kind in ("gap", "silent"):
+        duration_s = _FOREVER_S if end is None else (end - begin) / 1e9
+        loadcell.inject_silence(duration_s, at_ns=begin)
+        schedule.at(begin, name, lambda: None)
+    elif fault.kind == "disconnect":
+
+        def plug(unplugged: bool) -> Callable[[], None]:
+            def act() -> None:
+                loadcell.unplugged = unplugged
+
+            return act
+
+        schedule.at(begin, name, plug(True))
+        if end is not None:
+            schedule.at(end, f"{name} ends", plug(False))
