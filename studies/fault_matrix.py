@@ -28,7 +28,8 @@ def main() -> None:
     parser.add_argument("--protocol", type=Path, default=ROOT / "protocols" / "smoke.yaml")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    print("| scenario | exit | trials | safe state reported | tension at the end | torque | journalled, not in log |")
+    columns = ("scenario", "exit", "trials", "safe state reported", "tension at the end", "torque")
+    print("| " + " | ".join(columns) + " | journalled, not in log |")
     print("|---|---|---|---|---|---|---|")
     for config in sorted((ROOT / "protocols" / "rigs" / "faults").glob("*.yaml")):
         with tempfile.TemporaryDirectory() as out:
