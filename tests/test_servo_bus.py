@@ -401,6 +401,23 @@ def test_dropped_replies_during_handshake_are_recovered(emulated_dxl):
     r.driver.shutdown()
 
 
+@pytest.mark.parametrize("dropped", [3, 8])
+def test_a_burst_of_lost_replies_does_not_fail_the_handshake(emulated_dxl, dropped):
+    # Three replies lost in a row used to fail the connect (one ping and its two retries).
+    r = emulated_dxl(retries=2)
+    r.bus.faults.drop_next(dropped, servo_id=2)
+    r.driver.connect()
+    assert r.driver.info()[2].model == "XM430-W350"
+    r.driver.shutdown()
+
+
+def test_a_servo_that_never_answers_is_still_reported_missing(emulated_dxl):
+    r = emulated_dxl(retries=2)
+    r.bus.faults.drop_next(9, servo_id=2)
+    with pytest.raises(HandshakeError, match=r"missing: servo 2"):
+        r.driver.connect()
+
+
 @pytest.mark.parametrize("settle_s", [0.002, 0.0], ids=["settle-and-clear", "length-check-only"])
 def test_late_write_status_is_not_taken_for_a_read_reply(settle_s, emulated_dxl):
     # The write's status arrives just after the SDK gave up on it. Two defences: the driver settles

@@ -65,6 +65,10 @@ from rig.hw.interrupts import signals_deferred
 from rig.hw.seams import Clock, OperatingMode, ServoState
 
 STATUS_RETURN_ALL = 2
+# The handshake pings each servo up to this many rounds (each with the transport's retries), pausing
+# between rounds: transient reply loss must not fail a connect.
+HANDSHAKE_ROUNDS = 3
+HANDSHAKE_PAUSE_S = 0.05
 POSITION_MODES = (
     OperatingMode.POSITION,
     OperatingMode.EXTENDED_POSITION,
@@ -322,13 +326,24 @@ class DynamixelServoBus:
             raise
         self._connected = True
 
+    def _ping_patiently(self, servo_id: int) -> int:
+        """A handshake ping: `HANDSHAKE_ROUNDS` rounds of the transport's retries, paused between."""
+        for round_left in reversed(range(HANDSHAKE_ROUNDS)):
+            try:
+                return self._link.ping(servo_id)
+            except (RigTimeoutError, CommunicationError):
+                if not round_left:
+                    raise
+                self._clock.sleep(HANDSHAKE_PAUSE_S)
+        raise AssertionError("unreachable")
+
     def _handshake(self) -> None:
         missing: list[str] = []
         mismatched: list[str] = []
         unreadable: list[str] = []
         for servo_id, servo in self._servos.items():
             try:
-                found = self._link.ping(servo_id)
+                found = self._ping_patiently(servo_id)
             except RigTimeoutError:
                 missing.append(servo.label)
                 continue
