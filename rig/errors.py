@@ -27,6 +27,10 @@ class RigTimeoutError(RigError, TimeoutError):
     """A device did not answer within its bounded window."""
 
 
+class StepTimeoutError(RigTimeoutError):
+    """A protocol step (a move, the ramp, the unload) did not finish in the time its motion allows."""
+
+
 class NotConnectedError(RigError, ConnectionError):
     """A device is missing, unplugged, or was never connected."""
 

@@ -177,10 +177,7 @@ def load_rig_config(path: str | Path | None = None) -> RigConfig:
     """Load and validate a rig config; the built-in simulated rig when `path` is None."""
     p = Path(path) if path is not None else DEFAULT_RIG_CONFIG
     text = read_text_file(p, what="a rig config YAML file")
-    data = parse_yaml(text, str(p))
-    if isinstance(data, dict) and "extends" in data:
-        data = _extended(Section(data, str(p)))
-    return parse_rig_config(data, source=str(p), text=text, base_dir=p.parent)
+    return parse_rig_config(parse_yaml(text, str(p)), source=str(p), text=text, base_dir=p.parent)
 
 
 # `extends: simulated` starts a config from the built-in simulated rig; the file's own fields are
@@ -204,7 +201,9 @@ def _merged(base: Any, override: Any) -> Any:
 
 
 def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path | None = None) -> RigConfig:
-    """Validate a parsed rig config mapping."""
+    """Validate a parsed rig config mapping (one that `extends:` a built-in config is merged first)."""
+    if isinstance(data, dict) and "extends" in data:
+        data = _extended(Section(data, source))
     top = Section(data, source)
     top.reject_unknown(
         [

@@ -29,8 +29,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     columns = ("scenario", "exit", "trials", "safe state reported", "tension at the end", "torque")
-    print("| " + " | ".join(columns) + " | journalled, not in log |")
-    print("|---|---|---|---|---|---|---|")
+    print("| " + " | ".join(columns) + " | trials repeated | journalled, not in log |")
+    print("|---|---|---|---|---|---|---|---|")
     for config in sorted((ROOT / "protocols" / "rigs" / "faults").glob("*.yaml")):
         with tempfile.TemporaryDirectory() as out:
             request = RunRequest(args.protocol, config, Path(out), args.seed, run_id=config.stem)
@@ -44,7 +44,8 @@ def main() -> None:
                 f"| {config.stem} | {int(report.exit_code)} | {report.completed}/{report.planned} "
                 f"| {'verified' if report.safe_state_verified else 'NOT verified'} "
                 f"| {truth.get('final_tension_n', float('nan')):.2f} N "
-                f"| {'off' if truth.get('torque_off') else 'ON'} | {lost} |"
+                f"| {'off' if truth.get('torque_off') else 'ON'} "
+                f"| {len(prepared.journal.retried_trials)} | {lost} |"
             )
 
 

@@ -29,6 +29,7 @@ class Expected:
     torque_off: bool
     verified: bool  # the run reports the safe state as verified
     reason: str = ""  # a fragment of the reason
+    retries: int = 0  # trials repeated after a device fault that cleared
 
 
 MATRIX = {
@@ -37,7 +38,8 @@ MATRIX = {
     "loadcell-unplugged": Expected(
         1, 0, slack=True, torque_off=True, verified=True, reason="NotConnectedError"
     ),
-    "winch-overload": Expected(1, 0, slack=True, torque_off=True, verified=True, reason="overload"),
+    "winch-overload": Expected(0, 2, slack=True, torque_off=True, verified=True, retries=1),
+    "loadcell-gap": Expected(0, 2, slack=True, torque_off=True, verified=True, retries=1),
     "winch-silent": Expected(1, 0, slack=True, torque_off=True, verified=False, reason="LINE MAY BE LOADED"),
     "winch-disconnected": Expected(
         1, 0, slack=False, torque_off=False, verified=False, reason="LINE MAY BE LOADED"
@@ -73,5 +75,7 @@ def test_fault_scenario_ends_as_stated(scenario, tmp_path):
     assert truth is not None
     assert (truth["final_tension_n"] < SLACK_N) == expected.slack, truth["final_tension_n"]
     assert truth["torque_off"] == expected.torque_off
+    journal = prepared.journal
+    assert len(journal.retried_trials) == expected.retries
     fired = sim.devices.faults.fired
     assert all(f.startswith(("servos", "winch", "bender", "loadcell")) for f in fired)

@@ -127,8 +127,10 @@ def test_stale_load_cell_stops_safely(sim_run, protocol_file, assert_safe):
     assert_safe(sim)
 
 
-def test_servo_hardware_error_stops_safely(sim_run, protocol_file, assert_safe):
-    def overload_after_first_trial(sim):
+def test_a_hardware_error_that_comes_back_stops_the_run_safely_after_the_retries(
+    tmp_path, sim_run, protocol_file, assert_safe
+):
+    def overload_at_every_start_of_trial_2(sim):
         world = sim.devices.world
         bus = sim.devices.bus
         original = sim.session.begin_trial
@@ -141,9 +143,11 @@ def test_servo_hardware_error_stops_safely(sim_run, protocol_file, assert_safe):
         sim.session.begin_trial = begin
         assert world is not None
 
-    report, sim = sim_run(protocol_file(QUICK_PROTOCOL), patch=overload_after_first_trial)
+    report, sim = sim_run(protocol_file(QUICK_PROTOCOL), patch=overload_at_every_start_of_trial_2)
     assert report.exit_code == 1 and report.completed == 1
     assert "overload" in report.reason
+    # Each start of trial 2 latches the error again: rebooted and repeated twice, then the run stops.
+    assert RunJournal.load(tmp_path / "out" / "r1.journal.json").retried_trials == [2, 2]
     assert_safe(sim)
 
 

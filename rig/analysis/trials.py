@@ -34,6 +34,7 @@ from rig.log.records import SlipMessage, TrialKind, TrialPhase, TrialResult
 
 RAMP_PHASES = (TrialPhase.RAMP_FAST.value, TrialPhase.RAMP_SLOW.value)
 UNLOADING_PHASE = TrialPhase.UNLOADING.value
+RECOVER_STEP = "recover"  # the runner's step name when it releases the line after a device fault
 
 # Column -> dtype of the trial table (joint angle columns `joint_angle_<i>_rad` are added per joint).
 TRIAL_COLUMNS: dict[str, str] = {
@@ -155,6 +156,11 @@ def _ramp_window(
         & (times <= end_ns)
     )
     phases = states["phase"].to_numpy(object)
+    # A trial repeated after a device fault logs a `recover` step; its result is the last attempt's.
+    steps = states["step"].to_numpy(object) if "step" in states else np.full(len(states), None)
+    recovered = np.flatnonzero(mine & (steps == RECOVER_STEP))
+    if recovered.size:
+        mine &= times >= times[recovered[-1]]
     ramp_idx = np.flatnonzero(mine & np.isin(phases, RAMP_PHASES))
     if ramp_idx.size == 0:
         return None, None

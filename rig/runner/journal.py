@@ -42,6 +42,7 @@ class RunJournal:
     logs: list[str] = field(default_factory=list)
     status: str = "running"
     invocations: int = 0
+    retried_trials: list[int] = field(default_factory=list)  # one entry per repeat after a device fault
 
     @staticmethod
     def path_for(out_dir: Path, run_id: str) -> Path:
@@ -56,6 +57,11 @@ class RunJournal:
     def record_trial(self, result: TrialResult) -> None:
         """Append one finished trial and persist atomically."""
         self.completed.append(result)
+        self.save()
+
+    def record_retry(self, trial_id: int) -> None:
+        """Count one repeat of a trial after a device fault, and persist."""
+        self.retried_trials.append(trial_id)
         self.save()
 
     def save(self) -> None:
@@ -73,6 +79,7 @@ class RunJournal:
             "logs": self.logs,
             "status": self.status,
             "invocations": self.invocations,
+            "retried_trials": self.retried_trials,
         }
         atomic_write_text(self.path, json.dumps(payload, indent=1, allow_nan=False) + "\n")
 
@@ -101,6 +108,7 @@ class RunJournal:
                 logs=[str(x) for x in data["logs"]],
                 status=str(data["status"]),
                 invocations=int(data.get("invocations", 0)),
+                retried_trials=[int(t) for t in data.get("retried_trials", [])],
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{path}: damaged run journal (field {exc})") from None

@@ -20,12 +20,15 @@ from dataclasses import dataclass, field
 
 from model.slip_detector import DetectorParams, SlipEvent, detector_init, detector_step
 from rig.errors import (
+    CommunicationError,
     ExitCode,
     HardwareFault,
     InterlockTripped,
+    NotConnectedError,
     RigError,
     RigTimeoutError,
     StaleDataError,
+    StepTimeoutError,
 )
 from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
 from rig.hw.session import RigSession
@@ -59,6 +62,18 @@ _BENDER_SPEED_RAD_S = 2.0
 # The safe state waits this long beyond the winch's travel time: interlocks are off by then, and
 # the load cell may be what failed, so arrival at the zero-tension angle is all it waits for.
 _SAFE_STATE_MARGIN_S = 2.0
+# After a device fault in a trial: how many times the trial may be repeated, and how long the rig
+# has to answer healthily again (servos without a hardware error, fresh load-cell samples).
+MAX_TRIAL_RETRIES = 2
+RECOVERY_GRACE_S = 2.0
+_DEVICE_FAULTS = (
+    StaleDataError,
+    NotConnectedError,
+    CommunicationError,
+    RigTimeoutError,
+    HardwareFault,
+    InterlockTripped,
+)
 LINE_MAY_BE_LOADED = (
     "THE LINE MAY BE LOADED: switch off the servos' power before touching the link, then release the "
     "winch by hand"
@@ -119,6 +134,7 @@ class TrialRunner:
         self.connected = False
         self.release_report: list[str] = []  # what the safe state's release did and verified
         self.release_verified = False
+        self._recovered_zero: float | None = None  # the winch's zero after a reboot re-counted its turns
         self._log_failed: LogWriteError | None = None
         self._best_effort = False
 
@@ -130,7 +146,7 @@ class TrialRunner:
         try:
             self._connect()
             for trial in trials:
-                outcome.new_results.append(self._run_trial(trial))
+                outcome.new_results.append(self._run_trial_until_done(trial))
             self._phase(Phase.DONE, None)
         except KeyboardInterrupt:
             outcome = RunOutcome(
@@ -264,10 +280,80 @@ class TrialRunner:
         deadline = self.clock.monotonic_ns() + round(timeout_s * 1e9)
         while not done():
             if self.clock.monotonic_ns() > deadline:
-                raise RigTimeoutError(f"step {what} did not finish within its timeout of {timeout_s:.1f} s")
+                raise StepTimeoutError(f"step {what} did not finish within its timeout of {timeout_s:.1f} s")
             step()
 
     # ------------------------------------------------------------------ trial
+
+    def _run_trial_until_done(self, trial: TrialPlan) -> TrialResult:
+        """Run a trial; after a device fault that clears, repeat it (at most `MAX_TRIAL_RETRIES` times).
+
+        A device fault (a servo or load cell not answering, stale data, a latched hardware error)
+        stops the attempt in a trial-level safe state: the line is released (a faulted winch is
+        rebooted first). If within `RECOVERY_GRACE_S` every servo answers without a hardware error
+        and the load cell delivers fresh samples, the trial starts again from its first step; the
+        retry is logged and counted in the journal. Otherwise the fault ends the run (exit 1).
+        """
+        for retries in range(MAX_TRIAL_RETRIES + 1):
+            try:
+                return self._run_trial(trial)
+            except (StaleDataError, NotConnectedError, CommunicationError, RigTimeoutError, HardwareFault,
+                    InterlockTripped) as exc:  # fmt: skip
+                if (
+                    retries == MAX_TRIAL_RETRIES
+                    or not self._device_fault(exc)
+                    or not self._recover(trial, exc)
+                ):
+                    raise
+            self.journal.record_retry(trial.trial_id)
+            self._note(LogLevel.WARNING, f"trial {trial.trial_id}: the rig recovered; repeating the trial")
+        raise AssertionError("unreachable")
+
+    def _device_fault(self, exc: RigError) -> bool:
+        """Whether `exc` is a device's fault that may clear (not a step timeout or a tension limit)."""
+        if isinstance(exc, StepTimeoutError):
+            return False
+        if isinstance(exc, InterlockTripped):  # only the hardware-error interlock is a device's fault
+            return any(state.hardware_error for state in self.states.values())
+        return True
+
+    def _recover(self, trial: TrialPlan, exc: RigError) -> bool:
+        """Release the line after a device fault and wait for a healthy rig; True if it recovered."""
+        self._note(LogLevel.WARNING, f"trial {trial.trial_id} stopped: {exc}; releasing the line")
+        self._phase(Phase.UNLOADING, trial.trial_id, "recover")
+        zero = self.winch_zero_rad
+        if zero is None:
+            return False
+        self.release_report = []
+        try:
+            self._release_in_safe_state(zero)
+        except RigError as error:
+            self._note(LogLevel.ERROR, f"trial {trial.trial_id}: release after the fault failed: {error}")
+            return False
+        if self._recovered_zero is not None:
+            self.winch_zero_rad = zero = self._recovered_zero
+        winch = self.session.winch_id
+        deadline = self.clock.monotonic_ns() + round(RECOVERY_GRACE_S * 1e9)
+        while self.clock.monotonic_ns() < deadline:
+            self.clock.sleep(self.protocol.control_period_s)
+            try:
+                self.states = self.session.servos.read_states()
+                samples = self.session.load_cell.poll()
+            except RigError:
+                continue
+            self._ingest(samples)
+            home = abs(self.states[winch].position_rad - zero) < _POSITION_TOLERANCE_RAD
+            if home and samples and not any(s.hardware_error for s in self.states.values()):
+                self._next_tick_ns = self.clock.monotonic_ns()
+                self._note(
+                    LogLevel.INFO,
+                    f"trial {trial.trial_id}: rig healthy again ({'; '.join(self.release_report)})",
+                )
+                return True
+        self._note(
+            LogLevel.ERROR, f"trial {trial.trial_id}: the rig did not recover within {RECOVERY_GRACE_S:g} s"
+        )
+        return False
 
     def _run_trial(self, trial: TrialPlan) -> TrialResult:
         self.trial = trial
@@ -459,7 +545,7 @@ class TrialRunner:
                 self._note(LogLevel.WARNING, f"trial {trial.trial_id}: winch travel exhausted without a slip")
                 break
             if self.clock.monotonic_ns() > deadline:
-                raise RigTimeoutError(
+                raise StepTimeoutError(
                     f"trial {trial.trial_id}: ramp_until_slip exceeded its timeout of {timeout_s:.1f} s"
                 )
         # Stop reeling: hold where the winch is, keep logging the post-slip tension briefly.
@@ -536,6 +622,7 @@ class TrialRunner:
         servos = self.session.servos
         report = self.release_report
         zero_rad = self._recover_winch(zero_rad)
+        self._recovered_zero = zero_rad
         speed = self.protocol.ramp.unload_speed_rad_s
         try:
             servos.set_profile(winch, velocity_rad_s=speed)
@@ -562,7 +649,7 @@ class TrialRunner:
                 report.append("winch back at its zero-tension angle (read back)")
                 return
         if answered:
-            raise RigTimeoutError("winch did not return to zero tension within its timeout")
+            raise StepTimeoutError("winch did not return to zero tension within its timeout")
         report.append(
             f"winch not answering: its zero-tension goal went out by broadcast; it was given {wait_s:.1f} s"
             " (not verified)"
