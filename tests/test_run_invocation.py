@@ -1,10 +1,11 @@
-"""One `rig run` invocation against a hostile world: a second process on the same run, moved
-protocols, run ids that try to leave --out, and an --out that cannot be written."""
+"""One `rig run` invocation against a hostile world: signals at bad moments, a second process on the
+same run, moved protocols, run ids that try to leave --out, and an --out that cannot be written."""
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -12,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+import rig.rigs as composition
 from rig.errors import InputError
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
@@ -19,7 +21,7 @@ from rig.runner.run import RunRequest, execute_run, prepare_run
 from rig.runner.runlock import RunInProgressError
 from rig.sim.fakes import FakeRig, fake_rig
 from tests.helpers import QUICK_PROTOCOL
-from tests.test_runner_fakes import SLIP_FORCES_N
+from tests.test_runner_fakes import SLIP_FORCES_N, assert_released_then_torque_off
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -64,6 +66,113 @@ def signal_during_shutdown(rig: FakeRig, *signums: int) -> None:
 
 def status(out: Path, run_id: str = "f1") -> str:
     return RunJournal.load(out / f"{run_id}.journal.json").status
+
+
+# ------------------------------------------------------------------ 1. a second Ctrl-C in the safe state
+
+
+def test_a_second_ctrl_c_in_the_safe_state_still_saves_the_journal_and_report(
+    tmp_path, quick, signal_handlers
+):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2)
+    signal_during_shutdown(rig, signal.SIGINT, signal.SIGTERM)
+    report = run_fake(rig, quick, tmp_path / "out")
+    assert report.exit_code == 130 and report.aborted and report.completed == 1
+    assert report.reason == "interrupted by the operator"
+    assert status(tmp_path / "out") == "interrupted"
+    assert_released_then_torque_off(rig)  # the safe state itself ran to its end
+
+
+def test_a_second_ctrl_c_prints_the_json_report_and_exits_130(
+    tmp_path, quick, signal_handlers, monkeypatch, run_cli
+):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2)
+    signal_during_shutdown(rig, signal.SIGINT)
+    monkeypatch.setattr(composition, "open_session", lambda prepared: rig.session)
+    result = run_cli("run", quick, "--out", tmp_path / "out", "--run-id", "f1", "--json")
+    assert result.code == 130, result.err
+    report = json.loads(result.out)  # exactly one JSON object
+    assert report["run_id"] == "f1" and report["aborted"] and report["completed"] == 1
+    assert status(tmp_path / "out") == "interrupted"
+    assert "Traceback" not in result.err
+    assert_released_then_torque_off(rig)
+
+
+def test_ctrl_c_after_the_last_trial_does_not_undo_a_completed_run(tmp_path, quick, signal_handlers):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    signal_during_shutdown(rig, signal.SIGINT)
+    report = run_fake(rig, quick, tmp_path / "out")
+    assert report.exit_code == 0 and report.completed == 3 and not report.aborted
+    assert status(tmp_path / "out") == "completed"
+    assert_released_then_torque_off(rig)
+
+
+def test_ctrl_c_while_the_log_is_set_up_ends_interrupted_before_anything_moved(
+    tmp_path, quick, signal_handlers
+):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+
+    class Progress(SilentProgress):
+        def start(self, run_id: str, planned: int, done: int) -> None:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    report = execute_run(prepare_run(request(quick, tmp_path / "out")), rig.session, Progress())
+    assert report.exit_code == 130 and report.completed == 0
+    assert status(tmp_path / "out") == "interrupted"
+    assert "connect" not in rig.servos.call_names()
+    assert not rig.winch.torque_enabled
+
+
+# ------------------------------------------------------------------ 2. signals from the first instruction
+
+# `rig.cli.main` with a byte written to fd SYNC as it begins building the parser (its first step
+# after installing the SIGTERM handler), so the delays count from there, not from process start.
+CHILD = """\
+import os, sys
+import rig.cli
+build = rig.cli.build_parser
+def announced():
+    os.write(int(sys.argv[1]), b"!")
+    return build()
+rig.cli.build_parser = announced
+sys.exit(rig.cli.main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.subprocess
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("delay_s", [0.0, 0.05, 0.1, 0.3, 1.5])
+def test_a_signal_early_in_rig_run_exits_130_without_a_traceback(tmp_path, signum, delay_s):
+    read_fd, write_fd = os.pipe()
+    argv = ["run", str(ROOT / "protocols" / "joint_estimation.yaml"), "--out", str(tmp_path)]
+    argv += ["--run-id", "e1", "--realtime", "--json"]  # real time: 1.5 s is well inside the run
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CHILD, str(write_fd), *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        pass_fds=(write_fd,),
+        cwd=ROOT,
+    )
+    os.close(write_fd)
+    try:
+        assert os.read(read_fd, 1) == b"!"
+        time.sleep(delay_s)
+        proc.send_signal(signum)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        os.close(read_fd)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    journal = tmp_path / "e1.journal.json"
+    if out.strip():  # the run had begun: its report, and a journal that says how it ended
+        assert json.loads(out)["aborted"]
+        assert RunJournal.load(journal).status == "interrupted"
+    else:
+        assert not journal.exists() or RunJournal.load(journal).status == "interrupted"
 
 
 # ------------------------------------------------------------------ 3. one process per run

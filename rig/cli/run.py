@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from rig.rigs import open_session
     from rig.runner.progress import make_progress
     from rig.runner.run import RunRequest, execute_run, prepare_run
-    from rig.runner.safety import terminate_as_interrupt
+    from rig.runner.safety import interrupts_held
 
     if args.seed < 0:
         raise InputError(f"--seed {args.seed}: allowed: an integer >= 0")
@@ -115,14 +115,14 @@ def run(args: argparse.Namespace) -> int:
     prepared = prepare_run(request)  # validates everything, locks the run; InputError -> exit 2
     try:
         session = open_session(prepared)
-        terminate_as_interrupt()
         report = execute_run(prepared, session, make_progress(args.json))
     finally:
         prepared.release()
-    if args.json:
-        emit_json(report.as_json())
-    else:
-        print(_summary(report), file=sys.stderr if report.exit_code else sys.stdout)
+    with interrupts_held():  # the run has ended: its report is printed whole
+        if args.json:
+            emit_json(report.as_json())
+        else:
+            print(_summary(report), file=sys.stderr if report.exit_code else sys.stdout)
     return report.exit_code
 
 

@@ -39,7 +39,9 @@ from rig.runner.limits import check_limits
 from rig.runner.progress import ProgressReporter
 from rig.runner.results import percentage_error_stats
 from rig.runner.runlock import RunLock
-from rig.runner.trial_runner import TrialRunner
+from rig.runner.safe_state import enter_safe_state
+from rig.runner.safety import interrupts_held
+from rig.runner.trial_runner import RunOutcome, TrialRunner
 
 # Run ids name files in --out (RUN_ID.mcap, RUN_ID.partN.mcap, RUN_ID.journal.json, ...): no path
 # separators, no leading dot, bounded length, and no `.partN` ending, which a resumed run's logs use.
@@ -47,6 +49,7 @@ RUN_ID_MAX_CHARS = 100
 _RUN_ID = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{RUN_ID_MAX_CHARS - 1}}}")
 _PART_SUFFIX = re.compile(r"\.part[0-9]+")
 _UNSAFE_IN_NAME = re.compile(r"[^A-Za-z0-9_-]+")
+_INTERRUPTED = "interrupted by the operator"
 
 
 @dataclass
@@ -213,7 +216,12 @@ def _prepared(
 
 
 def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressReporter) -> RunReport:
-    """Run the remaining trials on `session`, write the log, journal and estimates, release the lock."""
+    """Run the remaining trials on `session`, write the log, journal and estimates, release the lock.
+
+    Ctrl-C and SIGTERM stop the trials (the runner ends in the safe state); while the log and journal
+    are set up, and from the safe state on while they are finished, they are held, so the journal
+    always ends with the run's status and the report is returned (docs/design.md §6).
+    """
     try:
         return _execute(prepared, session, progress)
     finally:
@@ -222,31 +230,53 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
 
 def _execute(prepared: PreparedRun, session: RigSession, progress: ProgressReporter) -> RunReport:
     protocol, config, journal = prepared.protocol, prepared.config, prepared.journal
-    log_path, estimates_path = prepared.log_path, prepared.estimates_path
-    journal.invocations += 1
-    journal.logs.append(str(log_path))
-    journal.status = "running"
-    journal.save()
-    logger = RunLogger(log_path, clock=session.clock)
+    log_path = prepared.log_path
+    outcome: RunOutcome | None = None
+    logger: RunLogger | None = None
     try:
-        _write_metadata(logger, prepared, session)
-        progress.start(journal.run_id, len(protocol.trials), len(journal.completed))
-        runner = TrialRunner(
-            protocol=protocol,
-            config=config,
-            session=session,
-            logger=logger,
-            journal=journal,
-            estimator=prepared.estimator,
-            progress=progress,
-            line_stiffness_n_per_m=config.line_stiffness_n_per_m,
-        )
-        outcome = runner.run(prepared.remaining)
-        if session.truth is not None:  # at the end, so it includes every trial's hidden draws
-            logger.add_metadata("sim_truth", {"json": json.dumps(session.truth.detail(), allow_nan=False)})
+        with interrupts_held() as early:
+            journal.invocations += 1
+            journal.logs.append(str(log_path))
+            journal.status = "running"
+            journal.save()
+            logger = RunLogger(log_path, clock=session.clock)
+            _write_metadata(logger, prepared, session)
+            progress.start(journal.run_id, len(protocol.trials), len(journal.completed))
+            runner = TrialRunner(
+                protocol=protocol,
+                config=config,
+                session=session,
+                logger=logger,
+                journal=journal,
+                estimator=prepared.estimator,
+                progress=progress,
+                line_stiffness_n_per_m=config.line_stiffness_n_per_m,
+            )
+        try:
+            if early:
+                raise KeyboardInterrupt
+            outcome = runner.run(prepared.remaining)
+        except KeyboardInterrupt:
+            # Before the runner began (nothing connected yet), or just after its safe state.
+            if not runner.connected:
+                with interrupts_held():
+                    enter_safe_state(session, lambda: None)
+            outcome = RunOutcome(ExitCode.INTERRUPTED, "interrupted", _INTERRUPTED)
     finally:
-        progress.stop()
-        logger.finish()
+        with interrupts_held():
+            if logger is not None:
+                if outcome is not None and session.truth is not None:  # includes every trial's hidden draws
+                    logger.add_metadata(
+                        "sim_truth", {"json": json.dumps(session.truth.detail(), allow_nan=False)}
+                    )
+                progress.stop()
+                logger.finish()
+    with interrupts_held():
+        return _finish(prepared, session, outcome)
+
+
+def _finish(prepared: PreparedRun, session: RigSession, outcome: RunOutcome) -> RunReport:
+    journal, log_path, estimates_path = prepared.journal, prepared.log_path, prepared.estimates_path
     journal.status = outcome.status
     journal.save()
     summary = prepared.estimator.summary()
