@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 from rig import __version__
 from rig.errors import ExitCode, InputError, RigError
+from rig.runner.safety import interrupts_held, terminate_as_interrupt
 
 # Each module `rig.cli.<name>` defines `register(subparsers)`, which adds its parser and sets
 # `handler=<callable(args) -> int>` as a default.
@@ -46,20 +47,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the `rig` console script; returns the process exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    handler = getattr(args, "handler", None)
-    if handler is None:
-        parser.print_help(sys.stderr)
-        return ExitCode.INVALID_INPUT
+    """Entry point of the `rig` console script; returns the process exit code.
+
+    From its first instruction a SIGTERM is a Ctrl-C, and a Ctrl-C anywhere (importing the commands,
+    parsing, running) exits 130 without a traceback.
+    """
+    terminate_as_interrupt()
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        handler = getattr(args, "handler", None)
+        if handler is None:
+            parser.print_help(sys.stderr)
+            return ExitCode.INVALID_INPUT
         return int(handler(args))
     except InputError as exc:
         print(f"rig: error: {exc}", file=sys.stderr)
         return ExitCode.INVALID_INPUT
     except KeyboardInterrupt:
-        print("rig: interrupted", file=sys.stderr)
+        with interrupts_held():  # a second one must not turn this into a traceback
+            print("rig: interrupted", file=sys.stderr)
         return ExitCode.INTERRUPTED
     except RigError as exc:
         print(f"rig: {type(exc).__name__}: {exc}", file=sys.stderr)

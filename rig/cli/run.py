@@ -27,7 +27,8 @@ Without --rig the built-in simulated rig is used: the real drivers talk byte for
 emulated servos and an emulated load cell, in virtual time (as fast as the CPU allows).
 
 Everything is logged to OUT/RUN_ID.mcap; OUT/RUN_ID.journal.json lets `--resume RUN_ID` finish
-an interrupted run without repeating or losing a trial. Every way out of a run releases the line
+an interrupted run without repeating or losing a trial. One process at a time works on a run
+(OUT/RUN_ID.lock); a crashed run can always be resumed. Every way out of a run releases the line
 tension and then turns torque off.
 
 exit codes: 0 done; 1 stopped by a fault or an interlock (the summary and --json say whether the
@@ -73,7 +74,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="simulation in real time instead of virtual time (e.g. to watch it)",
     )
     p.add_argument(
-        "--run-id", default=None, metavar="ID", help="name of the run (default: UTC time + protocol name)"
+        "--run-id",
+        default=None,
+        metavar="ID",
+        help="name of the run: 1-100 letters, digits, '.', '_', '-' (default: UTC time + protocol name)",
     )
     p.add_argument(
         "--dry-run", action="store_true", help="print the plan, limit checks and duration; move nothing"
@@ -91,11 +95,11 @@ def run(args: argparse.Namespace) -> int:
     from rig.rigs import open_session
     from rig.runner.progress import make_progress
     from rig.runner.run import RunRequest, execute_run, prepare_run
-    from rig.runner.safety import terminate_as_interrupt
+    from rig.runner.safety import interrupts_held
 
     if args.seed < 0:
         raise InputError(f"--seed {args.seed}: allowed: an integer >= 0")
-    if args.resume and args.run_id:
+    if args.resume is not None and args.run_id is not None:
         raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
     if args.dry_run:
         return _dry_run(args)
@@ -108,14 +112,17 @@ def run(args: argparse.Namespace) -> int:
         run_id=args.run_id,
         resume=args.resume,
     )
-    prepared = prepare_run(request)  # validates everything; InputError -> exit 2, nothing started
-    session = open_session(prepared)
-    terminate_as_interrupt()
-    report = execute_run(prepared, session, make_progress(args.json))
-    if args.json:
-        emit_json(report.as_json())
-    else:
-        print(_summary(report), file=sys.stderr if report.exit_code else sys.stdout)
+    prepared = prepare_run(request)  # validates everything, locks the run; InputError -> exit 2
+    try:
+        session = open_session(prepared)
+        report = execute_run(prepared, session, make_progress(args.json))
+    finally:
+        prepared.release()
+    with interrupts_held():  # the run has ended: its report is printed whole
+        if args.json:
+            emit_json(report.as_json())
+        else:
+            print(_summary(report), file=sys.stderr if report.exit_code else sys.stdout)
     return report.exit_code
 
 

@@ -1,20 +1,25 @@
 """One `rig run` invocation: run ids, the journal, the MCAP file, the session, and the final report.
 
-`start_run` validates everything (protocol, rig config, limits, resume consistency) before any
-device is opened; invalid input raises `InputError` and nothing is written. It then builds the
-session (simulated or hardware), opens a new MCAP file for this invocation, writes the metadata
-and attachments, runs the remaining trials through `TrialRunner`, and returns a `RunReport`
-whose `as_json()` is the `rig run --json` object (docs/design.md §5).
+`prepare_run` validates everything (protocol, rig config, limits, resume consistency, the run id
+and the `--out` directory) before any device is opened, and locks the run against other
+invocations; invalid input raises `InputError` and nothing but the lock file is written.
+`execute_run` then opens a new MCAP file for this invocation, writes the metadata and
+attachments, runs the remaining trials through `TrialRunner`, saves the journal and estimates,
+releases the lock, and returns a `RunReport` whose `as_json()` is the `rig run --json` object
+(docs/design.md §5).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import os
 import platform
 import re
 import socket
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,9 +39,18 @@ from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
 from rig.runner.progress import ProgressReporter
 from rig.runner.results import percentage_error_stats
+from rig.runner.runlock import RunLock
+from rig.runner.safe_state import enter_safe_state
+from rig.runner.safety import interrupts_held
 from rig.runner.trial_runner import RunOutcome, TrialRunner
 
-_RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
+# Run ids name files in --out (RUN_ID.mcap, RUN_ID.partN.mcap, RUN_ID.journal.json, ...): no path
+# separators, no leading dot, bounded length, and no `.partN` ending, which a resumed run's logs use.
+RUN_ID_MAX_CHARS = 100
+_RUN_ID = re.compile(rf"[A-Za-z0-9][A-Za-z0-9._-]{{0,{RUN_ID_MAX_CHARS - 1}}}")
+_PART_SUFFIX = re.compile(r"\.part[0-9]+")
+_UNSAFE_IN_NAME = re.compile(r"[^A-Za-z0-9_-]+")
+_INTERRUPTED = "interrupted by the operator"
 
 
 @dataclass
@@ -104,42 +118,38 @@ class PreparedRun:
     journal: RunJournal
     estimator: RunEstimator
     remaining: list[TrialPlan]
+    log_path: Path  # this invocation's MCAP file
+    estimates_path: Path
+    lock: RunLock | None = None
+
+    def release(self) -> None:
+        """Give up the run's lock (`execute_run` does it when it returns); idempotent."""
+        if self.lock is not None:
+            self.lock.release()
 
 
 def prepare_run(request: RunRequest) -> PreparedRun:
-    """Validate the request and load or create the journal; raises InputError on bad input."""
+    """Validate the request, lock the run, and load or create its journal; raises InputError on bad input.
+
+    The lock (`OUT/RUN_ID.lock`) is held until `execute_run` returns or `PreparedRun.release()`.
+    """
     config = load_rig_config(request.rig_path)
-    journal: RunJournal | None
     if request.resume is not None:
         run_id = _check_run_id(request.resume, "--resume")
-        journal = RunJournal.load(RunJournal.path_for(request.out_dir, run_id))
-        seed = journal.seed
-        if journal.status == "completed":
-            raise InputError(f"{journal.path}: run {run_id} is already completed; nothing to resume")
-        if Path(journal.protocol_path).resolve() != request.protocol_path.resolve():
-            raise InputError(
-                f"--resume {run_id}: the run used protocol {journal.protocol_path}, "
-                f"not {request.protocol_path}"
-            )
-    else:
-        seed = request.seed
-        journal = None
-    protocol = load_protocol(request.protocol_path, seed=seed, joint_count=config.article.joint_count)
+        _check_out_dir(request.out_dir, create=False)
+        lock = _lock_run(request.out_dir, run_id)
+        with _released_on_error(lock):
+            protocol, journal = _resumed_journal(request, config, run_id)
+            return _prepared(request, protocol, config, journal, lock)
+    protocol = load_protocol(request.protocol_path, seed=request.seed, joint_count=config.article.joint_count)
     check_limits(protocol, config)
-    protocol_hash = content_hash(protocol.text)
-    rig_hash = content_hash(config.text)
-    if journal is not None:
-        if journal.protocol_hash != protocol_hash:
-            raise InputError(
-                f"{request.protocol_path}: changed since run {journal.run_id} started; refusing to resume"
-            )
-        if journal.rig_hash != rig_hash:
-            raise InputError(
-                f"{config.source}: rig config changed since run {journal.run_id} started; refusing to resume"
-            )
-    else:
-        run_id = _check_run_id(request.run_id, "--run-id") if request.run_id else _new_run_id(protocol)
-        path = RunJournal.path_for(request.out_dir, run_id)
+    run_id = (
+        _check_run_id(request.run_id, "--run-id") if request.run_id is not None else _new_run_id(protocol)
+    )
+    _check_out_dir(request.out_dir, create=True)
+    lock = _lock_run(request.out_dir, run_id)
+    with _released_on_error(lock):
+        path = _in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id))
         if path.exists():
             raise InputError(
                 f"{path}: run {run_id} already exists; use --resume {run_id} or another --run-id"
@@ -148,12 +158,38 @@ def prepare_run(request: RunRequest) -> PreparedRun:
             path=path,
             run_id=run_id,
             protocol_path=str(request.protocol_path),
-            protocol_hash=protocol_hash,
+            protocol_hash=content_hash(protocol.text),
             rig_path=str(config.source),
-            rig_hash=rig_hash,
-            seed=seed,
+            rig_hash=content_hash(config.text),
+            seed=request.seed,
             planned_trials=[t.trial_id for t in protocol.trials],
         )
+        return _prepared(request, protocol, config, journal, lock)
+
+
+def _resumed_journal(request: RunRequest, config: RigConfig, run_id: str) -> tuple[Protocol, RunJournal]:
+    """The journal of run `run_id` and its protocol, checked to be the same files by content."""
+    journal = RunJournal.load(_in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id)))
+    if journal.status == "completed":
+        raise InputError(f"{journal.path}: run {run_id} is already completed; nothing to resume")
+    protocol = load_protocol(request.protocol_path, seed=journal.seed, joint_count=config.article.joint_count)
+    check_limits(protocol, config)
+    # By content, not path: a protocol moved or copied unchanged resumes; an edited one does not.
+    if journal.protocol_hash != content_hash(protocol.text):
+        raise InputError(
+            f"{request.protocol_path}: changed since run {run_id} started (it used {journal.protocol_path}, "
+            "whose content differs); refusing to resume"
+        )
+    if journal.rig_hash != content_hash(config.text):
+        raise InputError(
+            f"{config.source}: rig config changed since run {run_id} started; refusing to resume"
+        )
+    return protocol, journal
+
+
+def _prepared(
+    request: RunRequest, protocol: Protocol, config: RigConfig, journal: RunJournal, lock: RunLock
+) -> PreparedRun:
     prior = None
     if protocol.estimates_from not in (None, "run"):
         prior = load_estimates_file(protocol.estimates_from)
@@ -161,63 +197,110 @@ def prepare_run(request: RunRequest) -> PreparedRun:
     estimator.replay(journal.completed)
     done = journal.completed_ids
     remaining = [t for t in protocol.trials if t.trial_id not in done]
-    return PreparedRun(request, protocol, config, journal.run_id, journal, estimator, remaining)
+    invocation = journal.invocations + 1
+    suffix = "" if invocation == 1 else f".part{invocation}"
+    out = request.out_dir
+    log_path = _in_out_dir(out, out / f"{journal.run_id}{suffix}.mcap")
+    if log_path.exists():
+        raise InputError(f"{log_path}: exists; refusing to overwrite a log")
+    estimates_path = _in_out_dir(out, out / f"{journal.run_id}.estimates.json")
+    return PreparedRun(
+        request,
+        protocol,
+        config,
+        journal.run_id,
+        journal,
+        estimator,
+        remaining,
+        log_path,
+        estimates_path,
+        lock=lock,
+    )
 
 
 def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressReporter) -> RunReport:
-    """Run the remaining trials on `session` and write the log, journal and estimates."""
-    request, protocol, config, journal = (
-        prepared.request,
-        prepared.protocol,
-        prepared.config,
-        prepared.journal,
-    )
-    request.out_dir.mkdir(parents=True, exist_ok=True)
-    journal.invocations += 1
-    suffix = "" if journal.invocations == 1 else f".part{journal.invocations}"
-    log_path = request.out_dir / f"{journal.run_id}{suffix}.mcap"
-    if log_path.exists():
-        raise InputError(f"{log_path}: exists; refusing to overwrite a log")
-    journal.logs.append(str(log_path))
-    journal.status = "running"
-    journal.save()
-    logger = RunLogger(log_path, clock=session.clock, max_file_bytes=session.log_limit_bytes)
+    """Run the remaining trials on `session`, write the log, journal and estimates, release the lock.
+
+    Ctrl-C and SIGTERM stop the trials (the runner ends in the safe state); while the log and journal
+    are set up, and from the safe state on while they are finished, they are held, so the journal
+    always ends with the run's status and the report is returned (docs/design.md §6).
+    """
     try:
-        _write_metadata(logger, prepared, session)
-        progress.start(journal.run_id, len(protocol.trials), len(journal.completed))
-        runner = TrialRunner(
-            protocol=protocol,
-            config=config,
-            session=session,
-            logger=logger,
-            journal=journal,
-            estimator=prepared.estimator,
-            progress=progress,
-            line_stiffness_n_per_m=config.line_stiffness_n_per_m,
-        )
-        outcome = runner.run(prepared.remaining)
+        return _execute(prepared, session, progress)
     finally:
-        progress.stop()
-        log_error: LogWriteError | None = None
+        prepared.release()
+
+
+def _execute(prepared: PreparedRun, session: RigSession, progress: ProgressReporter) -> RunReport:
+    protocol, config, journal = prepared.protocol, prepared.config, prepared.journal
+    log_path = prepared.log_path
+    outcome: RunOutcome | None = None
+    logger: RunLogger | None = None
+    log_error: LogWriteError | None = None
+    try:
+        with interrupts_held() as early:
+            journal.invocations += 1
+            journal.logs.append(str(log_path))
+            journal.status = "running"
+            journal.save()
+            logger = RunLogger(log_path, clock=session.clock, max_file_bytes=session.log_limit_bytes)
+            _write_metadata(logger, prepared, session)
+            progress.start(journal.run_id, len(protocol.trials), len(journal.completed))
+            runner = TrialRunner(
+                protocol=protocol,
+                config=config,
+                session=session,
+                logger=logger,
+                journal=journal,
+                estimator=prepared.estimator,
+                progress=progress,
+                line_stiffness_n_per_m=config.line_stiffness_n_per_m,
+            )
         try:
-            if session.truth is not None:  # at the end, so it includes every trial's hidden draws
-                truth_json = json.dumps(session.truth.detail(), allow_nan=False)
-                logger.add_metadata("sim_truth", {"json": truth_json})
-            logger.finish()
-        except LogWriteError as exc:  # the run's own outcome says what stopped it; the rig is safe
-            log_error = exc
-            with contextlib.suppress(LogWriteError):
-                logger.finish()
+            if early:
+                raise KeyboardInterrupt
+            outcome = runner.run(prepared.remaining)
+        except KeyboardInterrupt:
+            # Before the runner began (nothing connected yet), or just after its safe state.
+            if not runner.connected:
+                with interrupts_held():
+                    enter_safe_state(session, lambda: None)
+            outcome = RunOutcome(ExitCode.INTERRUPTED, "interrupted", _INTERRUPTED)
+    finally:
+        with interrupts_held():
+            progress.stop()
+            if logger is not None:
+                log_error = _finish_log(logger, session if outcome is not None else None)
     if log_error is not None and outcome.exit_code == ExitCode.OK:  # the rig is safe; the log is not whole
         reason = f"LogWriteError: {log_error}"
-        outcome = RunOutcome(
-            ExitCode.FAULT, "faulted", reason, outcome.new_results, outcome.safe_state_verified
-        )
+        verified = outcome.safe_state_verified
+        outcome = RunOutcome(ExitCode.FAULT, "faulted", reason, outcome.new_results, verified)
+    with interrupts_held():
+        return _finish(prepared, session, outcome)
+
+
+def _finish_log(logger: RunLogger, session: RigSession | None) -> LogWriteError | None:
+    """Add the simulator's truth (every trial's hidden draws) and finish the file; the error, if any.
+
+    A log that cannot be written does not hide how the run ended: the error is returned, not raised.
+    """
+    try:
+        if session is not None and session.truth is not None:
+            logger.add_metadata("sim_truth", {"json": json.dumps(session.truth.detail(), allow_nan=False)})
+        logger.finish()
+    except LogWriteError as exc:
+        with contextlib.suppress(LogWriteError):
+            logger.finish()
+        return exc
+    return None
+
+
+def _finish(prepared: PreparedRun, session: RigSession, outcome: RunOutcome) -> RunReport:
+    journal, log_path, estimates_path = prepared.journal, prepared.log_path, prepared.estimates_path
     journal.status = outcome.status
     journal.save()
     summary = prepared.estimator.summary()
     joints = prepared.estimator.joint_estimates()
-    estimates_path = request.out_dir / f"{journal.run_id}.estimates.json"
     estimates = {
         "run_id": journal.run_id,
         "estimate": summary.as_json() if summary is not None else None,
@@ -231,7 +314,7 @@ def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressRe
         logs=list(journal.logs),
         trials=list(journal.completed),
         completed=len(journal.completed),
-        planned=len(protocol.trials),
+        planned=len(prepared.protocol.trials),
         aborted=outcome.exit_code != ExitCode.OK,
         reason=outcome.reason,
         exit_code=outcome.exit_code,
@@ -267,10 +350,55 @@ def _write_metadata(logger: RunLogger, prepared: PreparedRun, session: RigSessio
 
 
 def _check_run_id(run_id: str, flag: str) -> str:
-    if not _RUN_ID.match(run_id):
-        raise InputError(f"{flag} {run_id!r}: allowed: letters, digits, '.', '_', '-' (1-100 characters)")
+    if not _RUN_ID.fullmatch(run_id) or _PART_SUFFIX.search(run_id):
+        raise InputError(
+            f"{flag} {run_id!r}: allowed: 1-{RUN_ID_MAX_CHARS} letters, digits, '.', '_', '-', starting "
+            "with a letter or digit, not ending in '.partN'"
+        )
     return run_id
 
 
 def _new_run_id(protocol: Protocol) -> str:
-    return time.strftime("%Y%m%dT%H%M%S", time.gmtime()) + f"-{protocol.name}"
+    """UTC start time + the protocol's name, made safe: only letters, digits, '_', '-'; bounded length."""
+    stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+    name = _UNSAFE_IN_NAME.sub("_", protocol.name).strip("_-")
+    name = name[: RUN_ID_MAX_CHARS - len(stamp) - 1].rstrip("_-") or "run"
+    return f"{stamp}-{name}"
+
+
+def _check_out_dir(out_dir: Path, *, create: bool) -> None:
+    """`--out` is (or, for a new run, can be made) a directory we may write in; InputError if not."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"--out {out_dir}: not a directory")
+    if not create and not out_dir.is_dir():
+        raise InputError(f"--out {out_dir}: no such directory; nothing to resume there")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"--out {out_dir}: cannot create the directory ({exc.strerror or exc})") from None
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out_dir}: not writable")
+
+
+def _lock_run(out_dir: Path, run_id: str) -> RunLock:
+    path = _in_out_dir(out_dir, out_dir / f"{run_id}.lock")
+    try:
+        return RunLock.acquire(path, run_id)
+    except OSError as exc:  # e.g. a read-only file system, which os.access does not see for root
+        raise InputError(f"--out {out_dir}: cannot write there ({exc.strerror or exc})") from None
+
+
+def _in_out_dir(out_dir: Path, path: Path) -> Path:
+    """`path`, checked to resolve to a file directly inside `out_dir` (no symbolic link out of it)."""
+    if path.resolve().parent != out_dir.resolve():
+        raise InputError(f"{path}: would be written outside --out {out_dir}; refusing")
+    return path
+
+
+@contextmanager
+def _released_on_error(lock: RunLock) -> Iterator[None]:
+    try:
+        yield
+    except BaseException:
+        lock.release()
+        raise

@@ -54,7 +54,7 @@ from rig.runner.phases import Phase, PhaseMachine
 from rig.runner.progress import ProgressReporter
 from rig.runner.results import TrialMeasurements, trial_result
 from rig.runner.safe_state import enter_safe_state, move_timeout_s
-from rig.runner.safety import interrupts_deferred
+from rig.runner.safety import interrupts_held
 
 _POSITION_TOLERANCE_RAD = 0.02
 _RELEASED_TENSION_N = 0.5
@@ -167,7 +167,8 @@ class TrialRunner:
             outcome = RunOutcome(ExitCode.FAULT, "faulted", f"internal error: {exc!r}", outcome.new_results)
             self._note(LogLevel.FATAL, "internal error: " + "".join(traceback.format_exception(exc)))
         finally:
-            with interrupts_deferred():
+            # Held, not re-raised after: the outcome is decided, and the caller must still save it.
+            with interrupts_held() as late:
                 safe_error = self._make_safe()
                 if safe_error is not None:  # never hidden behind the reason the run stopped for
                     reason = safe_error if outcome.reason is None else f"{outcome.reason}; then {safe_error}"
@@ -181,6 +182,8 @@ class TrialRunner:
                     self._phase(
                         Phase.ABORTED if outcome.exit_code == ExitCode.INTERRUPTED else Phase.FAULTED, None
                     )
+                if late:
+                    self._note(LogLevel.WARNING, "Ctrl-C/SIGTERM in the safe state: held until it ended")
         return outcome
 
     def _connect(self) -> None:

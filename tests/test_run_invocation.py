@@ -1,0 +1,380 @@
+"""One `rig run` invocation against a hostile world: signals at bad moments, a second process on the
+same run, moved protocols, run ids that try to leave --out, and an --out that cannot be written."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import rig.rigs as composition
+from rig.errors import InputError
+from rig.runner.journal import RunJournal
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunRequest, execute_run, prepare_run
+from rig.runner.runlock import RunInProgressError
+from rig.sim.fakes import FakeRig, fake_rig
+from tests.helpers import QUICK_PROTOCOL
+from tests.test_runner_fakes import SLIP_FORCES_N, assert_released_then_torque_off
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def quick(protocol_file) -> Path:
+    return protocol_file(QUICK_PROTOCOL)
+
+
+def request(protocol: Path, out: Path, *, run_id: str | None = "f1", resume: str | None = None) -> RunRequest:
+    return RunRequest(
+        protocol_path=protocol,
+        rig_path=None,
+        out_dir=out,
+        seed=1,
+        run_id=None if resume else run_id,
+        resume=resume,
+    )
+
+
+def run_fake(rig: FakeRig, protocol: Path, out: Path, **kwargs):
+    return execute_run(prepare_run(request(protocol, out, **kwargs)), rig.session, SilentProgress())
+
+
+def interrupted_run(protocol: Path, out: Path) -> None:
+    """Run f1 on the fakes and Ctrl-C it at trial 2: a journal with one trial, status interrupted."""
+    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2), protocol, out)
+    assert report.exit_code == 130 and report.completed == 1
+
+
+def signal_during_shutdown(rig: FakeRig, *signums: int) -> None:
+    """Send `signums` to this process while the servo bus runs its safe-state shutdown."""
+    shutdown = rig.servos.shutdown
+
+    def signalled(release=None):
+        for signum in signums:
+            os.kill(os.getpid(), signum)
+        shutdown(release)
+
+    rig.servos.shutdown = signalled
+
+
+def status(out: Path, run_id: str = "f1") -> str:
+    return RunJournal.load(out / f"{run_id}.journal.json").status
+
+
+# ------------------------------------------------------------------ 1. a second Ctrl-C in the safe state
+
+
+def test_a_second_ctrl_c_in_the_safe_state_still_saves_the_journal_and_report(
+    tmp_path, quick, signal_handlers
+):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2)
+    signal_during_shutdown(rig, signal.SIGINT, signal.SIGTERM)
+    report = run_fake(rig, quick, tmp_path / "out")
+    assert report.exit_code == 130 and report.aborted and report.completed == 1
+    assert report.reason == "interrupted by the operator"
+    assert status(tmp_path / "out") == "interrupted"
+    assert_released_then_torque_off(rig)  # the safe state itself ran to its end
+
+
+def test_a_second_ctrl_c_prints_the_json_report_and_exits_130(
+    tmp_path, quick, signal_handlers, monkeypatch, run_cli
+):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2)
+    signal_during_shutdown(rig, signal.SIGINT)
+    monkeypatch.setattr(composition, "open_session", lambda prepared: rig.session)
+    result = run_cli("run", quick, "--out", tmp_path / "out", "--run-id", "f1", "--json")
+    assert result.code == 130, result.err
+    report = json.loads(result.out)  # exactly one JSON object
+    assert report["run_id"] == "f1" and report["aborted"] and report["completed"] == 1
+    assert status(tmp_path / "out") == "interrupted"
+    assert "Traceback" not in result.err
+    assert_released_then_torque_off(rig)
+
+
+def test_ctrl_c_after_the_last_trial_does_not_undo_a_completed_run(tmp_path, quick, signal_handlers):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    signal_during_shutdown(rig, signal.SIGINT)
+    report = run_fake(rig, quick, tmp_path / "out")
+    assert report.exit_code == 0 and report.completed == 3 and not report.aborted
+    assert status(tmp_path / "out") == "completed"
+    assert_released_then_torque_off(rig)
+
+
+def test_ctrl_c_while_the_log_is_set_up_ends_interrupted_before_anything_moved(
+    tmp_path, quick, signal_handlers
+):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+
+    class Progress(SilentProgress):
+        def start(self, run_id: str, planned: int, done: int) -> None:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    report = execute_run(prepare_run(request(quick, tmp_path / "out")), rig.session, Progress())
+    assert report.exit_code == 130 and report.completed == 0
+    assert status(tmp_path / "out") == "interrupted"
+    assert "connect" not in rig.servos.call_names()
+    assert not rig.winch.torque_enabled
+
+
+# ------------------------------------------------------------------ 2. signals from the first instruction
+
+# `rig.cli.main` with a byte written to fd SYNC as it begins building the parser (its first step
+# after installing the SIGTERM handler), so the delays count from there, not from process start.
+CHILD = """\
+import os, sys
+import rig.cli
+build = rig.cli.build_parser
+def announced():
+    os.write(int(sys.argv[1]), b"!")
+    return build()
+rig.cli.build_parser = announced
+sys.exit(rig.cli.main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.subprocess
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("delay_s", [0.0, 0.05, 0.1, 0.3, 1.5])
+def test_a_signal_early_in_rig_run_exits_130_without_a_traceback(tmp_path, signum, delay_s):
+    read_fd, write_fd = os.pipe()
+    argv = ["run", str(ROOT / "protocols" / "joint_estimation.yaml"), "--out", str(tmp_path)]
+    argv += ["--run-id", "e1", "--realtime", "--json"]  # real time: 1.5 s is well inside the run
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CHILD, str(write_fd), *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        pass_fds=(write_fd,),
+        cwd=ROOT,
+    )
+    os.close(write_fd)
+    try:
+        assert os.read(read_fd, 1) == b"!"
+        time.sleep(delay_s)
+        proc.send_signal(signum)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        os.close(read_fd)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    journal = tmp_path / "e1.journal.json"
+    if out.strip():  # the run had begun: its report, and a journal that says how it ended
+        assert json.loads(out)["aborted"]
+        assert RunJournal.load(journal).status == "interrupted"
+    else:
+        assert not journal.exists() or RunJournal.load(journal).status == "interrupted"
+
+
+# ------------------------------------------------------------------ 3. one process per run
+
+
+def test_a_run_in_progress_cannot_be_started_or_resumed_twice(tmp_path, quick, run_cli):
+    out = tmp_path / "out"
+    interrupted_run(quick, out)
+    held = prepare_run(request(quick, out, resume="f1"))
+    try:
+        with pytest.raises(RunInProgressError, match=f"run f1 is in progress in process {os.getpid()}"):
+            prepare_run(request(quick, out, resume="f1"))
+        result = run_cli("run", quick, "--out", out, "--resume", "f1", "--json")
+        assert result.code == 2 and result.out == ""
+        assert result.err.count("\n") == 1 and f"in progress in process {os.getpid()}" in result.err
+    finally:
+        held.release()
+    assert not (out / "f1.lock").exists()
+    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), quick, out, resume="f1")
+    assert report.exit_code == 0 and report.completed == 3
+
+
+def test_the_lock_is_given_back_when_preparing_fails(tmp_path, quick, protocol_file):
+    out = tmp_path / "out"
+    interrupted_run(quick, out)
+    quick.write_text(QUICK_PROTOCOL.replace("repeats: 1", "repeats: 2"))
+    with pytest.raises(InputError, match="changed since run f1 started"):
+        prepare_run(request(quick, out, resume="f1"))
+    assert not (out / "f1.lock").exists()
+    with pytest.raises(InputError, match="no journal"):
+        prepare_run(request(quick, out, resume="f9"))
+    assert sorted(p.suffix for p in out.iterdir()) == [".json", ".json", ".mcap"]
+
+
+@pytest.mark.subprocess
+def test_a_lock_held_by_a_killed_process_does_not_block_resume(tmp_path, quick):
+    out = tmp_path / "out"
+    interrupted_run(quick, out)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import fcntl, os, sys, time\n"
+            "fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT)\n"
+            "fcntl.flock(fd, fcntl.LOCK_EX)\n"
+            "os.write(fd, f'{os.getpid()}\\n'.encode())\n"
+            "print('locked', flush=True)\n"
+            "time.sleep(60)\n",
+            str(out / "f1.lock"),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(RunInProgressError, match=f"in progress in process {holder.pid}"):
+            prepare_run(request(quick, out, resume="f1"))
+    finally:
+        holder.kill()  # SIGKILL: no chance to clean up; the kernel drops the flock
+        holder.wait()
+    assert (out / "f1.lock").exists()  # stale file left behind ...
+    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), quick, out, resume="f1")  # ... blocks nothing
+    assert report.exit_code == 0 and report.completed == 3
+    assert not (out / "f1.lock").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.subprocess
+def test_resume_of_a_run_alive_in_another_process_is_refused(tmp_path):
+    protocol = ROOT / "protocols" / "smoke.yaml"
+    base = [sys.executable, "-m", "rig.cli", "run", str(protocol), "--out", str(tmp_path)]
+    first = subprocess.Popen(
+        [*base, "--run-id", "live", "--realtime"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=ROOT
+    )
+    try:
+        journal = tmp_path / "live.journal.json"
+        deadline = time.monotonic() + 60
+        while not journal.exists() and first.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert first.poll() is None and RunJournal.load(journal).status == "running"
+        second = subprocess.run(
+            [*base, "--resume", "live"], capture_output=True, text=True, cwd=ROOT, timeout=60
+        )
+        assert second.returncode == 2
+        assert f"run live is in progress in process {first.pid}" in second.stderr
+        assert "Traceback" not in second.stderr
+    finally:
+        first.kill()
+        first.wait()
+    assert RunJournal.load(journal).status == "running"  # killed: no chance to say otherwise
+    resumed = subprocess.run(
+        [*base, "--resume", "live", "--json"], capture_output=True, text=True, cwd=ROOT, timeout=120
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert json.loads(resumed.stdout)["completed"] == 2
+
+
+# ------------------------------------------------------------------ 4. resume by content, not path
+
+
+def test_a_moved_but_identical_protocol_resumes(tmp_path, quick):
+    out = tmp_path / "out"
+    interrupted_run(quick, out)
+    moved = tmp_path / "elsewhere" / "renamed.yaml"
+    moved.parent.mkdir()
+    quick.rename(moved)
+    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), moved, out, resume="f1")
+    assert report.exit_code == 0 and [t.trial_id for t in report.trials] == [1, 2, 3]
+
+
+def test_a_changed_protocol_at_another_path_is_refused(tmp_path, quick, protocol_file):
+    out = tmp_path / "out"
+    interrupted_run(quick, out)
+    other = protocol_file(QUICK_PROTOCOL.replace("0.25]", "0.3]"), "other.yaml")
+    with pytest.raises(InputError, match="changed since run f1 started"):
+        prepare_run(request(other, out, resume="f1"))
+
+
+# ------------------------------------------------------------------ 5. run ids stay inside --out
+
+
+@pytest.mark.parametrize(
+    ("name", "expected"),
+    [
+        ("../../../escaped", "escaped"),
+        ("/etc/passwd", "etc_passwd"),
+        ("a b/c\\d\nе", "a_b_c_d"),
+        ("....", "run"),
+        ("x.part2", "x_part2"),
+    ],
+)
+def test_a_protocol_name_gives_a_safe_run_id(tmp_path, quick, name, expected):
+    quick.write_text(QUICK_PROTOCOL.replace("name: quick", f"name: {json.dumps(name)}"))
+    out = tmp_path / "deep" / "out"
+    prepared = prepare_run(request(quick, out, run_id=None))
+    prepared.release()
+    stamp, _, rest = prepared.run_id.partition("-")
+    assert len(stamp) == 15 and rest == expected
+    assert prepared.journal.path.parent == out and prepared.log_path.parent == out
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == ["p.yaml"]
+
+
+def test_a_300_character_name_is_cut_to_the_run_id_limit(tmp_path, quick):
+    quick.write_text(QUICK_PROTOCOL.replace("name: quick", "name: " + "n" * 300))
+    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), quick, tmp_path / "out", run_id=None)
+    assert report.exit_code == 0 and len(report.run_id) == 100
+    assert Path(report.log).parent == tmp_path / "out"
+
+
+@pytest.mark.parametrize(
+    "run_id", ["../x", "a/b", ".hidden", "-x", "x" * 101, "r1.part2", "abc\n", "", "ü", "a b"]
+)
+def test_an_unsafe_run_id_is_refused_with_exit_2(tmp_path, quick, run_cli, run_id):
+    result = run_cli("run", quick, "--out", tmp_path / "out", f"--run-id={run_id}")
+    assert result.code == 2 and "--run-id" in result.err and result.err.count("\n") == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_symbolic_link_out_of_out_is_refused(tmp_path, quick):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "f1.mcap").symlink_to(tmp_path / "outside.mcap")
+    with pytest.raises(InputError, match="outside --out"):
+        prepare_run(request(quick, out))
+    assert not (tmp_path / "outside.mcap").exists() and not (out / "f1.lock").exists()
+
+
+# ------------------------------------------------------------------ 6. --out that cannot be written
+
+
+@pytest.mark.parametrize("where", ["a file", "below a file"])
+def test_out_through_a_file_exits_2_in_one_line(tmp_path, quick, run_cli, where):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("")
+    out = blocker if where == "a file" else blocker / "sub" / "out"
+    result = run_cli("run", quick, "--out", out, "--run-id", "f1", "--json")
+    assert result.code == 2 and result.out == ""
+    assert result.err.startswith(f"rig: error: --out {out}") and result.err.count("\n") == 1
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")
+def test_a_read_only_out_exits_2_in_one_line(tmp_path, quick, run_cli):
+    out = tmp_path / "ro"
+    out.mkdir()
+    out.chmod(0o555)
+    try:
+        result = run_cli("run", quick, "--out", out, "--run-id", "f1")
+    finally:
+        out.chmod(0o755)
+    assert result.code == 2 and result.err == f"rig: error: --out {out}: not writable\n"
+
+
+def test_a_read_only_file_system_exits_2_in_one_line(tmp_path, quick, run_cli, monkeypatch):
+    real_open = os.open
+
+    def read_only(path, flags, *args, **kwargs):
+        if str(path).endswith(".lock"):
+            raise OSError(30, "Read-only file system")
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    result = run_cli("run", quick, "--out", tmp_path / "out", "--run-id", "f1")
+    assert result.code == 2
+    assert result.err == f"rig: error: --out {tmp_path / 'out'}: cannot write there (Read-only file system)\n"
+    assert list((tmp_path / "out").iterdir()) == []
