@@ -58,7 +58,7 @@ REPORT_FILES = (
 
 
 class _InterruptAtTrial2:
-    def confirm(self, text, trial):
+    def confirm(self, text, trial, keep_alive):
         if trial is not None and trial.trial_id == 2:
             raise KeyboardInterrupt
 

@@ -156,7 +156,7 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path, sim_run, prot
 
     def interrupt_at_trial_2(sim):
         class Operator:
-            def confirm(self, text, trial):
+            def confirm(self, text, trial, keep_alive):
                 if trial is not None and trial.trial_id == 2:
                     raise KeyboardInterrupt
 
@@ -185,7 +185,7 @@ def test_resume_refuses_an_edited_protocol(sim_run, protocol_file):
 
     def stop_early(sim):
         class Operator:
-            def confirm(self, text, trial):
+            def confirm(self, text, trial, keep_alive):
                 raise KeyboardInterrupt
 
         sim.session.operator = Operator()

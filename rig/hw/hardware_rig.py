@@ -6,7 +6,9 @@ connecting still ends in the safe state.
 
 from __future__ import annotations
 
+import select
 import sys
+from collections.abc import Callable
 
 from rig.errors import InputError
 from rig.hw.clock import SystemClock
@@ -63,11 +65,13 @@ def hardware_session(config: RigConfig) -> RigSession:
 class ConsoleOperator:
     """A person at the terminal: prompts on stderr, waits for Enter on stdin."""
 
-    def confirm(self, text: str, trial: TrialPlan | None) -> None:
-        """Prompt and wait for Enter; no terminal is an error (nobody could answer)."""
+    def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
+        """Prompt, then keep the rig's control loop running until Enter; no terminal is an error."""
         if not sys.stdin or not sys.stdin.isatty():
             raise InputError(f"operator step needs a person at a terminal: {text}")
         print(f"\n>>> {text}  [Enter to continue, Ctrl-C to abort] ", end="", file=sys.stderr, flush=True)
+        while not select.select([sys.stdin], [], [], 0)[0]:
+            keep_alive()
         sys.stdin.readline()
 
 

@@ -31,8 +31,13 @@ class GroundTruth(Protocol):
 class Operator(Protocol):
     """Whoever confirms operator steps."""
 
-    def confirm(self, text: str, trial: TrialPlan | None) -> None:
-        """Show `text` and return once the step is done (raise KeyboardInterrupt to abort)."""
+    def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
+        """Show `text` and return once the step is done (raise KeyboardInterrupt to abort).
+
+        While waiting, call `keep_alive()` over and over: each call is one control period of the
+        runner (the rig is read and logged, the interlocks are checked, and the servos keep hearing
+        the host, so their Bus Watchdog does not trip during a long prompt).
+        """
         ...
 
 

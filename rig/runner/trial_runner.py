@@ -391,7 +391,7 @@ class TrialRunner:
         kind = step.kind
         if kind == "prompt":
             self._phase(Phase.PROMPTING, trial.trial_id, "prompt")
-            self.session.operator.confirm(trial.prompt_text(step.text or ""), trial)
+            self.session.operator.confirm(trial.prompt_text(step.text or ""), trial, self._tick)
         elif kind == "tare":
             self._tare(step.duration_s, trial)
         elif kind == "bend":
@@ -449,7 +449,9 @@ class TrialRunner:
         if not goals:
             degrees = ", ".join(f"{math.degrees(a):.1f}" for a in angles)
             self.session.operator.confirm(
-                f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg", trial
+                f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg",
+                trial,
+                self._tick,
             )
             return
         self._move_servos(goals, "bend", speed_rad_s=_BENDER_SPEED_RAD_S)
@@ -458,7 +460,7 @@ class TrialRunner:
         self._phase(Phase.RESETTING, trial.trial_id, "reset")
         goals = self.session.fixture.home_goals()
         if not goals:
-            self.session.operator.confirm("Straighten the link (reset), then confirm.", trial)
+            self.session.operator.confirm("Straighten the link (reset), then confirm.", trial, self._tick)
             return
         self._move_servos(goals, "reset", speed_rad_s=_BENDER_SPEED_RAD_S)
 

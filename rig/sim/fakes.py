@@ -507,7 +507,7 @@ class FakeOperator:
         self.interrupt_at_trial = interrupt_at_trial
         self.prompts: list[tuple[int | None, str]] = []
 
-    def confirm(self, text: str, trial: TrialPlan | None) -> None:
+    def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
         """Record the prompt; Ctrl-C if this is the trial to interrupt."""
         trial_id = trial.trial_id if trial is not None else None
         self.prompts.append((trial_id, text))

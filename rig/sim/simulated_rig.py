@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,8 +55,8 @@ class SimOperator:
     def __init__(self) -> None:
         self.prompts: list[str] = []
 
-    def confirm(self, text: str, trial: TrialPlan | None) -> None:
-        """Record the prompt and return."""
+    def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
+        """Record the prompt and return (the simulated operator answers at once)."""
         self.prompts.append(text)
 
 
