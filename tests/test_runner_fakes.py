@@ -11,6 +11,7 @@ import pytest
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
+from rig.runner.trial_runner import RAMP_GOAL_LEAD_S
 from rig.sim.fakes import FakeRig, fake_rig
 from tests.helpers import QUICK_PROTOCOL
 
@@ -213,3 +214,16 @@ def test_a_failed_safe_state_after_a_fault_is_in_the_report(run_on_fakes):
     report = run_on_fakes(rig)
     assert report.exit_code == 1 and "CommunicationError" in report.reason
     assert "torque off failed" in report.reason
+
+
+def test_the_ramp_goal_stays_a_short_way_ahead_of_the_winch(run_on_fakes):
+    # A host that dies mid-ramp must leave a winch that stops within a short lead, not one reeling on
+    # to the end of its travel (20 turns here).
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    report = run_on_fakes(rig)
+    assert report.exit_code == 0
+    fast_lead = 1.0 * RAMP_GOAL_LEAD_S  # the protocol's fast speed, rad/s
+    for call in rig.servos.calls_to("write_goal_positions"):
+        goal = call.args["goals_rad"][1]
+        position = rig.servos.motion_at(1, call.time_ns)[0]
+        assert goal - position <= fast_lead + 1e-9, (call.time_ns, goal, position)

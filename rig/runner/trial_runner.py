@@ -64,6 +64,8 @@ _BENDER_SPEED_RAD_S = 2.0
 _SAFE_STATE_MARGIN_S = 2.0
 # After a device fault in a trial: how many times the trial may be repeated, and how long the rig
 # has to answer healthily again (servos without a hardware error, fresh load-cell samples).
+# How far ahead of the winch its ramp goal is kept, in seconds of motion at the ramp's speed.
+RAMP_GOAL_LEAD_S = 0.5
 MAX_TRIAL_RETRIES = 2
 RECOVERY_GRACE_S = 2.0
 _DEVICE_FAULTS = (
@@ -512,9 +514,9 @@ class TrialRunner:
         self._phase(
             Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, "ramp_until_slip", ramp_start_ns
         )
-        servos.set_profile(winch, velocity_rad_s=ramp.fast_speed_rad_s if fast else ramp.slow_speed_rad_s)
-        servos.write_goal_positions({winch: target})
-        self._command(winch, ServoCommandName.GOAL_POSITION, target, "rad")
+        speed = ramp.fast_speed_rad_s if fast else ramp.slow_speed_rad_s
+        servos.set_profile(winch, velocity_rad_s=speed)
+        goal = self._advance_ramp_goal(target, speed, None)
         params = self.detector_params
         state = detector_init(params)
         event: SlipEvent | None = None
@@ -535,10 +537,12 @@ class TrialRunner:
                 break
             if fast and self.force_n >= switch_n:
                 fast = False
-                servos.set_profile(winch, velocity_rad_s=ramp.slow_speed_rad_s)
-                servos.write_goal_positions({winch: target})
-                self._command(winch, ServoCommandName.GOAL_POSITION, target, "rad")
+                speed = ramp.slow_speed_rad_s
+                servos.set_profile(winch, velocity_rad_s=speed)
+                goal = self._advance_ramp_goal(target, speed, None)
                 self._phase(Phase.RAMP_SLOW, trial.trial_id, "ramp_until_slip")
+            else:
+                goal = self._advance_ramp_goal(target, speed, goal)
             if self.force_n >= ramp.max_force_n:
                 found.outcome = TrialOutcome.NO_SLIP
                 self._note(
@@ -569,6 +573,23 @@ class TrialRunner:
                 SlipMessage(trial.trial_id, event, params.to_mapping(), found.slipped_joint).to_payload(),
                 event.detection_time_ns,
             )
+
+    def _advance_ramp_goal(self, limit_rad: float, speed_rad_s: float, goal_rad: float | None) -> float:
+        """Keep the winch's goal a short way ahead of it, never the far end of its travel.
+
+        The goal leads the winch by `RAMP_GOAL_LEAD_S` of motion and is moved on once the winch is
+        halfway there. If the host stops talking (crash, lost link), the winch stops within that
+        lead instead of reeling on to `limit_rad`. A goal of None sets the first one.
+        """
+        winch = self.session.winch_id
+        position = self.states[winch].position_rad
+        lead = speed_rad_s * RAMP_GOAL_LEAD_S
+        if goal_rad is not None and (goal_rad >= limit_rad or goal_rad - position > lead / 2):
+            return goal_rad
+        goal = min(limit_rad, position + lead)
+        self.session.servos.write_goal_positions({winch: goal})
+        self._command(winch, ServoCommandName.GOAL_POSITION, goal, "rad")
+        return goal
 
     def _confirmed_by_winch(self, event: SlipEvent) -> bool:
         """A tension drop is a slip only if the winch was not backing off (it reels in or holds)."""
