@@ -1,0 +1,105 @@
+"""The hardware rig over pseudo-terminals: `rig run` against `rig sim servos` and `rig sim loadcell`.
+
+No simulated world couples the devices here (the load cell streams a constant tension), so this
+checks what a real rig's run does when a device fails, in real time, through the real drivers:
+the load cell's USB adapter pulled out mid-ramp must still end with the winch released by the
+servos, which are healthy, and its torque off.
+"""
+
+from __future__ import annotations
+
+import json
+import select
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+
+from rig.hw.loadcell.calibration import Calibration
+
+pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
+
+TORQUE_ENABLE = 64
+PROTOCOL = """\
+format: rig-protocol/1
+name: hwpath
+detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
+ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.5, max_force_n: 40.0}
+limits: {force_ceiling_n: 45.0}
+blocks:
+  - kind: joint_estimation
+    joint: 1
+    distances_m: [0.12]
+    repeats: 1
+    steps: [{tare: {settle_s: 0.2}}, ramp_until_slip, unload]
+"""
+
+
+def _start_loadcell(link: Path) -> subprocess.Popen[str]:
+    cmd = [sys.executable, "-m", "rig.cli", "sim", "loadcell", "--link", str(link), "--rate", "200",
+           "--profile", "constant:0.5"]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], 20)
+    assert ready and proc.stdout is not None and proc.stdout.readline().startswith("PTY"), "no load cell"
+    return proc
+
+
+def test_load_cell_unplugged_mid_ramp_ends_with_the_winch_released(tmp_path, dxl_server):
+    servos = dxl_server(ids=[1, 2], baud=1_000_000)
+    cell_link = tmp_path / "loadcell"
+    cell = _start_loadcell(cell_link)
+    try:
+        Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-23", "pty", "rig-lc1").save(
+            tmp_path / "cal.json"
+        )
+        rig = tmp_path / "hw.yaml"
+        rig.write_text(
+            f"""\
+kind: hardware
+spool_radius_m: 0.01
+servos:
+  port: {servos.link}
+  baud: 1000000
+  watchdog_ms: 500
+  ids: [{{id: 1, role: winch, model: XM430-W350}}, {{id: 2, role: bender, model: XM430-W350}}]
+loadcell: {{port: {cell_link}, baud: 921600, format: rig-lc1, calibration: cal.json}}
+article:
+  joint_radius_m: 0.01
+  segment_lengths_m: [0.03, 0.03]
+  load: {{point_m: [0, 0, 0.03], direction: [0, -1, 0]}}
+limits: {{force_ceiling_n: 50, winch_current_limit_a: 1.2, stale_timeout_s: 0.2, max_winch_travel_rev: 20}}
+"""
+        )
+        protocol = tmp_path / "p.yaml"
+        protocol.write_text(PROTOCOL)
+        args = ["run", str(protocol), "--rig", str(rig), "--json", "--out", str(tmp_path / "out")]
+        run = subprocess.Popen(
+            [sys.executable, "-m", "rig.cli", *args, "--run-id", "hw"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        time.sleep(4.0)  # connected, tared, the winch reeling in (no slip: the tension is constant)
+        assert run.poll() is None, run.communicate()
+        cell.send_signal(signal.SIGKILL)  # the adapter is pulled out
+        out, err = run.communicate(timeout=60)
+    finally:
+        if cell.poll() is None:
+            cell.kill()
+        cell.wait(timeout=10)
+    report = json.loads(out)
+    assert run.returncode == 1, err
+    assert report["safe_state_verified"] is True, report["reason"]
+    assert "load cell" in report["reason"]
+    port = PortHandler(str(servos.link))
+    assert port.openPort() and port.setBaudRate(1_000_000)
+    try:
+        for servo_id in (1, 2):
+            torque, result, _ = PacketHandler(2.0).read1ByteTxRx(port, servo_id, TORQUE_ENABLE)
+            assert result == COMM_SUCCESS and torque == 0
+    finally:
+        port.closePort()
