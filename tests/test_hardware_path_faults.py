@@ -24,6 +24,8 @@ from rig.hw.loadcell.calibration import Calibration
 pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
 
 TORQUE_ENABLE = 64
+BUS_WATCHDOG = 98
+PRESENT_POSITION = 132
 PROTOCOL = """\
 format: rig-protocol/1
 name: hwpath
@@ -48,21 +50,16 @@ def _start_loadcell(link: Path) -> subprocess.Popen[str]:
     return proc
 
 
-def test_load_cell_unplugged_mid_ramp_ends_with_the_winch_released(tmp_path, dxl_server):
-    servos = dxl_server(ids=[1, 2], baud=1_000_000)
-    cell_link = tmp_path / "loadcell"
-    cell = _start_loadcell(cell_link)
-    try:
-        Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-23", "pty", "rig-lc1").save(
-            tmp_path / "cal.json"
-        )
-        rig = tmp_path / "hw.yaml"
-        rig.write_text(
-            f"""\
+def _hardware_rig(tmp_path: Path, servo_link: Path, cell_link: Path) -> Path:
+    """A hardware rig config on the two pseudo-terminals, with a calibration for the emulated cell."""
+    Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-23", "pty", "rig-lc1").save(tmp_path / "cal.json")
+    rig = tmp_path / "hw.yaml"
+    rig.write_text(
+        f"""\
 kind: hardware
 spool_radius_m: 0.01
 servos:
-  port: {servos.link}
+  port: {servo_link}
   baud: 1000000
   watchdog_ms: 500
   ids: [{{id: 1, role: winch, model: XM430-W350}}, {{id: 2, role: bender, model: XM430-W350}}]
@@ -73,16 +70,41 @@ article:
   load: {{point_m: [0, 0, 0.03], direction: [0, -1, 0]}}
 limits: {{force_ceiling_n: 50, winch_current_limit_a: 1.2, stale_timeout_s: 0.2, max_winch_travel_rev: 20}}
 """
-        )
-        protocol = tmp_path / "p.yaml"
-        protocol.write_text(PROTOCOL)
-        args = ["run", str(protocol), "--rig", str(rig), "--json", "--out", str(tmp_path / "out")]
-        run = subprocess.Popen(
-            [sys.executable, "-m", "rig.cli", *args, "--run-id", "hw"],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+    )
+    return rig
+
+
+def _start_run(tmp_path: Path, rig: Path) -> subprocess.Popen[str]:
+    protocol = tmp_path / "p.yaml"
+    protocol.write_text(PROTOCOL)
+    args = ["run", str(protocol), "--rig", str(rig), "--json", "--out", str(tmp_path / "out")]
+    return subprocess.Popen(
+        [sys.executable, "-m", "rig.cli", *args, "--run-id", "hw"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _read(link: Path, servo_id: int, address: int, size: int) -> int:
+    port = PortHandler(str(link))
+    assert port.openPort() and port.setBaudRate(1_000_000)
+    try:
+        handler = PacketHandler(2.0)
+        read = {1: handler.read1ByteTxRx, 4: handler.read4ByteTxRx}[size]
+        value, result, _ = read(port, servo_id, address)
+        assert result == COMM_SUCCESS
+        return int(value)
+    finally:
+        port.closePort()
+
+
+def test_load_cell_unplugged_mid_ramp_ends_with_the_winch_released(tmp_path, dxl_server):
+    servos = dxl_server(ids=[1, 2], baud=1_000_000)
+    cell_link = tmp_path / "loadcell"
+    cell = _start_loadcell(cell_link)
+    try:
+        run = _start_run(tmp_path, _hardware_rig(tmp_path, Path(servos.link), cell_link))
         time.sleep(4.0)  # connected, tared, the winch reeling in (no slip: the tension is constant)
         assert run.poll() is None, run.communicate()
         cell.send_signal(signal.SIGKILL)  # the adapter is pulled out
@@ -95,11 +117,28 @@ limits: {{force_ceiling_n: 50, winch_current_limit_a: 1.2, stale_timeout_s: 0.2,
     assert run.returncode == 1, err
     assert report["safe_state_verified"] is True, report["reason"]
     assert "load cell" in report["reason"]
-    port = PortHandler(str(servos.link))
-    assert port.openPort() and port.setBaudRate(1_000_000)
+    assert [_read(Path(servos.link), i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
+
+
+def test_a_host_killed_mid_ramp_leaves_a_winch_that_stops_by_itself(tmp_path, dxl_server):
+    # A power cut of the host: nothing on it runs any more. The winch's Bus Watchdog (500 ms here)
+    # trips and it holds where it is; its goal was never more than a short lead ahead anyway.
+    servos = dxl_server(ids=[1, 2], baud=1_000_000)
+    cell_link = tmp_path / "loadcell"
+    cell = _start_loadcell(cell_link)
     try:
-        for servo_id in (1, 2):
-            torque, result, _ = PacketHandler(2.0).read1ByteTxRx(port, servo_id, TORQUE_ENABLE)
-            assert result == COMM_SUCCESS and torque == 0
+        run = _start_run(tmp_path, _hardware_rig(tmp_path, Path(servos.link), cell_link))
+        time.sleep(4.0)
+        assert run.poll() is None, run.communicate()
+        run.send_signal(signal.SIGKILL)
+        run.communicate(timeout=30)
+        time.sleep(1.0)  # the watchdog's window, and then some
+        link = Path(servos.link)
+        first = _read(link, 1, PRESENT_POSITION, 4)
+        time.sleep(1.0)
+        second = _read(link, 1, PRESENT_POSITION, 4)
+        assert _read(link, 1, BUS_WATCHDOG, 1) == 0xFF  # tripped (reads -1)
+        assert abs(second - first) <= 2  # pulses: the winch is not reeling on
     finally:
-        port.closePort()
+        cell.kill()
+        cell.wait(timeout=10)
