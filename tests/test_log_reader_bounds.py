@@ -12,6 +12,8 @@ import io
 import json
 import random
 import struct
+import subprocess
+import sys
 import time
 import tracemalloc
 from datetime import timedelta
@@ -30,6 +32,7 @@ from rig.log import schemas as S
 from rig.log.frames import MAX_JSON_DEPTH
 from rig.log.reader import MAX_CHUNK_UNCOMPRESSED_BYTES, MAX_COMPRESSION_RATIO, RunLog, read_run
 
+PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
 HUGE = 2**60
@@ -440,3 +443,71 @@ def test_fuzzed_logs_at_length(tmp_path_factory, base, mutations):
     path = tmp_path_factory.mktemp("fuzz") / "f.mcap"
     path.write_bytes(mutate(small_logs()[base], mutations))
     read_everything(path)
+
+
+# ---------------------------------------------------------------------------------------------
+# `rig replay` on a damaged run log: exit code, warnings, time and peak RSS in a fresh process
+
+PROBE = """\
+import json, sys, time
+from rig.cli import main
+start = time.perf_counter()
+code = main(sys.argv[1:])
+elapsed = time.perf_counter() - start
+with open("/proc/self/status") as status:  # VmHWM: this process's own peak RSS (ru_maxrss is inherited)
+    peak_kib = next(int(line.split()[1]) for line in status if line.startswith("VmHWM:"))
+print(json.dumps({"code": code, "elapsed_s": elapsed, "peak_mib": peak_kib / 1024}), file=sys.stderr)
+"""
+
+
+def replay_probe(*argv: str) -> tuple[dict, str, dict]:
+    """Run `rig *argv` in a fresh interpreter: (its measures, its stderr, its stdout as JSON or {})."""
+    done = subprocess.run([sys.executable, "-c", PROBE, *argv], capture_output=True, text=True, timeout=120)
+    *lines, last = done.stderr.strip().splitlines()
+    stdout = json.loads(done.stdout) if done.stdout.strip().startswith("{") else {}
+    return json.loads(last), "\n".join(lines), stdout
+
+
+@pytest.fixture(scope="module")
+def smoke_log(tmp_path_factory, run_on_simulated_rig) -> Path:
+    report, _ = run_on_simulated_rig(
+        PROTOCOLS / "smoke.yaml", tmp_path_factory.mktemp("smoke"), run_id="smoke"
+    )
+    assert report.exit_code == 0
+    return Path(report.log)
+
+
+@pytest.mark.slow
+@pytest.mark.subprocess
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc (Linux)")
+def test_replay_of_a_bombed_log_exits_0_with_warnings_in_bounded_time_and_memory(smoke_log, tmp_path):
+    chunks = sorted(summary_of(smoke_log).chunk_indexes, key=lambda c: c.chunk_start_offset)
+    data = smoke_log.read_bytes()
+    at = chunks[1].chunk_start_offset
+    last = chunks[-1]
+    data_end = last.chunk_start_offset + last.chunk_length + last.message_index_length
+    bomb = record(Opcode.CHUNK, chunk_body(zstd_zeros(GIB), "zstd", GIB))
+    evil = record(Opcode.ATTACHMENT, attachment_body("evil.txt", b"x", data_length=HUGE))
+    damaged = tmp_path / "smoke.mcap"
+    damaged.write_bytes(data[:at] + bomb + evil + data[at:data_end])  # unfinished: read linearly
+
+    clean, _, _ = replay_probe("replay", str(smoke_log), "--json")
+    measured, stderr, out = replay_probe("replay", str(damaged), "--json")
+    assert clean["code"] == 0 and measured["code"] == 0, stderr
+    assert "Traceback" not in stderr
+    assert [t["trial_id"] for t in out["trials"]] == [1, 2]
+    assert any(f"smoke.mcap: chunk at byte {at}: declares {GIB} bytes" in w for w in out["warnings"])
+    assert any(
+        f"smoke.mcap: byte {at + len(bomb)}: unreadable record (opcode 0x09" in w for w in out["warnings"]
+    )
+    assert measured["elapsed_s"] < clean["elapsed_s"] + 3
+    assert measured["peak_mib"] < clean["peak_mib"] + 64, (measured, clean)
+
+    bomb_only = tmp_path / "bomb_only.mcap"
+    bomb_only.write_bytes(data[: chunks[0].chunk_start_offset] + bomb)
+    measured, stderr, _ = replay_probe("replay", str(bomb_only))
+    assert measured["code"] == 2
+    (line,) = stderr.splitlines()
+    assert line.startswith(
+        f"rig: error: {bomb_only}: no rig messages could be read: bomb_only.mcap: chunk at byte"
+    )
