@@ -30,10 +30,11 @@ MAX_PENDING_BYTES = 64 << 20
 MAX_JSON_DEPTH = 64  # rig payloads nest 5 deep at most
 TIME_COLUMNS = ("log_time_ns", "publish_time_ns")
 # Nesting level change per byte: +1 for `{` and `[`, -1 for `}` and `]` (in strings too: an overestimate).
-_DEPTH_STEP = np.zeros(256, np.int32)
+_DEPTH_STEP = np.zeros(256, np.int8)
 _DEPTH_STEP[[ord("{"), ord("[")]] = 1
 _DEPTH_STEP[[ord("}"), ord("]")]] = -1
 _NOT_BRACKETS = bytes(b for b in range(256) if b not in b"{}[]\n")
+_DEPTH_BLOCK = 1 << 18
 
 
 def _arrow_type(schema: Mapping[str, Any]) -> pa.DataType | None:
@@ -213,17 +214,24 @@ def _max_line_depth(text: bytes, *, lines: bool = True) -> int:
     """The deepest nesting of brackets in any line of `text` (in all of it if not `lines`).
 
     Brackets inside strings count too, and unbalanced ones carry over to the end of their line.
+    Computed in blocks, so that the arrays stay small whatever the text.
     """
-    brackets = np.frombuffer(text.translate(None, _NOT_BRACKETS), np.uint8)
-    if brackets.size == 0:
-        return 0
-    level = np.cumsum(_DEPTH_STEP[brackets])
-    if lines:
-        newline = brackets == ord("\n")
-        if newline.any():  # measure each line from the level at the newline before it
-            line_start_level = np.concatenate(([0], level[newline]))
-            level = level - line_start_level[np.cumsum(newline)]
-    return int(level.max())
+    brackets = text.translate(None, _NOT_BRACKETS)
+    deepest = level = line_level = 0  # the running level, and the level where the current line began
+    for start in range(0, len(brackets), _DEPTH_BLOCK):
+        codes = np.frombuffer(brackets, np.uint8, min(_DEPTH_BLOCK, len(brackets) - start), start)
+        levels = level + np.cumsum(_DEPTH_STEP[codes], dtype=np.int64)
+        depths = levels - line_level
+        if lines:
+            newline = codes == ord("\n")
+            if newline.any():  # from its last newline on, a position is measured from that newline's level
+                last = np.maximum.accumulate(np.where(newline, np.arange(codes.size), -1))
+                depths = np.where(last >= 0, levels - levels[np.maximum(last, 0)], depths)
+                if last[-1] >= 0:
+                    line_level = int(levels[last[-1]])
+        deepest = max(deepest, int(depths.max()))
+        level = int(levels[-1])
+    return deepest
 
 
 def _array_or_json_text(values: list[Any], explicit: pa.DataType | None) -> pa.Array:
