@@ -30,7 +30,6 @@ def unplug_briefly_in_trial_2(sim) -> None:
     sim.session.operator = Operator()
 
 
-@pytest.mark.slow
 def test_samples_lost_in_a_trial_are_warned_about(sim_run):
     report, sim = sim_run(PROTOCOLS / "smoke.yaml", patch=unplug_briefly_in_trial_2)
     assert report.exit_code == 0
