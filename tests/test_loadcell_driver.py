@@ -13,7 +13,7 @@ from rig.hw.loadcell.calibration import indicator_calibration
 from rig.hw.loadcell.device_time import OFFSET_LEAK_NS
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.loadcell.formats import DeviceReading, RigLc1Codec
-from rig.hw.seams import LoadCell
+from rig.hw.seams import LineStatsSource, LoadCell, LoadCellLineStats
 from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator, SignalModel
 from rig.sim.loadcell.inprocess import in_process_serial_factory, simulated_load_cell
@@ -81,6 +81,48 @@ def test_every_injected_fault_is_counted_by_the_driver():
     assert stats.bytes_discarded >= 40 + 3 + 2 * 20
     assert stats.lines_ok == emulator.counts.lines_sent - 1  # last line still on the wire
     assert stats.samples_dropped == 0
+
+
+def test_line_stats_count_lost_lines_and_give_per_trial_deltas():
+    clock = VirtualClock()
+    driver, emulator = simulated_load_cell(ConstantTension(5.0), clock, rate_hz=1000, seed=5)
+    assert isinstance(driver, LineStatsSource)
+    driver.open()
+    run_for(driver, clock, 0.1)
+    before = driver.line_stats()
+    assert before == LoadCellLineStats(len_ok := before.lines_ok, 0, 0, 0, 0, 0) and len_ok >= 99
+    assert before.lossless
+    emulator.inject_truncated(3)
+    emulator.inject_bad_checksum(2)
+    emulator.inject_sequence_gap(7)
+    received = run_for(driver, clock, 0.1)
+    emulator.inject_silence(0.05)
+    received += run_for(driver, clock, 0.2)
+    after = driver.line_stats()
+    trial = after.since(before)
+    # The truncated, corrupted and dropped samples are consecutive: one gap of 12; then the silence's 50.
+    assert trial == LoadCellLineStats(
+        lines_ok=len(received),
+        checksum_failures=2,
+        garbled_lines=3,
+        missing_samples=3 + 2 + 7 + 50,
+        sequence_gaps=2,
+        samples_dropped=0,
+    )
+    assert not trial.lossless
+    assert trial.as_dict()["missing_samples"] == 62
+    assert trial.describe().startswith(f"{len(received)} lines ok; 62 samples missing in 2 sequence gaps, ")
+    stats = driver.stats()  # the same counts as the diagnostics
+    assert (stats.lines_ok, stats.corrupt_lines, stats.checksum_failures) == (
+        after.lines_ok,
+        after.garbled_lines,
+        after.checksum_failures,
+    )
+    driver.close()
+    driver.open()  # counters restart: a delta across a reopen is the counts since it
+    run_for(driver, clock, 0.05)
+    reopened = driver.line_stats()
+    assert reopened.missing_samples == 0 and reopened.since(after) == reopened
 
 
 def test_random_faults_from_a_plan_match_emulator_counts():

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from rig.errors import CommunicationError, HardwareFault, NotConnectedError, StaleDataError
-from rig.hw.seams import LoadCell, OperatingMode, ServoBus
+from rig.hw.seams import LineStatsSource, LoadCell, LoadCellLineStats, OperatingMode, ServoBus
 from rig.sim.clock import VirtualClock
 from rig.sim.fakes import FakeLine, FakeLoadCell, FakeServoBus, fake_rig
 
@@ -129,6 +129,8 @@ def test_load_cell_samples_at_its_rate_and_goes_stale_like_the_driver():
     back = cell.poll()  # the samples since the silence ended, at 600 ms
     assert [s.time_ns - clock.time_ns() for s in (back[0], back[-1])] == [-101 * MS, 0]
     assert back[0].seq == 600  # the device counted on through the silence
+    assert isinstance(cell, LineStatsSource)
+    assert cell.line_stats() == LoadCellLineStats(100 + len(back), 0, 0, 499, 1, 0)  # seq 101-599
     cell.disconnect("cable pulled")
     with pytest.raises(NotConnectedError, match="reading failed: cable pulled"):
         cell.poll()

@@ -3,7 +3,8 @@
 `replay(paths, detector_overrides)` returns a `ReplayResult` holding the trial table, the three
 estimates (offline refit of the logged results, the last online estimate, the refit of re-detected
 peaks), the re-detection outcome per trial, and for link-validation runs the Table IV and Table V
-statistics. `ReplayResult.as_json()` is the `rig replay --json` object.
+statistics. Its warnings name, among others, the trials that lost load-cell samples (`gaps`).
+`ReplayResult.as_json()` is the `rig replay --json` object.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import pandas as pd
 
 from model.slip_detector import DetectorParams
 from rig.analysis import redetect as rd
+from rig.analysis.gaps import sample_gap_warnings
 from rig.analysis.refit import (
     base_moments,
     compare_estimates,
@@ -146,6 +148,7 @@ def replay(
     params = rd.detector_params(settings.detector, overrides, settings.detector_source)
 
     records = trial_records(parts, warnings)
+    warnings.extend(sample_gap_warnings(records))
     estimates = _logged_estimates(parts)
     online = _online_estimate(estimates)
     level = online["level"] if online and online.get("level") else settings.level

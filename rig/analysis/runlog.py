@@ -205,14 +205,21 @@ def _is_missing(value: Any) -> bool:
 
 
 def require_some_data(parts: list[LogPart]) -> None:
-    """Refuse a set of intact files that hold no rig data at all (e.g. another program's MCAP)."""
+    """Refuse files that hold no rig data at all: another program's MCAP, or files too damaged to use."""
     if not parts:
         raise InputError("no MCAP files given")
     intact = all(part.log.complete for part in parts)
     rig_topics = set(schemas.TOPICS)
-    has_rig_data = any(rig_topics & set(part.log.topics) for part in parts)
-    if intact and not has_rig_data:
-        names = ", ".join(str(p.path) for p in parts)
-        raise InputError(
-            f"{names}: no rig topics (/rig/...) in this MCAP; allowed: a log written by `rig run`"
-        )
+    names = ", ".join(str(p.path) for p in parts)
+    if intact:
+        if not any(rig_topics & set(part.log.topics) for part in parts):
+            raise InputError(
+                f"{names}: no rig topics (/rig/...) in this MCAP; allowed: a log written by `rig run`"
+            )
+        return
+    if any(part.log.message_counts.get(topic) for part in parts for topic in rig_topics):
+        return
+    problems = [w for part in parts for w in part.log.warnings]
+    more = f" (and {len(problems) - 1} more warnings)" if len(problems) > 1 else ""
+    first = f": {problems[0]}{more}" if problems else ""
+    raise InputError(f"{names}: no rig messages could be read{first}")

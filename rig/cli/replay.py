@@ -36,7 +36,7 @@ JSON (--json): files, complete, warnings, trials, estimate (offline refit, `rig 
 online_estimate, online_agreement, redetected_estimate, redetection; for link-validation runs also
 percentage_errors, base_moments and joints; under simulation truth.
 Exit codes: 0 done (also for damaged files, with warnings); 2 invalid input (missing or non-MCAP
-file, bad --detector value, unusable --report directory).
+file, no rig message readable, bad --detector value, unusable --report directory).
 """
 
 

@@ -8,7 +8,7 @@ units (rad, rad/s, A, N, s) with epoch-nanosecond timestamps.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import NamedTuple, Protocol, runtime_checkable
 
@@ -153,6 +153,57 @@ class LoadCell(Protocol):
 
     def close(self) -> None:
         """Stop receiving and close the port."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class LoadCellLineStats:
+    """What a load cell's serial line delivered and lost since the port was opened (cumulative).
+
+    For formats with a sequence counter (`rig-lc1`), `missing_samples` counts every sample whose
+    line never became a sample: lost on the wire, garbled or failing its checksum (so it includes
+    those two counts). Formats without one (`indicator-st`) only count garbled lines.
+    """
+
+    lines_ok: int  # valid lines, decoded into samples
+    checksum_failures: int  # well-formed lines whose checksum did not match (discarded)
+    garbled_lines: int  # malformed or truncated lines (discarded)
+    missing_samples: int  # sequence numbers never received, summed over the gaps
+    sequence_gaps: int  # places where the device's sequence counter skipped
+    samples_dropped: int  # decoded samples discarded because poll() came too late (queue full)
+
+    def since(self, earlier: LoadCellLineStats) -> LoadCellLineStats:
+        """The counts after `earlier` (e.g. one trial's); all of these if the port was reopened since."""
+        pairs = [(getattr(self, f.name), getattr(earlier, f.name)) for f in fields(self)]
+        if any(now < then for now, then in pairs):  # counters restart at open()
+            return self
+        return LoadCellLineStats(*(now - then for now, then in pairs))
+
+    @property
+    def lossless(self) -> bool:
+        """Nothing was lost, garbled or dropped."""
+        lost = self.checksum_failures + self.garbled_lines + self.missing_samples + self.samples_dropped
+        return lost == 0
+
+    def as_dict(self) -> dict[str, int]:
+        """The counts by name (for JSON and log messages)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def describe(self) -> str:
+        """One line for an operator, e.g. `1000 lines ok; 12 samples missing in 2 sequence gaps, ...`."""
+        return (
+            f"{self.lines_ok} lines ok; {self.missing_samples} samples missing in {self.sequence_gaps} "
+            f"sequence gaps, {self.checksum_failures} checksum failures, {self.garbled_lines} garbled "
+            f"lines, {self.samples_dropped} samples dropped (queue full)"
+        )
+
+
+@runtime_checkable
+class LineStatsSource(Protocol):
+    """A load cell that counts its serial lines (optional beside `LoadCell`: check with isinstance)."""
+
+    def line_stats(self) -> LoadCellLineStats:
+        """The counts since the port was last opened (a snapshot; safe from any thread)."""
         ...
 
 

@@ -5,6 +5,11 @@ one dict per message, so memory stays near the size of the columns. Fields of ri
 Arrow types their JSON Schema implies (so a column keeps its dtype even when a batch has only
 nulls); fields nobody declared are inferred. A batch that pyarrow cannot parse is decoded row by
 row with `json.loads` instead, and rows that are not JSON objects are dropped with a warning.
+
+Bounds, for damaged or hostile logs: a batch is decoded once it holds `DEFAULT_BATCH_SIZE` payloads
+or `MAX_PENDING_BYTES` of them, and a payload nested deeper than `MAX_JSON_DEPTH` is dropped with a
+warning before pyarrow sees it (pyarrow's JSON reader overflows the stack, a segfault, on deep
+enough nesting).
 """
 
 from __future__ import annotations
@@ -21,7 +26,15 @@ import pyarrow.json as pa_json
 from rig.log import schemas
 
 DEFAULT_BATCH_SIZE = 100_000
+MAX_PENDING_BYTES = 64 << 20
+MAX_JSON_DEPTH = 64  # rig payloads nest 5 deep at most
 TIME_COLUMNS = ("log_time_ns", "publish_time_ns")
+# Nesting level change per byte: +1 for `{` and `[`, -1 for `}` and `]` (in strings too: an overestimate).
+_DEPTH_STEP = np.zeros(256, np.int8)
+_DEPTH_STEP[[ord("{"), ord("[")]] = 1
+_DEPTH_STEP[[ord("}"), ord("]")]] = -1
+_NOT_BRACKETS = bytes(b for b in range(256) if b not in b"{}[]\n")
+_DEPTH_BLOCK = 1 << 18
 
 
 def _arrow_type(schema: Mapping[str, Any]) -> pa.DataType | None:
@@ -69,13 +82,18 @@ def arrow_schema(topic: str) -> pa.Schema | None:
 class TopicBatches:
     """One topic's messages: raw payloads pending decode, and the Arrow tables decoded so far.
 
-    The reader appends to `payloads`, `log_times` and `publish_times` directly (hot loop) and
-    calls `decode_pending()` once `len(payloads)` reaches the batch size.
+    The reader appends to `payloads`, `log_times` and `publish_times` directly (hot loop), adds an
+    upper bound of the bytes it appended to `pending_bytes`, and calls `decode_pending()` once
+    `len(payloads)` reaches the batch size or `pending_bytes` reaches `max_pending_bytes`.
     """
 
-    def __init__(self, topic: str, batch_size: int = DEFAULT_BATCH_SIZE) -> None:
+    def __init__(
+        self, topic: str, batch_size: int = DEFAULT_BATCH_SIZE, max_pending_bytes: int = MAX_PENDING_BYTES
+    ) -> None:
         self.topic = topic
         self.batch_size = batch_size
+        self.max_pending_bytes = max_pending_bytes
+        self.pending_bytes = 0
         self.payloads: list[bytes] = []
         self.log_times: list[int] = []
         self.publish_times: list[int] = []
@@ -89,17 +107,35 @@ class TopicBatches:
             return
         payloads, log_times, publish_times = self.payloads, self.log_times, self.publish_times
         self.payloads, self.log_times, self.publish_times = [], [], []
+        self.pending_bytes = 0
+        try:
+            times = [pa.array(log_times, pa.int64()), pa.array(publish_times, pa.int64())]
+        except OverflowError:  # MCAP times are u64; epoch nanoseconds past 2**63 are damage
+            keep = [i for i, t in enumerate(zip(log_times, publish_times, strict=True)) if max(t) < 1 << 63]
+            self.warnings.append(
+                f"{self.topic}: {len(payloads) - len(keep)} messages with a time past 2**63 ns "
+                "(damaged); dropped"
+            )
+            payloads = [payloads[i] for i in keep]
+            times = [pa.array([ts[i] for i in keep], pa.int64()) for ts in (log_times, publish_times)]
+            if not payloads:
+                return
         table, kept = self._decode(payloads)
         if kept is not None:
-            log_times = [log_times[i] for i in kept]
-            publish_times = [publish_times[i] for i in kept]
-        times = [pa.array(log_times, pa.int64()), pa.array(publish_times, pa.int64())]
+            times = [column.take(pa.array(kept, pa.int64())) for column in times]
         names = [n if n not in TIME_COLUMNS else f"payload.{n}" for n in table.column_names]
         self.tables.append(pa.Table.from_arrays([*times, *table.columns], names=[*TIME_COLUMNS, *names]))
 
     def _decode(self, payloads: list[bytes]) -> tuple[pa.Table, list[int] | None]:
         """Columns of the payloads, and the indices kept when some rows had to be dropped."""
         text = b"\n".join(payloads)
+        unsafe = []  # for pyarrow: it takes invalid UTF-8 in a key, then cannot name the column
+        if not _valid_utf8(text):
+            unsafe.append("invalid UTF-8")
+        if _max_line_depth(text) > MAX_JSON_DEPTH:
+            unsafe.append(f"nested deeper than {MAX_JSON_DEPTH} levels")
+        if unsafe:
+            return self._decode_rows(payloads, ", ".join(unsafe))
         parse = pa_json.ParseOptions(explicit_schema=self._explicit, unexpected_field_behavior="infer")
         read = pa_json.ReadOptions(block_size=max(len(text) + 1, 1 << 20))
         try:
@@ -107,23 +143,29 @@ class TopicBatches:
             if table.num_rows == len(payloads):
                 return table, None
             problem = f"{table.num_rows} rows from {len(payloads)} payloads"
-        except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError) as error:
+        except pa.ArrowException as error:
             problem = str(error).splitlines()[0]
         return self._decode_rows(payloads, problem)
 
     def _decode_rows(self, payloads: list[bytes], problem: str) -> tuple[pa.Table, list[int]]:
         rows: list[dict[str, Any]] = []
         kept: list[int] = []
+        too_deep = 0
         for i, payload in enumerate(payloads):
+            if _max_line_depth(payload, lines=False) > MAX_JSON_DEPTH:
+                too_deep += 1
+                continue
             try:
                 row = json.loads(payload)
-            except ValueError:
+            except (ValueError, RecursionError):
                 continue
             if isinstance(row, dict):
                 rows.append(row)
                 kept.append(i)
-        dropped = len(payloads) - len(rows)
-        note = f"; {dropped} messages were not JSON objects and were dropped" if dropped else ""
+        not_objects = len(payloads) - len(rows) - too_deep
+        note = f"; {not_objects} messages were not JSON objects and were dropped" if not_objects else ""
+        if too_deep:
+            note += f"; {too_deep} messages nested deeper than {MAX_JSON_DEPTH} levels were dropped"
         self.warnings.append(
             f"{self.topic}: a batch did not parse as columns ({problem}); decoded row by row{note}"
         )
@@ -158,12 +200,46 @@ class TopicBatches:
         return table_to_frame(table, nullable_integer_fields(self.topic))
 
 
+def _valid_utf8(text: bytes) -> bool:
+    if text.isascii():
+        return True
+    try:
+        text.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
+def _max_line_depth(text: bytes, *, lines: bool = True) -> int:
+    """The deepest nesting of brackets in any line of `text` (in all of it if not `lines`).
+
+    Brackets inside strings count too, and unbalanced ones carry over to the end of their line.
+    Computed in blocks, so that the arrays stay small whatever the text.
+    """
+    brackets = text.translate(None, _NOT_BRACKETS)
+    deepest = level = line_level = 0  # the running level, and the level where the current line began
+    for start in range(0, len(brackets), _DEPTH_BLOCK):
+        codes = np.frombuffer(brackets, np.uint8, min(_DEPTH_BLOCK, len(brackets) - start), start)
+        levels = level + np.cumsum(_DEPTH_STEP[codes], dtype=np.int64)
+        depths = levels - line_level
+        if lines:
+            newline = codes == ord("\n")
+            if newline.any():  # from its last newline on, a position is measured from that newline's level
+                last = np.maximum.accumulate(np.where(newline, np.arange(codes.size), -1))
+                depths = np.where(last >= 0, levels - levels[np.maximum(last, 0)], depths)
+                if last[-1] >= 0:
+                    line_level = int(levels[last[-1]])
+        deepest = max(deepest, int(depths.max()))
+        level = int(levels[-1])
+    return deepest
+
+
 def _array_or_json_text(values: list[Any], explicit: pa.DataType | None) -> pa.Array:
     """An Arrow array of the values; values of mixed kinds become their JSON text."""
     for arrow_type in (explicit, None):
         try:
             return pa.array(values, type=arrow_type)
-        except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, OverflowError):
+        except (pa.ArrowException, TypeError, ValueError, OverflowError):
             continue
     return pa.array([None if v is None else json.dumps(v) for v in values], type=pa.string())
 

@@ -8,9 +8,17 @@ was lost. Both paths decompress chunks themselves and check their CRC, so a corr
 skipped with a warning and the others still come back. A linear pass that meets garbage (a damaged
 record header) searches forward for the next valid chunk and reports the bytes it skipped.
 
+Every allocation is bounded by the file, whatever its headers claim: a record is never read past
+the end of the file (or of the record, chunk or summary that holds it), and a chunk is decompressed
+only if it declares at most `MAX_CHUNK_UNCOMPRESSED_BYTES` and at most `MAX_COMPRESSION_RATIO` times
+its compressed size, never into more than it declares. A record or chunk that breaks a bound is
+skipped with a warning naming the file and its byte offset, and reading goes on with the rest.
+
 (mcap 1.6.0's own readers were not enough here: `make_reader(...).iter_messages()` yields nothing
-from an unfinished file, `StreamReader` stops at the first bad record, and
-`iter_messages(log_time_order=False)` decompresses the whole file before the first message.)
+from an unfinished file, `StreamReader` stops at the first bad record,
+`iter_messages(log_time_order=False)` decompresses the whole file before the first message, and
+`SeekingReader` reads a record of whatever length it declares straight from the file. Only mcap's
+record classes are used, on record bodies already read within bounds.)
 
 Messages are kept per topic as raw payloads and decoded in column batches (`rig.log.frames`).
 """
@@ -24,16 +32,23 @@ import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import pandas as pd
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.reader import SeekingReader
-from mcap.records import Attachment as McapAttachment
-from mcap.records import Channel, Header, Metadata, Schema
+from mcap.records import (
+    AttachmentIndex,
+    Channel,
+    ChunkIndex,
+    Header,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+)
 
 from rig.errors import InputError
 from rig.log.frames import DEFAULT_BATCH_SIZE, TopicBatches, empty_frame
@@ -49,8 +64,13 @@ _MESSAGE_HEADER = struct.Struct("<HIQQ")  # channel id, sequence, log time, publ
 _CHUNK_HEADER = struct.Struct("<QQQII")  # start, end, uncompressed size, uncompressed crc, compression length
 _FOOTER_SIZE = 9 + 20 + len(MAGIC)  # record header, summary start, summary offset start, crc; magic
 _KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
-_MAX_UNCOMPRESSED_CHUNK = 1 << 31
 _SCAN_BLOCK = 1 << 22
+_CHUNK_PROBE = 9 + 32 + 4 + 8  # record header, chunk header, longest compression name, records length
+# A chunk is decompressed only within both bounds (the rig's chunks: at most 512 KiB, ratio 2-7).
+MAX_CHUNK_UNCOMPRESSED_BYTES = 256 << 20
+MAX_COMPRESSION_RATIO = 200
+# What parsing a record body can raise (the body itself is always within bounds).
+_RECORD_ERRORS = (McapError, EOFError, ValueError, struct.error, OverflowError)
 _READ_IN_LINEAR_PASS = frozenset(
     int(op)
     for op in (
@@ -90,6 +110,36 @@ class FileReport:
     chunks_skipped: int
     first_log_time_ns: int | None
     warnings: tuple[str, ...]
+
+
+class _Fields:
+    """Little-endian fields of one record body, read in order; nothing is read past its end."""
+
+    __slots__ = ("data", "pos")
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+        self.pos = 0
+
+    def u32(self) -> int:
+        (value,) = struct.unpack_from("<I", self.data, self.pos)
+        self.pos += 4
+        return int(value)
+
+    def u64(self) -> int:
+        (value,) = struct.unpack_from("<Q", self.data, self.pos)
+        self.pos += 8
+        return int(value)
+
+    def take(self, length: int, what: str) -> bytes:
+        left = len(self.data) - self.pos
+        if length > left:
+            raise ValueError(f"{what} declares {length} bytes, {left} left in the record")
+        self.pos += length
+        return self.data[self.pos - length : self.pos]
+
+    def text(self, what: str) -> str:
+        return self.take(self.u32(), what).decode()
 
 
 @dataclass
@@ -165,7 +215,9 @@ class _FileScan:
         unpack_record = _RECORD_HEADER.unpack_from
         unpack_message = _MESSAGE_HEADER.unpack_from
         first_time = self.first_log_time_ns
+        pending = {id(sink): len(sink.payloads) for sink in self.batches.values()}
         size = len(data)
+        unreadable = 0
         pos = 0
         while pos + 9 <= size:
             opcode, length = unpack_record(data, pos)
@@ -174,6 +226,10 @@ class _FileScan:
             if end > size:
                 break
             if opcode == 5:  # Message
+                if length < 22:
+                    unreadable += 1
+                    pos = end
+                    continue
                 channel_id, _sequence, log_time, publish_time = unpack_message(data, body)
                 sink = sinks.get(channel_id)
                 if sink is not None:
@@ -186,20 +242,28 @@ class _FileScan:
                     counts[0] = counts.get(0, 0) + 1
                 if first_time is None or log_time < first_time:
                     first_time = log_time
-            elif opcode == Opcode.SCHEMA:
-                self.add_schema(Schema.read(_stream(data[body:end])))
-            elif opcode == Opcode.CHANNEL:
-                self.add_channel(Channel.read(_stream(data[body:end])))
+            elif opcode == Opcode.SCHEMA or opcode == Opcode.CHANNEL:
+                try:
+                    if opcode == Opcode.SCHEMA:
+                        self.add_schema(Schema.read(_stream(data[body:end])))
+                    else:
+                        self.add_channel(Channel.read(_stream(data[body:end])))
+                except _RECORD_ERRORS:
+                    unreadable += 1
             pos = end
         self.first_log_time_ns = first_time
+        if unreadable:
+            self.warn(f"{where}: {unreadable} unreadable records (damaged); skipped")
         if pos != size:
             self.warn(f"{where}: records end {size - pos} bytes early (damaged); kept what came before")
         for sink in self.batches.values():
-            if len(sink.payloads) >= sink.batch_size:
+            if len(sink.payloads) != pending.get(id(sink), 0):
+                sink.pending_bytes += size  # at most this much of `data` went to the sink
+            if len(sink.payloads) >= sink.batch_size or sink.pending_bytes >= sink.max_pending_bytes:
                 sink.decode_pending()
 
     def add_chunk(self, body: bytes, offset: int) -> None:
-        """Decompress one Chunk record's content, check its CRC and parse its records."""
+        """Decompress one Chunk record's content within bounds, check its CRC and parse its records."""
         where = f"chunk at byte {offset}"
         try:
             _start, _end, uncompressed_size, crc, name_length = _CHUNK_HEADER.unpack_from(body, 0)
@@ -208,39 +272,51 @@ class _FileScan:
             records_start = 40 + name_length
             if records_start + records_length > len(body):
                 raise ValueError("records run past the end of the chunk")
-            compressed = body[records_start : records_start + records_length]
+        except (struct.error, ValueError) as error:
+            self.skip_chunk(f"{where}: unreadable chunk header ({_short(error)}); skipped")
+            return
+        problem = _chunk_size_problem(compression, uncompressed_size, records_length)
+        if problem:
+            self.skip_chunk(f"{where}: {problem}; skipped")
+            return
+        try:
+            compressed = memoryview(body)[records_start : records_start + records_length]
             records = _decompress(compression, compressed, uncompressed_size)
-        except Exception as error:
-            self.chunks_skipped += 1
-            self.warn(f"{where}: decompression failed ({_short(error)}); skipped")
+        except Exception as error:  # zstandard and lz4 raise their own error types for bad data
+            self.skip_chunk(f"{where}: decompression failed ({_short(error)}); skipped")
             return
         if len(records) != uncompressed_size:
-            self.chunks_skipped += 1
-            self.warn(
-                f"{where}: {len(records)} bytes after decompression, {uncompressed_size} expected; skipped"
+            more = "more than" if len(records) > uncompressed_size else f"{len(records)} bytes,"
+            self.skip_chunk(
+                f"{where}: {more} {uncompressed_size} bytes expected after decompression; skipped"
             )
             return
         if crc != 0 and zlib.crc32(records) != crc:
-            self.chunks_skipped += 1
-            self.warn(f"{where}: CRC mismatch (corrupted); skipped")
+            self.skip_chunk(f"{where}: CRC mismatch (corrupted); skipped")
             return
         self.chunks += 1
         self.add_records(records, where)
 
+    def skip_chunk(self, warning: str) -> None:
+        self.chunks_skipped += 1
+        self.warn(warning)
+
     def add_metadata(self, metadata: Metadata) -> None:
         self.metadata.setdefault(metadata.name, dict(metadata.metadata))
 
-    def add_attachment(self, attachment: McapAttachment) -> None:
-        self.attachments.append(
-            Attachment(
-                file=self.path,
-                name=attachment.name,
-                media_type=attachment.media_type,
-                log_time_ns=attachment.log_time,
-                create_time_ns=attachment.create_time,
-                data=bytes(attachment.data),
-            )
-        )
+    def add_attachment(self, body: bytes) -> None:
+        """Parse an Attachment record's body (every length checked against it, CRC verified)."""
+        fields = _Fields(body)
+        log_time_ns = fields.u64()
+        create_time_ns = fields.u64()
+        name = fields.text("name")
+        media_type = fields.text("media type")
+        data = fields.take(fields.u64(), "data")
+        crc_end = fields.pos
+        crc = fields.u32()
+        if crc != 0 and zlib.crc32(memoryview(body)[:crc_end]) != crc:
+            raise ValueError("CRC mismatch (corrupted)")
+        self.attachments.append(Attachment(self.path, name, media_type, log_time_ns, create_time_ns, data))
 
     def report(self) -> FileReport:
         return FileReport(
@@ -265,15 +341,38 @@ def _short(error: BaseException) -> str:
     return f"{type(error).__name__}: {text}" if text else type(error).__name__
 
 
-def _decompress(compression: str, data: bytes, uncompressed_size: int) -> bytes:
-    if uncompressed_size > _MAX_UNCOMPRESSED_CHUNK:
-        raise ValueError(f"implausible uncompressed size {uncompressed_size}")
+def _chunk_size_problem(compression: str, uncompressed_size: int, compressed_size: int) -> str | None:
+    """Why a chunk declaring these sizes is not decompressed, or None (within bounds)."""
+    if uncompressed_size > MAX_CHUNK_UNCOMPRESSED_BYTES:
+        return (
+            f"declares {uncompressed_size} bytes uncompressed, over the limit of "
+            f"{MAX_CHUNK_UNCOMPRESSED_BYTES} bytes per chunk"
+        )
+    if compression == "" and uncompressed_size != compressed_size:
+        return f"uncompressed, but declares {uncompressed_size} bytes and holds {compressed_size}"
+    if uncompressed_size > MAX_COMPRESSION_RATIO * compressed_size:
+        return (
+            f"declares {uncompressed_size} bytes uncompressed from {compressed_size} compressed, "
+            f"over the limit of {MAX_COMPRESSION_RATIO} times"
+        )
+    return None
+
+
+def _decompress(compression: str, data: memoryview, uncompressed_size: int) -> bytes:
+    """The chunk's records: never more than `uncompressed_size` + 1 bytes (one more shows a lie)."""
+    limit = uncompressed_size + 1
     if compression == "zstd":
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=uncompressed_size)
+        # Not ZstdDecompressor.decompress: it allocates whatever size the frame header declares.
+        with zstandard.ZstdDecompressor().stream_reader(data, read_across_frames=True) as reader:
+            pieces = []
+            while limit > 0 and (piece := reader.read(limit)):
+                pieces.append(piece)
+                limit -= len(piece)
+        return pieces[0] if len(pieces) == 1 else b"".join(pieces)
     if compression == "lz4":
         if lz4_frame is None:  # pragma: no cover
             raise ValueError("lz4 is not installed")
-        return bytes(lz4_frame.decompress(data))
+        return bytes(lz4_frame.LZ4FrameDecompressor().decompress(data, max_length=limit))
     if compression == "":
         return bytes(data)
     raise ValueError(f"unknown compression {compression!r}")
@@ -289,6 +388,29 @@ def _read_exact(f: IO[bytes], offset: int, length: int) -> bytes:
     if len(data) != length:
         raise EOFError(f"{length} bytes wanted at byte {offset}, {len(data)} available")
     return data
+
+
+def _read_record(f: IO[bytes], offset: int, limit: int) -> tuple[int, bytes]:
+    """Opcode and body of the record at `offset`, which must end by `limit` (checked before reading)."""
+    if offset + 9 > limit:
+        raise ValueError(f"no room for a record at byte {offset}")
+    opcode, length = _RECORD_HEADER.unpack(_read_exact(f, offset, 9))
+    if length > limit - offset - 9:
+        raise ValueError(
+            f"record at byte {offset} (opcode 0x{opcode:02x}) declares {length} bytes, "
+            f"{limit - offset - 9} left"
+        )
+    return opcode, _read_exact(f, offset + 9, length)
+
+
+def _indexed_record(f: IO[bytes], offset: int, length: int, opcode: int, size: int) -> bytes:
+    """The body of the record an index entry points at, checked against the entry and the file."""
+    if offset < len(MAGIC) or length < 9 or offset + length > size:
+        raise ValueError(f"index entry ({length} bytes) points outside the file")
+    found, body = _read_record(f, offset, offset + length)
+    if found != opcode or 9 + len(body) != length:
+        raise ValueError(f"not the indexed record (opcode 0x{found:02x}, {len(body)} bytes)")
+    return body
 
 
 def _footer_intact(f: IO[bytes], size: int) -> bool:
@@ -307,22 +429,75 @@ def _scan_file(scan: _FileScan) -> None:
                 scan.warn("shorter than the MCAP magic (nothing was written); no data")
                 return
             raise InputError(f"{scan.path}: not an MCAP file (bad magic bytes); expected an .mcap log")
-        if _footer_intact(f, scan.size) and _read_indexed(scan, f):
+        footer = _footer_intact(f, scan.size)
+        if footer and _read_indexed(scan, f):
             return
-        _read_linear(scan, f)
+        _read_linear(scan, f, footer)
+
+
+@dataclass
+class _Summary:
+    """The records of a summary section that the reader uses."""
+
+    library: str
+    schemas: list[Schema] = field(default_factory=list)
+    channels: list[Channel] = field(default_factory=list)
+    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
+    attachment_indexes: list[AttachmentIndex] = field(default_factory=list)
+    metadata_indexes: list[MetadataIndex] = field(default_factory=list)
+    statistics: Statistics | None = None
+
+
+_SUMMARY_RECORDS: dict[int, tuple[str, Any]] = {
+    Opcode.SCHEMA: ("schemas", Schema),
+    Opcode.CHANNEL: ("channels", Channel),
+    Opcode.CHUNK_INDEX: ("chunk_indexes", ChunkIndex),
+    Opcode.ATTACHMENT_INDEX: ("attachment_indexes", AttachmentIndex),
+    Opcode.METADATA_INDEX: ("metadata_indexes", MetadataIndex),
+}
+
+
+def _read_summary(f: IO[bytes], size: int) -> _Summary:
+    """The header's library and the summary section, one bounded record at a time.
+
+    Raises ValueError (or a record parsing error) when the header, the footer's offsets, a summary
+    record or the summary CRC is not right.
+    """
+    footer_at = size - _FOOTER_SIZE
+    footer = _read_exact(f, footer_at, 9 + 20)
+    summary_start, _summary_offset_start, summary_crc = struct.unpack_from("<QQI", footer, 9)
+    opcode, body = _read_record(f, len(MAGIC), footer_at)
+    if opcode != Opcode.HEADER:
+        raise ValueError(f"the first record is not a Header (opcode 0x{opcode:02x})")
+    summary = _Summary(library=Header.read(_stream(body)).library)
+    if summary_start == 0:
+        return summary
+    if not len(MAGIC) <= summary_start <= footer_at:
+        raise ValueError(f"the footer puts the summary at byte {summary_start}, outside the file")
+    crc = 0
+    pos = summary_start
+    while pos < footer_at:
+        opcode, body = _read_record(f, pos, footer_at)
+        crc = zlib.crc32(body, zlib.crc32(_RECORD_HEADER.pack(opcode, len(body)), crc))
+        if opcode in _SUMMARY_RECORDS:
+            name, record_type = _SUMMARY_RECORDS[opcode]
+            getattr(summary, name).append(record_type.read(_stream(body)))
+        elif opcode == Opcode.STATISTICS:
+            summary.statistics = Statistics.read(_stream(body))
+        pos += 9 + len(body)
+    if summary_crc != 0 and zlib.crc32(footer[:-4], crc) != summary_crc:
+        raise ValueError("summary CRC mismatch")
+    return summary
 
 
 def _read_indexed(scan: _FileScan, f: IO[bytes]) -> bool:
     """Read a finished file through its summary; False (nothing read) if the summary is unusable."""
     try:
-        f.seek(0)
-        reader = SeekingReader(f)
-        header = reader.get_header()
-        summary = reader.get_summary()
-    except (McapError, EOFError, ValueError, struct.error, UnicodeDecodeError) as error:
+        summary = _read_summary(f, scan.size)
+    except _RECORD_ERRORS as error:
         scan.warn(f"footer present but the summary is unreadable ({_short(error)}); read linearly")
         return False
-    if summary is None or summary.statistics is None:
+    if summary.statistics is None:
         scan.warn("no summary statistics; read linearly", damage=False)
         return False
     chunk_indexes = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
@@ -333,30 +508,34 @@ def _read_indexed(scan: _FileScan, f: IO[bytes]) -> bool:
         scan.warn("chunk index points past the end of the file; read linearly")
         return False
     scan.finished = True
-    scan.library = header.library
-    for schema in summary.schemas.values():
+    scan.library = summary.library
+    for schema in summary.schemas:
         scan.add_schema(schema)
-    for channel in summary.channels.values():
+    for channel in summary.channels:
         scan.add_channel(channel)
     for index in chunk_indexes:
         offset = index.chunk_start_offset
         try:
-            record = _read_exact(f, offset, index.chunk_length)
-            opcode, length = _RECORD_HEADER.unpack_from(record, 0)
-            if opcode != Opcode.CHUNK or 9 + length != index.chunk_length:
-                raise ValueError(f"not a chunk record (opcode 0x{opcode:02x}, length {length})")
+            body = _indexed_record(f, offset, index.chunk_length, Opcode.CHUNK, scan.size)
         except (EOFError, ValueError, struct.error) as error:
-            scan.chunks_skipped += 1
-            scan.warn(f"chunk at byte {offset}: {_short(error)}; skipped")
+            scan.skip_chunk(f"chunk at byte {offset}: {_short(error)}; skipped")
             continue
-        scan.add_chunk(record[9:], offset)
-    try:
-        for metadata in reader.iter_metadata():
-            scan.add_metadata(metadata)
-        for attachment in reader.iter_attachments():
-            scan.add_attachment(attachment)
-    except (McapError, EOFError, ValueError, struct.error, UnicodeDecodeError) as error:
-        scan.warn(f"metadata or attachments unreadable ({_short(error)})")
+        scan.add_chunk(body, offset)
+    for metadata_index in summary.metadata_indexes:
+        offset = metadata_index.offset
+        try:
+            body = _indexed_record(f, offset, metadata_index.length, Opcode.METADATA, scan.size)
+            scan.add_metadata(Metadata.read(_stream(body)))
+        except _RECORD_ERRORS as error:
+            scan.warn(f"metadata at byte {offset}: unreadable ({_short(error)}); skipped")
+    for attachment_index in summary.attachment_indexes:
+        offset = attachment_index.offset
+        try:
+            scan.add_attachment(
+                _indexed_record(f, offset, attachment_index.length, Opcode.ATTACHMENT, scan.size)
+            )
+        except _RECORD_ERRORS as error:
+            scan.warn(f"attachment at byte {offset}: unreadable ({_short(error)}); skipped")
     expected = summary.statistics.channel_message_counts
     for channel_id, count in scan.counts.items():
         if channel_id and expected.get(channel_id, 0) != count and channel_id in scan.channels:
@@ -369,8 +548,11 @@ def _read_indexed(scan: _FileScan, f: IO[bytes]) -> bool:
     return True
 
 
-def _read_linear(scan: _FileScan, f: IO[bytes]) -> None:
-    """One pass over the records from the start, keeping every complete chunk."""
+def _read_linear(scan: _FileScan, f: IO[bytes], footer: bool = False) -> None:
+    """One pass over the records from the start, keeping every complete chunk.
+
+    `footer`: the file ends with a footer (its summary was unusable), so a lost tail is not a crash.
+    """
     size = scan.size
     pos = len(MAGIC)
     footer_seen = False
@@ -383,7 +565,8 @@ def _read_linear(scan: _FileScan, f: IO[bytes]) -> None:
         end = pos + 9 + length
         plausible = (opcode in _KNOWN_OPCODES or opcode >= 0x80) and end <= size
         if plausible and opcode == Opcode.CHUNK:
-            plausible = _plausible_chunk(f, pos, size)
+            f.seek(pos)
+            plausible = _plausible_chunk(f.read(_CHUNK_PROBE), pos, size)
         elif plausible and opcode == Opcode.MESSAGE_INDEX:
             plausible = _plausible_message_index(f, pos, length)
         if not plausible:
@@ -397,11 +580,9 @@ def _read_linear(scan: _FileScan, f: IO[bytes]) -> None:
             pos = resume
             continue
         if opcode in _READ_IN_LINEAR_PASS:
-            f.seek(pos + 9)
-            body = f.read(length)
             try:
-                _linear_record(scan, opcode, body, pos)
-            except (McapError, EOFError, ValueError, struct.error, UnicodeDecodeError) as error:
+                _linear_record(scan, opcode, _read_exact(f, pos + 9, length), pos)  # within the file
+            except _RECORD_ERRORS as error:
                 scan.warn(f"byte {pos}: unreadable record (opcode 0x{opcode:02x}: {_short(error)}); skipped")
         elif opcode == Opcode.FOOTER:
             footer_seen = True
@@ -413,7 +594,8 @@ def _read_linear(scan: _FileScan, f: IO[bytes]) -> None:
     if not footer_seen:
         lost = size - last_good
         tail = f"; lost the tail after byte {last_good} ({lost} bytes)" if lost else ""
-        scan.warn(f"no footer (unfinished); {recovered}{tail}")
+        state = "records unreadable before the footer" if footer else "no footer (unfinished)"
+        scan.warn(f"{state}; {recovered}{tail}")
     elif not scan.warnings:
         scan.warn(f"finished file read linearly; {recovered}", damage=False)
 
@@ -426,30 +608,27 @@ def _linear_record(scan: _FileScan, opcode: int, body: bytes, offset: int) -> No
     elif opcode == Opcode.METADATA:
         scan.add_metadata(Metadata.read(_stream(body)))
     elif opcode == Opcode.ATTACHMENT:
-        scan.add_attachment(McapAttachment.read(_stream(body)))
+        scan.add_attachment(body)
     else:  # Schema, Channel or Message outside chunks
         scan.add_records(_RECORD_HEADER.pack(opcode, len(body)) + body, f"record at byte {offset}")
 
 
-def _plausible_chunk(f: IO[bytes], pos: int, size: int) -> bool:
-    """Whether a valid Chunk record header starts at `pos` (used to resynchronize)."""
-    f.seek(pos)
-    head = f.read(9 + 32 + 4 + 8)
+def _plausible_chunk(head: bytes, pos: int, size: int) -> bool:
+    """Whether a valid Chunk record header starts at `pos` (used to resynchronize).
+
+    `head` holds the `_CHUNK_PROBE` bytes at `pos` (fewer at the end of the file). The sizes the
+    chunk declares are judged later, by `add_chunk`.
+    """
     if len(head) < 9 + 32 or head[0] != Opcode.CHUNK:
         return False
     _, length = _RECORD_HEADER.unpack_from(head, 0)
-    start, end, uncompressed_size, _crc, name_length = _CHUNK_HEADER.unpack_from(head, 9)
+    start, end, _uncompressed_size, _crc, name_length = _CHUNK_HEADER.unpack_from(head, 9)
     if name_length not in (0, 3, 4) or len(head) < 9 + 32 + name_length + 8:
         return False
     if head[41 : 41 + name_length] not in (b"", b"lz4", b"zstd"):
         return False
     (records_length,) = struct.unpack_from("<Q", head, 41 + name_length)
-    return bool(
-        length == 32 + name_length + 8 + records_length
-        and pos + 9 + length <= size
-        and start <= end
-        and uncompressed_size <= _MAX_UNCOMPRESSED_CHUNK
-    )
+    return bool(length == 32 + name_length + 8 + records_length and pos + 9 + length <= size and start <= end)
 
 
 def _plausible_message_index(f: IO[bytes], pos: int, length: int) -> bool:
@@ -467,13 +646,13 @@ def _next_chunk(f: IO[bytes], start: int, size: int) -> int | None:
     block_start = start
     while block_start < size:
         f.seek(block_start)
-        block = f.read(_SCAN_BLOCK)
-        i = block.find(b"\x06")
+        block = f.read(_SCAN_BLOCK + _CHUNK_PROBE - 1)  # overlapping, so every candidate has its probe
+        i = block.find(b"\x06", 0, _SCAN_BLOCK)
         while i != -1:
-            if _plausible_chunk(f, block_start + i, size):
+            if _plausible_chunk(block[i : i + _CHUNK_PROBE], block_start + i, size):
                 return block_start + i
-            i = block.find(b"\x06", i + 1)
-        block_start += len(block)
+            i = block.find(b"\x06", i + 1, _SCAN_BLOCK)
+        block_start += _SCAN_BLOCK
     return None
 
 

@@ -12,6 +12,8 @@ directly, on a shared `Clock` (a `VirtualClock` in tests):
   silenced for a time window, and then `poll` raises `StaleDataError` once no sample has arrived
   for longer than `stale_timeout_s`, as `rig.hw.loadcell.driver.SerialLoadCell` does; after
   `disconnect()` (cable pulled) `poll` raises `NotConnectedError`, as the driver does when reading fails.
+  It is a `LineStatsSource` too: samples due during a silence are counted as missing (their `seq`
+  is skipped, as a device's counter would be); no line is ever garbled.
 * `FakeLine`: the world between them: tension = stiffness x (winch angle - line zero), never
   negative; at each of the given slip forces the link gives and the tension drops by a fraction.
 * `fake_session` and `fake_rig`: a `RigSession` built from them, with an operator that confirms at
@@ -22,11 +24,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 from rig.errors import CommunicationError, HardwareFault, NotConnectedError, StaleDataError
-from rig.hw.seams import Clock, LoadCellSample, OperatingMode, ServoState
+from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample, OperatingMode, ServoState
 from rig.hw.session import RigSession
 from rig.protocol import TrialPlan
 from rig.sim.clock import VirtualClock
@@ -379,11 +381,17 @@ class FakeLoadCell:
         self._seq = 0
         self._last_valid_ns = 0
         self._failure: str | None = None
+        self._line_stats = LoadCellLineStats(0, 0, 0, 0, 0, 0)
+        self._in_gap = False
 
     @property
     def is_open(self) -> bool:
         """Between `open()` and `close()`."""
         return self._open
+
+    def line_stats(self) -> LoadCellLineStats:
+        """Samples sent and missed (silences) since `open()`."""
+        return self._line_stats
 
     def silence(self, duration_s: float = math.inf, *, at_ns: int | None = None) -> None:
         """Send nothing for `duration_s` from monotonic `at_ns` (default: now), as if unplugged."""
@@ -404,6 +412,8 @@ class FakeLoadCell:
         self._anchor_ns = self.clock.time_ns() - now
         self._next_ns = now + self.period_ns
         self._last_valid_ns = now
+        self._line_stats = LoadCellLineStats(0, 0, 0, 0, 0, 0)
+        self._in_gap = False
 
     def poll(self) -> list[LoadCellSample]:
         """The samples due since the last call; StaleDataError when silent for too long."""
@@ -413,18 +423,32 @@ class FakeLoadCell:
             raise NotConnectedError(f"load cell {self.name}: reading failed: {self._failure}")
         now = self.clock.monotonic_ns()
         samples: list[LoadCellSample] = []
+        missing = gaps = 0
         while self._next_ns <= now:
             t_ns = self._next_ns
             self._next_ns += self.period_ns
             self._seq += 1
             if any(start <= t_ns < end for start, end in self.silences):
+                missing += 1
+                if not self._in_gap:
+                    gaps += 1
+                    self._in_gap = True
                 continue
+            self._in_gap = False
             force = float(self.tension(t_ns))
             samples.append(
                 LoadCellSample(self._anchor_ns + t_ns, round(force * self.counts_per_n), force, self._seq)
             )
             self._last_valid_ns = t_ns
         self.samples_sent += len(samples)
+        if samples or missing:
+            stats = self._line_stats
+            self._line_stats = replace(
+                stats,
+                lines_ok=stats.lines_ok + len(samples),
+                missing_samples=stats.missing_samples + missing,
+                sequence_gaps=stats.sequence_gaps + gaps,
+            )
         if samples:
             return samples
         age_s = (now - self._last_valid_ns) / 1e9

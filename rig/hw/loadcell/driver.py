@@ -1,5 +1,8 @@
 """The serial load-cell driver: implements the `LoadCell` seam over pyserial (or any port like it).
 
+It also implements `LineStatsSource`: `line_stats()` counts the lines decoded, garbled, failing their
+checksum and missing from the sequence (`stats()` adds bytes and overloads, for diagnostics).
+
 `poll()` never blocks. On a real port (a `serial.SerialBase`) a background reader thread reads
 bytes as they arrive, stamps them on receipt with `clock.monotonic_ns()` (plus one epoch anchor
 taken at `open()`), decodes them and feeds a bounded queue that `poll()` drains. On any other
@@ -26,7 +29,7 @@ from rig.hw.clock import SystemClock
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.device_time import DeviceClockMapper
 from rig.hw.loadcell.formats import LineDecoder, get_codec
-from rig.hw.seams import Clock, LoadCellSample
+from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample
 
 DEFAULT_BAUD = 921600
 DEFAULT_STALE_TIMEOUT_S = 0.5
@@ -219,6 +222,20 @@ class SerialLoadCell:
             c.missing_samples,
             c.overload_lines,
             dropped,
+        )
+
+    def line_stats(self) -> LoadCellLineStats:
+        """The line counts since `open()` (the `LineStatsSource` seam): what the runner logs per trial."""
+        with self._lock:
+            c = self._decoder.counts()
+            dropped = self._samples_dropped
+        return LoadCellLineStats(
+            lines_ok=c.lines_ok,
+            checksum_failures=c.checksum_failures,
+            garbled_lines=c.corrupt_lines,
+            missing_samples=c.missing_samples,
+            sequence_gaps=c.sequence_gaps,
+            samples_dropped=dropped,
         )
 
     def _ingest(self, data: bytes, receipt_mono_ns: int) -> None:
