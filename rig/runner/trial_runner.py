@@ -30,7 +30,7 @@ from rig.errors import (
     StaleDataError,
     StepTimeoutError,
 )
-from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
+from rig.hw.seams import LineStatsSource, LoadCellLineStats, LoadCellSample, OperatingMode, ServoState
 from rig.hw.session import RigSession
 from rig.log import schemas
 from rig.log.records import (
@@ -366,8 +366,10 @@ class TrialRunner:
         start_ns = self.clock.time_ns()
         self.progress.trial_started(trial.trial_id, self._describe(trial))
         found = TrialMeasurements(joint_angles_rad=trial.joint_angles_rad)
+        lines_before = self._line_stats()
         for step in trial.steps:
             self._run_step(step, trial, found)
+        self._note_line_losses(trial, lines_before)
         result = trial_result(
             trial,
             found,
@@ -590,6 +592,20 @@ class TrialRunner:
         self.session.servos.write_goal_positions({winch: goal})
         self._command(winch, ServoCommandName.GOAL_POSITION, goal, "rad")
         return goal
+
+    def _line_stats(self) -> LoadCellLineStats | None:
+        """The load cell's line counts, when it keeps them."""
+        cell = self.session.load_cell
+        return cell.line_stats() if isinstance(cell, LineStatsSource) else None
+
+    def _note_line_losses(self, trial: TrialPlan, before: LoadCellLineStats | None) -> None:
+        """Log what the load cell lost during the trial (garbled, bad checksums, missing samples)."""
+        after = self._line_stats()
+        if before is None or after is None:
+            return
+        lines = after.since(before)
+        level = LogLevel.INFO if lines.lossless else LogLevel.WARNING
+        self._note(level, f"trial {trial.trial_id}: load cell {lines.describe()}")
 
     def _confirmed_by_winch(self, event: SlipEvent) -> bool:
         """A tension drop is a slip only if the winch was not backing off (it reels in or holds)."""
