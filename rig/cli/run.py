@@ -10,12 +10,11 @@ from typing import TYPE_CHECKING, Any
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
-from rig.protocol import load_protocol
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.rig_config import DEFAULT_RIG_CONFIG
 
 if TYPE_CHECKING:
     from model.fit import FitSummary
-    from rig.runner.run import RunReport
+    from rig.runner.run import RunReport, RunRequest
 
 DESCRIPTION = """\
 Run a protocol of automated slip trials. The winch (a Dynamixel servo in current-based position
@@ -89,26 +88,18 @@ def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
     # The runner is imported here, not at the top, so that `rig --help` stays quick.
     from rig.rigs import open_session
+    from rig.runner.journal import MAX_SEED
     from rig.runner.progress import make_progress
-    from rig.runner.run import RunRequest, execute_run, prepare_run
+    from rig.runner.run import execute_run, prepare_run
     from rig.runner.safety import terminate_as_interrupt
 
-    if args.seed < 0:
-        raise InputError(f"--seed {args.seed}: allowed: an integer >= 0")
+    if not 0 <= args.seed <= MAX_SEED:
+        raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
     if args.resume and args.run_id:
         raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
     if args.dry_run:
         return _dry_run(args)
-    request = RunRequest(
-        protocol_path=args.protocol,
-        rig_path=args.rig,
-        out_dir=args.out,
-        seed=args.seed,
-        realtime=args.realtime,
-        run_id=args.run_id,
-        resume=args.resume,
-    )
-    prepared = prepare_run(request)  # validates everything; InputError -> exit 2, nothing started
+    prepared = prepare_run(_request(args))  # validates everything; InputError -> exit 2, nothing started
     session = open_session(prepared)
     terminate_as_interrupt()
     report = execute_run(prepared, session, make_progress(args.json))
@@ -120,12 +111,17 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _dry_run(args: argparse.Namespace) -> int:
-    from rig.runner.limits import check_limits, plan_summary
+    """Validate what a real run validates, then print the plan; no device is opened, nothing written.
 
-    config = load_rig_config(args.rig)
-    protocol = load_protocol(args.protocol, seed=args.seed, joint_count=config.article.joint_count)
-    check_limits(protocol, config)
-    plan = plan_summary(protocol, config)
+    The same `prepare_run` as a real run (it writes nothing), and the files the session would read.
+    """
+    from rig.rigs import check_session_inputs
+    from rig.runner.limits import plan_summary
+    from rig.runner.run import prepare_run
+
+    prepared = prepare_run(_request(args))
+    check_session_inputs(prepared.config)
+    plan = plan_summary(prepared.protocol, prepared.config)
     if args.json:
         emit_json(plan)
         return 0
@@ -150,6 +146,20 @@ def _dry_run(args: argparse.Namespace) -> int:
     print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan['duration_assumption']})")
     print("dry run: nothing was moved")
     return 0
+
+
+def _request(args: argparse.Namespace) -> RunRequest:
+    from rig.runner.run import RunRequest
+
+    return RunRequest(
+        protocol_path=args.protocol,
+        rig_path=args.rig,
+        out_dir=args.out,
+        seed=args.seed,
+        realtime=args.realtime,
+        run_id=args.run_id,
+        resume=args.resume,
+    )
 
 
 def _summary(report: RunReport) -> str:
@@ -204,8 +214,10 @@ def _truth_text(truth: dict[str, Any], est: FitSummary | None) -> str:
         text += f" k = {k:.5g} kg·m"
         if est is not None:
             lo, hi = est.k_ci
-            inside = "inside" if lo <= k <= hi else "OUTSIDE"
-            text += f" ({inside} the bounds; estimate off by {(est.k - k) / k * 100:+.2f} %)"
+            off = f"estimate off by {(est.k - k) / k * 100:+.2f} %"
+            if math.isfinite(lo) and math.isfinite(hi):  # an estimates file may give no bounds on k
+                off = f"{'inside' if lo <= k <= hi else 'OUTSIDE'} the bounds; {off}"
+            text += f" ({off})"
     caps = truth.get("capacity_nm")
     if isinstance(caps, list):
         text += " joint capacities " + ", ".join(f"{c:.3f}" for c in caps) + " N·m"
