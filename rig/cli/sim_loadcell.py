@@ -6,11 +6,14 @@ import argparse
 import sys
 import time
 
+from rig.errors import InputError
 from rig.hw.loadcell.formats import FORMATS
 from rig.sim.loadcell.emulator import DEFAULT_BAUD, FaultPlan, LoadCellEmulator, SignalModel, parse_fault
 from rig.sim.loadcell.profiles import parse_profile
 from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.pty_link import PtyLink, StopFlag
+
+MAX_SEED = 2**64 - 1
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -81,6 +84,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; returns 0."""
+    if not 0 <= args.seed <= MAX_SEED:
+        raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
     plan = FaultPlan()
     for spec in args.fault:
         plan = parse_fault(spec, plan)
@@ -101,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         start_ns=start_ns,
     )
     stop = StopFlag()
-    with PtyLink(args.link) as link:
+    with PtyLink.for_cli(args.link) as link:
         print(
             f"PTY {link.link_path} {link.slave_name} loadcell format={args.format} rate={args.rate:g}Hz "
             f"baud={args.baud}",

@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; returns 0."""
     bus, _ = build_bus(args)
     stop = StopFlag()
-    with PtyLink(args.link) as link:
+    with PtyLink.for_cli(args.link) as link:
         print(f"PTY {link.slave_name} LINK {link.link_path}", flush=True)
         stats = serve(bus, link, stop, wire_timing=args.wire_timing)
     print(
