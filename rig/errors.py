@@ -69,5 +69,5 @@ _UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]")
 
 
 def one_line(message: str) -> str:
-    """`message` with line breaks and other control characters escaped (`\\n`), for one-line errors."""
+    """`message` with line breaks and other control characters escaped as in Python literals (one line)."""
     return _UNPRINTABLE.sub(lambda m: ascii(m.group())[1:-1], message)
