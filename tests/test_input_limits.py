@@ -322,3 +322,26 @@ def test_protocol_prompt_and_size_limits(tmp_path, run_cli):
         QUICK_PROTOCOL.replace("repeats: 1", "repeats: 100").replace("[0.12, 0.2, 0.25]", str([0.1] * 101))
     )
     assert_one_line_exit_2(run_cli("run", path, "--dry-run"), "more than 10000 trials")
+
+
+def test_rig_run_out_must_be_a_directory(tmp_path, run_cli):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    for extra in (["--dry-run"], []):
+        result = run_cli("run", PROTOCOLS / "smoke.yaml", "--out", blocker / "logs", *extra)
+        assert_one_line_exit_2(result, f"{blocker} is not a directory")
+
+
+@pytest.mark.parametrize(
+    ("options", "needle"),
+    [
+        (["--reference-kg", "1e-320"], "--reference-kg 1e-320; allowed"),
+        (["--reference-kg", "1", "--temperature-c", "nan"], "--temperature-c nan; allowed: -100 to 200"),
+        (["--reference-kg", "1", "--serial", "a\nb"], "--serial 'a\\nb': allowed: printable text"),
+        (["--reference-kg", "1", "--stale-timeout-s", "1e-320"], "--stale-timeout-s 1e-320"),
+    ],
+)
+def test_rig_calibrate_options_fit_the_file_it_writes(tmp_path, run_cli, options, needle):
+    out = tmp_path / "cal.json"
+    assert_one_line_exit_2(run_cli("calibrate", "--sim", "--yes", "--out", out, *options), needle)
+    assert not out.exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -97,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
     if args.resume and args.run_id:
         raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
+    _check_out_dir(args.out)
     if args.dry_run:
         return _dry_run(args)
     prepared = prepare_run(_request(args))  # validates everything; InputError -> exit 2, nothing started
@@ -146,6 +148,19 @@ def _dry_run(args: argparse.Namespace) -> int:
     print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan['duration_assumption']})")
     print("dry run: nothing was moved")
     return 0
+
+
+def _check_out_dir(out: Path) -> None:
+    """The --out directory exists and is writable, or can be made (the run writes its log there)."""
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InputError(
+            f"--out {out}: {existing} is not a directory; allowed: a directory for the run's files"
+        )
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out}: {existing} is not writable; allowed: a directory for the run's files")
 
 
 def _request(args: argparse.Namespace) -> RunRequest:
