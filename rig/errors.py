@@ -5,6 +5,7 @@ Messages carry what an operator needs to act: units, limits, IDs and retry count
 
 from __future__ import annotations
 
+import re
 from enum import IntEnum
 
 
@@ -66,3 +67,11 @@ class ExitCode(IntEnum):
     FAULT = 1  # stopped by a fault or an interlock
     INVALID_INPUT = 2  # nothing started; the message names the file and field
     INTERRUPTED = 130  # Ctrl-C or SIGTERM; hardware left safe
+
+
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]")
+
+
+def one_line(message: str) -> str:
+    """`message` with line breaks and other control characters escaped as in Python literals (one line)."""
+    return _UNPRINTABLE.sub(lambda m: ascii(m.group())[1:-1], message)

@@ -26,6 +26,20 @@ _TOP_KEYS = ("g", "joints", "load")
 _JOINT_KEYS = ("transform", "xyz", "rpy", "capacity_nm", "radius_m", "mu_delta0_pa", "constant")
 _LOAD_KEYS = ("point_m", "direction", "force_n")
 
+# Physically sensible ranges (docs/formats.md §3): wide for any bench link, narrow enough that no
+# product or quotient of them overflows or underflows to a subnormal on the way to the output.
+G_RANGE = (0.1, 100.0)  # m/s²
+CAPACITY_RANGE_NM = (1e-6, 1e4)
+RADIUS_RANGE_M = (1e-5, 1.0)
+MU_DELTA0_RANGE_PA = (1.0, 1e12)
+CONSTANT_RANGE = (1e-3, 1e3)
+LENGTH_LIMIT_M = 10.0  # |each coordinate| of translations and the acting point
+ANGLE_LIMIT_RAD = 10.0  # |roll|, |pitch|, |yaw|
+DIRECTION_LIMIT = 1e3  # |each component| of `direction`
+FORCE_LIMIT_N = 1e5  # |each component| of `force_n`
+MIN_VECTOR_NORM = 1e-6
+MAX_JOINTS = 100
+
 
 @dataclass(frozen=True)
 class CapacitySource:
@@ -107,7 +121,10 @@ def _number(ctx: _Context, field: str, value: Any, allowed: str) -> float:
         except ValueError:
             raise ctx.error(field, f"{_describe(value)} is not a number", allowed) from None
     elif isinstance(value, int | float):
-        number = float(value)
+        try:
+            number = float(value)
+        except OverflowError:  # an integer beyond the float range
+            raise ctx.error(field, "an integer beyond the float range is out of range", allowed) from None
     else:
         raise ctx.error(field, f"{_describe(value)} is not a number", allowed)
     if not math.isfinite(number):
@@ -115,23 +132,37 @@ def _number(ctx: _Context, field: str, value: Any, allowed: str) -> float:
     return number
 
 
-def _positive(ctx: _Context, field: str, value: Any, what: str) -> float:
-    allowed = f"{what} > 0"
+def _positive(ctx: _Context, field: str, value: Any, what: str, bounds: tuple[float, float]) -> float:
+    """A number within `bounds` (both > 0)."""
+    lo, hi = bounds
+    allowed = f"{what} from {lo:g} to {hi:g}"
     number = _number(ctx, field, value, allowed)
     if number <= 0:
         raise ctx.error(field, f"{number:g} is not positive", allowed)
+    if not lo <= number <= hi:
+        raise ctx.error(field, f"{number:g} is out of range", allowed)
     return number
 
 
-def _vector3(ctx: _Context, field: str, value: Any, what: str) -> NDArray[np.float64]:
-    allowed = f"{what}: a list of 3 numbers"
+def _vector3(ctx: _Context, field: str, value: Any, what: str, limit: float) -> NDArray[np.float64]:
+    allowed = f"{what}: a list of 3 numbers, each from {-limit:g} to {limit:g}"
     if not isinstance(value, Sequence) or isinstance(value, str) or len(value) != 3:
         raise ctx.error(field, f"{_describe(value)} is not a list of 3 numbers", allowed)
-    return np.array([_number(ctx, f"{field}[{k}]", v, allowed) for k, v in enumerate(value)])
+    return np.array([_limited(ctx, f"{field}[{k}]", v, allowed, limit) for k, v in enumerate(value)])
+
+
+def _limited(ctx: _Context, field: str, value: Any, allowed: str, limit: float) -> float:
+    number = _number(ctx, field, value, allowed)
+    if abs(number) > limit:
+        raise ctx.error(field, f"{number:g} is out of range", allowed)
+    return number
 
 
 def _matrix4(ctx: _Context, field: str, value: Any) -> NDArray[np.float64]:
-    allowed = "a 4x4 homogeneous transform as 4 rows of 4 numbers (row-major)"
+    allowed = (
+        f"a 4x4 homogeneous transform as 4 rows of 4 numbers (row-major), each from {-LENGTH_LIMIT_M:g} "
+        f"to {LENGTH_LIMIT_M:g}"
+    )
     rows_ok = isinstance(value, Sequence) and not isinstance(value, str) and len(value) == 4
     if not rows_ok or not all(
         isinstance(r, Sequence) and not isinstance(r, str) and len(r) == 4 for r in value
@@ -139,7 +170,7 @@ def _matrix4(ctx: _Context, field: str, value: Any) -> NDArray[np.float64]:
         raise ctx.error(field, f"{_describe(value)} is not 4 rows of 4 numbers", allowed)
     return np.array(
         [
-            [_number(ctx, f"{field}[{r}][{k}]", v, allowed) for k, v in enumerate(row)]
+            [_limited(ctx, f"{field}[{r}][{k}]", v, allowed, LENGTH_LIMIT_M) for k, v in enumerate(row)]
             for r, row in enumerate(value)
         ]
     )
@@ -176,8 +207,8 @@ def _joint_pose(ctx: _Context, field: str, joint: Mapping[str, Any], number: int
     if not (has_xyz and has_rpy):
         missing = "rpy" if has_xyz else "xyz"
         raise ctx.error(f"{field}.{missing}", f"joint {number}: missing (xyz and rpy go together)", allowed)
-    xyz = _vector3(ctx, f"{field}.xyz", joint["xyz"], "translation [m]")
-    rpy = _vector3(ctx, f"{field}.rpy", joint["rpy"], "roll, pitch, yaw [rad]")
+    xyz = _vector3(ctx, f"{field}.xyz", joint["xyz"], "translation [m]", LENGTH_LIMIT_M)
+    rpy = _vector3(ctx, f"{field}.rpy", joint["rpy"], "roll, pitch, yaw [rad]", ANGLE_LIMIT_RAD)
     return pose_from_xyz_rpy(xyz, rpy)
 
 
@@ -188,23 +219,41 @@ def _joint_capacity(ctx: _Context, field: str, joint: Mapping[str, Any], number:
     if direct and physical:
         raise ctx.error(field, f"joint {number} gives both `capacity_nm` and `{physical[0]}`", allowed)
     if direct:
-        capacity = _positive(ctx, f"{field}.capacity_nm", joint["capacity_nm"], "capacity [N·m]")
+        capacity = _positive(
+            ctx, f"{field}.capacity_nm", joint["capacity_nm"], "capacity [N·m]", CAPACITY_RANGE_NM
+        )
         return CapacitySource(joint=number, kind="capacity_nm", capacity_nm=capacity)
     for key in ("radius_m", "mu_delta0_pa"):
         if key not in joint:
             raise ctx.error(f"{field}.{key}", f"joint {number}: missing (no capacity given)", allowed)
-    radius = _positive(ctx, f"{field}.radius_m", joint["radius_m"], "ball radius [m]")
-    mu_delta0 = _positive(ctx, f"{field}.mu_delta0_pa", joint["mu_delta0_pa"], "mu_s*delta0 [Pa]")
+    radius = _positive(ctx, f"{field}.radius_m", joint["radius_m"], "ball radius [m]", RADIUS_RANGE_M)
+    mu_delta0 = _positive(
+        ctx, f"{field}.mu_delta0_pa", joint["mu_delta0_pa"], "mu_s*delta0 [Pa]", MU_DELTA0_RANGE_PA
+    )
     spec = joint.get("constant", "paper")
+    lo, hi = CONSTANT_RANGE
     try:
         constant = resolve_constant(spec)
-    except ValueError:
+    except (ValueError, OverflowError):
         raise ctx.error(
             f"{field}.constant",
             f"{_describe(spec)} is not a capacity constant",
-            "paper, derived or a number > 0",
+            f"paper, derived or a number from {lo:g} to {hi:g}",
         ) from None
+    if not lo <= constant.value <= hi:
+        raise ctx.error(
+            f"{field}.constant",
+            f"{constant.value:g} is out of range",
+            f"paper, derived or a number from {lo:g} to {hi:g}",
+        )
     capacity = float(joint_capacity_nm(mu_delta0, radius, constant))
+    lo, hi = CAPACITY_RANGE_NM
+    if not lo <= capacity <= hi:
+        raise ctx.error(
+            field,
+            f"joint {number}: c·μs·δ0·R³ = {capacity:.3g} N·m is out of range",
+            f"a capacity from {lo:g} to {hi:g} N·m",
+        )
     return CapacitySource(
         joint=number,
         kind="radius_mu_delta0",
@@ -227,12 +276,14 @@ def parse_link(data: Mapping[str, Any] | Any, source: str, *, field_prefix: str 
         if key not in top:
             raise ctx.error(key, "missing", "a link has `joints` (list, base to tip) and `load`")
 
-    g = PAPER_G_M_S2 if "g" not in top else _positive(ctx, "g", top["g"], "gravity [m/s²]")
+    g = PAPER_G_M_S2 if "g" not in top else _positive(ctx, "g", top["g"], "gravity [m/s²]", G_RANGE)
 
     joints = top["joints"]
-    if not isinstance(joints, Sequence) or isinstance(joints, str) or len(joints) == 0:
+    if not isinstance(joints, Sequence) or isinstance(joints, str) or not 0 < len(joints) <= MAX_JOINTS:
         raise ctx.error(
-            "joints", f"{_describe(joints)} is not a non-empty list", "a list of joints, base to tip"
+            "joints",
+            f"{_describe(joints)} is not a non-empty list of at most {MAX_JOINTS}",
+            "a list of joints, base to tip",
         )
     transforms = []
     sources = []
@@ -245,16 +296,23 @@ def parse_link(data: Mapping[str, Any] | Any, source: str, *, field_prefix: str 
     load = _mapping(ctx, "load", top["load"], _LOAD_KEYS, "the load")
     if "point_m" not in load:
         raise ctx.error("load.point_m", "missing", "the acting point Q in the tip frame [m], 3 numbers")
-    point = _vector3(ctx, "load.point_m", load["point_m"], "acting point in the tip frame [m]")
-    load_allowed = "exactly one of `direction` (unit vector, base frame) or `force_n` [N], non-zero"
+    point = _vector3(
+        ctx, "load.point_m", load["point_m"], "acting point in the tip frame [m]", LENGTH_LIMIT_M
+    )
+    load_allowed = (
+        f"exactly one of `direction` (base frame) or `force_n` [N], of length >= {MIN_VECTOR_NORM:g}"
+    )
     if ("direction" in load) == ("force_n" in load):
         both = "both" if "direction" in load else "neither"
         raise ctx.error("load", f"gives {both} of `direction` and `force_n`", load_allowed)
     key = "direction" if "direction" in load else "force_n"
-    vector = _vector3(ctx, f"load.{key}", load[key], "a non-zero vector in the base frame")
+    limit = DIRECTION_LIMIT if key == "direction" else FORCE_LIMIT_N
+    vector = _vector3(ctx, f"load.{key}", load[key], "a non-zero vector in the base frame", limit)
     norm = float(np.linalg.norm(vector))
     if norm == 0:
         raise ctx.error(f"load.{key}", "is the zero vector", load_allowed)
+    if norm < MIN_VECTOR_NORM:
+        raise ctx.error(f"load.{key}", f"is too short ({norm:.3g})", load_allowed)
     force = vector if key == "force_n" else None
 
     transforms_array = np.stack(transforms)

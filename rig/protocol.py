@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 import random
+import re
+import string
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,6 +29,18 @@ DEFAULT_STEPS: dict[str, tuple[str, ...]] = {
     "joint_estimation": ("prompt", "tare", "ramp_until_slip", "unload", "pause"),
     "link_validation": ("bend", "measure", "tare", "ramp_until_slip", "unload", "reset", "pause"),
 }
+# Size limits (docs/formats.md §1): generous for any real protocol, small enough that a hostile
+# file cannot make the plan take minutes or gigabytes.
+MAX_BLOCKS = 100
+MAX_STEPS = 50
+MAX_ITEMS = 1000  # distances or configurations in one block
+MAX_TRIALS = 10_000
+MAX_JOINTS = 100  # when the rig config is not known yet
+MAX_TEXT_CHARS = 1000  # a prompt text
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")  # becomes part of run ids and file names
+PROMPT_FIELDS = ("distance_m", "joint", "configuration", "trial", "repeat")
+# A format spec of at most 2-digit width and precision (no nested fields: a width of 10**9 is a hang).
+_PROMPT_SPEC = re.compile(r"(.?[<>=^])?[+\- ]?#?0?\d{0,2}[,_]?(\.\d{1,2})?[bcdeEfFgGnosxX%]?")
 DEFAULT_PROMPTS = {
     "joint_estimation": "Hang the hook at {distance_m:.3f} m from joint {joint}, then confirm.",
     "link_validation": "Check configuration {configuration} is set and the line is free, then confirm.",
@@ -148,7 +162,7 @@ def parse_protocol(
     ramp = _ramp(top.section("ramp", default={}))
     limits = top.section("limits", default={})
     limits.reject_unknown(["force_ceiling_n", "step_timeout_margin_s"])
-    ceiling = limits.number("force_ceiling_n", default=None, min_value=0.0, min_exclusive=True)
+    ceiling = limits.number("force_ceiling_n", default=None, min_value=0.1, max_value=500.0)
     if ceiling is not None and ramp.max_force_n >= ceiling:
         raise top.error(
             "ramp.max_force_n", f"{ramp.max_force_n} must be below limits.force_ceiling_n ({ceiling})"
@@ -156,14 +170,27 @@ def parse_protocol(
     rng = random.Random(seed)
     trials: list[TrialPlan] = []
     estimates_from: str | None = None
-    blocks = top.sequence("blocks", min_length=1)
+    name = top.string("name", default=Path(source).stem)
+    if top.has("name") and not NAME_PATTERN.fullmatch(name):
+        raise top.error(
+            "name", f"{name!r:.70}; allowed: 1-64 letters, digits, '.', '_', '-' (it names the run's files)"
+        )
+    blocks = top.sequence("blocks", min_length=1, max_length=MAX_BLOCKS)
     for b, raw_block in enumerate(blocks):
         block = Section(raw_block, source, f"blocks[{b}]")
         kind = block.string("kind", choices=BLOCK_KINDS)
         if kind == "joint_estimation":
-            trials += _joint_estimation_block(block, b, len(trials), rng, joint_count)
+            new = _joint_estimation_block(block, b, len(trials), rng, joint_count)
         else:
-            trials += _link_validation_block(block, b, len(trials), joint_count)
+            new = _link_validation_block(block, b, len(trials), joint_count)
+        if len(trials) + len(new) > MAX_TRIALS:
+            raise block.error(
+                "repeats",
+                f"the protocol would have more than {MAX_TRIALS} trials; allowed: at most {MAX_TRIALS}",
+            )
+        _check_prompts(block, new[0])
+        trials += new
+        if kind == "link_validation":
             source_of_estimates = block.string("estimates_from", default="run")
             if source_of_estimates == "run":
                 if not any(t.kind == "joint_estimation" for t in trials):
@@ -174,7 +201,7 @@ def parse_protocol(
                     )
             else:
                 path = (base_dir or Path(".")) / source_of_estimates
-                if not path.is_file():
+                if not _is_file(path):
                     raise block.error(
                         "estimates_from", f"file {path} not found; allowed: 'run' or a JSON file"
                     )
@@ -185,7 +212,7 @@ def parse_protocol(
     return Protocol(
         source=Path(source),
         text=text,
-        name=top.string("name", default=Path(source).stem),
+        name=name,
         description=top.string("description", default=""),
         detector=detector,
         ramp=ramp,
@@ -203,6 +230,12 @@ def _detector(sec: Section) -> dict[str, float | None]:
     """Detector settings, validated by the model's own parameter type."""
     from model.slip_detector import DetectorParams
 
+    for key, value in sec.data.items():
+        if isinstance(value, int) and abs(value) > 1e300:  # beyond the float range
+            digits = int(value.bit_length() * math.log10(2)) + 1
+            raise sec.error(
+                str(key), f"an integer of {digits} digits is out of range; allowed: docs/model.md §7"
+            )
     try:
         params = DetectorParams.from_mapping(dict(sec.data), source=f"{sec.source}: detector")
     except ValueError as exc:
@@ -221,26 +254,22 @@ def _ramp(sec: Section) -> RampSettings:
             "hold_after_slip_s",
         ]
     )
-    fast = sec.number("fast_speed_rad_s", default=1.0, min_value=0.0, max_value=20.0, min_exclusive=True)
-    slow = sec.number("slow_speed_rad_s", default=0.1, min_value=0.0, max_value=20.0, min_exclusive=True)
+    fast = sec.number("fast_speed_rad_s", default=1.0, min_value=0.001, max_value=20.0)
+    slow = sec.number("slow_speed_rad_s", default=0.1, min_value=0.001, max_value=20.0)
     if slow > fast:
         raise sec.error("slow_speed_rad_s", f"{slow} must not exceed fast_speed_rad_s ({fast})")
     return RampSettings(
         fast_speed_rad_s=fast,
         slow_speed_rad_s=slow,
         fast_until_fraction=sec.number("fast_until_fraction", default=0.7, min_value=0.0, max_value=0.95),
-        max_force_n=sec.number(
-            "max_force_n", default=40.0, min_value=0.0, max_value=500.0, min_exclusive=True
-        ),
-        unload_speed_rad_s=sec.number(
-            "unload_speed_rad_s", default=2.0, min_value=0.0, max_value=20.0, min_exclusive=True
-        ),
+        max_force_n=sec.number("max_force_n", default=40.0, min_value=0.1, max_value=500.0),
+        unload_speed_rad_s=sec.number("unload_speed_rad_s", default=2.0, min_value=0.001, max_value=20.0),
         hold_after_slip_s=sec.number("hold_after_slip_s", default=0.2, min_value=0.0, max_value=10.0),
     )
 
 
 def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
-    raw = block.sequence("steps", default=list(DEFAULT_STEPS[kind]), min_length=1)
+    raw = block.sequence("steps", default=list(DEFAULT_STEPS[kind]), min_length=1, max_length=MAX_STEPS)
     steps: list[StepSpec] = []
     for i, item in enumerate(raw):
         if isinstance(item, str):
@@ -258,7 +287,7 @@ def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
         opts = Section(options, block.source, block.field(field))
         if name == "prompt":
             opts.reject_unknown(["text"])
-            steps.append(StepSpec("prompt", text=opts.string("text", default=DEFAULT_PROMPTS[kind])))
+            steps.append(StepSpec("prompt", text=_prompt_text(opts, DEFAULT_PROMPTS[kind])))
         elif name == "pause":
             opts.reject_unknown(["duration_s"])
             steps.append(
@@ -291,8 +320,8 @@ def _joint_estimation_block(
     block: Section, b: int, offset: int, rng: random.Random, joint_count: int | None
 ) -> list[TrialPlan]:
     block.reject_unknown(["kind", "joint", "distances_m", "repeats", "shuffle", "steps"])
-    joint = block.integer("joint", default=1, min_value=1, max_value=joint_count)
-    distances = block.numbers("distances_m", min_value=0.0, max_value=2.0, min_exclusive=True)
+    joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
+    distances = block.numbers("distances_m", max_length=MAX_ITEMS, min_value=0.001, max_value=2.0)
     repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
     steps = _steps(block, "joint_estimation")
     order = [(d, r) for r in range(1, repeats + 1) for d in distances]
@@ -316,11 +345,13 @@ def _link_validation_block(block: Section, b: int, offset: int, joint_count: int
     block.reject_unknown(["kind", "configurations_deg", "repeats", "estimates_from", "steps"])
     repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
     steps = _steps(block, "link_validation")
-    configs = block.sequence("configurations_deg", min_length=1)
+    configs = block.sequence("configurations_deg", min_length=1, max_length=MAX_ITEMS)
     angles: list[tuple[float, ...]] = []
     for c, raw in enumerate(configs):
         entry = Section({"angles": raw}, block.source, f"{block.field('configurations_deg')}[{c}]")
-        values = entry.numbers("angles", length=joint_count, min_value=-90.0, max_value=90.0)
+        values = entry.numbers(
+            "angles", length=joint_count, max_length=MAX_JOINTS, min_value=-90.0, max_value=90.0
+        )
         angles.append(tuple(math.radians(v) for v in values))
     trials: list[TrialPlan] = []
     for c, config in enumerate(angles):
@@ -337,3 +368,44 @@ def _link_validation_block(block: Section, b: int, offset: int, joint_count: int
                 )
             )
     return trials
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):  # a name too long for the file system, say
+        return False
+
+
+def _prompt_text(opts: Section, default: str) -> str:
+    """A prompt template: bounded text whose placeholders are the trial's fields, plainly formatted."""
+    text = opts.string("text", default=default)
+    allowed = (
+        f"at most {MAX_TEXT_CHARS} characters with placeholders {{{'}, {'.join(PROMPT_FIELDS)}}} "
+        "and short format specs like {distance_m:.3f} ('{{' and '}}' for braces)"
+    )
+    if len(text) > MAX_TEXT_CHARS:
+        raise opts.error("text", f"{len(text)} characters; allowed: {allowed}")
+    try:
+        fields = [(f, spec, conv) for _, f, spec, conv in string.Formatter().parse(text) if f is not None]
+    except ValueError as exc:
+        raise opts.error("text", f"{exc}; allowed: {allowed}") from None
+    for field, spec, conversion in fields:
+        if field not in PROMPT_FIELDS or conversion is not None or not _PROMPT_SPEC.fullmatch(spec or ""):
+            shown = (
+                "{" + field + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
+            )
+            raise opts.error("text", f"placeholder {shown!r:.60} is not allowed; allowed: {allowed}")
+    return text
+
+
+def _check_prompts(block: Section, trial: TrialPlan) -> None:
+    """Fill the block's prompt templates once, so a spec that does not suit a field fails now, not mid-run."""
+    for i, step in enumerate(trial.steps):
+        if step.kind == "prompt" and step.text is not None:
+            try:
+                trial.prompt_text(step.text)
+            except (ValueError, TypeError) as exc:
+                raise block.error(
+                    f"steps[{i}]", f"prompt text: {exc}; allowed: format specs that suit the field"
+                ) from None

@@ -8,6 +8,7 @@ serial ports (template: `protocols/rigs/hardware.example.yaml`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from importlib.resources import files
 from pathlib import Path
@@ -29,6 +30,8 @@ SIM_PRESETS = ("link1", "link2")
 # The built-in simulated rig, shipped as package data. A package installed as a directory (a wheel or
 # an editable install) gives a real path, which the journal records for `--resume`.
 DEFAULT_RIG_CONFIG = Path(str(files("rig") / "data" / "simulated.yaml"))
+MAX_JOINTS = 100
+MAX_PORT_CHARS = 4096
 STANDARD_BAUDS = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 
 
@@ -233,7 +236,7 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
         text=text,
         name=top.string("name", default=Path(source).stem),
         kind=kind,
-        spool_radius_m=top.number("spool_radius_m", min_value=0.0, max_value=0.2, min_exclusive=True),
+        spool_radius_m=top.number("spool_radius_m", min_value=0.001, max_value=0.2),
         line_stiffness_n_per_m=top.number(
             "line_stiffness_n_per_m", default=2000.0, min_value=1.0, max_value=1e7
         ),
@@ -251,7 +254,7 @@ def _servo_bus(sec: Section) -> ServoBusConfig:
     if baud not in STANDARD_BAUDS:
         raise sec.error("baud", f"{baud} is not a Dynamixel baud rate; allowed: {STANDARD_BAUDS}")
     specs: list[ServoSpec] = []
-    for i, item in enumerate(sec.sequence("ids", min_length=1)):
+    for i, item in enumerate(sec.sequence("ids", min_length=1, max_length=253)):
         entry = Section(item, sec.source, f"{sec.field('ids')}[{i}]")
         entry.reject_unknown(["id", "role", "model"])
         specs.append(
@@ -273,7 +276,7 @@ def _servo_bus(sec: Section) -> ServoBusConfig:
             "ids", "the winch needs current-based position mode (5); XL430-W250 has no current control"
         )
     return ServoBusConfig(
-        port=sec.string("port"),
+        port=_port(sec),
         baud=baud,
         servos=tuple(specs),
         retries=sec.integer("retries", default=2, min_value=0, max_value=10),
@@ -281,11 +284,18 @@ def _servo_bus(sec: Section) -> ServoBusConfig:
     )
 
 
+def _port(sec: Section) -> str:
+    port = sec.string("port")
+    if not 0 < len(port) <= MAX_PORT_CHARS:
+        raise sec.error("port", f"{len(port)} characters; allowed: a serial port name of 1-{MAX_PORT_CHARS}")
+    return port
+
+
 def _loadcell(sec: Section, base_dir: Path) -> LoadCellConfig:
     sec.reject_unknown(["port", "baud", "format", "calibration"])
     calibration = sec.string("calibration", default="")
     return LoadCellConfig(
-        port=sec.string("port"),
+        port=_port(sec),
         baud=sec.integer("baud", default=921_600, min_value=1200, max_value=4_000_000),
         format=sec.string("format", default="rig-lc1", choices=LOADCELL_FORMATS),
         calibration_path=(base_dir / calibration) if calibration else None,
@@ -296,17 +306,19 @@ def _article(sec: Section) -> ArticleConfig:
     sec.reject_unknown(["joint_radius_m", "segment_lengths_m", "load", "g"])
     load = sec.section("load")
     load.reject_unknown(["point_m", "direction"])
-    direction = load.numbers("direction", length=3)
-    if sum(d * d for d in direction) == 0.0:
-        raise load.error("direction", "the load direction is zero; allowed: any non-zero 3-vector")
+    direction = load.numbers("direction", length=3, min_value=-1000.0, max_value=1000.0)
+    if math.hypot(*direction) < 1e-6:
+        raise load.error(
+            "direction", "the load direction is zero; allowed: a 3-vector of length >= 1e-6, each |x| <= 1000"
+        )
     return ArticleConfig(
-        joint_radius_m=sec.number("joint_radius_m", min_value=0.0, max_value=0.1, min_exclusive=True),
+        joint_radius_m=sec.number("joint_radius_m", min_value=0.0001, max_value=0.1),
         segment_lengths_m=tuple(
-            sec.numbers("segment_lengths_m", min_value=0.0, max_value=1.0, min_exclusive=True)
+            sec.numbers("segment_lengths_m", max_length=MAX_JOINTS, min_value=0.001, max_value=1.0)
         ),
-        point_m=tuple(load.numbers("point_m", length=3)),  # type: ignore[arg-type]
+        point_m=tuple(load.numbers("point_m", length=3, min_value=-10.0, max_value=10.0)),  # type: ignore[arg-type]
         direction=tuple(direction),  # type: ignore[arg-type]
-        g=sec.number("g", default=PAPER_G_M_S2, min_value=0.0, max_value=100.0, min_exclusive=True),
+        g=sec.number("g", default=PAPER_G_M_S2, min_value=0.1, max_value=100.0),
     )
 
 
@@ -315,10 +327,8 @@ def _limits(sec: Section) -> RigLimits:
         ["force_ceiling_n", "winch_current_limit_a", "stale_timeout_s", "max_winch_travel_rev"]
     )
     return RigLimits(
-        force_ceiling_n=sec.number("force_ceiling_n", min_value=0.0, max_value=500.0, min_exclusive=True),
-        winch_current_limit_a=sec.number(
-            "winch_current_limit_a", min_value=0.0, max_value=3.2, min_exclusive=True
-        ),
+        force_ceiling_n=sec.number("force_ceiling_n", min_value=0.1, max_value=500.0),
+        winch_current_limit_a=sec.number("winch_current_limit_a", min_value=0.01, max_value=3.2),
         stale_timeout_s=sec.number("stale_timeout_s", default=0.2, min_value=0.005, max_value=10.0),
         max_winch_travel_rev=sec.number("max_winch_travel_rev", default=20.0, min_value=0.1, max_value=255.0),
     )

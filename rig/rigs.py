@@ -5,10 +5,16 @@ This is the one module that knows both rigs; the runner below it sees only `rig.
 
 from __future__ import annotations
 
-from rig.hw.hardware_rig import hardware_session
+from rig.hw.hardware_rig import hardware_session, rig_calibration
 from rig.hw.session import RigSession
+from rig.rig_config import RigConfig
 from rig.runner.run import PreparedRun
 from rig.sim.simulated_rig import SimulatedRig, simulated_rig
+
+
+def check_session_inputs(config: RigConfig) -> None:
+    """Validate what opening a session reads besides the config (the calibration file); opens nothing."""
+    rig_calibration(config)
 
 
 def open_session(prepared: PreparedRun) -> RigSession:
@@ -19,6 +25,7 @@ def open_session(prepared: PreparedRun) -> RigSession:
     """
     if prepared.config.kind == "hardware":
         return hardware_session(prepared.config)
+    check_session_inputs(prepared.config)
     return open_simulated_rig(prepared).session
 
 

@@ -83,9 +83,9 @@ class Section:
             return cast(int, value)  # the caller's default, as given
         if isinstance(value, bool) or not isinstance(value, int):
             allowed = _range(min_value, max_value)
-            raise self.error(key, f"expected an integer, got {value!r}; allowed: {allowed}")
+            raise self.error(key, f"expected an integer, got {_short(value)}; allowed: {allowed}")
         if (min_value is not None and value < min_value) or (max_value is not None and value > max_value):
-            raise self.error(key, f"{value} is out of range; allowed: {_range(min_value, max_value)}")
+            raise self.error(key, f"{_short(value)} is out of range; allowed: {_range(min_value, max_value)}")
         return value
 
     def string(self, key: str, *, default: Any = _MISSING, choices: Sequence[str] | None = None) -> str:
@@ -94,31 +94,35 @@ class Section:
         if value is default and default is not _MISSING:
             return cast(str, value)  # the caller's default, as given
         if not isinstance(value, str):
-            raise self.error(key, f"expected a string, got {value!r}")
+            raise self.error(key, f"expected a string, got {_short(value)}")
         if choices is not None and value not in choices:
             close = difflib.get_close_matches(value, list(choices), n=1)
             hint = f" (did you mean '{close[0]}'?)" if close else ""
-            raise self.error(key, f"'{value}' is not allowed{hint}; allowed: {', '.join(choices)}")
+            raise self.error(key, f"{_short(value)} is not allowed{hint}; allowed: {', '.join(choices)}")
         return value
 
     def boolean(self, key: str, *, default: Any = _MISSING) -> bool:
         """A boolean: true or false."""
         value = self.raw(key, default)
         if not isinstance(value, bool):
-            raise self.error(key, f"expected true or false, got {value!r}")
+            raise self.error(key, f"expected true or false, got {_short(value)}")
         return value
 
     def section(self, key: str, *, default: Any = _MISSING) -> Section:
         """A nested mapping (an empty one when absent and `default` is `{}`)."""
         return Section(self.raw(key, default), self.source, self.field(key))
 
-    def sequence(self, key: str, *, default: Any = _MISSING, min_length: int = 0) -> list[Any]:
-        """A list with at least `min_length` items."""
+    def sequence(
+        self, key: str, *, default: Any = _MISSING, min_length: int = 0, max_length: int | None = None
+    ) -> list[Any]:
+        """A list with at least `min_length` and at most `max_length` items."""
         value = self.raw(key, default)
         if not isinstance(value, list):
             raise self.error(key, f"expected a list, got {_kind(value)}")
         if len(value) < min_length:
             raise self.error(key, f"expected at least {min_length} item(s), got {len(value)}")
+        if max_length is not None and len(value) > max_length:
+            raise self.error(key, f"{len(value)} items; allowed: at most {max_length}")
         return value
 
     def numbers(
@@ -127,6 +131,7 @@ class Section:
         *,
         length: int | None = None,
         min_length: int = 1,
+        max_length: int | None = None,
         min_value: float | None = None,
         max_value: float | None = None,
         min_exclusive: bool = False,
@@ -142,6 +147,8 @@ class Section:
             raise self.error(key, f"expected {length} numbers, got {len(value)}")
         if len(value) < min_length:
             raise self.error(key, f"expected at least {min_length} number(s), got {len(value)}")
+        if max_length is not None and len(value) > max_length:
+            raise self.error(key, f"{len(value)} numbers; allowed: at most {max_length}")
         item = Section({}, self.source, self.field(key))
         return [check_number(item, i, v, min_value, max_value, min_exclusive) for i, v in enumerate(value)]
 
@@ -157,12 +164,15 @@ def check_number(
     """Check one value is a finite number in range; errors name `section.field(key)`."""
     allowed = _range(min_value, max_value, min_exclusive)
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise section.error(key, f"expected a number, got {value!r}; allowed: {allowed}")
-    number = float(value)
+        raise section.error(key, f"expected a number, got {_short(value)}; allowed: {allowed}")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond the float range
+        number = math.inf if value > 0 else -math.inf
     too_low = min_value is not None and (number <= min_value if min_exclusive else number < min_value)
     too_high = max_value is not None and number > max_value
     if not math.isfinite(number) or too_low or too_high:
-        raise section.error(key, f"{value} is out of range; allowed: {allowed}")
+        raise section.error(key, f"{_short(value)} is out of range; allowed: {allowed}")
     return number
 
 
@@ -176,6 +186,14 @@ def _range(lo: float | None, hi: float | None, lo_exclusive: bool = False) -> st
     return f"{lo} {'<' if lo_exclusive else '<='} x <= {hi}"
 
 
+def _short(value: Any) -> str:
+    """`repr(value)`, shortened for a one-line message (a file may hold long values)."""
+    if isinstance(value, int) and value.bit_length() > 100:
+        return f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def _kind(value: Any) -> str:
     if value is None:
         return "nothing"
@@ -183,4 +201,4 @@ def _kind(value: Any) -> str:
         return "a mapping"
     if isinstance(value, list):
         return "a list"
-    return f"{type(value).__name__} {value!r}"
+    return f"{type(value).__name__} {_short(value)}"

@@ -259,7 +259,7 @@ BAD_INPUTS = [
     ),
     (
         link_with_joint("{xyz: [0,0,0], rpy: [0,0,0], radius_m: 0.01, mu_delta0_pa: 1, constant: papr}"),
-        "joints[1].constant: 'papr' is not a capacity constant; allowed: paper, derived or a number > 0",
+        "joints[1].constant: 'papr' is not a capacity constant; allowed: paper, derived or a number from",
     ),
     (
         link_with_joint("{xyz: [0,0,0], rpy: [0,0,0], radius_m: 0.01, mu_delta0_pa: 1, constant: -3}"),

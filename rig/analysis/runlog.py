@@ -14,7 +14,6 @@ never an error: a damaged log still replays.
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ import yaml
 
 from model.fit import DEFAULT_G, DEFAULT_LEVEL
 from rig.errors import InputError, RigError
+from rig.files import parse_json, parse_yaml
 from rig.log import schemas
 from rig.log.reader import RunLog, mcap_files, read_run
 from rig.protocol import TrialPlan, parse_protocol
@@ -127,7 +127,9 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
     if rig_attachment is not None:
         try:
             text = rig_attachment.data.decode("utf-8")
-            config = parse_rig_config(yaml.safe_load(text), source=rig_attachment.name, text=text)
+            config = parse_rig_config(
+                parse_yaml(text, rig_attachment.name), source=rig_attachment.name, text=text
+            )
             settings.article = config.article
             settings.g = config.article.g
             settings.radius_m = config.article.joint_radius_m
@@ -148,7 +150,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
             text = protocol_attachment.data.decode("utf-8")
             joint_count = settings.article.joint_count if settings.article is not None else None
             protocol = parse_protocol(
-                yaml.safe_load(text),
+                parse_yaml(text, protocol_attachment.name),
                 source=protocol_attachment.name,
                 text=text,
                 seed=settings.seed or 0,
@@ -167,8 +169,8 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
     truth_json = metadata.get("sim_truth", {}).get("json")
     if truth_json:
         try:
-            settings.truth = json.loads(truth_json)
-        except ValueError:
+            settings.truth = parse_json(truth_json, "sim_truth metadata")
+        except InputError:
             warnings.append("sim_truth metadata is not valid JSON; ignored")
     return settings
 

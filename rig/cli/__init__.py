@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 
 from rig import __version__
-from rig.errors import ExitCode, InputError, RigError
+from rig.errors import ExitCode, InputError, RigError, one_line
 from rig.runner.safety import interrupts_held, terminate_as_interrupt
 
 # Each module `rig.cli.<name>` defines `register(subparsers)`, which adds its parser and sets
@@ -62,14 +62,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             return ExitCode.INVALID_INPUT
         return int(handler(args))
     except InputError as exc:
-        print(f"rig: error: {exc}", file=sys.stderr)
+        print(f"rig: error: {one_line(str(exc))}", file=sys.stderr)
         return ExitCode.INVALID_INPUT
     except KeyboardInterrupt:
         with interrupts_held():  # a second one must not turn this into a traceback
             print("rig: interrupted", file=sys.stderr)
         return ExitCode.INTERRUPTED
     except RigError as exc:
-        print(f"rig: {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"rig: {type(exc).__name__}: {one_line(str(exc))}", file=sys.stderr)
         return ExitCode.FAULT
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -13,6 +12,8 @@ from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.hw.clock import SystemClock
 from rig.hw.loadcell.calibration import (
+    REFERENCE_MASS_RANGE_KG,
+    TEMPERATURE_RANGE_C,
     Calibration,
     CalibrationError,
     CalibrationStep,
@@ -107,16 +108,27 @@ def validate_args(args: argparse.Namespace) -> None:
     apply_rig_config(args)
     if args.out is None:
         raise InputError("--out: required (the calibration JSON file to write)")
+    lo_kg, hi_kg = REFERENCE_MASS_RANGE_KG  # what a calibration file may hold (docs/formats.md §6)
+    lo_c, hi_c = TEMPERATURE_RANGE_C
+    temperature = 20.0 if args.temperature_c is None else args.temperature_c
     checks = [
-        ("--reference-kg", args.reference_kg, args.reference_kg > 0, "> 0"),
+        (
+            "--reference-kg",
+            args.reference_kg,
+            lo_kg <= args.reference_kg <= hi_kg,
+            f"> 0 ({lo_kg:g} to {hi_kg:g})",
+        ),
         ("--settle-s", args.settle_s, 0 <= args.settle_s <= 600, "0-600"),
-        ("--average-s", args.average_s, 0 < args.average_s <= 600, "> 0 and <= 600"),
+        ("--average-s", args.average_s, 0.01 <= args.average_s <= 600, "> 0 (0.01 to 600)"),
         ("--g", args.g, 9.7 <= args.g <= 9.9, "9.7-9.9 (Earth's surface)"),
-        ("--stale-timeout-s", args.stale_timeout_s, args.stale_timeout_s > 0, "> 0"),
+        ("--stale-timeout-s", args.stale_timeout_s, 0.005 <= args.stale_timeout_s <= 10, "> 0 (0.005 to 10)"),
+        ("--temperature-c", args.temperature_c, lo_c <= temperature <= hi_c, f"{lo_c:g} to {hi_c:g}"),
     ]
     for flag, value, ok, allowed in checks:
-        if not (ok and math.isfinite(value)):
+        if not ok:  # NaN fails every comparison
             raise InputError(f"{flag} {value}; allowed: {allowed}")
+    if len(args.serial) > 256 or not args.serial.isprintable():
+        raise InputError(f"--serial {args.serial!r:.70}: allowed: printable text of at most 256 characters")
     out = Path(args.out)
     if out.is_dir():
         raise InputError(f"--out {out}: is a directory; allowed: a file path")

@@ -30,6 +30,16 @@ MASS_COLUMN = "mass_kg"
 FORCE_COLUMN = "force_n"
 ALLOWED_COLUMNS = (DISTANCE_COLUMN, MASS_COLUMN, FORCE_COLUMN)
 ALLOWED_COLUMNS_TEXT = "distance_m and mass_kg (or force_n instead of mass_kg)"
+# Ranges (docs/formats.md §4): wide for any bench, narrow enough that the fit's sums of 1/l² and m²
+# neither overflow nor lose everything to subnormals.
+DISTANCE_RANGE_M = (1e-4, 100.0)
+MASS_RANGE_KG = (0.0, 1e4)
+FORCE_RANGE_N = (0.0, 1e5)
+RADIUS_RANGE_M = (1e-5, 1.0)
+LEVEL_RANGE = (0.001, 0.999999)
+G_RANGE_M_S2 = (0.1, 100.0)
+CONSTANT_RANGE = (1e-3, 1e3)
+SMALLEST_NONZERO = 1e-9  # kg or N: a mass or force below this (other than 0) is below any resolution
 
 DESCRIPTION = """\
 Fit the joint-estimation data (docs/model.md §4): slip masses m_s hung at distances l_s from a
@@ -44,8 +54,8 @@ DATA.csv has a header line and one row per slip trial:
   0.05,3.21
   0.06,2.70
 
-Columns: distance_m [m, > 0] and mass_kg [kg, >= 0]; or force_n [N, >= 0] instead of mass_kg
-(the peak tension, converted with --g). Other columns are ignored. Example:
+Columns: distance_m [m, 0.0001-100] and mass_kg [kg, 0 or 1e-9 to 1e4]; or force_n [N, 0 or 1e-9 to 1e5]
+instead of mass_kg (the peak tension, converted with --g). Other columns are ignored. Example:
 protocols/example_fit.csv.
 """
 
@@ -70,24 +80,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("data", metavar="DATA.csv", help="CSV with distance_m and mass_kg (or force_n)")
-    parser.add_argument("--radius-m", required=True, metavar="R", help="ball radius R of the joint [m], > 0")
+    parser.add_argument(
+        "--radius-m", required=True, metavar="R", help="ball radius R of the joint [m], 1e-5 to 1"
+    )
     parser.add_argument(
         "--constant",
         default="paper",
         metavar="C",
-        help="c in N_max = c·mu_s·delta0·R³: paper (5.4397, default), derived (pi²) or a positive number",
+        help="c in N_max = c·mu_s·delta0·R³: paper (5.4397, default), derived (pi²) or a number 0.001-1000",
     )
     parser.add_argument(
         "--level",
         default=str(DEFAULT_LEVEL),
         metavar="P",
-        help=f"confidence level of the bounds, in (0, 1) (default {DEFAULT_LEVEL})",
+        help=f"confidence level of the bounds, 0.001 to 0.999999 (default {DEFAULT_LEVEL})",
     )
     parser.add_argument(
         "--g",
         default=str(PAPER_G_M_S2),
         metavar="G",
-        help=f"gravity [m/s²], > 0 (default {PAPER_G_M_S2}, the paper's)",
+        help=f"gravity [m/s²], 0.1 to 100 (default {PAPER_G_M_S2}, the paper's)",
     )
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
@@ -95,32 +107,33 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     parser.set_defaults(handler=run)
 
 
-def _number_option(flag: str, text: str, allowed: str) -> float:
+def _number_option(flag: str, text: str, bounds: tuple[float, float], unit: str, example: float) -> float:
+    allowed = f"a number from {bounds[0]:g} to {bounds[1]:g}{unit}"
     try:
         value = float(text)
     except ValueError:
         raise InputError(f"{flag} {text!r} is not a number; allowed: {allowed}") from None
+    if not bounds[0] <= value <= bounds[1]:  # NaN fails too
+        raise InputError(f"{flag} {text}: allowed: {allowed}, e.g. {example:g}")
     return value
 
 
 def _options(args: argparse.Namespace) -> tuple[float, CapacityConstant, float, float]:
-    radius = _number_option("--radius-m", args.radius_m, "a finite number > 0 [m]")
-    if not (math.isfinite(radius) and radius > 0):
-        raise InputError(f"--radius-m {args.radius_m}: allowed: a finite number > 0 [m], e.g. 0.01")
-    level = _number_option("--level", args.level, "a number in the open interval (0, 1)")
-    if not (0.0 < level < 1.0):
-        raise InputError(f"--level {args.level}: allowed: a number in the open interval (0, 1), e.g. 0.99")
-    g = _number_option("--g", args.g, "a finite number > 0 [m/s²]")
-    if not (math.isfinite(g) and g > 0):
-        raise InputError(f"--g {args.g}: allowed: a finite number > 0 [m/s²], e.g. {PAPER_G_M_S2}")
+    radius = _number_option("--radius-m", args.radius_m, RADIUS_RANGE_M, " [m]", 0.01)
+    level = _number_option("--level", args.level, LEVEL_RANGE, "", DEFAULT_LEVEL)
+    g = _number_option("--g", args.g, G_RANGE_M_S2, " [m/s²]", PAPER_G_M_S2)
     spec: str | float = args.constant
     with contextlib.suppress(ValueError):
         spec = float(args.constant)  # a number; else a name for resolve_constant
+    lo, hi = CONSTANT_RANGE
     try:
         constant = resolve_constant(spec)
+        if not lo <= constant.value <= hi:
+            raise ValueError(constant.value)
     except ValueError:
         raise InputError(
-            f"--constant {args.constant!r}: allowed: paper (5.4397), derived (pi²) or a finite number > 0"
+            f"--constant {args.constant!r}: allowed: paper (5.4397), derived (pi²) or a number "
+            f"from {lo:g} to {hi:g}"
         ) from None
     return radius, constant, level, g
 
@@ -149,17 +162,26 @@ def _header_error(path: Path, line: int, names: list[str], missing: str) -> Inpu
     )
 
 
-def _cell_value(path: Path, where: str, column: str, cell: str) -> float:
+def _cell_value(
+    path: Path, where: str, column: str, cell: str, bounds: tuple[float, float], unit: str
+) -> float:
     text = cell.strip()
+    shown = repr(text) if len(text) <= 40 else repr(text[:37]) + "..."
     try:
         value = float(text)
     except ValueError:
-        shown = repr(text) if text else "an empty cell"
+        shown = shown if text else "an empty cell"
         raise InputError(
             f"{path}: {where}: column {column!r}: {shown} is not a number; allowed: a decimal number"
         ) from None
+    lo, hi = bounds
     if not math.isfinite(value):
-        raise InputError(f"{path}: {where}: column {column!r}: {text!r}; allowed: a finite number")
+        raise InputError(
+            f"{path}: {where}: column {column!r}: {shown}; allowed: a finite number {lo:g} to {hi:g} {unit}"
+        )
+    if not lo <= value <= hi or (column != DISTANCE_COLUMN and 0 < value < SMALLEST_NONZERO):
+        zero = f"0 or {SMALLEST_NONZERO:g}" if column != DISTANCE_COLUMN else f"{lo:g}"
+        raise InputError(f"{path}: {where}: column {column!r}: {value!r}; allowed: {zero} to {hi:g} {unit}")
     return value
 
 
@@ -210,13 +232,11 @@ def read_fit_csv(path: str | Path, g: float = PAPER_G_M_S2) -> FitData:
                     f"{p}: {where}: {len(row)} fields but the header (line {header_line}) has {len(header)}; "
                     "allowed: one field per column"
                 )
-            distance = _cell_value(p, where, DISTANCE_COLUMN, row[distance_index])
-            if distance <= 0:
-                raise InputError(f"{p}: {where}: column 'distance_m': {distance!r}; allowed: > 0 m")
-            value = _cell_value(p, where, mass_column, row[mass_index])
-            if value < 0:
-                unit = "kg" if mass_column == MASS_COLUMN else "N"
-                raise InputError(f"{p}: {where}: column {mass_column!r}: {value!r}; allowed: >= 0 {unit}")
+            distance = _cell_value(p, where, DISTANCE_COLUMN, row[distance_index], DISTANCE_RANGE_M, "m")
+            if mass_column == MASS_COLUMN:
+                value = _cell_value(p, where, mass_column, row[mass_index], MASS_RANGE_KG, "kg")
+            else:
+                value = _cell_value(p, where, mass_column, row[mass_index], FORCE_RANGE_N, "N")
             distances.append(distance)
             masses.append(value if mass_column == MASS_COLUMN else value / g)
     except csv.Error as exc:

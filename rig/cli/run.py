@@ -4,18 +4,18 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
-from rig.protocol import load_protocol
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.rig_config import DEFAULT_RIG_CONFIG
 
 if TYPE_CHECKING:
     from model.fit import FitSummary
-    from rig.runner.run import RunReport
+    from rig.runner.run import RunReport, RunRequest
 
 DESCRIPTION = """\
 Run a protocol of automated slip trials. The winch (a Dynamixel servo in current-based position
@@ -92,27 +92,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
     # The runner is imported here, not at the top, so that `rig --help` stays quick.
-    from rig.rigs import open_session
+    from rig.rigs import check_session_inputs, open_session
+    from rig.runner.journal import MAX_SEED
     from rig.runner.progress import make_progress
-    from rig.runner.run import RunRequest, execute_run, prepare_run
+    from rig.runner.run import execute_run, prepare_run
     from rig.runner.safety import interrupts_held
 
-    if args.seed < 0:
-        raise InputError(f"--seed {args.seed}: allowed: an integer >= 0")
+    if not 0 <= args.seed <= MAX_SEED:
+        raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
     if args.resume is not None and args.run_id is not None:
         raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
+    _check_out_dir(args.out)
     if args.dry_run:
         return _dry_run(args)
-    request = RunRequest(
-        protocol_path=args.protocol,
-        rig_path=args.rig,
-        out_dir=args.out,
-        seed=args.seed,
-        realtime=args.realtime,
-        run_id=args.run_id,
-        resume=args.resume,
-    )
-    prepared = prepare_run(request)  # validates everything, locks the run; InputError -> exit 2
+    # Everything is validated before anything is written (the --out directory, the lock, the journal):
+    # first as a dry run, with the files the session will read; then for real.
+    check_session_inputs(prepare_run(_request(args), dry_run=True).config)
+    prepared = prepare_run(_request(args))  # locks the run; InputError -> exit 2
     try:
         session = open_session(prepared)
         report = execute_run(prepared, session, make_progress(args.json))
@@ -127,12 +123,17 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _dry_run(args: argparse.Namespace) -> int:
-    from rig.runner.limits import check_limits, plan_summary
+    """Validate what a real run validates, then print the plan; no device is opened, nothing written.
 
-    config = load_rig_config(args.rig)
-    protocol = load_protocol(args.protocol, seed=args.seed, joint_count=config.article.joint_count)
-    check_limits(protocol, config)
-    plan = plan_summary(protocol, config)
+    The same `prepare_run` as a real run (it writes nothing), and the files the session would read.
+    """
+    from rig.rigs import check_session_inputs
+    from rig.runner.limits import plan_summary
+    from rig.runner.run import prepare_run
+
+    prepared = prepare_run(_request(args), dry_run=True)
+    check_session_inputs(prepared.config)
+    plan = plan_summary(prepared.protocol, prepared.config)
     if args.json:
         emit_json(plan)
         return 0
@@ -157,6 +158,33 @@ def _dry_run(args: argparse.Namespace) -> int:
     print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan['duration_assumption']})")
     print("dry run: nothing was moved")
     return 0
+
+
+def _check_out_dir(out: Path) -> None:
+    """The --out directory exists and is writable, or can be made (the run writes its log there)."""
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InputError(
+            f"--out {out}: {existing} is not a directory; allowed: a directory for the run's files"
+        )
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out}: {existing} is not writable; allowed: a directory for the run's files")
+
+
+def _request(args: argparse.Namespace) -> RunRequest:
+    from rig.runner.run import RunRequest
+
+    return RunRequest(
+        protocol_path=args.protocol,
+        rig_path=args.rig,
+        out_dir=args.out,
+        seed=args.seed,
+        realtime=args.realtime,
+        run_id=args.run_id,
+        resume=args.resume,
+    )
 
 
 def _summary(report: RunReport) -> str:
@@ -216,8 +244,10 @@ def _truth_text(truth: dict[str, Any], est: FitSummary | None) -> str:
         text += f" k = {k:.5g} kg·m"
         if est is not None:
             lo, hi = est.k_ci
-            inside = "inside" if lo <= k <= hi else "OUTSIDE"
-            text += f" ({inside} the bounds; estimate off by {(est.k - k) / k * 100:+.2f} %)"
+            off = f"estimate off by {(est.k - k) / k * 100:+.2f} %"
+            if math.isfinite(lo) and math.isfinite(hi):  # an estimates file may give no bounds on k
+                off = f"{'inside' if lo <= k <= hi else 'OUTSIDE'} the bounds; {off}"
+            text += f" ({off})"
     caps = truth.get("capacity_nm")
     if isinstance(caps, list):
         text += " joint capacities " + ", ".join(f"{c:.3f}" for c in caps) + " N·m"

@@ -6,11 +6,14 @@ import argparse
 import sys
 import time
 
+from rig.errors import InputError
 from rig.hw.loadcell.formats import FORMATS
 from rig.sim.loadcell.emulator import DEFAULT_BAUD, FaultPlan, LoadCellEmulator, SignalModel, parse_fault
 from rig.sim.loadcell.profiles import parse_profile
 from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.pty_link import PtyLink, StopFlag
+
+MAX_SEED = 2**64 - 1
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -79,13 +82,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     parser.set_defaults(handler=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Serve until SIGTERM/SIGINT; returns 0."""
+def build_emulator(args: argparse.Namespace, start_ns: int) -> LoadCellEmulator:
+    """Validate the arguments and make the emulator (no pty yet); InputError for a bad option."""
+    if not 0 <= args.seed <= MAX_SEED:
+        raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
     plan = FaultPlan()
     for spec in args.fault:
         plan = parse_fault(spec, plan)
-    start_ns = time.monotonic_ns()
-    emulator = LoadCellEmulator(
+    return LoadCellEmulator(
         parse_profile(args.profile, start_ns),
         format_name=args.format,
         rate_hz=args.rate,
@@ -100,8 +104,13 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         start_ns=start_ns,
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Serve until SIGTERM/SIGINT; returns 0."""
+    emulator = build_emulator(args, time.monotonic_ns())
     stop = StopFlag()
-    with PtyLink(args.link) as link:
+    with PtyLink.for_cli(args.link) as link:
         print(
             f"PTY {link.link_path} {link.slave_name} loadcell format={args.format} rate={args.rate:g}Hz "
             f"baud={args.baud}",

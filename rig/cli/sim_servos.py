@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from rig.errors import InputError
+from rig.errors import InputError, one_line
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.control_table import BAUD_REGISTER_BY_RATE, MODELS
 from rig.sim.dxl.bus import EmulatedBus
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; returns 0."""
     bus, _ = build_bus(args)
     stop = StopFlag()
-    with PtyLink(args.link) as link:
+    with PtyLink.for_cli(args.link) as link:
         print(f"PTY {link.slave_name} LINK {link.link_path}", flush=True)
         stats = serve(bus, link, stop, wire_timing=args.wire_timing)
     print(
@@ -137,7 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return run(args)
     except InputError as exc:
-        print(f"rig: error: {exc}", file=sys.stderr)
+        print(f"rig: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
 
 

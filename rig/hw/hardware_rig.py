@@ -20,17 +20,30 @@ from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig
 
 
+def rig_calibration(config: RigConfig) -> Calibration | None:
+    """The load-cell calibration a rig config names, validated; None when it names none.
+
+    A hardware rig needs one; a simulated rig keeps its cell's nominal calibration, but a file it
+    names must still be a valid one (an unusable file is an input error whatever the rig).
+    """
+    cal_path = config.loadcell.calibration_path
+    if cal_path is None:
+        if config.kind == "hardware":
+            raise InputError(
+                f"{config.source}: loadcell.calibration: a hardware rig needs a calibration file; "
+                "make one with `rig calibrate`"
+            )
+        return None
+    return Calibration.load(cal_path)
+
+
 def hardware_session(config: RigConfig) -> RigSession:
     """A session on the serial ports named in a `kind: hardware` rig config."""
     if config.kind != "hardware":
         raise InputError(f"{config.source}: kind: expected hardware, got {config.kind}")
+    calibration = rig_calibration(config)
     cal_path = config.loadcell.calibration_path
-    if cal_path is None:
-        raise InputError(
-            f"{config.source}: loadcell.calibration: a hardware rig needs a calibration file; "
-            "make one with `rig calibrate`"
-        )
-    calibration = Calibration.load(cal_path)
+    assert calibration is not None and cal_path is not None  # a hardware rig needs both
     clock = SystemClock()
     servos = DynamixelServoBus(
         config.servos.port,

@@ -9,7 +9,6 @@ results rebuilds the same state, which is how `--resume` restores it.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -28,7 +27,7 @@ from model.joint_capacity_estimation import (
 )
 from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
 from rig.errors import InputError
-from rig.files import read_text_file
+from rig.files import load_json_file
 from rig.log.records import Estimate, JointCapacity, TrialKind, TrialResult
 from rig.rig_config import ArticleConfig
 
@@ -135,10 +134,29 @@ class RunEstimator:
             state, np.asarray(lever_arms_m, float), peak_force_n, slipped_joint
         )
 
-    def replay(self, results: Sequence[TrialResult]) -> None:
-        """Rebuild the state from journalled results, in order (used by --resume)."""
+    def replay(self, results: Sequence[TrialResult], source: str = "run journal") -> None:
+        """Rebuild the state from journalled results, in order (used by --resume).
+
+        A record that does not fit this rig (a damaged or edited journal) is an `InputError` naming
+        `source` (the journal's path).
+        """
+        joints = self.article.joint_count
         for r in results:
-            self.apply_result(r)
+            problem = None
+            if r.slipped and r.kind == TrialKind.LINK_VALIDATION:
+                if r.lever_arms_m is None or len(r.lever_arms_m) != joints:
+                    problem = (
+                        f"lever_arms_m has {len(r.lever_arms_m or ())} values; the rig has {joints} joints"
+                    )
+                elif r.slipped_joint is not None and not 1 <= r.slipped_joint <= joints:
+                    problem = f"slipped_joint {r.slipped_joint}; the rig has joints 1..{joints}"
+            if problem is None:
+                try:
+                    self.apply_result(r)
+                except (ValueError, RuntimeError, AssertionError) as exc:
+                    problem = str(exc)
+            if problem is not None:
+                raise InputError(f"{source}: trial {r.trial_id}: cannot be replayed on this rig: {problem}")
 
     def apply_result(self, result: TrialResult) -> None:
         """Feed one finished trial's result into the estimators (slips only)."""
@@ -187,22 +205,130 @@ class RunEstimator:
         return Estimate(trial_id=trial_id, fit=self.summary(), joints=self.joint_estimates())
 
 
+# What an estimates file may hold (docs/formats.md §5): wide for any joint, narrow enough that the
+# prior built from it (logs, ratios, predictions) stays finite.
+ESTIMATE_CAPACITY_RANGE_NM = (1e-6, 1e4)
+ESTIMATE_BOUND_LIMIT_NM = 1e6  # |each bound of capacity_ci_nm|
+ESTIMATE_K_RANGE = (1e-8, 1e5)  # kg·m
+ESTIMATE_LEVEL_RANGE = (0.001, 0.999999)
+ESTIMATE_MAX_N = 1_000_000
+# What a run uses (n, k, level, the capacity and its bounds) and what its log needs as numbers (the
+# three pairs: /rig/estimate allows a null pair but not null bounds, and the file cannot say which).
+ESTIMATE_REQUIRED = ("n", "k", "k_ci", "level", "mu_delta0_ci_pa", "capacity_nm", "capacity_ci_nm")
+
+
 def load_estimates_file(path: str | Path) -> FitSummary:
-    """Read an estimates JSON (a `rig fit --json` object, or a run's `.estimates.json`)."""
+    """Read an estimates JSON (a `rig fit --json` object, or a run's `.estimates.json`).
+
+    The `ESTIMATE_REQUIRED` keys must be there; the other `rig fit` keys may be null or missing.
+    Every problem is an `InputError` naming the file and the field (docs/formats.md §5).
+    """
     p = Path(path)
-    try:
-        data = json.loads(read_text_file(p, what="an estimates JSON file"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{p}: cannot read estimates ({exc})") from None
-    summary = data.get("estimate", data) if isinstance(data, dict) else None
+    # A run writes its estimates with NaN for undefined statistics (R² of equal masses).
+    data = load_json_file(p, what="an estimates JSON file", allow_nan=True)
+    allowed = "a `rig fit --json` object or a run's .estimates.json (docs/formats.md §5)"
+    where = ""
+    summary = data
+    if isinstance(data, dict) and "estimate" in data:
+        summary, where = data["estimate"], "estimate."
+        if summary is None:
+            raise InputError(
+                f"{p}: estimate: null (that run made no joint-estimation fit); allowed: {allowed}"
+            )
     if not isinstance(summary, dict):
-        raise InputError(f"{p}: expected a JSON object with the `rig fit --json` keys")
-    for key in ("capacity_nm", "capacity_ci_nm", "k", "n"):
-        if key not in summary or summary[key] is None:
-            raise InputError(f"{p}: field '{key}' is missing; allowed: a `rig fit --json` object")
+        raise InputError(f"{p}: {where or 'top level'}: not a JSON object; allowed: {allowed}")
+
+    def fail(key: str, problem: str, what: str) -> InputError:
+        return InputError(f"{p}: {where}{key}: {problem}; allowed: {what}")
+
+    for key in ESTIMATE_REQUIRED:
+        if summary.get(key) is None:
+            raise fail(key, "missing", f"{allowed}, which has {', '.join(ESTIMATE_REQUIRED)}")
+
+    def number(key: str, bounds: tuple[float, float] | None = None) -> float:
+        """A finite number in `bounds`, or (without bounds) a number or null (NaN)."""
+        value = summary.get(key)
+        what = "a finite number" + (f" from {bounds[0]:g} to {bounds[1]:g}" if bounds else " or null")
+        if value is None and bounds is None:
+            return math.nan
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise fail(key, _short(value), what)
+        x = _as_float(value)
+        if bounds is None:
+            return x if math.isfinite(x) else math.nan
+        if not (math.isfinite(x) and bounds[0] <= x <= bounds[1]):
+            raise fail(key, _short(value), what)
+        return x
+
+    def pair(key: str) -> tuple[float, float]:
+        value = summary.get(key)
+        what = "a list [lower, upper] of 2 finite numbers, lower <= upper"
+        if not isinstance(value, list) or len(value) != 2:
+            raise fail(key, _short(value), what)
+        for i, bound in enumerate(value):
+            if (
+                isinstance(bound, bool)
+                or not isinstance(bound, int | float)
+                or not math.isfinite(_as_float(bound))
+            ):
+                raise fail(f"{key}[{i}]", _short(bound), what)
+        lo, hi = (_as_float(bound) for bound in value)
+        if lo > hi:
+            raise fail(key, _short(value), what)
+        return lo, hi
+
+    def integer(key: str, lo: int, hi: int) -> int:
+        value = summary.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+            raise fail(key, _short(value), f"an integer from {lo} to {hi}")
+        return value
+
+    n = integer("n", 2, ESTIMATE_MAX_N)
+    capacity = number("capacity_nm", ESTIMATE_CAPACITY_RANGE_NM)
+    lo, hi = pair("capacity_ci_nm")
+    limit = ESTIMATE_BOUND_LIMIT_NM
+    if not -limit <= lo <= capacity <= hi <= limit:
+        raise fail(
+            "capacity_ci_nm",
+            f"[{lo:g}, {hi:g}] for capacity_nm {capacity:g}",
+            f"lower <= capacity_nm <= upper, each within ±{limit:g} N·m",
+        )
+    constant = summary.get("constant")
+    if constant is None:
+        constant = "unknown"
+    if not isinstance(constant, str) or len(constant) > 64:
+        raise fail("constant", _short(constant), "a name such as paper or derived, or null")
+    dfe = n - 1 if summary.get("dfe") is None else integer("dfe", 1, ESTIMATE_MAX_N)
+    return FitSummary(
+        n=n,
+        k=number("k", ESTIMATE_K_RANGE),
+        k_ci=pair("k_ci"),
+        sse=number("sse"),
+        sst=number("sst"),
+        r2=number("r2"),
+        rmse=number("rmse"),
+        dfe=dfe,
+        se=number("se"),
+        level=number("level", ESTIMATE_LEVEL_RANGE),
+        constant=constant,
+        c=number("c"),
+        radius_m=number("radius_m"),
+        mu_delta0_pa=number("mu_delta0_pa"),
+        mu_delta0_ci_pa=pair("mu_delta0_ci_pa"),
+        capacity_nm=capacity,
+        capacity_ci_nm=(lo, hi),
+    )
+
+
+def _as_float(value: int | float) -> float:
     try:
-        return FitSummary.from_json(summary)
-    except KeyError as exc:
-        raise InputError(f"{p}: field {exc} is missing; allowed: a `rig fit --json` object") from None
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{p}: not a `rig fit --json` object ({exc})") from None
+        return float(value)
+    except OverflowError:  # an integer beyond the float range
+        return math.inf
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, int) and value.bit_length() > 100:
+        return "an integer beyond the float range"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."

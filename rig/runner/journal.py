@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from rig.errors import InputError
-from rig.files import atomic_write_text
-from rig.log.records import TrialResult
+from rig.files import atomic_write_text, load_json_file
+from rig.log.records import TrialKind, TrialResult
+from rig.protocol import MAX_TRIALS
 
 JOURNAL_FORMAT = "rig-journal/1"
 RUN_STATUSES = ("running", "completed", "aborted", "faulted", "interrupted")
@@ -85,30 +88,116 @@ class RunJournal:
 
     @classmethod
     def load(cls, path: Path) -> RunJournal:
-        """Read a journal; a missing or damaged one is an InputError naming the file."""
+        """Read a journal; a missing or damaged one is an InputError naming the file (and field)."""
         try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise InputError(f"{path}: no journal for this run id in this --out directory") from None
-        except (OSError, json.JSONDecodeError) as exc:
-            raise InputError(f"{path}: unreadable run journal ({exc})") from None
+            missing = not path.exists()
+        except OSError:
+            missing = True
+        if missing:
+            raise InputError(f"{path}: no journal for this run id in this --out directory")
+        data = load_json_file(path, what="a run journal (JSON)")
         if not isinstance(data, dict) or data.get("format") != JOURNAL_FORMAT:
             raise InputError(f"{path}: format: not a {JOURNAL_FORMAT} journal")
-        try:
-            return cls(
-                path=path,
-                run_id=str(data["run_id"]),
-                protocol_path=str(data["protocol_path"]),
-                protocol_hash=str(data["protocol_hash"]),
-                rig_path=str(data["rig_path"]),
-                rig_hash=str(data["rig_hash"]),
-                seed=int(data["seed"]),
-                planned_trials=[int(t) for t in data["planned_trials"]],
-                completed=[TrialResult.from_json(r) for r in data["completed"]],
-                logs=[str(x) for x in data["logs"]],
-                status=str(data["status"]),
-                invocations=int(data.get("invocations", 0)),
-                retried_trials=[int(t) for t in data.get("retried_trials", [])],
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{path}: damaged run journal (field {exc})") from None
+
+        def fail(field: str, problem: str) -> InputError:
+            return InputError(f"{path}: {field}: {problem}; allowed: a journal as `rig run` writes it (§7.1)")
+
+        def text(field: str) -> str:
+            value = data.get(field)
+            if not isinstance(value, str) or not 0 < len(value) <= 4096:
+                raise fail(field, f"expected a non-empty string, got {_short(value)}")
+            return value
+
+        def integer(value: Any, field: str, lo: int, hi: int) -> int:
+            if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+                raise fail(field, f"expected an integer from {lo} to {hi}, got {_short(value)}")
+            return value
+
+        def items(field: str) -> list[Any]:
+            value = data.get(field)
+            if not isinstance(value, list) or len(value) > MAX_TRIALS:
+                raise fail(field, f"expected a list of at most {MAX_TRIALS} items, got {_short(value)}")
+            return value
+
+        planned = [
+            integer(t, f"planned_trials[{i}]", 1, MAX_TRIALS) for i, t in enumerate(items("planned_trials"))
+        ]
+        if len(set(planned)) != len(planned):
+            raise fail("planned_trials", "a trial id appears twice")
+        completed = [_trial(r, f"completed[{i}]", fail) for i, r in enumerate(items("completed"))]
+        ids = [r.trial_id for r in completed]
+        if len(set(ids)) != len(ids) or not set(ids) <= set(planned):
+            raise fail("completed", "trial ids repeated or not in planned_trials")
+        logs = items("logs")
+        for i, log in enumerate(logs):
+            if not isinstance(log, str):
+                raise fail(f"logs[{i}]", f"expected a path, got {_short(log)}")
+        status = data.get("status")
+        if status not in RUN_STATUSES:
+            raise fail("status", f"{_short(status)}; allowed: {', '.join(RUN_STATUSES)}")
+        return cls(
+            path=path,
+            run_id=text("run_id"),
+            protocol_path=text("protocol_path"),
+            protocol_hash=text("protocol_hash"),
+            rig_path=text("rig_path"),
+            rig_hash=text("rig_hash"),
+            seed=integer(data.get("seed"), "seed", 0, MAX_SEED),
+            planned_trials=planned,
+            completed=completed,
+            logs=list(logs),
+            status=str(status),
+            invocations=integer(data.get("invocations", 0), "invocations", 0, 1_000_000),
+            retried_trials=[
+                integer(t, f"retried_trials[{i}]", 1, MAX_TRIALS)
+                for i, t in enumerate(items("retried_trials") if "retried_trials" in data else [])
+            ],
+        )
+
+
+# The ranges of a journalled slip that the estimators can replay (docs/formats.md §7.2).
+MAX_SEED = 2**64 - 1
+_DISTANCE_RANGE_M = (0.001, 2.0)  # the protocol's
+_MASS_RANGE_KG = (1e-6, 1e4)
+_FORCE_RANGE_N = (1e-6, 1e5)
+_LEVER_RANGE_M = (0.0, 100.0)
+
+
+def _trial(raw: Any, field: str, fail: Callable[[str, str], InputError]) -> TrialResult:
+    """One journalled trial record, checked so that replaying it through the estimators cannot fail."""
+    if not isinstance(raw, dict):
+        raise fail(field, f"expected a trial record (an object), got {_short(raw)}")
+    try:
+        result = TrialResult.from_json(raw)
+    except KeyError as exc:
+        raise fail(field, f"field {exc} is missing") from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise fail(field, _short_text(str(exc), 120)) from None
+    if not result.slipped:
+        return result
+
+    def check(name: str, value: float | None, bounds: tuple[float, float]) -> None:
+        if value is None or not bounds[0] <= value <= bounds[1]:
+            raise fail(f"{field}.{name}", f"{value!r} for a slip; allowed: {bounds[0]:g} to {bounds[1]:g}")
+
+    if result.kind == TrialKind.JOINT_ESTIMATION:
+        check("distance_m", result.distance_m, _DISTANCE_RANGE_M)
+        check("slip_mass_kg", result.slip_mass_kg, _MASS_RANGE_KG)
+    else:
+        check("peak_force_n", result.peak_force_n, _FORCE_RANGE_N)
+        arms = result.lever_arms_m
+        if not arms or len(arms) > 100:
+            raise fail(f"{field}.lever_arms_m", f"{_short(arms)} for a slip; allowed: 1-100 lever arms [m]")
+        for j, arm in enumerate(arms):
+            check(f"lever_arms_m[{j}]", arm, _LEVER_RANGE_M)
+    return result
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, int) and value.bit_length() > 100:
+        return "an integer beyond the float range"
+    return _short_text(repr(value))
+
+
+def _short_text(text: str, limit: int = 60) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."

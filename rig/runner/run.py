@@ -128,16 +128,17 @@ class PreparedRun:
             self.lock.release()
 
 
-def prepare_run(request: RunRequest) -> PreparedRun:
+def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
     """Validate the request, lock the run, and load or create its journal; raises InputError on bad input.
 
     The lock (`OUT/RUN_ID.lock`) is held until `execute_run` returns or `PreparedRun.release()`.
+    A dry run validates the same and writes nothing: no directory, no lock.
     """
     config = load_rig_config(request.rig_path)
     if request.resume is not None:
         run_id = _check_run_id(request.resume, "--resume")
-        _check_out_dir(request.out_dir, create=False)
-        lock = _lock_run(request.out_dir, run_id)
+        _check_out_dir(request.out_dir, create=False, must_exist=True)
+        lock = None if dry_run else _lock_run(request.out_dir, run_id)
         with _released_on_error(lock):
             protocol, journal = _resumed_journal(request, config, run_id)
             return _prepared(request, protocol, config, journal, lock)
@@ -146,8 +147,8 @@ def prepare_run(request: RunRequest) -> PreparedRun:
     run_id = (
         _check_run_id(request.run_id, "--run-id") if request.run_id is not None else _new_run_id(protocol)
     )
-    _check_out_dir(request.out_dir, create=True)
-    lock = _lock_run(request.out_dir, run_id)
+    _check_out_dir(request.out_dir, create=not dry_run)
+    lock = None if dry_run else _lock_run(request.out_dir, run_id)
     with _released_on_error(lock):
         path = _in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id))
         if path.exists():
@@ -188,7 +189,7 @@ def _resumed_journal(request: RunRequest, config: RigConfig, run_id: str) -> tup
 
 
 def _prepared(
-    request: RunRequest, protocol: Protocol, config: RigConfig, journal: RunJournal, lock: RunLock
+    request: RunRequest, protocol: Protocol, config: RigConfig, journal: RunJournal, lock: RunLock | None
 ) -> PreparedRun:
     prior = None
     if protocol.estimates_from not in (None, "run"):
@@ -366,12 +367,17 @@ def _new_run_id(protocol: Protocol) -> str:
     return f"{stamp}-{name}"
 
 
-def _check_out_dir(out_dir: Path, *, create: bool) -> None:
-    """`--out` is (or, for a new run, can be made) a directory we may write in; InputError if not."""
+def _check_out_dir(out_dir: Path, *, create: bool, must_exist: bool = False) -> None:
+    """`--out` is (or, for a new run, can be made) a directory we may write in; InputError if not.
+
+    Without `create` nothing is made (a resume, a dry run); `must_exist` is a resume's.
+    """
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir}: not a directory")
-    if not create and not out_dir.is_dir():
+    if must_exist and not out_dir.is_dir():
         raise InputError(f"--out {out_dir}: no such directory; nothing to resume there")
+    if not create and not out_dir.is_dir():
+        return
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -396,9 +402,10 @@ def _in_out_dir(out_dir: Path, path: Path) -> Path:
 
 
 @contextmanager
-def _released_on_error(lock: RunLock) -> Iterator[None]:
+def _released_on_error(lock: RunLock | None) -> Iterator[None]:
     try:
         yield
     except BaseException:
-        lock.release()
+        if lock is not None:
+            lock.release()
         raise

@@ -10,6 +10,7 @@ reads fail with EIO.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import pty
 import signal
@@ -17,6 +18,8 @@ import termios
 import tty
 from pathlib import Path
 from types import FrameType, TracebackType
+
+from rig.errors import InputError
 
 # termios speed constants -> baud rate in bit/s, for reading the client's configured speed.
 _SPEEDS: dict[int, int] = {
@@ -32,19 +35,36 @@ _SPEEDS: dict[int, int] = {
 class PtyLink:
     """A raw pty pair whose slave is symlinked at `link_path`; removes the link on close."""
 
+    @classmethod
+    def for_cli(cls, link_path: str) -> PtyLink:
+        """`PtyLink(link_path)` for the `--link` option: a path where no link can be made is an InputError."""
+        try:
+            return cls(link_path)
+        except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise InputError(
+                f"--link {link_path}: cannot create the link ({reason}); allowed: a new path or an old "
+                "symlink in a writable directory"
+            ) from None
+
     def __init__(self, link_path: str | os.PathLike[str]) -> None:
         self.link_path = Path(link_path)
         self.master_fd, self.slave_fd = pty.openpty()
         tty.setraw(self.slave_fd)
         self.slave_name = os.ttyname(self.slave_fd)
-        if self.link_path.is_symlink() or self.link_path.exists():
-            if not self.link_path.is_symlink():
-                os.close(self.master_fd)
-                os.close(self.slave_fd)
-                raise FileExistsError(f"{self.link_path}: exists and is not a symlink; not replacing it")
-            self.link_path.unlink()
-        self.link_path.parent.mkdir(parents=True, exist_ok=True)
-        os.symlink(self.slave_name, self.link_path)
+        try:
+            if self.link_path.is_symlink() or self.link_path.exists():
+                if not self.link_path.is_symlink():
+                    raise FileExistsError(
+                        errno.EEXIST, "exists and is not a symlink; not replacing it", str(self.link_path)
+                    )
+                self.link_path.unlink()
+            self.link_path.parent.mkdir(parents=True, exist_ok=True)
+            os.symlink(self.slave_name, self.link_path)
+        except BaseException:
+            os.close(self.master_fd)
+            os.close(self.slave_fd)
+            raise
         os.set_blocking(self.master_fd, False)
 
     def client_baud(self) -> int | None:

@@ -20,13 +20,19 @@ from typing import Any
 
 from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import InputError, RigError
-from rig.files import atomic_write_text, read_text_file
+from rig.files import atomic_write_text, load_json_file
 from rig.hw.seams import Clock, LoadCell, LoadCellSample
 
 CALIBRATION_KIND = "rig.loadcell.calibration"
 CALIBRATION_VERSION = 1
 INDICATOR_UNIT_MASS_KG = {"kg": 1.0, "g": 1e-3, "t": 1e3, "lb": 0.45359237}
 INDICATOR_UNIT_FORCE_N = {"N": 1.0, "kN": 1e3}
+# Ranges of a calibration file's numbers (docs/formats.md §6).
+FACTOR_RANGE_N_PER_COUNT = (1e-12, 1e6)  # |factor|
+COUNTS_LIMIT = 1e12  # |offset_counts|, noise_counts
+REFERENCE_MASS_RANGE_KG = (1e-6, 1e4)
+G_RANGE_M_S2 = (0.1, 100.0)
+TEMPERATURE_RANGE_C = (-100.0, 200.0)
 
 
 class CalibrationError(RigError):
@@ -70,54 +76,70 @@ class Calibration:
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "calibration") -> Calibration:
-        """Validate a parsed JSON object; `InputError` naming `source` and the field otherwise."""
+        """Validate a parsed JSON object; `InputError` naming `source` and the field otherwise.
+
+        Every number has a range (docs/formats.md §6) wide enough for any load cell and narrow
+        enough that converting counts to newtons and back cannot overflow.
+        """
         if not isinstance(data, dict):
             raise InputError(f"{source}: top level must be a JSON object")
         if data.get("kind", CALIBRATION_KIND) != CALIBRATION_KIND:
-            raise InputError(f"{source}: kind: {data.get('kind')!r}; allowed: {CALIBRATION_KIND!r}")
-        if data.get("version", CALIBRATION_VERSION) != CALIBRATION_VERSION:
-            raise InputError(f"{source}: version: {data.get('version')!r}; allowed: {CALIBRATION_VERSION}")
+            raise InputError(f"{source}: kind: {_short(data.get('kind'))}; allowed: {CALIBRATION_KIND!r}")
+        version = data.get("version", CALIBRATION_VERSION)
+        if isinstance(version, bool) or version != CALIBRATION_VERSION:
+            raise InputError(f"{source}: version: {_short(version)}; allowed: {CALIBRATION_VERSION}")
 
-        def number(
-            field: str, *, optional: bool = False, positive: bool = False, nonzero: bool = False
-        ) -> Any:
+        def number(field: str, bounds: tuple[float, float], *, optional: bool = False) -> Any:
+            lo, hi = bounds
+            magnitude = field == "factor_n_per_count"  # its sign follows the cell's wiring
+            allowed = (
+                f"a finite number with {lo:g} <= |x| <= {hi:g}"
+                if magnitude
+                else f"a finite number from {lo:g} to {hi:g}"
+            )
             if field not in data or data[field] is None:
                 if optional:
                     return None
-                raise InputError(f"{source}: {field}: missing; required number")
+                raise InputError(f"{source}: {field}: missing; allowed: {allowed} (required)")
             value = data[field]
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-                raise InputError(f"{source}: {field}: {value!r}; allowed: a finite number")
-            if positive and value <= 0:
-                raise InputError(f"{source}: {field}: {value!r}; allowed: > 0")
-            if nonzero and value == 0:
-                raise InputError(f"{source}: {field}: 0; allowed: any non-zero number")
-            return float(value)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise InputError(f"{source}: {field}: {_short(value)}; allowed: {allowed}")
+            try:
+                x = float(value)
+            except OverflowError:  # an integer beyond the float range
+                x = math.inf
+            if not (math.isfinite(x) and lo <= (abs(x) if magnitude else x) <= hi):
+                raise InputError(f"{source}: {field}: {_short(value)}; allowed: {allowed}")
+            return x
 
-        def text(field: str) -> str:
+        def text(field: str, max_chars: int) -> str:
             value = data.get(field)
-            if not isinstance(value, str):
-                raise InputError(f"{source}: {field}: {value!r}; allowed: a string")
+            if not isinstance(value, str) or len(value) > max_chars:
+                shown = "missing" if value is None else _short(value)
+                raise InputError(
+                    f"{source}: {field}: {shown}; allowed: a string of at most {max_chars} characters"
+                )
             return value
 
-        date = text("date")
+        factor = number("factor_n_per_count", FACTOR_RANGE_N_PER_COUNT)
+        offset = number("offset_counts", (-COUNTS_LIMIT, COUNTS_LIMIT))
+        reference = number("reference_mass_kg", REFERENCE_MASS_RANGE_KG, optional=True)
+        g = number("g", G_RANGE_M_S2)
+        date = text("date", 64)
         try:
             dt.datetime.fromisoformat(date)
         except ValueError:
             raise InputError(f"{source}: date: {date!r}; allowed: an ISO 8601 date/time") from None
-        noise = number("noise_counts", optional=True)
-        if noise is not None and noise < 0:
-            raise InputError(f"{source}: noise_counts: {noise!r}; allowed: >= 0")
         return cls(
-            factor_n_per_count=number("factor_n_per_count", nonzero=True),
-            offset_counts=number("offset_counts"),
-            reference_mass_kg=number("reference_mass_kg", optional=True, positive=True),
-            g=number("g", positive=True),
+            factor_n_per_count=factor,
+            offset_counts=offset,
+            reference_mass_kg=reference,
+            g=g,
             date=date,
-            serial=text("serial"),
-            format=text("format"),
-            noise_counts=noise,
-            temperature_c=number("temperature_c", optional=True),
+            serial=text("serial", 256),
+            format=text("format", 64),
+            noise_counts=number("noise_counts", (0.0, COUNTS_LIMIT), optional=True),
+            temperature_c=number("temperature_c", TEMPERATURE_RANGE_C, optional=True),
         )
 
     def save(self, path: str | os.PathLike[str]) -> None:
@@ -128,14 +150,14 @@ class Calibration:
     def load(cls, path: str | os.PathLike[str]) -> Calibration:
         """Read a calibration file; `InputError` naming the file (and field) when it is unusable."""
         p = Path(path)
-        text = read_text_file(p, what="a calibration JSON file")
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise InputError(
-                f"{p}: malformed JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
-            ) from None
-        return cls.from_dict(data, str(p))
+        return cls.from_dict(load_json_file(p, what="a calibration JSON file"), str(p))
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, int) and value.bit_length() > 100:
+        return "an integer beyond the float range"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def now_iso() -> str:

@@ -47,6 +47,11 @@ BITS_PER_BYTE = 10  # 8N1: start bit, 8 data bits, stop bit
 STANDARD_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
                   1000000, 1152000, 1500000, 2000000, 2500000, 3000000, 3500000, 4000000)  # fmt: skip
 DEFAULT_BAUD = 921600
+# Ranges of the signal model and the faults (`rig sim loadcell` options): finite, and small enough
+# that no count or time computed from them overflows.
+GAIN_RANGE_COUNTS_PER_N = (1e-3, 1e9)  # |gain|
+COUNTS_LIMIT = 1e9  # |offset|, |drift per second|, noise
+MAX_SILENCE_S = 1e6  # start and duration of a scheduled silence
 _GARBAGE_ALPHABET = bytes(b for b in range(256) if b not in b"$\r\n")
 
 TensionSource = Callable[[int], float]
@@ -70,10 +75,16 @@ class SignalModel:
     adc_bits: int = 24  # two's complement range [-2**(bits-1), 2**(bits-1) - 1]
 
     def __post_init__(self) -> None:
-        if self.gain_counts_per_n == 0:
-            raise InputError("load-cell gain_counts_per_n: 0; allowed: any non-zero number")
-        if self.noise_counts < 0:
-            raise InputError(f"load-cell noise_counts: {self.noise_counts}; allowed: >= 0")
+        for name, value, lo, hi in (
+            ("gain_counts_per_n", abs(self.gain_counts_per_n), *GAIN_RANGE_COUNTS_PER_N),
+            ("offset_counts", abs(self.offset_counts), 0.0, COUNTS_LIMIT),
+            ("drift_counts_per_s", abs(self.drift_counts_per_s), 0.0, COUNTS_LIMIT),
+            ("noise_counts", self.noise_counts, 0.0, COUNTS_LIMIT),
+        ):
+            if not (math.isfinite(value) and lo <= value <= hi):
+                x = "|x|" if name != "noise_counts" else "x"
+                flag = "--" + name.replace("_", "-")
+                raise InputError(f"{flag} {getattr(self, name)}; allowed: {lo:g} <= {x} <= {hi:g}")
         if self.quantisation_counts < 1:
             raise InputError(f"load-cell quantisation_counts: {self.quantisation_counts}; allowed: >= 1")
         if not 8 <= self.adc_bits <= 32:
@@ -121,9 +132,10 @@ class FaultPlan:
             if not 0.0 <= p <= 1.0:
                 raise InputError(f"fault {name}: {p}; allowed: a probability 0-1")
         for start_s, duration_s in self.silences_s:
-            if start_s < 0 or duration_s <= 0:
+            if not (0 <= start_s <= MAX_SILENCE_S and 0 < duration_s <= MAX_SILENCE_S):
                 raise InputError(
-                    f"fault silence at {start_s} s for {duration_s} s; allowed: start >= 0, duration > 0"
+                    f"fault silence at {start_s} s for {duration_s} s; allowed: start 0-{MAX_SILENCE_S:g} s, "
+                    f"duration > 0 and <= {MAX_SILENCE_S:g} s"
                 )
 
 
@@ -133,24 +145,26 @@ FAULT_KINDS = ("garbage", "truncate", "checksum", "gap", "silence")
 def parse_fault(spec: str, plan: FaultPlan) -> FaultPlan:
     """Add one `--fault` spec to `plan`: KIND:PROBABILITY, or silence:START_S:DURATION_S."""
     kind, _, rest = spec.partition(":")
+    allowed = "garbage|truncate|checksum|gap:PROBABILITY_PER_LINE (0-1) or silence:START_S:DURATION_S"
     try:
         if kind == "silence":
             start_text, _, duration_text = rest.partition(":")
             silence = (float(start_text), float(duration_text))
-            return replace(plan, silences_s=(*plan.silences_s, silence))
-        name = {
-            "garbage": "garbage_per_line",
-            "truncate": "truncate_per_line",
-            "checksum": "bad_checksum_per_line",
-            "gap": "gap_per_line",
-        }[kind]
-        rate: dict[str, Any] = {name: float(rest)}
-        return replace(plan, **rate)
+            changes: dict[str, Any] = {"silences_s": (*plan.silences_s, silence)}
+        else:
+            name = {
+                "garbage": "garbage_per_line",
+                "truncate": "truncate_per_line",
+                "checksum": "bad_checksum_per_line",
+                "gap": "gap_per_line",
+            }[kind]
+            changes = {name: float(rest)}
     except (KeyError, ValueError):
-        raise InputError(
-            f"--fault {spec!r}; allowed: garbage|truncate|checksum|gap:PROBABILITY_PER_LINE "
-            "or silence:START_S:DURATION_S"
-        ) from None
+        raise InputError(f"--fault {spec!r}; allowed: {allowed}") from None
+    try:
+        return replace(plan, **changes)
+    except InputError as exc:
+        raise InputError(f"--fault {spec!r}: {exc}") from None
 
 
 @dataclass(slots=True)

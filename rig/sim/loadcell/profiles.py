@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from rig.errors import InputError
 
 SLIP_DROP_FRACTION = 0.3  # tension right after a slip, as a fraction of the peak
+MAX_TENSION_N = 1e4  # |tension| of a profile
+PERIOD_RANGE_S = (0.01, 1e6)
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,16 +79,20 @@ def parse_profile(spec: str, start_ns: int = 0) -> ConstantTension | SawtoothTen
     """`constant:N` or `sawtooth[:PEAK_N[:PERIOD_S]]` -> a tension callable."""
     kind, _, rest = spec.partition(":")
     parts = [p for p in rest.split(":") if p] if rest else []
+    lo, hi = PERIOD_RANGE_S
     try:
         if kind == "constant" and len(parts) == 1:
-            return ConstantTension(float(parts[0]))
+            tension = float(parts[0])
+            if abs(tension) <= MAX_TENSION_N:
+                return ConstantTension(tension)
         if kind == "sawtooth" and len(parts) <= 2:
             peak = float(parts[0]) if parts else 20.0
             period = float(parts[1]) if len(parts) > 1 else 4.0
-            if period > 0 and math.isfinite(peak):
+            if lo <= period <= hi and abs(peak) <= MAX_TENSION_N:
                 return SawtoothTension(peak, period, start_ns)
     except ValueError:
         pass
     raise InputError(
-        f"--profile {spec!r}; allowed: constant:TENSION_N or sawtooth[:PEAK_N[:PERIOD_S]] (period > 0)"
+        f"--profile {spec!r}; allowed: constant:TENSION_N or sawtooth[:PEAK_N[:PERIOD_S]], "
+        f"|tension| <= {MAX_TENSION_N:g} N, period {lo:g}-{hi:g} s"
     )
