@@ -52,7 +52,7 @@ PROFILES = {
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],
     ),
     "slow": settings(
-        max_examples=1500,
+        max_examples=600,
         deadline=timedelta(seconds=2),
         database=None,
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],

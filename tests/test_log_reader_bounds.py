@@ -437,7 +437,7 @@ def test_fuzzed_logs_read_or_raise_input_error_within_a_deadline(tmp_path_factor
 
 
 @pytest.mark.slow
-@settings(max_examples=3000, deadline=timedelta(seconds=2), suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=1200, deadline=timedelta(seconds=2), suppress_health_check=[HealthCheck.too_slow])
 @given(base=st.integers(0, 2), mutations=st.lists(MUTATION, min_size=1, max_size=8))
 def test_fuzzed_logs_at_length(tmp_path_factory, base, mutations):
     path = tmp_path_factory.mktemp("fuzz") / "f.mcap"
