@@ -8,12 +8,14 @@ servos, which are healthy, and its torque off.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import select
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -23,6 +25,7 @@ from rig.hw.loadcell.calibration import Calibration
 
 pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
 
+Process = subprocess.Popen[str]
 TORQUE_ENABLE = 64
 BUS_WATCHDOG = 98
 PRESENT_POSITION = 132
@@ -99,46 +102,56 @@ def _read(link: Path, servo_id: int, address: int, size: int) -> int:
         port.closePort()
 
 
-def test_load_cell_unplugged_mid_ramp_ends_with_the_winch_released(tmp_path, dxl_server):
+def _wait_until_ramping(run: Process, log: Path, timeout_s: float = 60.0) -> None:
+    """Wait until the run logs its ticks (connected: the watchdog armed), then 2 s more (reeling)."""
+    deadline = time.monotonic() + timeout_s
+    while not (log.exists() and log.stat().st_size > 20_000):  # a flushed chunk of ticks
+        assert run.poll() is None, run.communicate()
+        assert time.monotonic() < deadline, "the run did not start logging"
+        time.sleep(0.1)
+    time.sleep(2.0)
+    assert run.poll() is None, run.communicate()
+
+
+@contextlib.contextmanager
+def _mid_ramp(
+    tmp_path: Path, dxl_server
+) -> Iterator[tuple[Path, subprocess.Popen[str], subprocess.Popen[str]]]:
+    """Servos and load cell on ptys, and `rig run` on them 4 s in: the winch reeling (no slip, the
+    tension is constant). Yields (servo link, load-cell process, run process); the cell is killed after."""
     servos = dxl_server(ids=[1, 2], baud=1_000_000)
     cell_link = tmp_path / "loadcell"
     cell = _start_loadcell(cell_link)
     try:
         run = _start_run(tmp_path, _hardware_rig(tmp_path, Path(servos.link), cell_link))
-        time.sleep(4.0)  # connected, tared, the winch reeling in (no slip: the tension is constant)
-        assert run.poll() is None, run.communicate()
-        cell.send_signal(signal.SIGKILL)  # the adapter is pulled out
-        out, err = run.communicate(timeout=60)
+        _wait_until_ramping(run, tmp_path / "out" / "hw.mcap")
+        yield Path(servos.link), cell, run
     finally:
         if cell.poll() is None:
             cell.kill()
         cell.wait(timeout=10)
+
+
+def test_load_cell_unplugged_mid_ramp_ends_with_the_winch_released(tmp_path, dxl_server):
+    with _mid_ramp(tmp_path, dxl_server) as (link, cell, run):
+        cell.send_signal(signal.SIGKILL)  # the adapter is pulled out
+        out, err = run.communicate(timeout=60)
     report = json.loads(out)
     assert run.returncode == 1, err
     assert report["safe_state_verified"] is True, report["reason"]
     assert "load cell" in report["reason"]
-    assert [_read(Path(servos.link), i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
+    assert [_read(link, i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
 
 
 def test_a_host_killed_mid_ramp_leaves_a_winch_that_stops_by_itself(tmp_path, dxl_server):
     # A power cut of the host: nothing on it runs any more. The winch's Bus Watchdog (500 ms here)
     # trips and it holds where it is; its goal was never more than a short lead ahead anyway.
-    servos = dxl_server(ids=[1, 2], baud=1_000_000)
-    cell_link = tmp_path / "loadcell"
-    cell = _start_loadcell(cell_link)
-    try:
-        run = _start_run(tmp_path, _hardware_rig(tmp_path, Path(servos.link), cell_link))
-        time.sleep(4.0)
-        assert run.poll() is None, run.communicate()
+    with _mid_ramp(tmp_path, dxl_server) as (link, _, run):
         run.send_signal(signal.SIGKILL)
         run.communicate(timeout=30)
         time.sleep(1.0)  # the watchdog's window, and then some
-        link = Path(servos.link)
         first = _read(link, 1, PRESENT_POSITION, 4)
         time.sleep(1.0)
         second = _read(link, 1, PRESENT_POSITION, 4)
         assert _read(link, 1, BUS_WATCHDOG, 1) == 0xFF  # tripped (reads -1)
         assert abs(second - first) <= 2  # pulses: the winch is not reeling on
-    finally:
-        cell.kill()
-        cell.wait(timeout=10)
