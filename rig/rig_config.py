@@ -101,6 +101,10 @@ class ArticleConfig:
         return len(self.segment_lengths_m)
 
 
+# The servos' Bus Watchdog unless a config says otherwise (0 turns it off): a servo that hears nothing
+# from the host this long stops where it is. The runner talks to every servo each control period.
+DEFAULT_WATCHDOG_MS = 500
+
 # Which faults each simulated device can be given (`simulation.faults:`, docs in protocols/README.md).
 SERVO_FAULT_KINDS = ("drop", "corrupt", "delay", "silent", "disconnect", "overload")
 FAULT_KINDS: dict[str, tuple[str, ...]] = {
@@ -280,7 +284,7 @@ def _servo_bus(sec: Section) -> ServoBusConfig:
         baud=baud,
         servos=tuple(specs),
         retries=sec.integer("retries", default=2, min_value=0, max_value=10),
-        watchdog_ms=sec.integer("watchdog_ms", default=0, min_value=0, max_value=127 * 20),
+        watchdog_ms=sec.integer("watchdog_ms", default=DEFAULT_WATCHDOG_MS, min_value=0, max_value=127 * 20),
     )
 
 
