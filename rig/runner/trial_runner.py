@@ -689,6 +689,8 @@ class TrialRunner:
             if abs(self.states[winch].position_rad - zero_rad) < _POSITION_TOLERANCE_RAD:
                 self.release_verified = True
                 report.append("winch back at its zero-tension angle (read back)")
+                if self.tick_samples:  # the load cell, when it still works, says what is left
+                    report.append(f"tension {self.force_n:+.2f} N (load cell)")
                 return
         if answered:
             raise StepTimeoutError("winch did not return to zero tension within its timeout")
