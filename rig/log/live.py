@@ -1,0 +1,198 @@
+"""Live view: the run's topics served over the Foxglove WebSocket protocol (`foxglove-sdk`).
+
+`LivePublisher` starts a server that advertises every topic of `rig.log.schemas.TOPICS` (the same
+schema names and JSON Schemas as the MCAP file). `RunLogger` tees what it logs into `publish()`,
+which costs the acquisition loop a subscription check and, for a subscribed topic, a deque append:
+the JSON encoding and the hand-over to the server happen in a publisher thread, and the server
+sends from its own (Rust) threads. Nothing waits for a client: when the publisher queue is full the
+newest messages are dropped (`dropped`), and a client that reads too slowly loses its oldest
+messages in the server (each such episode counted in `slow_client_events`).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import foxglove
+
+from rig.errors import InputError
+from rig.log import schemas
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765
+DEFAULT_MAX_QUEUED = 50_000  # messages waiting for the publisher thread (~50 s of load-cell rows)
+CLIENT_BACKLOG = 4096  # messages the server buffers per client before dropping its oldest
+_SERVER_LOGGER = "foxglove"
+
+Message = tuple[int, Mapping[str, Any] | tuple[Any, ...]]
+
+
+@dataclass(frozen=True)
+class LiveStats:
+    """What the live view published and lost."""
+
+    published: int
+    dropped: int  # the publisher queue was full
+    slow_client_events: int  # a client's server-side outbox overflowed (its oldest messages lost)
+
+    def text(self) -> str:
+        """One line for the run's log."""
+        return (
+            f"live view: {self.published} messages published, {self.dropped} dropped (queue full), "
+            f"{self.slow_client_events} slow-client overflows"
+        )
+
+
+class _OverflowCounter(logging.Handler):
+    """Counts the server's 'outbox full' reports (a client too slow; messages dropped)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.count = 0
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if "full" in record.getMessage():
+            self.count += 1
+
+
+class LivePublisher:
+    """A Foxglove WebSocket server for the rig topics; `publish` never blocks.
+
+    :param host: the address to bind (localhost by default).
+    :param port: the TCP port; 0 picks a free one (see `port`).
+    :param max_queued: messages the publisher thread may lag behind before new ones are dropped.
+    :raises InputError: the port cannot be bound (in use, not allowed).
+    """
+
+    def __init__(
+        self,
+        *,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        name: str = "slip-trial rig",
+        max_queued: int = DEFAULT_MAX_QUEUED,
+        client_backlog: int = CLIENT_BACKLOG,
+    ) -> None:
+        self._overflows = _OverflowCounter()
+        server_logger = logging.getLogger(_SERVER_LOGGER)
+        server_logger.addHandler(self._overflows)
+        server_logger.propagate = False  # the server's connection chatter stays off the console
+        if server_logger.level == logging.NOTSET or server_logger.level > logging.INFO:
+            server_logger.setLevel(logging.INFO)
+        self._context = foxglove.Context()
+        try:
+            self._server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._context, message_backlog_size=client_backlog
+            )
+        except RuntimeError as error:
+            server_logger.removeHandler(self._overflows)
+            raise InputError(
+                f"--live-port {port}: cannot serve on {host}:{port} ({error}); "
+                "allowed: a free port (0 picks one)"
+            ) from None
+        self.host = host
+        self.port: int = self._server.port
+        self._channels = {
+            topic: foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(name=spec.schema_name, encoding="jsonschema", data=spec.schema_bytes),
+                message_encoding=schemas.MESSAGE_ENCODING,
+                context=self._context,
+            )
+            for topic, spec in schemas.TOPICS.items()
+        }
+        self._max_queued = max_queued
+        self._queue: collections.deque[tuple[str, Sequence[Message]]] = collections.deque()
+        self._queued = 0  # messages in _queue (approximate across threads; only bounds the queue)
+        self._wake = threading.Event()
+        self._stopping = False
+        self.published = 0
+        self.dropped = 0
+        self._closed: LiveStats | None = None
+        self._thread = threading.Thread(target=self._run, name="rig-live", daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        """The WebSocket address to open in Foxglove."""
+        return f"ws://{self.host}:{self.port}"
+
+    def wants(self, topic: str) -> bool:
+        """Whether a client is subscribed to `topic` (cheap: checked before building anything for it)."""
+        channel = self._channels.get(topic)
+        return channel is not None and channel.has_sinks()
+
+    def publish(self, topic: str, messages: Sequence[Message]) -> None:
+        """Queue `(log_time_ns, payload)` messages of one topic; drops them if the queue is full.
+
+        A payload may be a row (`schemas.ROW_FIELDS`); it becomes an object in the publisher thread.
+        The payloads must not be changed afterwards.
+        """
+        if not messages or self._stopping:
+            return
+        if self._queued + len(messages) > self._max_queued:
+            self.dropped += len(messages)
+            return
+        self._queued += len(messages)
+        self._queue.append((topic, messages))
+        self._wake.set()
+
+    def publish_encoded(self, topic: str, log_time_ns: int, data: bytes) -> None:
+        """Send an already-encoded JSON message now (replay: the bytes as the file holds them)."""
+        channel = self._channels.get(topic)
+        if channel is not None:
+            channel.log(data, log_time=log_time_ns)
+            self.published += 1
+
+    def broadcast_time(self, time_ns: int) -> None:
+        """Tell clients the current (log) time, for playback of a recorded log."""
+        self._server.broadcast_time(time_ns)
+
+    def stats(self) -> LiveStats:
+        """The counts so far."""
+        return LiveStats(self.published, self.dropped, self._overflows.count)
+
+    def close(self, timeout_s: float = 5.0) -> LiveStats:
+        """Publish what is queued (for at most `timeout_s`), stop the server; idempotent."""
+        if self._closed is None:
+            self._stopping = True
+            self._wake.set()
+            self._thread.join(timeout_s)
+            self._server.stop()
+            for channel in self._channels.values():
+                channel.close()
+            logging.getLogger(_SERVER_LOGGER).removeHandler(self._overflows)
+            self._closed = self.stats()
+        return self._closed
+
+    def __enter__(self) -> LivePublisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _run(self) -> None:
+        """Publisher thread: encode queued messages and hand them to the server."""
+        queue, channels = self._queue, self._channels
+        while True:
+            self._wake.wait(0.1)
+            self._wake.clear()
+            while queue:
+                topic, messages = queue.popleft()
+                self._queued -= len(messages)
+                channel = channels[topic]
+                if not channel.has_sinks():
+                    continue  # the client unsubscribed meanwhile
+                fields = schemas.ROW_FIELDS.get(topic, ())
+                for log_time_ns, payload in messages:
+                    obj = dict(zip(fields, payload, strict=True)) if type(payload) is tuple else payload
+                    channel.log(json.dumps(obj, separators=(",", ":")).encode(), log_time=log_time_ns)
+                self.published += len(messages)
+            if self._stopping:
+                return

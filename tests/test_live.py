@@ -1,0 +1,172 @@
+"""The live view: a simulated run served over the Foxglove WebSocket protocol, checked against its MCAP."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import struct
+import threading
+import time
+from pathlib import Path
+
+import jsonschema
+import pytest
+import websockets
+from mcap.reader import make_reader
+
+from rig.errors import InputError
+from rig.log import schemas
+from rig.log.live import LivePublisher
+from rig.rigs import open_session
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunRequest, execute_run, prepare_run
+from tests.helpers import QUICK_PROTOCOL
+
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk speaks the first
+WATCHED = (schemas.LOADCELL, schemas.SLIP, schemas.ESTIMATE)
+MESSAGE_DATA = 0x01
+ONE_TRIAL = QUICK_PROTOCOL.replace("[0.12, 0.2, 0.25]", "[0.2]")
+
+
+class FoxgloveClient:
+    """A minimal Foxglove WebSocket client in a thread: subscribes to topics, keeps what arrives."""
+
+    def __init__(self, url: str, topics: tuple[str, ...]) -> None:
+        self.url, self.topics = url, topics
+        self.channels: dict[int, dict] = {}  # channel id -> advertised channel
+        self.received: dict[str, list[tuple[int, bytes]]] = {t: [] for t in topics}
+        self.subscribed = threading.Event()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._main, daemon=True)
+        self._thread.start()
+
+    def join(self, timeout_s: float = 30.0) -> None:
+        self._thread.join(timeout_s)
+        assert not self._thread.is_alive()
+        if self.error is not None:
+            raise self.error
+
+    def _main(self) -> None:
+        try:
+            asyncio.run(self._session())
+        except BaseException as error:
+            self.error = error
+
+    async def _session(self) -> None:
+        async with websockets.connect(self.url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+            assert ws.subprotocol in SUBPROTOCOLS
+            subscription_topic: dict[int, str] = {}
+            try:
+                async for frame in ws:
+                    if isinstance(frame, str):
+                        message = json.loads(frame)
+                        if message["op"] == "advertise":
+                            self.channels.update({c["id"]: c for c in message["channels"]})
+                            wanted = [c for c in message["channels"] if c["topic"] in self.topics]
+                            subs = []
+                            for channel in wanted:
+                                sub_id = len(subscription_topic) + 1
+                                subscription_topic[sub_id] = channel["topic"]
+                                subs.append({"id": sub_id, "channelId": channel["id"]})
+                            await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                        continue
+                    assert frame[0] == MESSAGE_DATA
+                    sub_id, log_time = struct.unpack_from("<IQ", frame, 1)
+                    self.received[subscription_topic[sub_id]].append((log_time, bytes(frame[13:])))
+            except websockets.ConnectionClosed:
+                pass
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def file_messages(path: Path) -> dict[str, list[tuple[int, object]]]:
+    out: dict[str, list[tuple[int, object]]] = {}
+    with path.open("rb") as f:
+        for _schema, channel, message in make_reader(f).iter_messages():
+            out.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+    return out
+
+
+@pytest.mark.slow  # a few seconds: the in-process client competes with the run for the GIL
+def test_a_live_run_serves_the_logged_topics_with_their_schemas(tmp_path, protocol_file):
+    protocol = protocol_file(ONE_TRIAL)
+    prepared = prepare_run(RunRequest(protocol_path=protocol, rig_path=None, out_dir=tmp_path, seed=3))
+    with LivePublisher(port=0) as live:
+        client = FoxgloveClient(live.url, WATCHED)
+        deadline = time.monotonic() + 10
+        while not all(live.wants(t) for t in WATCHED):
+            assert time.monotonic() < deadline, "the client did not subscribe"
+            time.sleep(0.01)
+        report = execute_run(prepared, open_session(prepared), SilentProgress(), live=live)
+        stats = live.close()
+    client.join()
+    assert report.exit_code == 0, report.reason
+
+    advertised = {c["topic"]: c for c in client.channels.values()}
+    assert set(advertised) == set(schemas.TOPICS)
+    for topic, spec in schemas.TOPICS.items():
+        assert advertised[topic]["schemaName"] == spec.schema_name
+        assert advertised[topic]["schemaEncoding"] == "jsonschema"
+        assert advertised[topic]["encoding"] == "json"
+        assert json.loads(advertised[topic]["schema"]) == spec.schema
+
+    logged = file_messages(prepared.log_path)
+    for topic in WATCHED:
+        received = client.received[topic]
+        assert received, f"nothing received on {topic}"
+        schema = json.loads(advertised[topic]["schema"])
+        in_file = {(t, json.dumps(p, sort_keys=True)) for t, p in logged[topic]}
+        for log_time, data in received:
+            payload = json.loads(data)
+            jsonschema.validate(payload, schema)
+            assert (log_time, json.dumps(payload, sort_keys=True)) in in_file, (topic, payload)
+    # Few and far between: nothing of these may be lost.
+    assert len(client.received[schemas.ESTIMATE]) == len(logged[schemas.ESTIMATE])
+    assert len(client.received[schemas.SLIP]) == len(logged[schemas.SLIP])
+    assert stats.published >= sum(len(client.received[t]) for t in WATCHED)
+    # The run's log ends with the live view's counts.
+    assert "live view:" in logged[schemas.LOG][-1][1]["message"]
+
+
+def test_unsubscribed_topics_cost_nothing_and_are_not_queued():
+    with LivePublisher(port=0) as live:
+        assert not live.wants(schemas.LOADCELL)
+        live.publish(schemas.LOADCELL, [(1, (1, 2, 0.5, 3))])  # the logger checks wants() first
+        stats = live.close()
+    assert stats.dropped == 0
+
+
+def test_a_full_queue_drops_and_counts_instead_of_waiting():
+    with LivePublisher(port=0, max_queued=10) as live:
+        live.publish(schemas.LOG, [(1, {})] * 11)
+        assert live.dropped == 11
+        assert live.close().dropped == 11
+
+
+def test_a_port_in_use_is_an_input_error():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(InputError, match=f"--live-port {port}"):
+            LivePublisher(port=port)
+
+
+def test_rig_run_live_on_a_port_in_use_exits_2_before_anything_is_written(tmp_path, protocol_file, run_cli):
+    protocol = protocol_file(QUICK_PROTOCOL)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = run_cli(
+            "run", str(protocol), "--out", str(tmp_path / "out"), "--live", "--live-port", str(port)
+        )
+    assert result.code == 2
+    assert f"--live-port {port}" in result.err
+    assert len(result.err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
