@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 
 from rig.errors import InputError
 from rig.log import schemas
-from rig.log.live import LivePublisher
+from rig.log.live import LivePublisher, serve_log
 from rig.rigs import open_session
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
@@ -26,6 +26,7 @@ from tests.helpers import QUICK_PROTOCOL
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk speaks the first
 WATCHED = (schemas.LOADCELL, schemas.SLIP, schemas.ESTIMATE)
 MESSAGE_DATA = 0x01
+TIME = 0x02
 ONE_TRIAL = QUICK_PROTOCOL.replace("[0.12, 0.2, 0.25]", "[0.2]")
 
 
@@ -36,7 +37,7 @@ class FoxgloveClient:
         self.url, self.topics = url, topics
         self.channels: dict[int, dict] = {}  # channel id -> advertised channel
         self.received: dict[str, list[tuple[int, bytes]]] = {t: [] for t in topics}
-        self.subscribed = threading.Event()
+        self.times: list[int] = []  # server time messages (playback of a recorded log)
         self.error: BaseException | None = None
         self._thread = threading.Thread(target=self._main, daemon=True)
         self._thread.start()
@@ -70,6 +71,9 @@ class FoxgloveClient:
                                 subscription_topic[sub_id] = channel["topic"]
                                 subs.append({"id": sub_id, "channelId": channel["id"]})
                             await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                        continue
+                    if frame[0] == TIME:
+                        self.times.append(struct.unpack_from("<Q", frame, 1)[0])
                         continue
                     assert frame[0] == MESSAGE_DATA
                     sub_id, log_time = struct.unpack_from("<IQ", frame, 1)
@@ -170,3 +174,60 @@ def test_rig_run_live_on_a_port_in_use_exits_2_before_anything_is_written(tmp_pa
     assert f"--live-port {port}" in result.err
     assert len(result.err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def wait_until_subscribed(live: LivePublisher, topics: tuple[str, ...]) -> None:
+    deadline = time.monotonic() + 10
+    while not all(live.wants(t) for t in topics):
+        assert time.monotonic() < deadline, "the client did not subscribe"
+        time.sleep(0.01)
+
+
+@pytest.mark.slow  # a simulated run, then its replay
+def test_replay_serve_streams_a_recorded_log_in_log_time_order(tmp_path, protocol_file):
+    protocol = protocol_file(ONE_TRIAL)
+    prepared = prepare_run(RunRequest(protocol_path=protocol, rig_path=None, out_dir=tmp_path, seed=5))
+    assert execute_run(prepared, open_session(prepared), SilentProgress()).exit_code == 0
+    logged = file_messages(prepared.log_path)
+    with LivePublisher(port=0, client_backlog=1 << 20, playback=True) as live:
+        client = FoxgloveClient(live.url, WATCHED)
+        sent, warnings = serve_log(
+            [prepared.log_path],
+            live,
+            speed=50.0,
+            wait_for_client=lambda: wait_until_subscribed(live, WATCHED),
+        )
+        live.close()
+    client.join()
+    assert warnings == []
+    assert client.times == sorted(client.times) and client.times
+    assert sent == sum(len(v) for t, v in logged.items() if t in schemas.TOPICS)
+    for topic in WATCHED:
+        expected = sorted((t, json.dumps(p, sort_keys=True)) for t, p in logged[topic])
+        got = [(t, json.dumps(json.loads(d), sort_keys=True)) for t, d in client.received[topic]]
+        assert [t for t, _ in got] == sorted(t for t, _ in got), f"{topic}: not in log-time order"
+        assert sorted(got) == expected, topic
+
+
+def test_replay_serve_refuses_a_bad_speed(tmp_path, run_cli):
+    log = tmp_path / "x.mcap"
+    log.write_bytes(b"")
+    result = run_cli("replay", str(log), "--serve", "--speed", "0")
+    assert result.code == 2 and "--speed" in result.err
+
+
+def test_serve_log_paces_messages_by_log_time(tmp_path, protocol_file):
+    clock = [0.0]
+    slept: list[float] = []
+
+    def sleep(s: float) -> None:
+        slept.append(s)
+        clock[0] += s
+
+    protocol = protocol_file(ONE_TRIAL)
+    prepared = prepare_run(RunRequest(protocol_path=protocol, rig_path=None, out_dir=tmp_path, seed=5))
+    assert execute_run(prepared, open_session(prepared), SilentProgress()).exit_code == 0
+    times = sorted(t for v in file_messages(prepared.log_path).values() for t, _ in v)
+    with LivePublisher(port=0, playback=True) as live:
+        serve_log([prepared.log_path], live, speed=2.0, sleep=sleep, monotonic=lambda: clock[0])
+    assert clock[0] == pytest.approx((times[-1] - times[0]) / 1e9 / 2.0, abs=0.002)

@@ -7,19 +7,29 @@ the JSON encoding and the hand-over to the server happen in a publisher thread, 
 sends from its own (Rust) threads. Nothing waits for a client: when the publisher queue is full the
 newest messages are dropped (`dropped`), and a client that reads too slowly loses its oldest
 messages in the server (each such episode counted in `slow_client_events`).
+
+`serve_log` plays recorded MCAP files to the same server (`rig replay --serve`).
 """
 
 from __future__ import annotations
 
 import collections
+import heapq
 import json
 import logging
+import math
+import operator
+import struct
 import threading
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import foxglove
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader
 
 from rig.errors import InputError
 from rig.log import schemas
@@ -67,6 +77,8 @@ class LivePublisher:
     :param host: the address to bind (localhost by default).
     :param port: the TCP port; 0 picks a free one (see `port`).
     :param max_queued: messages the publisher thread may lag behind before new ones are dropped.
+    :param client_backlog: messages the server buffers per client before dropping its oldest.
+    :param playback: a recorded log is served: clients are told its time (`broadcast_time`).
     :raises InputError: the port cannot be bound (in use, not allowed).
     """
 
@@ -78,6 +90,7 @@ class LivePublisher:
         name: str = "slip-trial rig",
         max_queued: int = DEFAULT_MAX_QUEUED,
         client_backlog: int = CLIENT_BACKLOG,
+        playback: bool = False,
     ) -> None:
         self._overflows = _OverflowCounter()
         server_logger = logging.getLogger(_SERVER_LOGGER)
@@ -88,7 +101,12 @@ class LivePublisher:
         self._context = foxglove.Context()
         try:
             self._server = foxglove.start_server(
-                name=name, host=host, port=port, context=self._context, message_backlog_size=client_backlog
+                name=name,
+                host=host,
+                port=port,
+                context=self._context,
+                message_backlog_size=client_backlog,
+                capabilities=[foxglove.Capability.Time] if playback else None,
             )
         except RuntimeError as error:
             server_logger.removeHandler(self._overflows)
@@ -196,3 +214,53 @@ class LivePublisher:
                 self.published += len(messages)
             if self._stopping:
                 return
+
+
+def _file_messages(path: Path, warnings: list[str]) -> Iterator[tuple[int, str, bytes]]:
+    """`(log_time_ns, topic, data)` of one file's rig topics, read as a stream (unfinished files too)."""
+    try:
+        with path.open("rb") as f:
+            for _schema, channel, message in NonSeekingReader(f).iter_messages(log_time_order=True):
+                if channel.topic in schemas.TOPICS:
+                    yield message.log_time, channel.topic, message.data
+    except (McapError, EOFError, ValueError, struct.error) as error:
+        warnings.append(f"{path}: stopped at a damaged or missing record ({error})")
+
+
+def serve_log(
+    paths: Sequence[Path],
+    live: LivePublisher,
+    *,
+    speed: float = 1.0,
+    wait_for_client: Callable[[], None] | None = None,
+    sleep: Callable[[float], None] = time.sleep,
+    monotonic: Callable[[], float] = time.monotonic,
+) -> tuple[int, list[str]]:
+    """Publish the messages of MCAP files in log-time order, paced at `speed` times real time.
+
+    The payloads are sent as the files hold them. `wait_for_client` is called first (e.g. to wait
+    for a subscription). Returns the number of messages sent and the files' warnings.
+    """
+    if not speed > 0 or math.isinf(speed):
+        raise ValueError(f"speed {speed}: must be a positive finite number")
+    warnings: list[str] = []
+    merged = heapq.merge(*(_file_messages(p, warnings) for p in paths), key=operator.itemgetter(0))
+    if wait_for_client is not None:
+        wait_for_client()
+    first: int | None = None
+    start = monotonic()
+    sent = 0
+    last_broadcast = -math.inf
+    for log_time_ns, topic, data in merged:
+        if first is None:
+            first = log_time_ns
+        due = start + (log_time_ns - first) / 1e9 / speed
+        ahead = due - monotonic()
+        if ahead > 0.001:
+            sleep(ahead)
+        live.publish_encoded(topic, log_time_ns, data)
+        sent += 1
+        if due - last_broadcast >= 0.1:
+            live.broadcast_time(log_time_ns)
+            last_broadcast = due
+    return sent, warnings
