@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
+import os
 import socket
 import struct
 import threading
@@ -231,3 +233,81 @@ def test_serve_log_paces_messages_by_log_time(tmp_path, protocol_file):
     with LivePublisher(port=0, playback=True) as live:
         serve_log([prepared.log_path], live, speed=2.0, sleep=sleep, monotonic=lambda: clock[0])
     assert clock[0] == pytest.approx((times[-1] - times[0]) / 1e9 / 2.0, abs=0.002)
+
+
+def stalled_client(port: int) -> socket.socket:
+    """A client that subscribes to every channel, then never reads (a tiny receive window)."""
+    sock = socket.socket()
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sock.connect(("127.0.0.1", port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall(
+        "GET / HTTP/1.1\r\nHost: localhost\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+        "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n".encode()
+    )
+    data = b""
+    while b"\r\n\r\n" not in data:
+        data += sock.recv(4096)
+    assert data.startswith(b"HTTP/1.1 101")
+    data = data.split(b"\r\n\r\n", 1)[1]
+    channels: list[int] = []
+    while not channels:  # server frames are unmasked: serverInfo, then advertise
+        while len(data) < 4:
+            data += sock.recv(65536)
+        length, start = data[1] & 0x7F, 2
+        if length == 126:
+            length, start = int.from_bytes(data[2:4], "big"), 4
+        elif length == 127:
+            length, start = int.from_bytes(data[2:10], "big"), 10
+        while len(data) < start + length:
+            data += sock.recv(65536)
+        message = json.loads(data[start : start + length])
+        data = data[start + length :]
+        if message["op"] == "advertise":
+            channels = [c["id"] for c in message["channels"]]
+    subs = [{"id": i, "channelId": c} for i, c in enumerate(channels, 1)]
+    payload = json.dumps({"op": "subscribe", "subscriptions": subs}).encode()
+    mask = os.urandom(4)
+    header = bytes([0x81, 0x80 | 126]) + len(payload).to_bytes(2, "big") + mask
+    sock.sendall(header + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
+    return sock
+
+
+@pytest.mark.slow  # a few seconds: enough data to fill the kernel's socket buffers too
+def test_a_stalled_client_loses_messages_counted_and_neither_publishing_nor_closing_waits():
+    with LivePublisher(port=0, client_backlog=16) as live:
+        sock = stalled_client(live.port)
+        wait_until_subscribed(live, (schemas.LOADCELL,))
+        start = time.perf_counter()
+        for i in range(600):
+            live.publish(schemas.LOADCELL, [(i * 1000 + j, (j, 1, 0.5, j)) for j in range(100)])
+        assert time.perf_counter() - start < 1.0
+        start = time.perf_counter()
+        stats = live.close(timeout_s=1.0)  # the server's stop waits for the stalled client: not we
+        assert time.perf_counter() - start < 5.0
+        sock.close()
+    assert stats.published + stats.dropped == 60_000
+    assert stats.slow_client_events >= 1
+
+
+def test_the_foxglove_layout_names_only_logged_topics_and_fields():
+    layout = json.loads((Path(__file__).parent.parent / "docs" / "foxglove-layout.json").read_text())
+    panels = layout["configById"]
+    paths = [p["value"] for config in panels.values() for p in config.get("paths", [])]
+    paths += [config["xAxisPath"]["value"] for config in panels.values() if "xAxisPath" in config]
+    paths += [
+        config[key] for config in panels.values() for key in ("topicPath", "topicToRender") if key in config
+    ]
+    assert paths
+    for path in paths:
+        topic = next(t for t in sorted(schemas.TOPICS, key=len, reverse=True) if path.startswith(t))
+        rest = path[len(topic) :]
+        if rest.startswith("{"):
+            rest = rest[rest.index("}") + 1 :]
+        if rest:
+            field = rest.lstrip(".").split("[")[0]
+            assert field in schemas.TOPICS[topic].schema["properties"], path
+    # every panel is placed in the layout tree
+    text = json.dumps(layout["layout"])
+    assert all(f'"{panel}"' in text for panel in panels)

@@ -130,6 +130,7 @@ class LivePublisher:
         self._queued = 0  # messages in _queue (approximate across threads; only bounds the queue)
         self._wake = threading.Event()
         self._stopping = False
+        self._abandon = False
         self.published = 0
         self.dropped = 0
         self._closed: LiveStats | None = None
@@ -176,13 +177,21 @@ class LivePublisher:
         """The counts so far."""
         return LiveStats(self.published, self.dropped, self._overflows.count)
 
-    def close(self, timeout_s: float = 5.0) -> LiveStats:
+    def close(self, timeout_s: float = 2.0) -> LiveStats:
         """Publish what is queued (for at most `timeout_s`), stop the server; idempotent."""
         if self._closed is None:
             self._stopping = True
             self._wake.set()
             self._thread.join(timeout_s)
-            self._server.stop()
+            if self._thread.is_alive():  # behind: what is still queued counts as dropped
+                self._abandon = True
+                self._thread.join(timeout_s)
+                self.dropped += max(0, self._queued)
+            # stop() waits for every client to take its close frame: a stalled client would hold it
+            # (and this process) forever, so it is given `timeout_s` and then left behind.
+            stopper = threading.Thread(target=self._server.stop, name="rig-live-stop", daemon=True)
+            stopper.start()
+            stopper.join(timeout_s)
             for channel in self._channels.values():
                 channel.close()
             logging.getLogger(_SERVER_LOGGER).removeHandler(self._overflows)
@@ -201,7 +210,7 @@ class LivePublisher:
         while True:
             self._wake.wait(0.1)
             self._wake.clear()
-            while queue:
+            while queue and not self._abandon:
                 topic, messages = queue.popleft()
                 self._queued -= len(messages)
                 channel = channels[topic]
