@@ -311,3 +311,14 @@ def test_the_foxglove_layout_names_only_logged_topics_and_fields():
     # every panel is placed in the layout tree
     text = json.dumps(layout["layout"])
     assert all(f'"{panel}"' in text for panel in panels)
+
+
+@pytest.mark.parametrize(
+    "row",
+    [(1, 120268, 0.00335, 2000), (2, -5, None, 3), (3, 0, -0.0, 4), (4, 1, 1.5e-7, 5), (5, 1, 1e300, 6)],
+)
+def test_a_load_cell_row_is_published_as_the_object_the_file_holds(row):
+    from rig.log.live import _ROW_ENCODERS
+
+    fields = schemas.ROW_FIELDS[schemas.LOADCELL]
+    assert json.loads(_ROW_ENCODERS[schemas.LOADCELL](row)) == dict(zip(fields, row, strict=True))

@@ -37,10 +37,39 @@ from rig.log import schemas
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
 DEFAULT_MAX_QUEUED = 50_000  # messages waiting for the publisher thread (~50 s of load-cell rows)
+DRAIN_INTERVAL_S = 0.02  # publisher thread period: few wake-ups (and GIL hand-overs), little latency
 CLIENT_BACKLOG = 4096  # messages the server buffers per client before dropping its oldest
 _SERVER_LOGGER = "foxglove"
 
 Message = tuple[int, Mapping[str, Any] | tuple[Any, ...]]
+
+
+def _row_encoder(fields: tuple[str, ...]) -> Callable[[tuple[Any, ...]], bytes]:
+    """The JSON of a row: a %-template when every value is an int or a finite float.
+
+    Ten times quicker than a dict through `json.dumps`, which encodes anything else (None).
+    """
+    template = ("{" + ",".join(f'"{name}":%r' for name in fields) + "}").encode()
+    plain = (int, float)
+
+    def encode(row: tuple[Any, ...]) -> bytes:
+        if all(type(v) in plain and math.isfinite(v) for v in row):
+            return template % row
+        obj = dict(zip(fields, row, strict=True))
+        return json.dumps(obj, separators=(",", ":"), default=_json_default).encode()
+
+    return encode
+
+
+def _json_default(value: Any) -> Any:
+    """Numpy scalars (and anything else with `item()`) as plain numbers."""
+    item = getattr(value, "item", None)
+    if item is None:
+        raise TypeError(f"not JSON serializable: {type(value).__name__}")
+    return item()
+
+
+_ROW_ENCODERS = {topic: _row_encoder(fields) for topic, fields in schemas.ROW_FIELDS.items()}
 
 
 @dataclass(frozen=True)
@@ -54,7 +83,8 @@ class LiveStats:
     def text(self) -> str:
         """One line for the run's log."""
         return (
-            f"live view: {self.published} messages published, {self.dropped} dropped (queue full), "
+            f"live view: {self.published} messages published, "
+            f"{self.dropped} dropped (queue full or not JSON), "
             f"{self.slow_client_events} slow-client overflows"
         )
 
@@ -159,8 +189,7 @@ class LivePublisher:
             self.dropped += len(messages)
             return
         self._queued += len(messages)
-        self._queue.append((topic, messages))
-        self._wake.set()
+        self._queue.append((topic, messages))  # no wake-up: the thread drains every DRAIN_INTERVAL_S
 
     def publish_encoded(self, topic: str, log_time_ns: int, data: bytes) -> None:
         """Send an already-encoded JSON message now (replay: the bytes as the file holds them)."""
@@ -208,7 +237,7 @@ class LivePublisher:
         """Publisher thread: encode queued messages and hand them to the server."""
         queue, channels = self._queue, self._channels
         while True:
-            self._wake.wait(0.1)
+            self._wake.wait(DRAIN_INTERVAL_S)
             self._wake.clear()
             while queue and not self._abandon:
                 topic, messages = queue.popleft()
@@ -216,11 +245,18 @@ class LivePublisher:
                 channel = channels[topic]
                 if not channel.has_sinks():
                     continue  # the client unsubscribed meanwhile
-                fields = schemas.ROW_FIELDS.get(topic, ())
+                encode_row = _ROW_ENCODERS.get(topic)
                 for log_time_ns, payload in messages:
-                    obj = dict(zip(fields, payload, strict=True)) if type(payload) is tuple else payload
-                    channel.log(json.dumps(obj, separators=(",", ":")).encode(), log_time=log_time_ns)
-                self.published += len(messages)
+                    try:
+                        if type(payload) is tuple and encode_row is not None:
+                            data = encode_row(payload)
+                        else:
+                            data = json.dumps(payload, separators=(",", ":"), default=_json_default).encode()
+                    except (TypeError, ValueError):  # the file's writer reports it; the view skips it
+                        self.dropped += 1
+                        continue
+                    channel.log(data, log_time=log_time_ns)
+                    self.published += 1
             if self._stopping:
                 return
 
