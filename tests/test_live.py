@@ -322,3 +322,13 @@ def test_a_load_cell_row_is_published_as_the_object_the_file_holds(row):
 
     fields = schemas.ROW_FIELDS[schemas.LOADCELL]
     assert json.loads(_ROW_ENCODERS[schemas.LOADCELL](row)) == dict(zip(fields, row, strict=True))
+
+
+def test_rig_run_live_prints_the_address_and_logs_the_counts(tmp_path, protocol_file, run_cli):
+    protocol = protocol_file(ONE_TRIAL)
+    out = tmp_path / "out"
+    result = run_cli("run", protocol, "--out", out, "--run-id", "l1", "--live", "--live-port", "0")
+    assert result.code == 0, result.err
+    assert "live view: ws://127.0.0.1:" in result.err
+    last = file_messages(out / "l1.mcap")[schemas.LOG][-1][1]
+    assert last["message"].startswith("live view: 0 messages published, 0 dropped")
