@@ -60,10 +60,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="re-detect with these detector parameters instead of the logged ones",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument(
+        "--serve",
+        action="store_true",
+        help="stream the log to Foxglove over its WebSocket protocol instead (waits for a client)",
+    )
+    parser.add_argument(
+        "--speed", type=float, default=1.0, metavar="X", help="--serve at X times real time (default 1)"
+    )
+    parser.add_argument(
+        "--live-port", type=int, default=8765, metavar="PORT", help="--serve port (default 8765)"
+    )
+    parser.add_argument(
+        "--live-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="--serve binds this address (default 127.0.0.1)",
+    )
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.serve:  # no analysis: nothing of pandas and matplotlib to import
+        return _serve(args)
     # Imported here, not at the top: pandas and matplotlib cost a second that `rig --help` should not pay.
     from rig.analysis.redetect import validate_overrides
     from rig.analysis.replay import replay
@@ -84,6 +103,44 @@ def run(args: argparse.Namespace) -> int:
         print(_text(result))
         if written:
             print(f"\nreport: {written[0].parent} ({len(written)} files)")
+    return 0
+
+
+def _serve(args: argparse.Namespace) -> int:
+    """`rig replay --serve`: play the files to a Foxglove client, paced by their log times."""
+    import math
+    import sys
+    import time
+
+    from rig.errors import InputError
+    from rig.log import schemas
+    from rig.log.live import LivePublisher, serve_log
+    from rig.log.reader import mcap_files
+
+    if not (args.speed > 0 and math.isfinite(args.speed)):
+        raise InputError(f"--speed {args.speed}: allowed: a positive number (1 = real time)")
+    if not 0 <= args.live_port <= 65535:
+        raise InputError(f"--live-port {args.live_port}: allowed: 0 to 65535")
+    files = mcap_files(args.logs)
+    with LivePublisher(host=args.live_host, port=args.live_port, playback=True) as live:
+        print(f"serving {len(files)} file(s) at {live.url}; waiting for a Foxglove client", file=sys.stderr)
+
+        def wait_for_client() -> None:
+            while not any(live.wants(topic) for topic in schemas.TOPICS):
+                time.sleep(0.05)
+            time.sleep(0.2)  # the client's other subscriptions arrive together
+
+        sent, warnings = serve_log(files, live, speed=args.speed, wait_for_client=wait_for_client)
+        stats = live.close()
+    for warning in warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    summary = {"files": [str(f) for f in files], "sent": sent, "slow_client_events": stats.slow_client_events}
+    if args.json:
+        emit_json({**summary, "warnings": warnings})
+    else:
+        print(
+            f"served {sent} messages from {len(files)} file(s); {stats.slow_client_events} client overflows"
+        )
     return 0
 
 

@@ -15,6 +15,7 @@ from rig.rig_config import DEFAULT_RIG_CONFIG
 
 if TYPE_CHECKING:
     from model.fit import FitSummary
+    from rig.log.live import LivePublisher
     from rig.runner.run import RunReport, RunRequest
 
 DESCRIPTION = """\
@@ -85,6 +86,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument(
         "--resume", default=None, metavar="ID", help="continue run ID (in the same --out) where it stopped"
     )
+    p.add_argument(
+        "--live",
+        action="store_true",
+        help="serve the run live over the Foxglove WebSocket protocol (open ws://HOST:PORT in Foxglove)",
+    )
+    p.add_argument(
+        "--live-port", type=int, default=8765, metavar="PORT", help="--live port (default 8765; 0: any free)"
+    )
+    p.add_argument(
+        "--live-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="address --live binds (default 127.0.0.1: this computer only)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
     p.set_defaults(handler=run)
 
@@ -108,18 +123,37 @@ def run(args: argparse.Namespace) -> int:
     # Everything is validated before anything is written (the --out directory, the lock, the journal):
     # first as a dry run, with the files the session will read; then for real.
     check_session_inputs(prepare_run(_request(args), dry_run=True).config)
-    prepared = prepare_run(_request(args))  # locks the run; InputError -> exit 2
+    live = _start_live(args)  # a port in use is an InputError before anything is written or moves
     try:
-        session = open_session(prepared)
-        report = execute_run(prepared, session, make_progress(args.json))
+        prepared = prepare_run(_request(args))  # locks the run; InputError -> exit 2
+        try:
+            session = open_session(prepared)
+            report = execute_run(prepared, session, make_progress(args.json), live=live)
+        finally:
+            prepared.release()
     finally:
-        prepared.release()
+        if live is not None:
+            live.close()
     with interrupts_held():  # the run has ended: its report is printed whole
         if args.json:
             emit_json(report.as_json())
         else:
             print(_summary(report), file=sys.stderr if report.exit_code else sys.stdout)
     return report.exit_code
+
+
+def _start_live(args: argparse.Namespace) -> LivePublisher | None:
+    """The live view's server if `--live` (its address on stderr unless `--json`)."""
+    if not args.live:
+        return None
+    if not 0 <= args.live_port <= 65535:
+        raise InputError(f"--live-port {args.live_port}: allowed: 0 to 65535")
+    from rig.log.live import LivePublisher
+
+    live = LivePublisher(host=args.live_host, port=args.live_port)
+    if not args.json:
+        print(f"live view: {live.url} (Foxglove: Open connection, Foxglove WebSocket)", file=sys.stderr)
+    return live
 
 
 def _dry_run(args: argparse.Namespace) -> int:

@@ -29,7 +29,7 @@ import weakref
 from collections.abc import Callable, Iterable, Mapping
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mcap.writer import __version__ as MCAP_VERSION
 
@@ -38,6 +38,9 @@ from rig.errors import RigError, RigTimeoutError
 from rig.hw.seams import Clock
 from rig.log import schemas
 from rig.log.writer_process import COMPRESSION
+
+if TYPE_CHECKING:
+    from rig.log.live import LivePublisher
 
 LIBRARY = f"rig-logger/{rig.__version__} mcap-python/{MCAP_VERSION}"
 DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes; periodic flushes usually close chunks first
@@ -77,6 +80,7 @@ class RunLogger:
     :param max_pending: queued messages above which `log()` waits for the writer to catch up.
     :param max_file_bytes: the most the file may hold; the writer's writes beyond it fail (as on a
         full disk) and the logger raises `LogWriteError`. None: no limit but the disk's.
+    :param live: a live view to tee every logged message into (only topics a client subscribed to).
     """
 
     def __init__(
@@ -90,6 +94,7 @@ class RunLogger:
         strict: bool | None = None,
         max_pending: int = DEFAULT_MAX_PENDING,
         max_file_bytes: int | None = None,
+        live: LivePublisher | None = None,
     ) -> None:
         if compression not in COMPRESSION:
             raise ValueError(f"compression: {compression!r} not allowed; allowed: {', '.join(COMPRESSION)}")
@@ -113,6 +118,7 @@ class RunLogger:
         self._finish_lock = threading.Lock()
         self._finished = False
         self.messages_logged = 0  # accepted by log()
+        self.live = live
 
         file_fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         request_read, request_write = os.pipe()
@@ -193,6 +199,9 @@ class RunLogger:
         added = len(batch) - count
         if added:
             self.messages_logged += added
+            live = self.live
+            if live is not None and live.wants(topic):
+                live.publish(topic, [(m[1], m[3]) for m in batch[count:]])
             self._maybe_send(batch[-1][1])
 
     def _check_loggable(self, topic: str) -> None:

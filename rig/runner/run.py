@@ -30,7 +30,9 @@ from model.payload_errors import PayloadErrorStats
 from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text
 from rig.hw.session import RigSession
-from rig.log.records import JointCapacity, TrialResult
+from rig.log import schemas
+from rig.log.live import LivePublisher
+from rig.log.records import JointCapacity, LogLevel, LogMessage, TrialResult
 from rig.log.writer import LogWriteError, RunLogger
 from rig.protocol import Protocol, TrialPlan, load_protocol
 from rig.rig_config import RigConfig, load_rig_config
@@ -219,20 +221,31 @@ def _prepared(
     )
 
 
-def execute_run(prepared: PreparedRun, session: RigSession, progress: ProgressReporter) -> RunReport:
+def execute_run(
+    prepared: PreparedRun,
+    session: RigSession,
+    progress: ProgressReporter,
+    *,
+    live: LivePublisher | None = None,
+) -> RunReport:
     """Run the remaining trials on `session`, write the log, journal and estimates, release the lock.
+
+    With `live`, every logged message is also offered to the live view (which the caller closes; its
+    counts of published and dropped messages end the run's `/rig/log`).
 
     Ctrl-C and SIGTERM stop the trials (the runner ends in the safe state); while the log and journal
     are set up, and from the safe state on while they are finished, they are held, so the journal
     always ends with the run's status and the report is returned (docs/design.md §6).
     """
     try:
-        return _execute(prepared, session, progress)
+        return _execute(prepared, session, progress, live)
     finally:
         prepared.release()
 
 
-def _execute(prepared: PreparedRun, session: RigSession, progress: ProgressReporter) -> RunReport:
+def _execute(
+    prepared: PreparedRun, session: RigSession, progress: ProgressReporter, live: LivePublisher | None
+) -> RunReport:
     protocol, config, journal = prepared.protocol, prepared.config, prepared.journal
     log_path = prepared.log_path
     outcome: RunOutcome | None = None
@@ -244,7 +257,9 @@ def _execute(prepared: PreparedRun, session: RigSession, progress: ProgressRepor
             journal.logs.append(str(log_path))
             journal.status = "running"
             journal.save()
-            logger = RunLogger(log_path, clock=session.clock, max_file_bytes=session.log_limit_bytes)
+            logger = RunLogger(
+                log_path, clock=session.clock, max_file_bytes=session.log_limit_bytes, live=live
+            )
             _write_metadata(logger, prepared, session)
             progress.start(journal.run_id, len(protocol.trials), len(journal.completed))
             runner = TrialRunner(
@@ -286,6 +301,12 @@ def _finish_log(logger: RunLogger, session: RigSession | None) -> LogWriteError 
     A log that cannot be written does not hide how the run ended: the error is returned, not raised.
     """
     try:
+        if logger.live is not None:
+            stats = logger.live.close()
+            logger.live = None
+            now = session.clock.time_ns() if session is not None else time.time_ns()
+            level = LogLevel.WARNING if stats.dropped or stats.slow_client_events else LogLevel.INFO
+            logger.log(schemas.LOG, now, LogMessage(now, level, stats.text()).to_payload())
         if session is not None and session.truth is not None:
             logger.add_metadata("sim_truth", {"json": json.dumps(session.truth.detail(), allow_nan=False)})
         logger.finish()
