@@ -139,7 +139,7 @@ class DetectorParams:
     noise_k: float | None = 10.0
     noise_floor_n: float = 0.002
     noise_window_s: float = 0.5
-    trend_window_s: float = 0.5
+    trend_window_s: float = 0.2
     peak_leak_n_per_s: float = 1.0
     creep_k: float | None = 10.0
     creep_drift_n_per_s: float = 0.2
