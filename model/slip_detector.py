@@ -5,21 +5,29 @@ the logged samples; both call the same `detector_step`, so both find the same ev
 
 Detector (docs/model.md §7):
 1. **Arm** when the force reaches `arm_threshold_n`: below it the signal is handling noise.
-2. While armed, **track the running peak** (a plateau's peak time is its last sample at the peak).
-3. **Fire** on any enabled trigger, always only once the force is at least `min_drop_n` below the peak
-   (so noise alone never fires):
-   * `drop`: the force has fallen by `drop_fraction` of the peak (force <= (1 − d)·peak);
+2. While armed, **track the running peak** (a plateau's peak time is its last sample at the peak),
+   and a spike-robust peak: the running peak of min(f[k−1], f[k]).
+3. On every sample, **estimate the ramp and the noise** from the increments f[k] − f[k−1]: a robust
+   running mean of the increment (the ramp) and of |increment − ramp| (σ·2/√π for white noise).
+4. **Fire** on any enabled trigger ("high" is max(f[k−1], f[k]), so one spike never fires):
+   * `drop`: high is `drop_fraction` of the spike-robust peak and `min_drop_n` below it;
    * `slope`: the least-squares slope over the last `slope_window_s` is <= −`slope_n_per_s`;
    * `cusum`: a one-sided CUSUM of force decrements, `g ← max(g + (f[k−1] − f[k]) − drift, 0)`,
-     exceeds `cusum_threshold_n`; its onset is the last sample at which g was 0.
-4. **Latch** after firing: the detector ignores the signal until the force falls below
+     exceeds `cusum_threshold_n`; its onset is the last sample at which g was 0;
+   * `noise`: high is `noise_k`·σ below the spike-robust peak decaying at `peak_leak_n_per_s`;
+   * `creep`: a CUSUM of the fall relative to the ramp trend and the fall of high below the
+     spike-robust peak both reach `creep_k`·σ (the tension sags while the winch reels).
+   slope and cusum fire only once the force is at least `min_drop_n` below the peak.
+5. **Latch** after firing: the detector ignores the signal until the force falls below
    `rearm_below_n`, then waits to arm again. So one slip fires once, and stick-slip fires once per
    drop that releases the line below the re-arm level. The default re-arm level is half the arm
    threshold: re-arming right at the arm threshold would let load-cell noise around it arm the
    detector on the unloading ramp after a slip, and that (real) decline would fire a second event.
 
 Event times: `onset_time_ns` is the earliest onset the firing triggers point to (the peak time for
-drop and slope, the CUSUM onset for cusum); `detection_time_ns` is the sample that fired.
+drop, slope and noise, the CUSUM onset for cusum, the trend CUSUM's onset but not before the peak
+for creep); `detection_time_ns` is the sample that fired. `kind` is 'creep' for a slow sag, else
+'drop'.
 
 Cost per sample: a few float comparisons and one frozen-state construction. The slope trigger,
 when enabled, keeps a ring of the samples inside its window (a tuple) and computes the centred
@@ -69,7 +77,25 @@ _RULES: dict[str, _FieldRule] = {
     "cusum_threshold_n": _FieldRule(True, 0.0, False, 1e6, True),
     "cusum_drift_n": _FieldRule(False, 0.0, True, 1e6, True),
     "rearm_below_n": _FieldRule(True, 0.0, False, 1e6, True),
+    "noise_k": _FieldRule(True, 0.0, False, 1e3, True),
+    "noise_floor_n": _FieldRule(False, 0.0, False, 1e6, True),
+    "noise_window_s": _FieldRule(False, 0.0, False, 100.0, True),
+    "trend_window_s": _FieldRule(False, 0.0, False, 100.0, True),
+    "peak_leak_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
+    "creep_k": _FieldRule(True, 0.0, False, 1e3, True),
+    "creep_drift_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
+    "creep_min_s": _FieldRule(False, 0.0, True, 100.0, True),
+    "spike_samples": _FieldRule(False, 1.0, True, 2.0, True),
 }
+
+# Every field the detector had before the noise and creep triggers. A mapping naming exactly these
+# is the logged parameter set of an older run: `from_mapping` keeps that run's detector (no noise or
+# creep trigger, the single-sample percentage drop), so its replay finds the events it logged.
+_LEGACY_FIELDS = frozenset(
+    {"arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
+     "cusum_threshold_n", "cusum_drift_n", "rearm_below_n"}
+)  # fmt: skip
+_LEGACY_DEFAULTS: dict[str, float | None] = {"noise_k": None, "creep_k": None, "spike_samples": 1.0}
 
 
 @dataclass(frozen=True)
@@ -86,6 +112,20 @@ class DetectorParams:
         cusum_drift_n: per-sample drift subtracted in the CUSUM, [0, 1e6] N.
         rearm_below_n: after firing, wait until the force is below this before arming again,
             (0, 1e6] N; None: half the arm threshold (a hysteresis band against noise).
+        noise_k: fire when the force is this many noise σ below the leaky peak, (0, 1e3]; None: off.
+        noise_floor_n: the least noise σ the noise-scaled triggers assume, (0, 1e6] N.
+        noise_window_s: time constant of the running noise estimate, (0, 100] s.
+        trend_window_s: time constant of the running ramp-rate estimate, (0, 100] s.
+        peak_leak_n_per_s: the noise trigger's peak decays at this rate (drift is not a drop),
+            [0, 1e9] N/s.
+        creep_k: fire when the CUSUM of the deviation from the ramp and the fall below the peak both
+            exceed this many noise σ, (0, 1e3]; None: off.
+        creep_drift_n_per_s: the CUSUM's allowance (slower sag relative to the ramp is ignored),
+            [0, 1e9] N/s.
+        creep_min_s: an event is of kind 'creep' if only the creep trigger fired, or if it was
+            detected at least this long after its onset, [0, 100] s.
+        spike_samples: 2: the percentage drop compares max(f[k−1], f[k]) with the peak of
+            min(f[k−1], f[k]) (one spike never fires it); 1: single samples (before 2026-11-23).
     """
 
     arm_threshold_n: float = 1.0
@@ -96,15 +136,27 @@ class DetectorParams:
     cusum_threshold_n: float | None = None
     cusum_drift_n: float = 0.05
     rearm_below_n: float | None = None
+    noise_k: float | None = 10.0
+    noise_floor_n: float = 0.002
+    noise_window_s: float = 0.5
+    trend_window_s: float = 0.2
+    peak_leak_n_per_s: float = 1.0
+    creep_k: float | None = 10.0
+    creep_drift_n_per_s: float = 0.2
+    creep_min_s: float = 0.05
+    spike_samples: float = 2.0
 
     def __post_init__(self) -> None:
         """Validate every field (a direct construction is checked like `from_mapping`)."""
         for name, rule in _RULES.items():
             object.__setattr__(self, name, _checked(name, getattr(self, name), rule, "detector"))
-        if self.drop_fraction is None and self.slope_n_per_s is None and self.cusum_threshold_n is None:
+        if self.spike_samples not in (1.0, 2.0):
+            raise ValueError(f"detector: spike_samples = {self.spike_samples!r}; allowed: 1 or 2")
+        triggers = [self.drop_fraction, self.slope_n_per_s, self.cusum_threshold_n, self.noise_k]
+        if all(value is None for value in [*triggers, self.creep_k]):
             raise ValueError(
                 "detector: no trigger enabled; allowed: set at least one of drop_fraction, "
-                "slope_n_per_s, cusum_threshold_n"
+                "slope_n_per_s, cusum_threshold_n, noise_k, creep_k"
             )
 
     @property
@@ -129,6 +181,8 @@ class DetectorParams:
                     f"{source}: unknown field {name!r}{_suggestion(name)}; allowed: {_field_list()}"
                 )
             values[name] = _checked(name, raw, _RULES[name], source)
+        if set(values) == _LEGACY_FIELDS:
+            values.update(_LEGACY_DEFAULTS)
         try:
             return cls(**values)
         except ValueError as exc:
@@ -200,6 +254,14 @@ class DetectorState(NamedTuple):
     cusum_onset_ns: int = 0
     window_times_ns: tuple[int, ...] = ()
     window_forces_n: tuple[float, ...] = ()
+    increments: int = 0  # sample-to-sample increments seen so far (capped at the warm-up count)
+    rate_n: float = 0.0  # running ramp increment per sample [N]
+    scale_n: float = 0.0  # running mean |increment − ramp increment| [N]
+    robust_peak_n: float = 0.0  # peak of min(f[k−1], f[k]): single-sample spikes do not set it
+    leaky_peak_n: float = 0.0  # the same, decaying at peak_leak_n_per_s
+    trend_cusum_n: float = 0.0  # CUSUM of the fall relative to the ramp trend
+    trend_onset_ns: int = 0  # the last sample at which trend_cusum_n was zero
+    armed_at_n: float = 0.0  # min(f[k−1], f[k]) when the detector armed
 
 
 @dataclass(frozen=True, slots=True)
@@ -213,7 +275,10 @@ class SlipEvent:
         peak_force_n: the peak tension before the drop [N]: the slip load.
         force_after_n: the force at detection [N].
         drop_fraction: (peak − force_after) / peak at detection.
-        trigger: the triggers that fired on that sample, joined by '+' ('drop', 'slope', 'cusum').
+        trigger: the triggers that fired on that sample, joined by '+'
+            ('drop', 'slope', 'cusum', 'noise', 'creep').
+        kind: 'creep' if only the creep trigger fired or the detection came at least `creep_min_s`
+            after the onset; 'drop' otherwise (sudden).
     """
 
     onset_time_ns: int
@@ -223,6 +288,16 @@ class SlipEvent:
     force_after_n: float
     drop_fraction: float
     trigger: str
+    kind: str = "drop"
+
+
+# Increments averaged with equal weights before the running estimates switch to their time constants.
+_WARMUP_INCREMENTS = 16
+# Residuals beyond this many mean |residuals| are clipped in the running estimates (a slip or a
+# spike must not inflate the noise estimate or drag the ramp rate).
+_CLIP = 4.0
+# E|x| / σ for x ~ N(0, 2σ²), the difference of two independent noise samples: 2/√π.
+_MEAN_ABS_DIFF_PER_SIGMA = 2.0 / math.sqrt(math.pi)
 
 
 def detector_init(params: DetectorParams) -> DetectorState:
@@ -250,6 +325,37 @@ def _window_slope_n_per_s(times_ns: Sequence[int], forces_n: Sequence[float]) ->
     return sxf / sxx if sxx > 0.0 else None
 
 
+def noise_sigma_n(params: DetectorParams, state: DetectorState) -> float:
+    """The detector's current estimate of the load-cell noise σ [N] (at least `noise_floor_n`)."""
+    return max(state.scale_n / _MEAN_ABS_DIFF_PER_SIGMA, params.noise_floor_n)
+
+
+def _estimates(
+    params: DetectorParams, state: DetectorState, dt_s: float, force_n: float
+) -> tuple[int, float, float, float]:
+    """Updated (increments, rate, scale) and this sample's residual about the ramp trend.
+
+    The ramp increment per sample and the mean |residual| are running means (equal weights while
+    warming up, then exponential with the configured time constants), fed residuals clipped at
+    `_CLIP` mean |residuals|: a robust running estimate of trend and noise from the increments.
+    """
+    if state.last_time_ns is None:
+        return 0, 0.0, 0.0, 0.0
+    increment = force_n - state.previous_force_n
+    residual = increment - state.rate_n
+    count = state.increments
+    if count < _WARMUP_INCREMENTS:
+        count += 1
+        rate = state.rate_n + residual / count
+        scale = state.scale_n + (abs(residual) - state.scale_n) / count
+        return count, rate, scale, residual
+    limit = _CLIP * state.scale_n
+    clipped = min(max(residual, -limit), limit)
+    rate = state.rate_n + min(dt_s / params.trend_window_s, 1.0) * clipped
+    scale = state.scale_n + min(dt_s / params.noise_window_s, 1.0) * (abs(clipped) - state.scale_n)
+    return count, rate, scale, residual
+
+
 def detector_step(
     params: DetectorParams, state: DetectorState, time_ns: int, force_n: float
 ) -> tuple[DetectorState, SlipEvent | None]:
@@ -275,17 +381,40 @@ def detector_step(
         window_t = (*window_t[start:], time_ns)
         window_f = (*window_f[start:], force_n)
 
+    dt_s = 0.0 if last is None else (time_ns - last) * 1e-9
+    increments, rate, scale, residual = _estimates(params, state, dt_s, force_n)
+    low2 = force_n if last is None else min(force_n, state.previous_force_n)
+    high2 = force_n if last is None else max(force_n, state.previous_force_n)
+    idle = DetectorState(
+        DetectorPhase.IDLE,
+        time_ns,
+        previous_force_n=force_n,
+        window_times_ns=window_t,
+        window_forces_n=window_f,
+        increments=increments,
+        rate_n=rate,
+        scale_n=scale,
+    )
+
     phase = state.phase
     if phase is DetectorPhase.IDLE:
         if force_n >= params.arm_threshold_n:
-            return DetectorState(
-                DetectorPhase.ARMED, time_ns, force_n, time_ns, force_n, 0.0, time_ns, window_t, window_f
+            return idle._replace(
+                phase=DetectorPhase.ARMED,
+                peak_force_n=force_n,
+                peak_time_ns=time_ns,
+                cusum_onset_ns=time_ns,
+                robust_peak_n=low2,
+                leaky_peak_n=low2,
+                trend_onset_ns=time_ns,
+                armed_at_n=low2,
             ), None
-        return DetectorState(DetectorPhase.IDLE, time_ns, 0.0, 0, force_n, 0.0, 0, window_t, window_f), None
+        return idle, None
 
     if phase is DetectorPhase.LATCHED:
-        next_phase = DetectorPhase.IDLE if force_n < params.rearm_level_n else DetectorPhase.LATCHED
-        return DetectorState(next_phase, time_ns, 0.0, 0, force_n, 0.0, 0, window_t, window_f), None
+        if force_n < params.rearm_level_n:
+            return idle, None
+        return idle._replace(phase=DetectorPhase.LATCHED), None
 
     # Armed.
     peak_force = state.peak_force_n
@@ -301,12 +430,36 @@ def detector_step(
         cusum = 0.0
         cusum_onset = time_ns  # the onset is the last sample at which the CUSUM was zero
 
+    robust_peak = max(state.robust_peak_n, low2)
+    leaky_peak = max(state.leaky_peak_n - params.peak_leak_n_per_s * dt_s, low2)
+    sigma = max(state.scale_n / _MEAN_ABS_DIFF_PER_SIGMA, params.noise_floor_n)
+    # Clipped residuals: a single-sample spike adds at most a few σ. Capped at twice the threshold:
+    # the end of a ramp (a hold) also deviates from the trend, and must be forgotten within
+    # 2·creep_k·σ / creep_drift_n_per_s rather than kept until a slow drift sags below the peak.
+    limit = _CLIP * _MEAN_ABS_DIFF_PER_SIGMA * sigma
+    trend_cusum = state.trend_cusum_n - min(max(residual, -limit), limit) - params.creep_drift_n_per_s * dt_s
+    if params.creep_k is not None:
+        trend_cusum = min(trend_cusum, 2.0 * params.creep_k * sigma)
+    trend_onset = state.trend_onset_ns
+    if trend_cusum <= 0.0:
+        trend_cusum = 0.0
+        trend_onset = time_ns
+
     triggers: list[str] = []
     onset = time_ns
+    # The percentage drop compares spike-robust levels (max of the last two samples against the peak
+    # of min(f[k−1], f[k])): one spike up and one down no longer make a drop.
+    level_peak, level = (robust_peak, high2) if params.spike_samples == 2.0 else (peak_force, force_n)
+    robust_drop = level_peak - level
+    if (
+        params.drop_fraction is not None
+        and robust_drop > 0.0
+        and robust_drop >= params.min_drop_n
+        and robust_drop >= params.drop_fraction * level_peak
+    ):
+        triggers.append("drop")
+        onset = peak_time
     if drop_n >= params.min_drop_n and drop_n > 0.0:
-        if params.drop_fraction is not None and drop_n >= params.drop_fraction * peak_force:
-            triggers.append("drop")
-            onset = peak_time
         if params.slope_n_per_s is not None:
             slope = _window_slope_n_per_s(window_t, window_f)
             if slope is not None and slope <= -params.slope_n_per_s:
@@ -315,8 +468,25 @@ def detector_step(
         if params.cusum_threshold_n is not None and cusum > params.cusum_threshold_n:
             triggers.append("cusum")
             onset = min(onset, cusum_onset)
+    # The noise-scaled triggers wait for a rise since arming: a detector re-armed part-way down a
+    # drop (a re-arm level above the arm threshold) must not fire again on the rest of that drop.
+    warm = increments >= _WARMUP_INCREMENTS and robust_peak - state.armed_at_n >= 2.0 * sigma
+    if warm and params.noise_k is not None and leaky_peak - high2 >= params.noise_k * sigma:
+        triggers.append("noise")
+        onset = min(onset, peak_time)
+    if (
+        warm
+        and params.creep_k is not None
+        and trend_cusum >= params.creep_k * sigma
+        and robust_peak - high2 >= params.creep_k * sigma
+    ):
+        triggers.append("creep")
+        # The CUSUM's last zero wanders early in noise; the sag cannot start before the peak.
+        onset = min(onset, max(trend_onset, peak_time))
 
     if triggers:
+        slow = triggers == ["creep"] or time_ns - onset >= params.creep_min_s * 1e9
+        kind = "creep" if slow else "drop"
         event = SlipEvent(
             onset_time_ns=onset,
             detection_time_ns=time_ns,
@@ -325,12 +495,27 @@ def detector_step(
             force_after_n=force_n,
             drop_fraction=drop_n / peak_force if peak_force > 0.0 else 0.0,
             trigger="+".join(triggers),
+            kind=kind,
         )
-        return DetectorState(
-            DetectorPhase.LATCHED, time_ns, 0.0, 0, force_n, 0.0, 0, window_t, window_f
-        ), event
+        return idle._replace(phase=DetectorPhase.LATCHED), event
     return DetectorState(
-        DetectorPhase.ARMED, time_ns, peak_force, peak_time, force_n, cusum, cusum_onset, window_t, window_f
+        DetectorPhase.ARMED,
+        time_ns,
+        peak_force,
+        peak_time,
+        force_n,
+        cusum,
+        cusum_onset,
+        window_t,
+        window_f,
+        increments,
+        rate,
+        scale,
+        robust_peak,
+        leaky_peak,
+        trend_cusum,
+        trend_onset,
+        state.armed_at_n,
     ), None
 
 

@@ -57,6 +57,9 @@ REPORT_FILES = (
 )
 
 
+HAIR_TRIGGER = ["cusum_threshold_n=0.001", "cusum_drift_n=0", "min_drop_n=0"]
+
+
 class _InterruptAtTrial2:
     def confirm(self, text, trial, keep_alive):
         if trial is not None and trial.trial_id == 2:
@@ -176,8 +179,9 @@ def test_link_validation_tables_iv_and_v(logs, replay_json):
 def test_redetection_parameters_move_the_peaks_the_expected_way(logs):
     logged = replay(logs["link"].log)
     base = logged.table.set_index("trial_id")
-    # A hair-trigger detector fires on the first noise wiggle of the ramp: earlier, lower peaks.
-    eager = replay(logs["link"].log, ["drop_fraction=0.001", "min_drop_n=0"]).table.set_index("trial_id")
+    # A hair-trigger detector fires on the first noise wiggle of the ramp: earlier, lower peaks. (The
+    # percentage drop compares two-sample levels, so the hair trigger is a CUSUM of single decrements.)
+    eager = replay(logs["link"].log, HAIR_TRIGGER).table.set_index("trial_id")
     assert (eager["redetected_detection_time_ns"] <= base["slip_detection_time_ns"]).all()
     assert (eager["redetected_peak_force_n"] <= base["peak_force_n"]).all()
     assert (eager["redetected_peak_force_n"] < base["peak_force_n"] - 0.5).any()
@@ -192,7 +196,7 @@ def test_redetection_parameters_move_the_peaks_the_expected_way(logs):
     assert (table.loc[found, "redetected_peak_force_n"] >= base.loc[found, "peak_force_n"]).all()
     assert patient.detector.drop_fraction == 0.19 and patient.detector.arm_threshold_n == 1.0
     # The refit uses the re-detected peaks.
-    eager_result = replay(logs["link"].log, ["drop_fraction=0.001", "min_drop_n=0"])
+    eager_result = replay(logs["link"].log, HAIR_TRIGGER)
     assert eager_result.redetected_estimate["k"] < eager_result.estimate["k"]
     assert eager_result.redetection_summary()["source"] == "command line"
 

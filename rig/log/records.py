@@ -238,6 +238,7 @@ class SlipMessage:
                 "force_after_n": finite_number(e.force_after_n, "force_after_n"),
                 "drop_fraction": finite_number(e.drop_fraction, "drop_fraction"),
                 "trigger": str(e.trigger),
+                "kind": str(e.kind),
                 "detector": {str(k): number_or_none(v, f"detector.{k}") for k, v in self.detector.items()},
                 "joint": integer_or_none(self.joint, "joint"),
             }
@@ -254,6 +255,7 @@ class SlipMessage:
             force_after_n=float(payload["force_after_n"]),
             drop_fraction=float(payload["drop_fraction"]),
             trigger=str(payload["trigger"]),
+            kind=str(payload.get("kind") or "drop"),  # logs from before events had a kind
         )
         detector = payload.get("detector") or {}
         return cls(
