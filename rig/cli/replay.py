@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING, Any
 
+from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 
 if TYPE_CHECKING:
@@ -68,15 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     parser.add_argument(
         "--speed", type=float, default=1.0, metavar="X", help="--serve at X times real time (default 1)"
     )
-    parser.add_argument(
-        "--live-port", type=int, default=8765, metavar="PORT", help="--serve port (default 8765)"
-    )
-    parser.add_argument(
-        "--live-host",
-        default="127.0.0.1",
-        metavar="HOST",
-        help="--serve binds this address (default 127.0.0.1)",
-    )
+    add_live_address(parser, "--serve")
     parser.set_defaults(handler=run)
 
 

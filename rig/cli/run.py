@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.rig_config import DEFAULT_RIG_CONFIG
@@ -91,15 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         action="store_true",
         help="serve the run live over the Foxglove WebSocket protocol (open ws://HOST:PORT in Foxglove)",
     )
-    p.add_argument(
-        "--live-port", type=int, default=8765, metavar="PORT", help="--live port (default 8765; 0: any free)"
-    )
-    p.add_argument(
-        "--live-host",
-        default="127.0.0.1",
-        metavar="HOST",
-        help="address --live binds (default 127.0.0.1: this computer only)",
-    )
+    add_live_address(p, "--live")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout and nothing else")
     p.set_defaults(handler=run)
 
