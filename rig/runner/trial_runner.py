@@ -136,7 +136,6 @@ class TrialRunner:
         self.connected = False
         self.release_report: list[str] = []  # what the safe state's release did and verified
         self.release_verified = False
-        self._recovered_zero: float | None = None  # the winch's zero after a reboot re-counted its turns
         self._log_failed: LogWriteError | None = None
         self._best_effort = False
 
@@ -331,12 +330,10 @@ class TrialRunner:
             return False
         self.release_report = []
         try:
-            self._release_in_safe_state(zero)
+            self.winch_zero_rad = zero = self._release_in_safe_state(zero)
         except RigError as error:
             self._note(LogLevel.ERROR, f"trial {trial.trial_id}: release after the fault failed: {error}")
             return False
-        if self._recovered_zero is not None:
-            self.winch_zero_rad = zero = self._recovered_zero
         winch = self.session.winch_id
         deadline = self.clock.monotonic_ns() + round(RECOVERY_GRACE_S * 1e9)
         while self.clock.monotonic_ns() < deadline:
@@ -621,15 +618,13 @@ class TrialRunner:
 
     def _unload(self, trial: TrialPlan) -> None:
         self._phase(Phase.UNLOADING, trial.trial_id, "unload")
-        self._release_tension(safe_state=False)
+        self._release_tension()
 
-    def _release_tension(self, *, safe_state: bool) -> None:
-        """Back the winch off to its zero-tension angle: the unload step, and the safe state's release.
+    def _release_tension(self) -> None:
+        """The unload step: back the winch off to its zero-tension angle with the interlocks live.
 
-        As a step it ticks with the interlocks live and waits until the winch is home and the line
-        slack by the load cell. In the safe state the interlocks are what stopped the run and the
-        load cell may be dead, so it reads the servos directly, ignores stale data, and waits only
-        for the winch to be home.
+        It waits until the winch is home and the load cell reads the line slack. The safe state's release, which must not depend on the load cell or on replies, is
+        `_release_in_safe_state`.
         """
         winch = self.session.winch_id
         zero = self.winch_zero_rad
@@ -637,9 +632,6 @@ class TrialRunner:
             return
         servos = self.session.servos
         speed = self.protocol.ramp.unload_speed_rad_s
-        if safe_state:
-            self._release_in_safe_state(zero)
-            return
         servos.set_profile(winch, velocity_rad_s=speed)
         servos.write_goal_positions({winch: zero})
         self._command(winch, ServoCommandName.GOAL_POSITION, zero, "rad")
@@ -651,7 +643,7 @@ class TrialRunner:
         travel = self.states[winch].position_rad - zero
         self._wait_until(done, move_timeout_s(travel, speed, self.protocol.step_timeout_margin_s), "unload")
 
-    def _release_in_safe_state(self, zero_rad: float) -> None:
+    def _release_in_safe_state(self, zero_rad: float) -> float:
         """The safe state's release: whatever failed, get the winch back to zero tension if it hears.
 
         Each stage goes on when an earlier one failed, and what was verified is recorded in
@@ -659,12 +651,12 @@ class TrialRunner:
         count is lost, so the zero is carried over into the new count); the goal goes out as a
         broadcast sync write, which needs no reply; the wait reads the winch's position back, and
         if the winch stops answering it waits the travel time blind. The load cell is optional.
+        Returns the winch's zero-tension angle in its (possibly new) turn count.
         """
         winch = self.session.winch_id
         servos = self.session.servos
         report = self.release_report
         zero_rad = self._recover_winch(zero_rad)
-        self._recovered_zero = zero_rad
         speed = self.protocol.ramp.unload_speed_rad_s
         try:
             servos.set_profile(winch, velocity_rad_s=speed)
@@ -691,13 +683,14 @@ class TrialRunner:
                 report.append("winch back at its zero-tension angle (read back)")
                 if self.tick_samples:  # the load cell, when it still works, says what is left
                     report.append(f"tension {self.force_n:+.2f} N (load cell)")
-                return
+                return zero_rad
         if answered:
             raise StepTimeoutError("winch did not return to zero tension within its timeout")
         report.append(
             f"winch not answering: its zero-tension goal went out by broadcast; it was given {wait_s:.1f} s"
             " (not verified)"
         )
+        return zero_rad
 
     def _recover_winch(self, zero_rad: float) -> float:
         """Reboot a winch whose hardware error dropped its torque; the zero-tension angle after it.
@@ -743,10 +736,10 @@ class TrialRunner:
         self.release_verified = not self.connected or self.winch_zero_rad is None  # never loaded
 
         def release() -> None:
-            if self.release_verified:
+            if self.release_verified or self.winch_zero_rad is None:
                 return
             self._phase_quiet(Phase.UNLOADING)
-            self._release_tension(safe_state=True)
+            self._release_in_safe_state(self.winch_zero_rad)
 
         with self._logging_best_effort():
             errors = enter_safe_state(self.session, release)

@@ -66,6 +66,11 @@ class FaultSchedule:
         self._events.append(_Event(at_ns, logged))
         self._events.sort(key=lambda e: e.at_ns)
 
+    @property
+    def has_events(self) -> bool:
+        """Whether any timed fault was scheduled (else the clock need not call this schedule)."""
+        return bool(self._events)
+
     def advance_to(self, now_ns: int) -> None:
         """Clock listener: fire every event that is due."""
         for event in self._events:
@@ -95,7 +100,7 @@ def apply_faults(
         elif fault.device != "logger":
             for servo_id in _servo_ids(config, fault.device):
                 _servo_fault(fault, servo_id, bus, schedule, start_ns)
-    if schedule._events:
+    if schedule.has_events:
         clock.on_advance(schedule.advance_to)
     return schedule
 
