@@ -623,8 +623,8 @@ class TrialRunner:
     def _release_tension(self) -> None:
         """The unload step: back the winch off to its zero-tension angle with the interlocks live.
 
-        It waits until the winch is home and the load cell reads the line slack. The safe state's release, which must not depend on the load cell or on replies, is
-        `_release_in_safe_state`.
+        It waits until the winch is home and the load cell reads the line slack. The safe state's
+        release, which must not depend on the load cell or on replies, is `_release_in_safe_state`.
         """
         winch = self.session.winch_id
         zero = self.winch_zero_rad
