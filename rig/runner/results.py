@@ -71,13 +71,12 @@ def trial_result(
 
 def percentage_error_stats(results: Sequence[TrialResult]) -> PayloadErrorStats | None:
     """Table IV statistics over the link-validation slips of a run, or None if there are none."""
-    rows = [
-        r
+    pairs = [
+        (r.predicted_mass_kg, r.slip_mass_kg)
         for r in results
         if r.kind == TrialKind.LINK_VALIDATION and r.slipped and r.predicted_mass_kg and r.slip_mass_kg
     ]
-    if not rows:
+    if not pairs:
         return None
-    predicted = [r.predicted_mass_kg for r in rows if r.predicted_mass_kg is not None]
-    measured = [r.slip_mass_kg for r in rows if r.slip_mass_kg is not None]
+    predicted, measured = zip(*pairs, strict=True)
     return payload_error_stats(predicted, measured)
