@@ -38,6 +38,9 @@ class KEstimate:
     k_ci: tuple[float, float]
     se: float
     level: float
+    # The scatter of one slip mass m under the fitted model: sd(m)^2 = a^2 + (b*m)^2 (a [kg], b relative).
+    scatter_a_kg: float
+    scatter_b: float
 
 
 def check_estimator(name: str) -> EstimatorName:
@@ -74,7 +77,7 @@ def paper_estimate(
     """The paper's fit over the slips only (censored points are excluded: cftool has no such notion)."""
     distances, masses, flags = _checked_data(distances_m, masses_kg, censored)
     fit = fit_inverse_distance(distances[~flags], masses[~flags], level)
-    return KEstimate("paper", "additive", fit.n, 0, fit.k, fit.k_ci, fit.se, fit.level)
+    return KEstimate("paper", "additive", fit.n, 0, fit.k, fit.k_ci, fit.se, fit.level, fit.rmse, 0.0)
 
 
 def weighted_estimate(
@@ -93,7 +96,8 @@ def weighted_estimate(
     k = float(products.mean())
     se = float(products.std(ddof=1)) / math.sqrt(n)
     half = t_quantile(level, n - 1) * se
-    return KEstimate("weighted", "multiplicative", n, 0, k, (k - half, k + half), se, level)
+    relative_sd = float(products.std(ddof=1)) / k if k != 0.0 else math.inf
+    return KEstimate("weighted", "multiplicative", n, 0, k, (k - half, k + half), se, level, 0.0, relative_sd)
 
 
 def estimate_k(
@@ -114,4 +118,4 @@ def estimate_k(
     if name == "weighted":
         return weighted
     w = weighted
-    return KEstimate("auto", w.scatter_model, w.n, 0, w.k, w.k_ci, w.se, level)
+    return KEstimate("auto", w.scatter_model, w.n, 0, w.k, w.k_ci, w.se, level, w.scatter_a_kg, w.scatter_b)
