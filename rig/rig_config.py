@@ -135,6 +135,164 @@ class FaultConfig:
     after_bytes: int | None = None
 
 
+# The kinds of slip the simulated joints can make (`simulation.slips.mix`); rig/sim/physics/world.py
+# models each, protocols/README.md describes them for users.
+SLIP_KINDS = ("sudden", "small_drop", "creep", "stick_slip", "other_joint", "no_slip")
+# Allowed ranges of the slip-kind parameters: (lowest, highest), both inclusive.
+SLIP_RANGES: dict[str, tuple[float, float]] = {
+    "small_drop_fraction": (0.005, 0.5),
+    "creep_duration_s": (0.01, 10.0),
+    "creep_drop_fraction": (0.001, 0.5),
+    "stick_slip_drops": (2, 20),
+    "stick_slip_drop_fraction": (0.005, 0.5),
+    "stick_slip_dwell_s": (0.002, 1.0),
+    "other_joint_load_fraction": (0.05, 0.99),
+    "other_joint_drop_fraction": (0.005, 0.9),
+}
+
+
+@dataclass(frozen=True)
+class SlipKindMix:
+    """Which kinds of slip the simulated joints make, with what probability, and their parameters.
+
+    `probabilities` follows `SLIP_KINDS` and sums to 1; each trial draws one kind. The ranges
+    (lowest, highest) are drawn uniformly per trial (`stick_slip_drops` as an integer):
+
+    * sudden: the joint turns until its moment is `kinetic_ratio` x static (the preset's 0.8).
+    * small_drop: the same with a drop of `small_drop_fraction` of the peak (3-15 % by default).
+    * creep: at the static load the joint yields slowly: over `creep_duration_s` it turns just
+      enough to keep the tension on a line falling from the peak by `creep_drop_fraction`.
+    * stick_slip: `stick_slip_drops` drops, each `stick_slip_drop_fraction` of the tension at its
+      onset, separated by a dwell of `stick_slip_dwell_s` (or less, if the winch re-tensions the
+      line to the first peak sooner).
+    * other_joint (joint estimation only; a link-validation trial makes it sudden): a neighbouring
+      joint of the fixture slips first, at `other_joint_load_fraction` of the specimen's slip load,
+      dropping the tension by `other_joint_drop_fraction`; the configuration source names that
+      joint with `other_joint_report_probability`.
+    * no_slip: the trial's capacities are `no_slip_capacity_factor` x their draw, so the ramp
+      reaches its force limit first.
+    """
+
+    probabilities: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    small_drop_fraction: tuple[float, float] = (0.03, 0.15)
+    creep_duration_s: tuple[float, float] = (0.05, 2.0)
+    creep_drop_fraction: tuple[float, float] = (0.02, 0.10)
+    stick_slip_drops: tuple[float, float] = (2, 5)
+    stick_slip_drop_fraction: tuple[float, float] = (0.03, 0.10)
+    stick_slip_dwell_s: tuple[float, float] = (0.01, 0.04)
+    other_joint_load_fraction: tuple[float, float] = (0.5, 0.9)
+    other_joint_drop_fraction: tuple[float, float] = (0.05, 0.20)
+    other_joint_report_probability: float = 1.0
+    no_slip_capacity_factor: float = 10.0
+
+    def __post_init__(self) -> None:
+        """Check ranges; a `ValueError` names the field and what is allowed."""
+        p = self.probabilities
+        if len(p) != len(SLIP_KINDS) or min(p) < 0 or abs(sum(p) - 1.0) > 1e-9:
+            raise ValueError(f"slip kind probabilities {p}; allowed: {len(SLIP_KINDS)} numbers >= 0, sum 1")
+        for name, (lo, hi) in SLIP_RANGES.items():
+            first, last = getattr(self, name)
+            if not lo <= first <= last <= hi:
+                raise ValueError(
+                    f"{name} = [{first}, {last}]; allowed: {lo:g} <= lowest <= highest <= {hi:g}"
+                )
+        if not 0 <= self.other_joint_report_probability <= 1:
+            raise ValueError("other_joint_report_probability; allowed: 0-1")
+        if not 1 < self.no_slip_capacity_factor <= 1000:
+            raise ValueError("no_slip_capacity_factor; allowed: > 1 and <= 1000")
+
+    def probability(self, kind: str) -> float:
+        """The probability of one kind."""
+        return self.probabilities[SLIP_KINDS.index(kind)]
+
+
+# Shapes of the trial-to-trial scatter of a joint's capacity, stated for the slip mass m it gives:
+# sd(m)^2 = a^2 + (b m)^2 with a = 0 (multiplicative), b = 0 (additive) or both (mixed).
+SCATTER_SHAPES = ("multiplicative", "additive", "mixed")
+MAX_SCATTER_A_KG = 10.0
+MAX_SCATTER_B = 0.5
+
+
+@dataclass(frozen=True)
+class CapacityScatter:
+    """The scatter shape (`simulation.scatter:`); `b` None keeps the preset's relative sd."""
+
+    shape: str = "multiplicative"
+    a_kg: float = 0.0  # additive sd of the slip mass [kg]
+    b: float | None = None  # relative sd of the slip mass
+
+    def __post_init__(self) -> None:
+        """Check the shape and that it has the parameters it needs; `ValueError` otherwise."""
+        if self.shape not in SCATTER_SHAPES:
+            raise ValueError(f"scatter shape {self.shape!r}; allowed: {', '.join(SCATTER_SHAPES)}")
+        if not 0 <= self.a_kg <= MAX_SCATTER_A_KG:
+            raise ValueError(f"scatter a_kg = {self.a_kg}; allowed: 0-{MAX_SCATTER_A_KG:g}")
+        if self.b is not None and not 0 <= self.b <= MAX_SCATTER_B:
+            raise ValueError(f"scatter b = {self.b}; allowed: 0-{MAX_SCATTER_B:g}")
+        if self.shape == "multiplicative" and self.a_kg != 0:
+            raise ValueError("scatter a_kg is for shape additive or mixed; multiplicative has a = 0")
+        if self.shape == "additive" and self.b is not None:
+            raise ValueError("scatter b is for shape multiplicative or mixed; additive has b = 0")
+        if self.shape != "multiplicative" and self.a_kg == 0:
+            raise ValueError(f"scatter shape {self.shape} needs a_kg > 0")
+
+
+# Allowed ranges of the load-cell artefacts (`simulation.loadcell:`): (lowest, highest).
+ARTEFACT_RANGES: dict[str, tuple[float, float]] = {
+    "noise_scale": (0.0, 100.0),
+    "drift_n_per_s": (-10.0, 10.0),
+    "wander_n_per_sqrt_s": (0.0, 10.0),
+    "spike_rate_per_s": (0.0, 100.0),
+    "spike_n": (0.0, 100.0),
+    "hum_n": (0.0, 10.0),
+    "hum_hz": (1.0, 500.0),
+    "gain_creep_fraction": (-0.2, 0.2),
+    "gain_creep_time_constant_s": (0.1, 1e5),
+}
+
+
+@dataclass(frozen=True)
+class LoadCellArtefacts:
+    """What a real load cell adds to the tension besides white noise; all off by default.
+
+    The cell reports, before its ADC noise and quantisation,
+        tension * (1 + gain_creep_fraction * (1 - exp(-t / gain_creep_time_constant_s)))
+        + drift_n_per_s * t + W(t) + hum_n * sin(2 pi hum_hz t + phase) + spikes
+    with t the time since power-on, W a random walk of wander_n_per_sqrt_s per sqrt(second) (the
+    zero wandering), and single-sample spikes at `spike_rate_per_s` on average, each of either
+    sign and of a size uniform in [spike_n / 2, spike_n]. `noise_scale` multiplies the cell's
+    white noise. The phase and every random draw come from the seed's own artefact stream.
+    """
+
+    noise_scale: float = 1.0
+    drift_n_per_s: float = 0.0
+    wander_n_per_sqrt_s: float = 0.0
+    spike_rate_per_s: float = 0.0
+    spike_n: float = 0.0
+    hum_n: float = 0.0
+    hum_hz: float = 50.0
+    gain_creep_fraction: float = 0.0
+    gain_creep_time_constant_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        """Check ranges; a `ValueError` names the field and what is allowed."""
+        for name, (lo, hi) in ARTEFACT_RANGES.items():
+            value = getattr(self, name)
+            if not (math.isfinite(value) and lo <= value <= hi):
+                raise ValueError(f"{name} = {value}; allowed: {lo:g}-{hi:g}")
+
+    @property
+    def active(self) -> bool:
+        """Whether any artefact (besides the noise level) is on."""
+        return bool(
+            self.drift_n_per_s
+            or self.wander_n_per_sqrt_s
+            or (self.spike_rate_per_s and self.spike_n)
+            or self.hum_n
+            or self.gain_creep_fraction
+        )
+
+
 @dataclass(frozen=True)
 class SimulationConfig:
     """Simulated-world settings (only for `kind: simulated`)."""
@@ -144,6 +302,9 @@ class SimulationConfig:
     noise_scale: float
     torsion_weak_joint: int | None
     faults: tuple[FaultConfig, ...] = ()
+    slips: SlipKindMix = SlipKindMix()
+    scatter: CapacityScatter = CapacityScatter()
+    loadcell: LoadCellArtefacts = LoadCellArtefacts()
 
 
 @dataclass(frozen=True)
@@ -339,7 +500,18 @@ def _limits(sec: Section) -> RigLimits:
 
 
 def _simulation(sec: Section, article: ArticleConfig) -> SimulationConfig:
-    sec.reject_unknown(["preset", "loadcell_rate_hz", "noise_scale", "torsion_weak_joint", "faults"])
+    sec.reject_unknown(
+        [
+            "preset",
+            "loadcell_rate_hz",
+            "noise_scale",
+            "torsion_weak_joint",
+            "faults",
+            "slips",
+            "scatter",
+            "loadcell",
+        ]
+    )
     weak = sec.raw("torsion_weak_joint", default=None)
     if weak is not None:
         weak = sec.integer("torsion_weak_joint", min_value=1, max_value=article.joint_count)
@@ -353,7 +525,83 @@ def _simulation(sec: Section, article: ArticleConfig) -> SimulationConfig:
         noise_scale=sec.number("noise_scale", default=1.0, min_value=0.0, max_value=10.0),
         torsion_weak_joint=weak,
         faults=faults,
+        slips=_slips(sec.section("slips", default={})),
+        scatter=_scatter(sec.section("scatter", default={})),
+        loadcell=_artefacts(sec.section("loadcell", default={})),
     )
+
+
+def _slips(sec: Section) -> SlipKindMix:
+    """`simulation.slips`: the mix of slip kinds (probabilities summing to 1) and their ranges."""
+    defaults = SlipKindMix()
+    sec.reject_unknown(["mix", *SLIP_RANGES, "other_joint_report_probability", "no_slip_capacity_factor"])
+    probabilities = defaults.probabilities
+    if sec.has("mix"):
+        mix = sec.section("mix")
+        mix.reject_unknown(SLIP_KINDS)
+        probabilities = tuple(
+            mix.number(kind, default=0.0, min_value=0.0, max_value=1.0) for kind in SLIP_KINDS
+        )
+        if abs(sum(probabilities) - 1.0) > 1e-6:
+            raise sec.error("mix", f"the probabilities sum to {sum(probabilities):g}; allowed: they sum to 1")
+        probabilities = tuple(p / sum(probabilities) for p in probabilities)
+    ranges: dict[str, tuple[float, float]] = {}
+    for name, (lo, hi) in SLIP_RANGES.items():
+        pair = sec.numbers(name, length=2, min_value=lo, max_value=hi, default=list(getattr(defaults, name)))
+        if pair[0] > pair[1]:
+            raise sec.error(
+                name, f"[{pair[0]:g}, {pair[1]:g}]; allowed: [lowest, highest] within {lo:g}-{hi:g}"
+            )
+        if name == "stick_slip_drops" and any(x != int(x) for x in pair):
+            raise sec.error(name, f"[{pair[0]:g}, {pair[1]:g}]; allowed: whole numbers within {lo:g}-{hi:g}")
+        ranges[name] = (pair[0], pair[1])
+    return SlipKindMix(
+        probabilities=probabilities,
+        other_joint_report_probability=sec.number(
+            "other_joint_report_probability",
+            default=defaults.other_joint_report_probability,
+            min_value=0.0,
+            max_value=1.0,
+        ),
+        no_slip_capacity_factor=sec.number(
+            "no_slip_capacity_factor",
+            default=defaults.no_slip_capacity_factor,
+            min_value=1.0,
+            max_value=1000.0,
+            min_exclusive=True,
+        ),
+        **ranges,
+    )
+
+
+def _scatter(sec: Section) -> CapacityScatter:
+    """`simulation.scatter`: shape multiplicative (b), additive (a_kg) or mixed (both)."""
+    sec.reject_unknown(["shape", "a_kg", "b"])
+    shape = sec.string("shape", default="multiplicative", choices=SCATTER_SHAPES)
+    if shape == "multiplicative" and sec.has("a_kg"):
+        raise sec.error("a_kg", "only for shape additive or mixed; allowed: remove it, or change the shape")
+    if shape == "additive" and sec.has("b"):
+        raise sec.error(
+            "b", "only for shape multiplicative or mixed; allowed: remove it, or change the shape"
+        )
+    a_kg = 0.0
+    if shape != "multiplicative":
+        a_kg = sec.number("a_kg", min_value=0.0, max_value=MAX_SCATTER_A_KG, min_exclusive=True)
+    b = None
+    if sec.has("b"):
+        b = sec.number("b", min_value=0.0, max_value=MAX_SCATTER_B)
+    return CapacityScatter(shape=shape, a_kg=a_kg, b=b)
+
+
+def _artefacts(sec: Section) -> LoadCellArtefacts:
+    """`simulation.loadcell`: the simulated cell's artefacts (all off by default)."""
+    sec.reject_unknown(list(ARTEFACT_RANGES))
+    defaults = LoadCellArtefacts()
+    values = {
+        name: sec.number(name, default=getattr(defaults, name), min_value=lo, max_value=hi)
+        for name, (lo, hi) in ARTEFACT_RANGES.items()
+    }
+    return LoadCellArtefacts(**values)
 
 
 def _fault(sec: Section) -> FaultConfig:

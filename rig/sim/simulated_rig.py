@@ -32,9 +32,10 @@ from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
 from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults, log_limit_bytes
+from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
-from rig.sim.physics.article_presets import make_preset
+from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
 
@@ -160,6 +161,9 @@ def simulated_rig(
             joint_radius_m=article.joint_radius_m,
             drum_radius_m=config.spool_radius_m,
             g=article.g,
+            slip_mix=sim.slips,
+            scatter=sim.scatter,
+            loadcell_artefacts=sim.loadcell,
         )
     except ValueError as exc:
         raise ConfigError(f"{config.source}: simulation/article: {exc}") from None
@@ -177,6 +181,7 @@ def simulated_rig(
         step_devices=bus.advance_to,
         seed=seed,
         start_ns=clock.monotonic_ns(),
+        run_clock_offset_ns=clock.time_ns() - clock.monotonic_ns(),
     )
     clock.on_advance(world.advance_to)
     gain = SignalModel().gain_counts_per_n
@@ -189,6 +194,11 @@ def simulated_rig(
         faults=loadcell_rate_faults(sim.faults),
         seed=seed,
         stale_timeout_s=config.limits.stale_timeout_s,
+        artefacts=ArtefactModel(
+            preset.loadcell_artefacts, int(stream_rng(seed, STREAM_LOADCELL_ARTEFACTS).integers(2**63))
+        )
+        if preset.loadcell_artefacts.active
+        else None,
     )
     schedule = apply_faults(config, sim.faults, bus=bus, loadcell=loadcell_emulator, clock=clock, seed=seed)
     servos = DynamixelServoBus(

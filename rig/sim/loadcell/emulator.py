@@ -14,6 +14,10 @@ The noise is seeded: Box-Muller pairs from `random.Random(seed).random()` (`Load
 the same algorithm and numbers as CPython's `random.gauss`, but with the spare of a pair kept by the
 emulator, so that the rig-lc1 fast path can draw inline and continue the plain path's sequence.
 
+Artefacts (`rig/sim/loadcell/artefacts.py`, off unless given): zero drift and wander, single-sample
+spikes, mains hum and gain creep turn the tension into what the bridge reports before the white noise
+above; they have their own random stream. With artefacts on, every sample takes the general path.
+
 Faults (per-line probabilities, scheduled silences, or one-shot injections for tests):
 garbage bytes before a line, a truncated line (its tail, terminator included, lost), a bad
 checksum, a sequence gap (samples taken but never sent), silence (cable unplugged: the device
@@ -40,6 +44,7 @@ from rig.hw.loadcell.formats import (
     get_codec,
     nmea_checksums,
 )
+from rig.sim.loadcell.artefacts import ArtefactModel
 
 MIN_RATE_HZ = 10.0
 MAX_RATE_HZ = 2000.0
@@ -207,6 +212,7 @@ class LoadCellEmulator:
         seq_start: int = 0,
         device_time_start_us: int = 0,
         indicator_g: float = STANDARD_GRAVITY_M_S2,
+        artefacts: ArtefactModel | None = None,
     ) -> None:
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
             raise InputError(f"--rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
@@ -229,6 +235,7 @@ class LoadCellEmulator:
                 f"--fault gap: format {format_name} has no sequence counter; allowed with rig-lc1"
             )
         self.tension_n = tension_n
+        self.artefacts = artefacts
         self.rate_hz = float(rate_hz)
         self.baud = baud
         self.signal = signal or SignalModel()
@@ -250,11 +257,15 @@ class LoadCellEmulator:
             self._display_per_count = digits_per_n / self.signal.gain_counts_per_n
         self._recent_display: list[int] = []
         # rig-lc1 with no random faults: samples before any silence or injected fault take a fast path.
-        self._fault_free_lc1 = isinstance(self.codec, RigLc1Codec) and not (
-            self.faults.garbage_per_line
-            or self.faults.truncate_per_line
-            or self.faults.bad_checksum_per_line
-            or self.faults.gap_per_line
+        self._fault_free_lc1 = (
+            isinstance(self.codec, RigLc1Codec)
+            and artefacts is None
+            and not (
+                self.faults.garbage_per_line
+                or self.faults.truncate_per_line
+                or self.faults.bad_checksum_per_line
+                or self.faults.gap_per_line
+            )
         )
 
     # -- one-shot injections (tests) --------------------------------------------------------------
@@ -388,7 +399,10 @@ class LoadCellEmulator:
     def _sample(self, t_ns: int) -> bytes:
         elapsed_ns = t_ns - self.start_ns
         rng = self._rng
-        counts = self.signal.counts(self.tension_n(t_ns), elapsed_ns / 1e9, self._normal())
+        tension = self.tension_n(t_ns)
+        if self.artefacts is not None:
+            tension = self.artefacts.apparent_tension_n(tension, elapsed_ns / 1e9, 1.0 / self.rate_hz)
+        counts = self.signal.counts(tension, elapsed_ns / 1e9, self._normal())
         seq = self._seq
         device_time_us = self._device_time_start_us + elapsed_ns // 1000
         self._k += 1

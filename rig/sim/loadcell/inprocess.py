@@ -21,6 +21,7 @@ from rig.hw.loadcell.calibration import Calibration, indicator_calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.loadcell.formats import IndicatorStCodec
 from rig.sim.clock import VirtualClock
+from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import (
     BITS_PER_BYTE,
     FaultPlan,
@@ -222,6 +223,7 @@ def simulated_load_cell(
     faults: FaultPlan | None = None,
     seed: int = 0,
     stale_timeout_s: float = 0.5,
+    artefacts: ArtefactModel | None = None,
 ) -> tuple[SerialLoadCell, LoadCellEmulator]:
     """The real driver reading an in-process emulator of `tension_n` (not yet opened).
 
@@ -236,6 +238,7 @@ def simulated_load_cell(
         faults=faults,
         seed=seed,
         start_ns=clock.monotonic_ns(),
+        artefacts=artefacts,
     )
     if calibration is None:
         calibration = ideal_calibration(emulator)

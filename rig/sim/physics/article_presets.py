@@ -37,12 +37,19 @@ Where the numbers come from (docs/model.md §4 and the paper's text; its Tables 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from model.gravity import PAPER_G_M_S2
 from model.joint import resolve_constant
+from rig.rig_config import (
+    MAX_SCATTER_A_KG,
+    SCATTER_SHAPES,
+    CapacityScatter,
+    LoadCellArtefacts,
+    SlipKindMix,
+)
 
 PAPER_K_LINK1_KG_M = 0.1615
 PAPER_K_LINK2_KG_M = 0.2627
@@ -55,6 +62,8 @@ STREAM_TRIAL_CAPACITY = 1  # per-trial variation
 STREAM_BEND = 2  # placement error of the bending fixture
 STREAM_MEASUREMENT = 3  # configuration-source noise
 STREAM_SLIP_REPORT = 4  # whether the configuration source names the slipped joint
+STREAM_SLIP_KIND = 5  # each trial's slip kind and its parameters
+STREAM_LOADCELL_ARTEFACTS = 6  # load-cell spikes, zero wander and the mains hum's phase
 
 
 def stream_rng(seed: int, stream: int) -> np.random.Generator:
@@ -64,7 +73,17 @@ def stream_rng(seed: int, stream: int) -> np.random.Generator:
 
 @dataclass(frozen=True)
 class SimPreset:
-    """Every parameter of the simulated rig. Angles in rad, lengths in m, forces in N, moments in N·m."""
+    """Every parameter of the simulated rig. Angles in rad, lengths in m, forces in N, moments in N·m.
+
+    Friction, beyond the capacities: each trial draws its capacity scatter (`scatter_shape`, with
+    a = `scatter_a_kg` and b = `per_trial_capacity_sd`, so that a slip mass m scatters with
+    sd(m)² = a² + (b·m)²) and its slip kind from `slip_mix` (`rig.rig_config.SlipKindMix`: sudden
+    drops to `kinetic_ratio`, small drops, creep, stick-slip trains, a neighbouring joint slipping
+    first, or no slip before the force limit; each kind's parameters are documented there and in
+    protocols/README.md). `loadcell_artefacts` (`rig.rig_config.LoadCellArtefacts`: drift, zero
+    wander, spikes, mains hum, gain creep) is what the simulated load cell adds to the tension;
+    `loadcell_noise_n` already includes its `noise_scale`.
+    """
 
     name: str
     seed: int  # seed the joint capacities were drawn with
@@ -97,6 +116,11 @@ class SimPreset:
     sigma_meas_rad: float = math.radians(0.4)  # configuration measurement noise per joint angle
     slipped_joint_report_probability: float = 0.8  # chance the configuration source names the joint
     loadcell_noise_n: float = 0.005  # RMS, for the load-cell emulator (its default); the world is noise-free
+    # Slip kinds, scatter shape and load-cell artefacts (defaults: the paper-like world of before).
+    slip_mix: SlipKindMix = field(default_factory=SlipKindMix)
+    scatter_shape: str = "multiplicative"
+    scatter_a_kg: float = 0.0  # additive sd of the slip mass [kg] (shapes additive and mixed)
+    loadcell_artefacts: LoadCellArtefacts = field(default_factory=LoadCellArtefacts)
 
     def __post_init__(self) -> None:
         """Check shapes and ranges; a `ValueError` names the field and what is allowed."""
@@ -146,6 +170,15 @@ class SimPreset:
         if not self.joint_estimation_distances_m or min(self.joint_estimation_distances_m) <= 0:
             raise ValueError(f"preset {self.name}: joint_estimation_distances_m must be > 0")
         resolve_constant(self.constant)
+        if self.scatter_shape not in SCATTER_SHAPES:
+            allowed = ", ".join(SCATTER_SHAPES)
+            raise ValueError(
+                f"preset {self.name}: scatter_shape = {self.scatter_shape!r}; allowed: {allowed}"
+            )
+        if not 0 <= self.scatter_a_kg <= MAX_SCATTER_A_KG:
+            raise ValueError(
+                f"preset {self.name}: scatter_a_kg = {self.scatter_a_kg}; allowed: 0-{MAX_SCATTER_A_KG:g}"
+            )
 
     @property
     def joint_count(self) -> int:
@@ -206,12 +239,18 @@ def make_preset(
     joint_radius_m: float | None = None,
     drum_radius_m: float | None = None,
     g: float | None = None,
+    slip_mix: SlipKindMix | None = None,
+    scatter: CapacityScatter | None = None,
+    loadcell_artefacts: LoadCellArtefacts | None = None,
 ) -> SimPreset:
     """Build preset `name` ('link1' or 'link2'), drawing its joint capacities from `seed`.
 
     `noise_scale` multiplies every noise level (per-trial variation, placement and measurement
     error, load-cell noise). The geometry arguments override the preset's (a rig config's article
-    section); `segment_lengths_m` must keep the preset's joint count.
+    section); `segment_lengths_m` must keep the preset's joint count. `slip_mix`, `scatter` and
+    `loadcell_artefacts` come from the rig config's `simulation:` section (defaults: sudden slips,
+    multiplicative scatter with the preset's sd, no artefacts); `noise_scale` scales the scatter's
+    a and b too, and the artefacts' `noise_scale` the load cell's white noise.
     """
     if name not in _LINKS:
         raise ValueError(f"unknown simulation preset {name!r}; allowed: {', '.join(PRESET_NAMES)}")
@@ -246,6 +285,20 @@ def make_preset(
         torsion_weak_joint=torsion_weak_joint,
         drum_radius_m=0.01 if drum_radius_m is None else float(drum_radius_m),
     )
+    scatter = scatter or CapacityScatter()
+    artefacts = loadcell_artefacts or LoadCellArtefacts()
+    preset = replace(
+        preset,
+        slip_mix=slip_mix or SlipKindMix(),
+        scatter_shape=scatter.shape,
+        scatter_a_kg=scatter.a_kg,
+        per_trial_capacity_sd=0.0
+        if scatter.shape == "additive"
+        else (preset.per_trial_capacity_sd if scatter.b is None else scatter.b),
+        loadcell_artefacts=artefacts,
+    )
+    if artefacts.noise_scale != 1.0:
+        preset = replace(preset, loadcell_noise_n=preset.loadcell_noise_n * artefacts.noise_scale)
     return scale_noise(preset, noise_scale)
 
 
@@ -256,6 +309,7 @@ def scale_noise(preset: SimPreset, noise_scale: float) -> SimPreset:
     return replace(
         preset,
         per_trial_capacity_sd=preset.per_trial_capacity_sd * noise_scale,
+        scatter_a_kg=preset.scatter_a_kg * noise_scale,
         sigma_bend_rad=preset.sigma_bend_rad * noise_scale,
         sigma_meas_rad=preset.sigma_meas_rad * noise_scale,
         loadcell_noise_n=preset.loadcell_noise_n * noise_scale,

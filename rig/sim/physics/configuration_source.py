@@ -9,9 +9,14 @@ single-joint specimen during joint estimation):
 * an out-of-plane configuration (after a slip under an out-of-plane load) is reported with
   `joint_angles_rad = None` and each joint rotation perturbed by a random rotation whose rotation
   vector is N(0, σ_meas² I₃);
-* `slipped_joint` names the joint of the most recent true slip since the previous `measure()`,
-  but only with probability `slipped_joint_report_probability` (else None, as when a camera cannot
-  tell which joint moved), so a consumer's "unknown joint" path is exercised.
+* `slipped_joint` names the link joint (1-based) of the most recent true slip since the previous
+  `measure()` (`SlipRecord.moved_joint`), but only with probability
+  `slipped_joint_report_probability` (else None, as when a camera cannot tell which joint moved),
+  so a consumer's "unknown joint" path is exercised. In joint estimation a slip of the specimen
+  names the trial's joint (`TrialPlan.joint`; 1 for the nominal specimen) and a slip of a
+  neighbouring joint (slip kind `other_joint`) names that joint, with the slip mix's
+  `other_joint_report_probability` instead: so `slipped_joint != trial.joint` (not None) means
+  another joint moved.
 
 σ_meas and the report probability come from the world's preset (so the ground truth states them).
 Noise comes from the seeded streams `STREAM_MEASUREMENT` and `STREAM_SLIP_REPORT`.
@@ -25,7 +30,7 @@ from model.chain import planar_transforms
 from rig.hw.seams import Clock, ConfigurationReading
 from rig.sim.physics.article import rotation_about_axis
 from rig.sim.physics.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
-from rig.sim.physics.world import SimWorld
+from rig.sim.physics.world import SimWorld, SlipKind
 
 
 class SimConfigurationSource:
@@ -63,8 +68,13 @@ class SimConfigurationSource:
         slipped: int | None = None
         new_slips = world.slips[self._slips_seen :]
         self._slips_seen = len(world.slips)
-        if new_slips and self._report_rng.random() < self.report_probability:
-            slipped = new_slips[-1].joint
+        if new_slips:
+            last = new_slips[-1]
+            probability = self.report_probability
+            if last.kind == SlipKind.OTHER_JOINT.value:
+                probability = world.preset.slip_mix.other_joint_report_probability
+            if self._report_rng.random() < probability:
+                slipped = last.moved_joint
         time_ns = self._clock.time_ns() if self._clock is not None else world.now_ns
         return ConfigurationReading(
             transforms=transforms, time_ns=time_ns, joint_angles_rad=noisy_angles, slipped_joint=slipped
