@@ -1,7 +1,8 @@
-"""The simulated world's slip kinds and scatter shapes: the tension trace of each kind, the truth, the moments."""
+"""The simulated world's slip kinds and scatter shapes: each kind's tension trace, the truth, the moments."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import replace
@@ -102,7 +103,7 @@ def test_stick_slip_is_a_train_of_drops_with_dwells() -> None:
     assert [s.kind for s in drops] == ["stick_slip"] * 4
     fraction = trial.slip.drop_fraction
     assert fraction is not None
-    for before, after in zip(drops, drops[1:], strict=False):
+    for before, after in itertools.pairwise(drops):
         assert before.end_ns is not None
         assert after.onset_ns - before.end_ns == pytest.approx(30 * MS, abs=MS)
         assert after.peak_tension_n == pytest.approx(before.tension_after_n, abs=1e-9)
@@ -195,7 +196,11 @@ def test_scatter_shapes_give_slip_masses_with_sd_squared_a2_plus_bm2(
     scatter: CapacityScatter, a_kg: float, b: float
 ) -> None:
     preset = make_preset("link1", seed=4, scatter=scatter)
-    assert (preset.scatter_shape, preset.scatter_a_kg, preset.per_trial_capacity_sd) == (scatter.shape, a_kg, b)
+    assert (preset.scatter_shape, preset.scatter_a_kg, preset.per_trial_capacity_sd) == (
+        scatter.shape,
+        a_kg,
+        b,
+    )
     world = SimWorld(preset, ScriptedShaft(), seed=4)
     for distance in (0.05, 0.25):  # slip masses near 3.2 kg and 0.65 kg
         masses = np.array(

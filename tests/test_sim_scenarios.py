@@ -1,0 +1,97 @@
+"""Scenario rig configs: their simulation sections are validated (exit 2), and every scenario runs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from rig.analysis.runlog import read_parts, run_settings
+from rig.rig_config import SLIP_KINDS, load_rig_config
+from tests.helpers import QUICK_PROTOCOL
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios"
+NAMES = ("small-drops", "creep", "stick-slip", "noisy-cell", "additive-scatter", "mixed")
+
+
+def test_every_scenario_is_shipped_and_loads() -> None:
+    assert sorted(p.stem for p in SCENARIOS.glob("*.yaml")) == sorted(NAMES)
+    mixed = load_rig_config(SCENARIOS / "mixed.yaml").simulation
+    assert mixed is not None and all(mixed.slips.probability(kind) > 0 for kind in SLIP_KINDS)
+    noisy = load_rig_config(SCENARIOS / "noisy-cell.yaml").simulation
+    assert noisy is not None and noisy.loadcell.noise_scale == 10 and noisy.loadcell.active
+    additive = load_rig_config(SCENARIOS / "additive-scatter.yaml").simulation
+    assert additive is not None and (additive.scatter.shape, additive.scatter.a_kg) == ("additive", 0.1)
+
+
+@pytest.mark.parametrize(
+    ("simulation", "field", "allowed"),
+    [
+        ("slips: {mix: {sudden: 0.5, creep: 0.3}}", "simulation.slips.mix", "they sum to 1"),
+        (
+            "slips: {mix: {sudden: 1.0, skid: 0.0}}",
+            "simulation.slips.mix.skid",
+            "allowed: sudden, small_drop",
+        ),
+        ("slips: {mix: {creep: 1.5}}", "simulation.slips.mix.creep", "allowed: 0.0 <= x <= 1.0"),
+        (
+            "slips: {small_drop_fraction: [0.2, 0.1]}",
+            "simulation.slips.small_drop_fraction",
+            "lowest, highest",
+        ),
+        ("slips: {creep_duration_s: [0.05, 20]}", "simulation.slips.creep_duration_s[1]", "<= 10"),
+        ("slips: {stick_slip_drops: [2.5, 4]}", "simulation.slips.stick_slip_drops", "whole numbers"),
+        ("slips: {no_slip_capacity_factor: 1}", "simulation.slips.no_slip_capacity_factor", "1.0 < x"),
+        ("scatter: {shape: cubic}", "simulation.scatter.shape", "multiplicative, additive, mixed"),
+        ("scatter: {shape: additive}", "simulation.scatter.a_kg", "required"),
+        ("scatter: {shape: additive, a_kg: 0.1, b: 0.1}", "simulation.scatter.b", "change the shape"),
+        ("scatter: {a_kg: 0.1}", "simulation.scatter.a_kg", "additive or mixed"),
+        ("scatter: {shape: mixed, a_kg: 0.1, b: 0.9}", "simulation.scatter.b", "<= 0.5"),
+        ("loadcell: {hum_hz: 0}", "simulation.loadcell.hum_hz", "1.0 <= x <= 500.0"),
+        ("loadcell: {noise_scal: 2}", "simulation.loadcell.noise_scal", "did you mean 'noise_scale'"),
+    ],
+)
+def test_bad_simulation_fields_exit_2_naming_file_field_and_range(
+    tmp_path: Path, run_cli, simulation: str, field: str, allowed: str
+) -> None:
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(f"extends: simulated\nsimulation:\n  {simulation}\n")
+    protocol = tmp_path / "quick.yaml"
+    protocol.write_text(QUICK_PROTOCOL)
+    result = run_cli("run", protocol, "--rig", rig, "--out", tmp_path)
+    assert result.code == 2, result.err
+    assert str(rig) in result.err and field in result.err and allowed in result.err
+    assert "Traceback" not in result.err
+    assert not list(tmp_path.glob("*.mcap"))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_scenario_runs_a_short_protocol_to_the_end(tmp_path: Path, run_cli, name: str) -> None:
+    protocol = tmp_path / "quick.yaml"
+    protocol.write_text(QUICK_PROTOCOL)
+    result = run_cli(
+        "run", protocol, "--rig", SCENARIOS / f"{name}.yaml", "--seed", 2, "--json", "--out", tmp_path
+    )
+    assert result.code == 0, result.err
+    report = json.loads(result.out)
+    assert report["completed"] == report["planned"] == 3
+    assert all(trial["outcome"] for trial in report["trials"])
+    # The log's sim_truth has every trial's kind and slip events, on the run clock.
+    settings = run_settings(read_parts(report["log"]), [])
+    assert settings.truth is not None
+    world = settings.truth["world"]
+    config = load_rig_config(SCENARIOS / f"{name}.yaml").simulation
+    assert config is not None
+    assert world["scatter"]["shape"] == config.scatter.shape
+    for trial in world["trials"]:
+        assert config.slips.probability(trial["slip_kind"]) > 0
+        for event in trial["slip_events"]:
+            assert event["onset_time_ns"] >= trial["start_ns"] + world["run_clock_offset_ns"]
+            assert event["load_n"] > 0
+    slipped = [t for t in report["trials"] if t["outcome"] == "slip"]
+    events = {t["index"]: t["slip_events"] for t in world["trials"]}
+    assert all(
+        events[i] for i in range(1, len(events) + 1) if world["trials"][i - 1]["slip_kind"] != "no_slip"
+    )
+    assert len(slipped) >= 1
