@@ -183,7 +183,7 @@ class SlipKindMix:
     other_joint_load_fraction: tuple[float, float] = (0.5, 0.9)
     other_joint_drop_fraction: tuple[float, float] = (0.05, 0.20)
     other_joint_report_probability: float = 1.0
-    no_slip_capacity_factor: float = 10.0
+    no_slip_capacity_factor: float = 100.0  # slip loads beyond any force ceiling a rig config allows (500 N)
 
     def __post_init__(self) -> None:
         """Check ranges; a `ValueError` names the field and what is allowed."""
