@@ -4,7 +4,7 @@ Run (from the repository root, with the project's environment):
 
     python benchmarks/bench_detector_sim.py scenarios [--seeds 0 1 2] [--scenarios default mixed ...]
     python benchmarks/bench_detector_sim.py quiet [--samples 1000000] [--seed 0]
-    python benchmarks/bench_detector_sim.py ratios [--ratios 0.8 0.9 0.95] [--seed 0]
+    python benchmarks/bench_detector_sim.py [ratios] [--ratios 0.8 0.9 0.95] [--seed 0]
 
 `scenarios` runs `rig run protocols/joint_estimation.yaml --rig protocols/rigs/scenarios/NAME.yaml`
 (`default`: the built-in rig) for each seed, reads the run's log back, and scores the runner's
@@ -13,8 +13,9 @@ samples (n: the detection came on the n-th load-cell sample taken after the true
 true sampling time is recovered from its device time, since the host stamps samples about 1 ms late),
 misses (a trial that slipped but was not detected), early detections (before the true onset: false
 alarms), and the bias of the detected peak against the true slip load. It also prints, per run, the
-exit code, the trials done and whether the true k lies within the 99 % bounds. The detector is the
-protocol's (`model.slip_detector`, as it is).
+exit code, the trials done, whether the true k lies within the 99 % bounds, and whether `rig replay`
+of the log re-detects the same events (trials matched / trials). The detector is the protocol's
+(`model.slip_detector`, as it is).
 
 `quiet` feeds the detector quiet stretches of the emulated load cell, without any slip, at the
 default noise and with the noisy-cell scenario's artefacts (protocols/rigs/scenarios/noisy-cell.yaml):
@@ -121,6 +122,20 @@ def run_scenario(name: str, seed: int, folder: Path) -> tuple[int, dict[str, Any
     return code, json.loads(out.getvalue())
 
 
+def replay_matches(log: str) -> str:
+    """`rig replay LOG --json`: how many trials' slip events the replay re-detected identically."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        code = rig_main(["replay", log, "--json"])
+    if code != 0:
+        return f"replay exit {code}"
+    redetection = json.loads(out.getvalue()).get("redetection") or {}
+    mismatches = redetection.get("mismatches") or []
+    return f"replay re-detects {redetection.get('matches')}/{redetection.get('trials')}" + (
+        f", mismatches {mismatches}" if mismatches else ""
+    )
+
+
 def score_run(report: dict[str, Any], scores: dict[str, Score]) -> None:
     """Match the run's detections with the truth's slip events, trial by trial (by time)."""
     parts = read_parts(report["log"])
@@ -181,7 +196,8 @@ def scenarios(seeds: list[int], names: list[str]) -> None:
                 print(
                     f"seed {seed}: exit {code}, {report['completed']}/{report['planned']} trials "
                     f"({', '.join(f'{k} {v}' for k, v in sorted(outcomes.items()))}), k {k_text}, "
-                    f"true {k_true:.4f}: {'inside' if inside else 'OUTSIDE'} the 99 % bounds"
+                    f"true {k_true:.4f}: {'inside' if inside else 'OUTSIDE'} the 99 % bounds; "
+                    f"{replay_matches(report['log'])}"
                 )
                 score_run(report, scores)
         print()
@@ -295,16 +311,12 @@ def ratios(values: list[float], seed: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    sub = parser.add_subparsers(dest="mode", required=True)
-    s = sub.add_parser("scenarios", help="score detections against sim_truth, per slip kind and size")
-    s.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    s.add_argument("--scenarios", nargs="+", default=list(SCENARIO_NAMES), choices=SCENARIO_NAMES)
-    q = sub.add_parser("quiet", help="false alarms on quiet samples, default cell and noisy-cell")
-    q.add_argument("--samples", type=int, default=1_000_000)
-    q.add_argument("--seed", type=int, default=0)
-    r = sub.add_parser("ratios", help="the default run with the kinetic ratio patched")
-    r.add_argument("--ratios", type=float, nargs="+", default=[0.8, 0.9, 0.95])
-    r.add_argument("--seed", type=int, default=0)
+    parser.add_argument("mode", nargs="?", default="ratios", choices=["scenarios", "quiet", "ratios"])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenarios")
+    parser.add_argument("--scenarios", nargs="+", default=list(SCENARIO_NAMES), choices=SCENARIO_NAMES)
+    parser.add_argument("--samples", type=int, default=1_000_000, help="quiet: samples per load cell")
+    parser.add_argument("--ratios", type=float, nargs="+", default=[0.8, 0.9, 0.95], help="ratios")
+    parser.add_argument("--seed", type=int, default=0, help="quiet, ratios")
     args = parser.parse_args()
     if args.mode == "scenarios":
         scenarios(args.seeds, args.scenarios)

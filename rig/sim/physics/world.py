@@ -377,7 +377,7 @@ class SimWorld:
                 tension = self._continue_slip(theta, tension, dt_s, t_ns)
             elif tension > self._other_load_n:
                 tension = self._other_joint_slip(theta, tension, t_ns)
-            elif tension > article.slip_threshold_n or self._train_due(tension, t_ns):
+            elif tension > article.slip_threshold_n or (self._train_left and self._train_due(tension, t_ns)):
                 self._start_slip(tension, t_ns)
                 tension = self._continue_slip(theta, tension, dt_s, t_ns)
         self._winch.external_torque_nm = -tension * self.line.drum_radius_m
