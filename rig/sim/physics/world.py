@@ -370,11 +370,14 @@ class SimWorld:
             holding = fixture.moving and self._article is self.link
         article = self._article
         theta = self._winch.present_position_rad
-        tension = self.line.tension_n(theta, self._take_up_m())
+        tension = self.line.tension_n(theta, article.take_up_m + self._clamp_take_up_m)
         self._record(t_ns, tension)
         if not holding:
             if self._slip is not None:
-                tension = self._continue_slip(theta, tension, dt_s, t_ns)
+                if self._creep is None and self._slip_target_n is None:
+                    tension = self._slide(theta, tension, dt_s, t_ns)  # sudden, small drop: the common case
+                else:
+                    tension = self._continue_slip(theta, tension, dt_s, t_ns)
             elif tension > self._other_load_n:
                 tension = self._other_joint_slip(theta, tension, t_ns)
             elif tension > article.slip_threshold_n or (self._train_left and self._train_due(tension, t_ns)):
@@ -555,7 +558,7 @@ class SimWorld:
                 step_rad = min(needed_rad, self.preset.slip_rate_rad_s * dt_s)
                 article.rotate_joint(joint, axis, step_rad)
                 record.rotation_rad += step_rad
-                tension = self.line.tension_n(theta, self._take_up_m())
+                tension = self.line.tension_n(theta, article.take_up_m + self._clamp_take_up_m)
                 if step_rad < needed_rad:
                     return tension
         self._finish_slip(t_ns, tension)
