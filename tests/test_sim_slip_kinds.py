@@ -154,7 +154,7 @@ def test_the_mix_draws_each_kind_with_its_probability_from_its_own_stream() -> N
     world, _ = world_of(SlipKindMix(probabilities=probabilities), seed=7)
     plain, _ = world_of(SlipKindMix(), seed=7)
     kinds = []
-    for i in range(3000):
+    for i in range(1500):
         kinds.append(world.begin_trial(TrialKind.JOINT_ESTIMATION, 0.1 + 0.01 * (i % 10)).slip.kind)
         plain.begin_trial(TrialKind.JOINT_ESTIMATION, 0.1 + 0.01 * (i % 10))
     counts = np.array([kinds.count(k) for k in SLIP_KINDS]) / len(kinds)
@@ -204,13 +204,13 @@ def test_scatter_shapes_give_slip_masses_with_sd_squared_a2_plus_bm2(
     world = SimWorld(preset, ScriptedShaft(), seed=4)
     for distance in (0.05, 0.25):  # slip masses near 3.2 kg and 0.65 kg
         masses = np.array(
-            [world.begin_trial(TrialKind.JOINT_ESTIMATION, distance).slip_mass_kg for _ in range(4000)]
+            [world.begin_trial(TrialKind.JOINT_ESTIMATION, distance).slip_mass_kg for _ in range(2000)]
         )
         m0 = preset.specimen_capacity_nm / (preset.g * distance)
         expected_sd = math.sqrt(a_kg**2 + (b * m0) ** 2)
         assert masses.mean() == pytest.approx(m0, abs=3 * expected_sd / math.sqrt(len(masses)) + 1e-9)
         # Clipping at ±3 sd takes 1.3 % off the sd of a normal draw.
-        assert masses.std() == pytest.approx(0.987 * expected_sd, rel=0.05)
+        assert masses.std() == pytest.approx(0.987 * expected_sd, rel=0.06)
     truth = world.truth()
     assert truth["scatter"] == {"shape": scatter.shape, "a_kg": a_kg, "b": b, "sd_m": "sqrt(a^2 + (b m)^2)"}
 
