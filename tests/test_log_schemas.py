@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from mcap.reader import make_reader
 
 from rig.hw.seams import LoadCellSample, ServoState
 from rig.log import schemas as S
@@ -305,3 +306,34 @@ def test_loadcell_builder_either_raises_or_satisfies_the_schema(raw, force_n, se
     except ValueError:
         return
     S.check_payload(S.LOADCELL, payload)
+
+
+@pytest.mark.slow  # the default run (about 8 s, shared with other tests), then 80,000 payloads
+def test_every_payload_of_a_default_run_is_javascript_exact_and_valid_against_its_advertised_schema(
+    default_run_log,
+):
+    too_big: list[str] = []
+
+    def parse_int(text: str) -> int:
+        value = int(text)
+        if abs(value) > S.MAX_SAFE_INT:
+            too_big.append(text)
+        return value
+
+    validators: dict[int, jsonschema.Draft202012Validator] = {}
+    counts: dict[str, int] = {}
+    with default_run_log.open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            assert schema is not None and schema.encoding == S.SCHEMA_ENCODING, channel.topic
+            assert channel.message_encoding == S.MESSAGE_ENCODING
+            if schema.id not in validators:
+                advertised = json.loads(schema.data)
+                assert advertised == S.TOPICS[channel.topic].schema, channel.topic
+                validators[schema.id] = jsonschema.Draft202012Validator(advertised)
+            payload = json.loads(message.data, parse_int=parse_int)
+            errors = list(validators[schema.id].iter_errors(payload))
+            assert not errors, (channel.topic, payload, errors[0].message)
+            assert not too_big, (channel.topic, too_big)
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    assert set(counts) == set(S.TOPICS)  # every topic was walked
+    assert counts[S.SLIP] == counts[S.TRIAL_RESULT] == 24
