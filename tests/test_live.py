@@ -345,7 +345,7 @@ def test_a_load_cell_row_is_published_as_the_object_the_file_holds(row):
     from rig.log.live_process import row_encoder
 
     fields = schemas.ROW_FIELDS[schemas.LOADCELL]
-    assert json.loads(row_encoder(schemas.ROW_FIELDS[schemas.LOADCELL])(row)) == dict(zip(fields, row, strict=True))
+    assert json.loads(row_encoder(fields)(row)) == dict(zip(fields, row, strict=True))
 
 
 def test_rig_run_live_prints_the_address_and_logs_the_counts(tmp_path, protocol_file, run_cli):
