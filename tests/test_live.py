@@ -185,6 +185,22 @@ def test_a_port_in_use_is_an_input_error():
             LivePublisher(port=port)
 
 
+def test_a_port_taken_after_the_check_is_reported_by_the_view_not_hung_on(monkeypatch):
+    import rig.log.live as live_module
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        monkeypatch.setattr(live_module, "_free_port", lambda host, port_: port)  # lost the race
+        live = LivePublisher(port=0)
+        assert not live.wait_ready(10)
+        live.publish(schemas.LOG, [(1, {})])  # ignored: nobody can subscribe
+        stats = live.close()
+    assert stats.failure is not None and str(port) in stats.failure
+    assert stats.text().startswith("live view: not served")
+
+
 def test_rig_run_live_on_a_port_in_use_exits_2_before_anything_is_written(tmp_path, protocol_file, run_cli):
     protocol = protocol_file(QUICK_PROTOCOL)
     with socket.socket() as taken:
