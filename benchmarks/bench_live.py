@@ -4,9 +4,14 @@ Each round runs the same simulated protocol (virtual time, as fast as the CPU al
 `rig run` in its own process: `plain`; `none`, `--live` with no client; `live`, `--live` with a
 client (another process) subscribed to every topic and reading everything; `stall`, `--live` with a
 client that subscribes to every topic, with a 4 KiB receive window, and then never reads. The run's
-last `/rig/log` message holds the live view's counts (published, dropped, slow-client overflows).
+last `/rig/log` message holds the live view's counts (published, dropped, slow-client reports).
+With `--baseline-tree DIR` each round also runs `plain` and `live` with the code of another checkout
+(`base-plain`, `base-live`), interleaved with the others, for a side-by-side comparison.
 
-    .venv/bin/python benchmarks/bench_live.py --rounds 3
+CPU is split into the `rig run` process's own (the acquisition loop and its threads) and that of its
+child processes (the MCAP writer, the live view's server), read from /proc before the run is reaped.
+
+    .venv/bin/python benchmarks/bench_live.py --rounds 5 [--baseline-tree ../main]
 """
 
 from __future__ import annotations
@@ -87,8 +92,20 @@ def last_log(path: Path) -> str:
     return text
 
 
-def run_once(work: Path, name: str, client: str | None, repeats: int) -> tuple[float, float, str, str]:
-    """Wall and CPU time of one `rig run`, the live view's log line, and what the client received."""
+def _own_and_children_cpu(pid: int) -> tuple[float, float]:
+    """CPU seconds of an exited, not yet reaped process: its own, and its reaped children's."""
+    os.waitid(os.P_PID, pid, os.WEXITED | os.WNOWAIT)
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    fields = stat[stat.rindex(")") + 2 :].split()
+    tick = os.sysconf("SC_CLK_TCK")
+    utime, stime, cutime, cstime = (int(f) / tick for f in fields[11:15])
+    return utime + stime, cutime + cstime
+
+
+def run_once(
+    work: Path, name: str, client: str | None, repeats: int, tree: Path = ROOT
+) -> tuple[float, float, float, str, str]:
+    """Wall time, own and children's CPU of one `rig run`, the live view's log line, what the client got."""
     protocol = work / "p.yaml"
     protocol.write_text(PROTOCOL.replace("REPEATS", str(repeats)))
     cmd = [sys.executable, "-m", "rig.cli", "run", str(protocol), "--out", str(work / name), "--json"]
@@ -101,7 +118,8 @@ def run_once(work: Path, name: str, client: str | None, repeats: int) -> tuple[f
         cmd += ["--live", "--live-port", "0"]
         client = None
     start = time.perf_counter()
-    run = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL)
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    run = subprocess.Popen(cmd, cwd=tree, stdout=subprocess.DEVNULL, env=env)
     if client is not None:
         url = f"ws://127.0.0.1:{port}"
         reader = subprocess.Popen(
@@ -109,51 +127,72 @@ def run_once(work: Path, name: str, client: str | None, repeats: int) -> tuple[f
         )
         assert reader.stdout is not None
         reader.stdout.readline()  # subscribed (the run is already going: this wait is part of its time)
-    _pid, status, usage = os.wait4(run.pid, 0)
+    own, children = _own_and_children_cpu(run.pid)
     elapsed = time.perf_counter() - start
+    _pid, status = os.waitpid(run.pid, 0)
     run.returncode = os.waitstatus_to_exitcode(status)
     assert run.returncode == 0, f"{name}: exit {run.returncode}"
-    cpu = usage.ru_utime + usage.ru_stime
     received = ""
     if reader is not None:
         if client == "stall":
             reader.kill()
         out, _ = reader.communicate(timeout=60)
         received = out.strip() or "(killed)"
-    return elapsed, cpu, last_log(work / name / f"{name}.mcap"), received
+    return elapsed, own, children, last_log(work / name / f"{name}.mcap"), received
+
+
+def median(values: list[float]) -> float:
+    ordered = sorted(values)
+    mid = len(ordered) // 2
+    return ordered[mid] if len(ordered) % 2 else (ordered[mid - 1] + ordered[mid]) / 2
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--repeats", type=int, default=3, help="repeats of the 4 distances in the protocol")
+    parser.add_argument("--baseline-tree", type=Path, help="another checkout to run plain and live with")
     args = parser.parse_args()
-    kinds = ("plain", "none", "live", "stall")
+    kinds = ["plain", "none", "live", "stall"]
+    if args.baseline_tree is not None:
+        kinds += ["base-plain", "base-live"]
     wall: dict[str, list[float]] = {kind: [] for kind in kinds}
-    cpu: dict[str, list[float]] = {kind: [] for kind in kinds}
+    own: dict[str, list[float]] = {kind: [] for kind in kinds}
+    children: dict[str, list[float]] = {kind: [] for kind in kinds}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for r in range(args.rounds):
             for kind in kinds:
-                client = None if kind == "plain" else kind
-                elapsed, used, line, received = run_once(work, f"{kind}{r}", client, args.repeats)
+                tree = ROOT
+                mode = kind
+                if kind.startswith("base-"):
+                    tree, mode = args.baseline_tree.resolve(), kind.removeprefix("base-")
+                client = None if mode == "plain" else mode
+                elapsed, used, child, line, received = run_once(
+                    work, f"{kind}{r}", client, args.repeats, tree
+                )
                 wall[kind].append(elapsed)
-                cpu[kind].append(used)
+                own[kind].append(used)
+                children[kind].append(child)
                 print(
-                    f"round {r} {kind:6s} {elapsed:6.2f} s wall {used:6.2f} s CPU  "
-                    f"client received {received or '-'}  {line}",
+                    f"round {r} {kind:10s} {elapsed:6.2f} s wall {used:6.2f} s CPU "
+                    f"(+{child:5.2f} s children)  client received {received or '-'}  {line}",
                     flush=True,
                 )
 
-    def median(values: list[float]) -> float:
-        return sorted(values)[len(values) // 2]
-
-    base_wall, base_best, base_cpu = median(wall["plain"]), min(wall["plain"]), median(cpu["plain"])
     for kind in kinds:
-        mid, best, used = median(wall[kind]), min(wall[kind]), median(cpu[kind])
+        base = "base-plain" if kind.startswith("base-") else "plain"
+        mid, best, used, child = (
+            median(wall[kind]),
+            min(wall[kind]),
+            median(own[kind]),
+            median(children[kind]),
+        )
         print(
-            f"{kind:6s} wall median {mid:6.2f} s ({mid / base_wall:4.2f}x)  best {best:6.2f} s "
-            f"({best / base_best:4.2f}x)  CPU median {used:6.2f} s ({used / base_cpu:4.2f}x)"
+            f"{kind:10s} wall median {mid:6.2f} s ({mid / median(wall[base]):4.2f}x)  "
+            f"best {best:6.2f} s ({best / min(wall[base]):4.2f}x)  "
+            f"own CPU median {used:5.2f} s ({used / median(own[base]):4.2f}x)  "
+            f"children CPU median {child:5.2f} s"
         )
 
 

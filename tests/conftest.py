@@ -12,6 +12,7 @@ Dynamixel:
 Runs:
   `run_on_simulated_rig` (session scope): runs a protocol on the simulated rig into any directory.
   `sim_run(protocol, ...)`: the same into tmp_path/out; returns (report, SimulatedRig).
+  `default_run_log` (session scope): the MCAP log of `rig run protocols/joint_estimation.yaml --seed 0`.
   `assert_safe(sim)`: the line released and every servo torque-off after a run.
 Signals:
   `signal_handlers`: SIGINT/SIGTERM handlers restored after the test, whatever it installed.
@@ -391,6 +392,16 @@ def run_on_simulated_rig() -> SimRun:
     fixtures that build logs once.
     """
     return _run_on_simulated_rig
+
+
+@pytest.fixture(scope="session")
+def default_run_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The log of the default run (`rig run protocols/joint_estimation.yaml --seed 0`), made once."""
+    protocol = Path(__file__).parent.parent / "protocols" / "joint_estimation.yaml"
+    out = tmp_path_factory.mktemp("default-run")
+    report, _sim = _run_on_simulated_rig(protocol, out, run_id="default", seed=0)
+    assert report.exit_code == 0, report.reason
+    return out / "default.mcap"
 
 
 @pytest.fixture

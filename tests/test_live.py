@@ -6,6 +6,7 @@ import asyncio
 import base64
 import json
 import os
+import signal
 import socket
 import struct
 import threading
@@ -103,6 +104,7 @@ def test_a_live_run_serves_the_logged_topics_with_their_schemas(tmp_path, protoc
     protocol = protocol_file(ONE_TRIAL)
     prepared = prepare_run(RunRequest(protocol_path=protocol, rig_path=None, out_dir=tmp_path, seed=3))
     with LivePublisher(port=0) as live:
+        assert live.wait_ready()  # the server process listens
         client = FoxgloveClient(live.url, WATCHED)
         deadline = time.monotonic() + 10
         while not all(live.wants(t) for t in WATCHED):
@@ -141,17 +143,37 @@ def test_a_live_run_serves_the_logged_topics_with_their_schemas(tmp_path, protoc
 
 def test_unsubscribed_topics_cost_nothing_and_are_not_queued():
     with LivePublisher(port=0) as live:
+        assert live.wait_ready()  # the server process listens
         assert not live.wants(schemas.LOADCELL)
         live.publish(schemas.LOADCELL, [(1, (1, 2, 0.5, 3))])  # the logger checks wants() first
         stats = live.close()
     assert stats.dropped == 0
 
 
-def test_a_full_queue_drops_and_counts_instead_of_waiting():
-    with LivePublisher(port=0, max_queued=10) as live:
-        live.publish(schemas.LOG, [(1, {})] * 11)
-        assert live.dropped == 11
-        assert live.close().dropped == 11
+def test_a_server_process_that_falls_behind_loses_batches_counted_and_publishing_never_waits():
+    with LivePublisher(port=0, pipe_bytes=4096, client_backlog=1 << 20) as live:
+        assert live.wait_ready()  # the server process listens
+        client = FoxgloveClient(live.url, (schemas.LOADCELL,))
+        wait_until_subscribed(live, (schemas.LOADCELL,))
+        os.kill(live.pid, signal.SIGSTOP)  # the server process stops reading its pipe
+        try:
+            publishing = threading.Thread(
+                target=lambda: [
+                    live.publish(schemas.LOADCELL, [(i * 1000 + j, (j, 1, 0.5, j)) for j in range(100)])
+                    for i in range(200)
+                ]
+            )
+            publishing.start()
+            publishing.join(30)  # were publish() to wait for the stopped process, it would never end
+            assert not publishing.is_alive()
+            assert live.stats().dropped > 0
+        finally:
+            os.kill(live.pid, signal.SIGCONT)
+        stats = live.close()
+    client.join()
+    assert stats.dropped > 0 and stats.published > 0
+    assert stats.published + stats.dropped == 20_000
+    assert len(client.received[schemas.LOADCELL]) <= stats.published
 
 
 def test_a_port_in_use_is_an_input_error():
@@ -161,6 +183,22 @@ def test_a_port_in_use_is_an_input_error():
         port = taken.getsockname()[1]
         with pytest.raises(InputError, match=f"--live-port {port}"):
             LivePublisher(port=port)
+
+
+def test_a_port_taken_after_the_check_is_reported_by_the_view_not_hung_on(monkeypatch):
+    import rig.log.live as live_module
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        monkeypatch.setattr(live_module, "_free_port", lambda host, port_: port)  # lost the race
+        live = LivePublisher(port=0)
+        assert not live.wait_ready(10)
+        live.publish(schemas.LOG, [(1, {})])  # ignored: nobody can subscribe
+        stats = live.close()
+    assert stats.failure is not None and str(port) in stats.failure
+    assert stats.text().startswith("live view: not served")
 
 
 def test_rig_run_live_on_a_port_in_use_exits_2_before_anything_is_written(tmp_path, protocol_file, run_cli):
@@ -192,6 +230,7 @@ def test_replay_serve_streams_a_recorded_log_in_log_time_order(tmp_path, protoco
     assert execute_run(prepared, open_session(prepared), SilentProgress()).exit_code == 0
     logged = file_messages(prepared.log_path)
     with LivePublisher(port=0, client_backlog=1 << 20, playback=True) as live:
+        assert live.wait_ready()  # the server process listens
         client = FoxgloveClient(live.url, WATCHED)
         sent, warnings = serve_log(
             [prepared.log_path],
@@ -277,6 +316,7 @@ def stalled_client(port: int) -> socket.socket:
 @pytest.mark.slow  # a few seconds: enough data to fill the kernel's socket buffers too
 def test_a_stalled_client_loses_messages_counted_and_neither_publishing_nor_closing_waits():
     with LivePublisher(port=0, client_backlog=16) as live:
+        assert live.wait_ready()  # the server process listens
         sock = stalled_client(live.port)
         wait_until_subscribed(live, (schemas.LOADCELL,))
         start = time.perf_counter()
@@ -318,10 +358,10 @@ def test_the_foxglove_layout_names_only_logged_topics_and_fields():
     [(1, 120268, 0.00335, 2000), (2, -5, None, 3), (3, 0, -0.0, 4), (4, 1, 1.5e-7, 5), (5, 1, 1e300, 6)],
 )
 def test_a_load_cell_row_is_published_as_the_object_the_file_holds(row):
-    from rig.log.live import _ROW_ENCODERS
+    from rig.log.live_process import row_encoder
 
     fields = schemas.ROW_FIELDS[schemas.LOADCELL]
-    assert json.loads(_ROW_ENCODERS[schemas.LOADCELL](row)) == dict(zip(fields, row, strict=True))
+    assert json.loads(row_encoder(fields)(row)) == dict(zip(fields, row, strict=True))
 
 
 def test_rig_run_live_prints_the_address_and_logs_the_counts(tmp_path, protocol_file, run_cli):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from mcap.reader import make_reader
 
 from rig.hw.seams import LoadCellSample, ServoState
 from rig.log import schemas as S
@@ -116,19 +117,24 @@ def test_timestamps_split_exactly():
         (TrialResult, "rig.TrialResult"),
     ],
 )
-def test_schema_properties_are_the_record_fields_and_their_time_twins(record, schema_name):
-    names = [f for f in record.__dataclass_fields__]
-    twins = [n.removesuffix("_time_ns") for n in names if n.endswith("_time_ns")]
+def test_schema_properties_are_the_record_fields_with_times_as_stamps(record, schema_name):
+    names = [f.removesuffix("_time_ns") for f in record.__dataclass_fields__]
     topic = next(t for t, spec in S.TOPICS.items() if spec.schema_name == schema_name)
-    assert list(S.TOPICS[topic].schema["properties"]) == names + twins
+    properties = S.TOPICS[topic].schema["properties"]
+    assert list(properties) == names
+    for name in record.__dataclass_fields__:
+        if name.endswith("_time_ns"):
+            assert properties[name.removesuffix("_time_ns")]["required"] == ["sec", "nsec"]
 
 
 def test_slip_schema_holds_the_detector_event_fields():
     props = S.TOPICS[S.SLIP].schema["properties"]
     from model.slip_detector import SlipEvent
 
-    assert set(SlipEvent.__dataclass_fields__) <= set(props)
+    event_fields = {f.removesuffix("_time_ns") for f in SlipEvent.__dataclass_fields__}
+    assert event_fields <= set(props)
     assert {"trial_id", "detector", "joint", "onset", "detection", "peak"} <= set(props)
+    assert not any(name.endswith("_time_ns") for name in props)
 
 
 @pytest.mark.parametrize("topic", [S.SERVO_COMMAND, S.TRIAL_STATE, S.SLIP, S.TRIAL_RESULT, S.ESTIMATE])
@@ -244,12 +250,49 @@ def test_checker_requires_every_key_and_knows_topics():
         S.check_payload("/rig/nope", payload)
 
 
-def test_epoch_ns_fields_may_exceed_2_53_but_other_integers_may_not():
+def test_no_payload_integer_may_exceed_2_53_and_times_are_stamps():
     slip = sample_payloads()[S.SLIP]
-    assert slip["onset_time_ns"] > 2**53
+    assert slip["onset"]["sec"] < 2**53 and "onset_time_ns" not in slip
     S.check_payload(S.SLIP, slip)
     with pytest.raises(ValueError, match="trial_id"):
         S.check_payload(S.SLIP, {**slip, "trial_id": 2**60})
+    with pytest.raises(ValueError, match="Additional properties"):  # the old integer form is gone
+        S.check_payload(S.SLIP, {**slip, "onset_time_ns": EPOCH_NS})
+    with pytest.raises(ValueError, match="nsec"):
+        S.check_payload(S.SLIP, {**slip, "onset": {"sec": 1, "nsec": 10**9}})
+
+
+def test_slips_and_results_of_older_logs_decode_from_their_integer_times():
+    slip = sample_payloads()[S.SLIP]
+    old_slip = {
+        **slip,
+        "onset_time_ns": EPOCH_NS,
+        "detection_time_ns": EPOCH_NS + 5,
+        "peak_time_ns": EPOCH_NS - 1,
+    }
+    for name in ("detection", "peak"):  # the oldest logs had no `peak` twin; the integers suffice
+        del old_slip[name]
+    event = SlipMessage.from_payload(old_slip).event
+    assert (event.onset_time_ns, event.detection_time_ns, event.peak_time_ns) == (
+        EPOCH_NS,
+        EPOCH_NS + 5,
+        EPOCH_NS - 1,
+    )
+    result = sample_payloads()[S.TRIAL_RESULT]
+    old_result = {k: v for k, v in result.items() if k not in ("start", "end")}
+    old_result.update(start_time_ns=EPOCH_NS + 1, end_time_ns=EPOCH_NS + 2)
+    decoded = TrialResult.from_payload(old_result)
+    assert (decoded.start_time_ns, decoded.end_time_ns) == (EPOCH_NS + 1, EPOCH_NS + 2)
+
+
+@pytest.mark.parametrize(
+    ("stamp_value", "fragment"),
+    [({"sec": 1, "nsec": -1}, "nsec"), ({"sec": 1}, "onset.nsec"), (5, "timestamp"), (None, "onset")],
+)
+def test_a_bad_stamp_is_refused_naming_the_field(stamp_value, fragment):
+    slip = {**sample_payloads()[S.SLIP], "onset": stamp_value}
+    with pytest.raises((ValueError, KeyError), match=fragment):
+        SlipMessage.from_payload(slip)
 
 
 @given(
@@ -263,3 +306,34 @@ def test_loadcell_builder_either_raises_or_satisfies_the_schema(raw, force_n, se
     except ValueError:
         return
     S.check_payload(S.LOADCELL, payload)
+
+
+@pytest.mark.slow  # the default run (about 8 s, shared with other tests), then 80,000 payloads
+def test_every_payload_of_a_default_run_is_javascript_exact_and_valid_against_its_advertised_schema(
+    default_run_log,
+):
+    too_big: list[str] = []
+
+    def parse_int(text: str) -> int:
+        value = int(text)
+        if abs(value) > S.MAX_SAFE_INT:
+            too_big.append(text)
+        return value
+
+    validators: dict[int, jsonschema.Draft202012Validator] = {}
+    counts: dict[str, int] = {}
+    with default_run_log.open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            assert schema is not None and schema.encoding == S.SCHEMA_ENCODING, channel.topic
+            assert channel.message_encoding == S.MESSAGE_ENCODING
+            if schema.id not in validators:
+                advertised = json.loads(schema.data)
+                assert advertised == S.TOPICS[channel.topic].schema, channel.topic
+                validators[schema.id] = jsonschema.Draft202012Validator(advertised)
+            payload = json.loads(message.data, parse_int=parse_int)
+            errors = list(validators[schema.id].iter_errors(payload))
+            assert not errors, (channel.topic, payload, errors[0].message)
+            assert not too_big, (channel.topic, too_big)
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    assert set(counts) == set(S.TOPICS)  # every topic was walked
+    assert counts[S.SLIP] == counts[S.TRIAL_RESULT] == 24

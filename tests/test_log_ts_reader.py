@@ -1,6 +1,8 @@
 """Rig logs read in the official TypeScript reader (@mcap/core), run with node from tests/ts_reader.
 
-Skipped unless `tests/ts_reader/node_modules` exists (`npm ci --prefix tests/ts_reader`).
+Skipped unless `tests/ts_reader/node_modules` exists (`npm ci --prefix tests/ts_reader`; `.ci/run` does
+it). `read.mjs` reports warnings for what a JavaScript reader such as Foxglove would get wrong (a
+number beyond 2^53, a payload that is not an object, an unusable schema); rig logs must have none.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from rig.log.reader import read_run
 from rig.log.writer import RunLogger
 
 TS_READER = Path(__file__).parent / "ts_reader"
+DATA = Path(__file__).parent / "data"
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
 
@@ -67,6 +70,7 @@ def test_finished_rig_log_reads_in_the_indexed_typescript_reader(rig_log):
         topic: S.TOPICS[topic].schema_name for topic in S.TOPICS
     }
     assert found["metadata"] == ["session", "protocol"] and found["attachments"] == ["protocol.yaml"]
+    assert found["warnings"] == []
 
 
 def test_crashed_copy_streams_its_complete_chunks_in_typescript(rig_log, tmp_path):
@@ -78,3 +82,28 @@ def test_crashed_copy_streams_its_complete_chunks_in_typescript(rig_log, tmp_pat
     ours = read_run(copy)
     assert {topic: entry["count"] for topic, entry in found["topics"].items()} == ours.message_counts
     assert 1000 <= ours.message_counts[S.LOADCELL] < 4000
+    assert found["warnings"] == []
+
+
+@pytest.mark.slow  # the default run (about 8 s, shared with other tests)
+@pytest.mark.parametrize("mode", [(), ("--stream",)], ids=["indexed", "stream"])
+def test_a_default_run_reads_in_typescript_without_a_warning(default_run_log, mode):
+    found = ts_read(default_run_log, *mode)
+    assert found["warnings"] == []
+    assert found["complete"] is True
+    ours = read_run(default_run_log)
+    assert {topic: entry["count"] for topic, entry in found["topics"].items()} == ours.message_counts
+    assert set(found["topics"]) == set(S.TOPICS)
+
+
+def test_the_typescript_check_warns_of_integers_javascript_rounds():
+    # A log from before times became {sec, nsec} only: its epoch-ns integers exceed 2^53.
+    found = ts_read(DATA / "twins-2026-11-23.mcap")
+    assert sorted(found["warnings"]) == sorted(
+        f"{topic}: {name} holds a number beyond 2^53 (not exact in JavaScript) (3 times)"
+        for topic, names in (
+            (S.SLIP, ("onset_time_ns", "detection_time_ns", "peak_time_ns")),
+            (S.TRIAL_RESULT, ("start_time_ns", "end_time_ns")),
+        )
+        for name in names
+    )

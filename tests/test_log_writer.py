@@ -17,9 +17,10 @@ from mcap.reader import make_reader
 
 from rig.errors import RigError
 from rig.log import schemas as S
-from rig.log.examples import example_payloads
+from rig.log.examples import EXAMPLE_TIME_NS, example_payloads
+from rig.log.frames import frame_payloads
 from rig.log.reader import read_run
-from rig.log.records import TrialPhase, TrialState
+from rig.log.records import SlipMessage, TrialPhase, TrialState
 from rig.log.writer import LIBRARY, LogWriteError, RunLogger
 from rig.sim.clock import VirtualClock
 
@@ -79,8 +80,9 @@ def test_round_trip_of_every_topic_with_metadata_and_attachments(tmp_path):
     assert run.message_counts == dict.fromkeys(payloads, 1)
     assert run.metadata == {"session": {"seed": "7", "clock": "virtual"}}
     slip = run.topic(S.SLIP).iloc[0]
-    assert slip["onset_time_ns"] == payloads[S.SLIP]["onset_time_ns"]  # exact beyond 2**53
     assert (slip["onset.sec"], slip["onset.nsec"]) == (1_767_225_600, 123_456_789)
+    ((_, slip_payload),) = frame_payloads(run.topic(S.SLIP))
+    assert SlipMessage.from_payload(slip_payload).event.onset_time_ns == EXAMPLE_TIME_NS  # exact
     assert slip["detector.drop_fraction"] == 0.2 and pd.isna(slip["detector.slope_n_per_s"])
     result = run.topic(S.TRIAL_RESULT).iloc[0]
     assert list(result["joint_angles_rad"]) == [0.0, 0.5]

@@ -5,19 +5,29 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from rig.cli import main
 
 DATA = Path(__file__).parent / "data"
 
 
-def test_a_log_from_before_the_typed_records_replays_exactly_as_it_did(capsys):
-    code = main(["replay", str(DATA / "legacy-2026-11-22.mcap"), "--json"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "legacy-2026-11-22",  # before the typed records (old /rig/trial/result shape)
+        "twins-2026-11-23",  # times as integer *_time_ns fields beside their {sec, nsec} twins
+    ],
+)
+def test_a_log_from_before_a_payload_change_replays_exactly_as_it_did(capsys, name):
+    code = main(["replay", str(DATA / f"{name}.mcap"), "--json"])
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     out.pop("files")
-    expected = json.loads((DATA / "legacy-2026-11-22.replay.json").read_text())
+    expected = json.loads((DATA / f"{name}.replay.json").read_text())
     assert out.keys() == expected.keys()
     for key, value in expected.items():
         assert out[key] == value, key
     link = [t for t in out["trials"] if t["kind"] == "link_validation"]
     assert len(link) == 1 and link[0]["joint_angles_rad"] is not None
+    assert all(t["start_time_ns"] < t["end_time_ns"] for t in out["trials"])

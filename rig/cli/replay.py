@@ -116,6 +116,8 @@ def _serve(args: argparse.Namespace) -> int:
         raise InputError(f"--live-port {args.live_port}: allowed: 0 to 65535")
     files = mcap_files(args.logs)
     with LivePublisher(host=args.live_host, port=args.live_port, playback=True) as live:
+        if not live.wait_ready():
+            raise InputError(f"--live-port {args.live_port}: {live.failure or 'the server did not start'}")
         print(f"serving {len(files)} file(s) at {live.url}; waiting for a Foxglove client", file=sys.stderr)
 
         def wait_for_client() -> None:
@@ -132,7 +134,8 @@ def _serve(args: argparse.Namespace) -> int:
         emit_json({**summary, "warnings": warnings})
     else:
         print(
-            f"served {sent} messages from {len(files)} file(s); {stats.slow_client_events} client overflows"
+            f"served {sent} messages from {len(files)} file(s); {stats.slow_client_events} slow-client "
+            "reports (a client lost messages; foxglove-sdk does not say how many)"
         )
     return 0
 

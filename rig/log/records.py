@@ -5,10 +5,11 @@ Each record is built once by the runner and then shown in several places: the MC
 journal and `rig run --json` (`TrialResult.to_json`), the progress line (`Estimate.text`), and
 replay, which decodes the logged payload back into the very same record (`from_payload`).
 
-Payload conventions: a record's fields appear under their own names; a missing or non-finite
-number is `null`; every `*_time_ns` field (epoch ns, exact for Python) has a `{sec, nsec}` twin
-named without the suffix (`start_time_ns` → `start`) for JavaScript readers and Foxglove.
-Decoders accept the payloads of older logs (fields added since are None there).
+Payload conventions: a record's fields appear under their own names, except that a time field
+`*_time_ns` (epoch ns, an attribute exact for Python) appears only as a `{sec, nsec}` timestamp
+named without the suffix (`start_time_ns` → `start`): Foxglove's time type, and no payload integer
+beyond 2^53 for JavaScript readers. A missing or non-finite number is `null`. Decoders accept the
+payloads of older logs too (the integer `*_time_ns` fields, and fields added since as None).
 """
 
 from __future__ import annotations
@@ -98,8 +99,29 @@ def stamp(time_ns: int) -> dict[str, int]:
 
 
 def stamp_name(time_field: str) -> str:
-    """The `{sec, nsec}` twin of an epoch-ns field: `start_time_ns` → `start`."""
+    """The payload name of an epoch-ns field: `start_time_ns` → `start`."""
     return time_field.removesuffix("_time_ns")
+
+
+def time_ns_from_payload(payload: Mapping[str, Any], time_field: str) -> int:
+    """An epoch-ns field from a payload: its `{sec, nsec}` stamp, or the integer older logs carry.
+
+    KeyError if neither is there, ValueError naming the field if the value is not a timestamp.
+    """
+    legacy = payload.get(time_field)
+    if legacy is not None:  # logs written before 2026-11-23 carry the exact integer
+        return integer(legacy, time_field)
+    name = stamp_name(time_field)
+    value = payload.get(name)
+    if value is None:
+        raise KeyError(name)
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name}: {value!r} is not a {{sec, nsec}} timestamp")
+    sec = integer(value.get("sec"), f"{name}.sec")
+    nsec = integer(value.get("nsec"), f"{name}.nsec")
+    if sec < 0 or not 0 <= nsec < NS_PER_S:
+        raise ValueError(f"{name}: {{sec: {sec}, nsec: {nsec}}} is not a timestamp (nsec in [0, 1e9))")
+    return sec * NS_PER_S + nsec
 
 
 def finite_number(value: Any, name: str) -> float:
@@ -145,13 +167,6 @@ def _numbers_or_none(values: Sequence[Any] | None, name: str) -> list[float] | N
 
 def _tuple_or_none(values: Sequence[Any] | None) -> tuple[float, ...] | None:
     return None if values is None else tuple(float(v) for v in values)
-
-
-def _with_stamps(payload: dict[str, Any]) -> dict[str, Any]:
-    """Add the `{sec, nsec}` twin of every `*_time_ns` field that has a value."""
-    twins = {stamp_name(k): stamp(v) for k, v in payload.items() if k.endswith("_time_ns") and v is not None}
-    payload.update(twins)
-    return payload
 
 
 # ---------------------------------------------------------------------------------------------
@@ -228,29 +243,27 @@ class SlipMessage:
     def to_payload(self) -> dict[str, Any]:
         """The `/rig/slip` payload: the event's fields inline, with the trial, detector and joint."""
         e = self.event
-        return _with_stamps(
-            {
-                "trial_id": integer(self.trial_id, "trial_id"),
-                "onset_time_ns": integer(e.onset_time_ns, "onset_time_ns"),
-                "detection_time_ns": integer(e.detection_time_ns, "detection_time_ns"),
-                "peak_time_ns": integer(e.peak_time_ns, "peak_time_ns"),
-                "peak_force_n": finite_number(e.peak_force_n, "peak_force_n"),
-                "force_after_n": finite_number(e.force_after_n, "force_after_n"),
-                "drop_fraction": finite_number(e.drop_fraction, "drop_fraction"),
-                "trigger": str(e.trigger),
-                "kind": str(e.kind),
-                "detector": {str(k): number_or_none(v, f"detector.{k}") for k, v in self.detector.items()},
-                "joint": integer_or_none(self.joint, "joint"),
-            }
-        )
+        return {
+            "trial_id": integer(self.trial_id, "trial_id"),
+            "onset": stamp(e.onset_time_ns),
+            "detection": stamp(e.detection_time_ns),
+            "peak": stamp(e.peak_time_ns),
+            "peak_force_n": finite_number(e.peak_force_n, "peak_force_n"),
+            "force_after_n": finite_number(e.force_after_n, "force_after_n"),
+            "drop_fraction": finite_number(e.drop_fraction, "drop_fraction"),
+            "trigger": str(e.trigger),
+            "kind": str(e.kind),
+            "detector": {str(k): number_or_none(v, f"detector.{k}") for k, v in self.detector.items()},
+            "joint": integer_or_none(self.joint, "joint"),
+        }
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> SlipMessage:
-        """Decode a `/rig/slip` payload back into the `SlipEvent` the detector emitted."""
+        """Decode a `/rig/slip` payload back into the `SlipEvent` the detector emitted (older logs too)."""
         event = SlipEvent(
-            onset_time_ns=integer(payload["onset_time_ns"], "onset_time_ns"),
-            detection_time_ns=integer(payload["detection_time_ns"], "detection_time_ns"),
-            peak_time_ns=integer(payload["peak_time_ns"], "peak_time_ns"),
+            onset_time_ns=time_ns_from_payload(payload, "onset_time_ns"),
+            detection_time_ns=time_ns_from_payload(payload, "detection_time_ns"),
+            peak_time_ns=time_ns_from_payload(payload, "peak_time_ns"),
             peak_force_n=float(payload["peak_force_n"]),
             force_after_n=float(payload["force_after_n"]),
             drop_fraction=float(payload["drop_fraction"]),
@@ -335,29 +348,27 @@ class TrialResult:
         )
 
     def to_payload(self) -> dict[str, Any]:
-        """The `/rig/trial/result` payload: every field (non-finite numbers as null) and time twins."""
-        return _with_stamps(
-            {
-                "trial_id": integer(self.trial_id, "trial_id"),
-                "kind": TrialKind(self.kind).value,
-                "repeat": integer(self.repeat, "repeat"),
-                "joint": integer_or_none(self.joint, "joint"),
-                "distance_m": number_or_none(self.distance_m, "distance_m"),
-                "configuration_index": integer_or_none(self.configuration_index, "configuration_index"),
-                "joint_angles_rad": _numbers_or_none(self.joint_angles_rad, "joint_angles_rad"),
-                "start_time_ns": integer(self.start_time_ns, "start_time_ns"),
-                "end_time_ns": integer(self.end_time_ns, "end_time_ns"),
-                "outcome": TrialOutcome(self.outcome).value,
-                "peak_force_n": number_or_none(self.peak_force_n, "peak_force_n"),
-                "slip_mass_kg": number_or_none(self.slip_mass_kg, "slip_mass_kg"),
-                "predicted_force_n": number_or_none(self.predicted_force_n, "predicted_force_n"),
-                "predicted_mass_kg": number_or_none(self.predicted_mass_kg, "predicted_mass_kg"),
-                "percentage_error": number_or_none(self.percentage_error, "percentage_error"),
-                "slipped_joint": integer_or_none(self.slipped_joint, "slipped_joint"),
-                "lever_arms_m": _numbers_or_none(self.lever_arms_m, "lever_arms_m"),
-                "tare_n": finite_number(self.tare_n, "tare_n"),
-            }
-        )
+        """The `/rig/trial/result` payload: every field (non-finite numbers as null), times as stamps."""
+        return {
+            "trial_id": integer(self.trial_id, "trial_id"),
+            "kind": TrialKind(self.kind).value,
+            "repeat": integer(self.repeat, "repeat"),
+            "joint": integer_or_none(self.joint, "joint"),
+            "distance_m": number_or_none(self.distance_m, "distance_m"),
+            "configuration_index": integer_or_none(self.configuration_index, "configuration_index"),
+            "joint_angles_rad": _numbers_or_none(self.joint_angles_rad, "joint_angles_rad"),
+            "start": stamp(self.start_time_ns),
+            "end": stamp(self.end_time_ns),
+            "outcome": TrialOutcome(self.outcome).value,
+            "peak_force_n": number_or_none(self.peak_force_n, "peak_force_n"),
+            "slip_mass_kg": number_or_none(self.slip_mass_kg, "slip_mass_kg"),
+            "predicted_force_n": number_or_none(self.predicted_force_n, "predicted_force_n"),
+            "predicted_mass_kg": number_or_none(self.predicted_mass_kg, "predicted_mass_kg"),
+            "percentage_error": number_or_none(self.percentage_error, "percentage_error"),
+            "slipped_joint": integer_or_none(self.slipped_joint, "slipped_joint"),
+            "lever_arms_m": _numbers_or_none(self.lever_arms_m, "lever_arms_m"),
+            "tare_n": finite_number(self.tare_n, "tare_n"),
+        }
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> TrialResult:
@@ -366,12 +377,16 @@ class TrialResult:
         Logs from before carry the configuration as `configuration.joint_angles_rad` and lack
         `joint`, `configuration_index`, `predicted_force_n`, `percentage_error` and `tare_n`
         (None, None, None, None, 0.0 here; replay fills the plan's joint and configuration).
+        Times are `{sec, nsec}` stamps (`start`, `end`); before 2026-11-23 logs also carried
+        them as integers (`start_time_ns`, `end_time_ns`), which are used where present.
         """
         data = dict(payload)
         if data.get("joint_angles_rad") is None:
             configuration = data.get("configuration")
             if isinstance(configuration, Mapping):
                 data["joint_angles_rad"] = configuration.get("joint_angles_rad")
+        for time_field in ("start_time_ns", "end_time_ns"):
+            data[time_field] = time_ns_from_payload(payload, time_field)
         return cls.from_json(data)
 
 
@@ -494,4 +509,5 @@ __all__ = [
     "TrialResult",
     "TrialState",
     "stamp",
+    "time_ns_from_payload",
 ]

@@ -4,10 +4,10 @@ Every topic is JSON-encoded with a `jsonschema` schema whose top level is an obj
 that). The schemas are not written by hand: each is derived from the fields and type hints of the
 record that makes the payload (`rig.log.records`, and the seams' `ServoState` and `LoadCellSample`),
 so a field added to a record appears in its schema. Conventions: a missing number is `null`
-(`["number", "null"]`), never NaN; integers stay below 2**53 so that JavaScript readers see them
-exactly, except the epoch-nanosecond fields named `*_time_ns` (kept exact for Python replay), each
-with a `{sec, nsec}` twin for JavaScript and Foxglove. `/rig/log` is Foxglove's well-known
-`foxglove.Log`, kept field for field.
+(`["number", "null"]`), never NaN; every integer stays below 2**53 so that JavaScript readers see
+it exactly; a record's epoch-nanosecond field `*_time_ns` appears as a `{sec, nsec}` timestamp named
+without the suffix (Foxglove's time type). `/rig/log` is Foxglove's well-known `foxglove.Log`, kept
+field for field.
 
 `/rig/loadcell` (1 kHz) is logged as rows (`ROW_FIELDS`), not records: no object per sample.
 """
@@ -66,11 +66,6 @@ _TIMESTAMP = {
     },
     "required": ["sec", "nsec"],
 }
-_TIME_NS = {
-    "type": "integer",
-    "minimum": 0,
-    "description": "epoch ns (exceeds 2^53: use the {sec,nsec} twin)",
-}
 
 
 def _type_schema(name: str, hint: Any) -> dict[str, Any]:
@@ -91,7 +86,7 @@ def _type_schema(name: str, hint: Any) -> dict[str, Any]:
         return {"type": "boolean"}
     if hint is int:
         if name.endswith("_time_ns"):
-            return dict(_TIME_NS)
+            return dict(_TIMESTAMP)
         return {"type": "integer", "maximum": MAX_SAFE_INT, "minimum": -MAX_SAFE_INT}
     if hint is float:
         return {"type": "number"}
@@ -113,7 +108,10 @@ def _type_schema(name: str, hint: Any) -> dict[str, Any]:
 
 
 def _field_schemas(record: type, *, exclude: tuple[str, ...] = (), nullable: bool = False) -> dict[str, Any]:
-    """`{field: schema}` for a dataclass or NamedTuple, in field order (all nullable if asked)."""
+    """`{payload name: schema}` for a dataclass or NamedTuple, in field order (all nullable if asked).
+
+    A `*_time_ns` field is the `{sec, nsec}` timestamp named without the suffix (`records.stamp`).
+    """
     hints = typing.get_type_hints(record)
     names = [f.name for f in fields(record)] if is_dataclass(record) else list(record._fields)  # type: ignore[attr-defined]
     out: dict[str, Any] = {}
@@ -124,14 +122,8 @@ def _field_schemas(record: type, *, exclude: tuple[str, ...] = (), nullable: boo
         if nullable and "null" not in schema["type"]:
             kinds = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
             schema = {**schema, "type": [*kinds, "null"]}
-        out[name] = schema
+        out[stamp_name(name)] = schema
     return out
-
-
-def _with_time_twins(properties: dict[str, Any]) -> dict[str, Any]:
-    """Add the `{sec, nsec}` twin of every `*_time_ns` property."""
-    twins = {stamp_name(name): _TIMESTAMP for name in properties if name.endswith("_time_ns")}
-    return {**properties, **twins}
 
 
 def _rig_object(title: str, description: str, properties: dict[str, Any]) -> dict[str, Any]:
@@ -224,20 +216,16 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         _rig_object(
             "rig.SlipEvent",
             "A slip detected in the load-cell signal; detector parameters by name; joint 1-based or null.",
-            _with_time_twins(
-                {
-                    **_field_schemas(SlipMessage, exclude=("event", "detector", "joint")),
-                    **_field_schemas(SlipEvent),
-                    **_field_schemas(SlipMessage, exclude=("trial_id", "event")),
-                }
-            ),
+            {
+                **_field_schemas(SlipMessage, exclude=("event", "detector", "joint")),
+                **_field_schemas(SlipEvent),
+                **_field_schemas(SlipMessage, exclude=("trial_id", "event")),
+            },
         ),
     ),
     TRIAL_RESULT: (
         "rig.TrialResult",
-        _rig_object(
-            "rig.TrialResult", "The result of one trial.", _with_time_twins(_field_schemas(TrialResult))
-        ),
+        _rig_object("rig.TrialResult", "The result of one trial.", _field_schemas(TrialResult)),
     ),
     ESTIMATE: (
         "rig.Estimate",

@@ -80,7 +80,8 @@ class RunLogger:
     :param max_pending: queued messages above which `log()` waits for the writer to catch up.
     :param max_file_bytes: the most the file may hold; the writer's writes beyond it fail (as on a
         full disk) and the logger raises `LogWriteError`. None: no limit but the disk's.
-    :param live: a live view to tee every logged message into (only topics a client subscribed to).
+    :param live: a live view that gets every batch too (the bytes pickled for the writer process,
+        while a client subscribes to something; `rig.log.live`).
     """
 
     def __init__(
@@ -119,6 +120,8 @@ class RunLogger:
         self._finished = False
         self.messages_logged = 0  # accepted by log()
         self.live = live
+        if live is not None:  # what is still in the batch when the view closes goes to it first
+            live.add_close_hook(self._send_batch)
 
         file_fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         request_read, request_write = os.pipe()
@@ -199,9 +202,6 @@ class RunLogger:
         added = len(batch) - count
         if added:
             self.messages_logged += added
-            live = self.live
-            if live is not None and live.wants(topic):
-                live.publish(topic, [(m[1], m[3]) for m in batch[count:]])
             self._maybe_send(batch[-1][1])
 
     def _check_loggable(self, topic: str) -> None:
@@ -333,6 +333,9 @@ class RunLogger:
                 self._release(request[1])
             return
         data = pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL)
+        live = self.live
+        if count and live is not None:
+            live.publish_pickled(data, count)  # the same bytes: no second encoding in this process
         self._sent += count
         try:
             self._requests.send_bytes(data)
