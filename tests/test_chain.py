@@ -231,7 +231,8 @@ def test_slip_force_puts_one_joint_on_its_capacity_and_none_above(link, capaciti
     force = float(p.slip_force_n) * unit
     utilisation = joint_moment_norms(transforms, point, force)[1:] / caps
     assert np.max(utilisation) == pytest.approx(1.0, rel=1e-9)
-    assert int(np.argmax(utilisation)) + 1 == int(p.first_slip_joint) or p.tied_joints[np.argmax(utilisation)]
+    # The joint named first is on its capacity (several may be, within rounding: ties are not exact).
+    assert utilisation[int(p.first_slip_joint) - 1] == pytest.approx(1.0, rel=1e-9)
     np.testing.assert_allclose(utilisation[p.tied_joints], 1.0, rtol=1e-9)
     assert np.all(utilisation[~p.tied_joints] < 1.0 + 1e-9)
     assert tolerated(transforms, caps, point, force)
