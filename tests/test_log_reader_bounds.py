@@ -500,7 +500,7 @@ def test_replay_of_a_bombed_log_exits_0_with_warnings_in_bounded_time_and_memory
     assert any(
         f"smoke.mcap: byte {at + len(bomb)}: unreadable record (opcode 0x09" in w for w in out["warnings"]
     )
-    assert measured["elapsed_s"] < clean["elapsed_s"] + 3
+    assert measured["elapsed_s"] < 2 * clean["elapsed_s"] + 3  # side by side; loose: the machine is shared
     assert measured["peak_mib"] < clean["peak_mib"] + 64, (measured, clean)
 
     bomb_only = tmp_path / "bomb_only.mcap"
