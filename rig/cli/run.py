@@ -172,8 +172,17 @@ def _dry_run(args: argparse.Namespace) -> int:
             else f"config {t['configuration_index']}"
         )
         rows.append([t["trial_id"], t["kind"], where, t["repeat"], " ".join(t["steps"])])
-    print(f"protocol {plan['protocol']} on rig {plan['rig']} ({plan['rig_kind']}): {len(rows)} trials\n")
+    adaptive = plan.get("adaptive", [])
+    count = f"{len(rows)} trials" if not adaptive else f"{len(rows)} trials planned ahead"
+    print(f"protocol {plan['protocol']} on rig {plan['rig']} ({plan['rig_kind']}): {count}\n")
     print(format_table(["trial", "kind", "distance / config", "repeat", "steps"], rows))
+    for block in adaptive:
+        startup = ", ".join(str(block["first_trial_id"] + i) for i in range(block["startup_trials"]))
+        print(
+            f"\nblock {block['block']} (adaptive, joint {block['joint']}): trials {startup} are its start-up "
+            f"(a distance whose predicted slip force is too high is replaced by the shortest safe one); "
+            f"{block['text']}"
+        )
     print("\nlimit checks:")
     print(
         format_table(
