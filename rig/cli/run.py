@@ -225,6 +225,7 @@ def _request(args: argparse.Namespace) -> RunRequest:
 
 def _summary(report: RunReport) -> str:
     lines = [f"run {report.run_id}: {report.completed}/{report.planned} trials done; log {report.log}"]
+    lines += [summary.text for summary in report.design]  # adaptive blocks: where they stopped, and why
     if report.aborted:
         if report.safe_state_verified:
             lines.append(

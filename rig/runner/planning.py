@@ -38,6 +38,7 @@ class AdaptiveSummary:
     step: DesignStep
     target_half_width_rel: float
     max_trials: int
+    text: str  # the line logged and shown for it
 
     def to_json(self) -> dict[str, Any]:
         """The JSON object of this block's state."""
@@ -140,8 +141,14 @@ class TrialSchedule:
 
     def _report(self, block: AdaptiveBlock, step: DesignStep) -> None:
         design = block.design
-        self.summaries[block.block] = AdaptiveSummary(
-            block.block, block.joint, design.estimator, step, design.target_half_width_rel, design.max_trials
-        )
         text = f"adaptive design, block {block.block} (joint {block.joint}): {step.text(design)}"
+        self.summaries[block.block] = AdaptiveSummary(
+            block.block,
+            block.joint,
+            design.estimator,
+            step,
+            design.target_half_width_rel,
+            design.max_trials,
+            text,
+        )
         self.announce(text, step.lack_of_fit.rejected)
