@@ -13,7 +13,10 @@ trial that most shrinks it is the one with the largest I(l) among the distances 
 2. **Lack of fit** of the 1/l law (`lack_of_fit`), reported after every trial: a weighted
    pure-error F test once distances are repeated, else a t test of an offset c in m = k/l + c.
 3. **Stop** when the bound's half-width is at most `target_half_width_rel` of k (after at least
-   `min_trials` trials), or at `max_trials`, or when no candidate distance is safe.
+   `min_trials` trials), or at `max_trials`, or when no candidate distance is safe. The bound
+   stopped on comes from the data that said stop, so a scatter that looks small by chance stops a
+   series early with a bound too narrow; `min_trials` (10 by default) keeps that rare enough that
+   coverage stays the fixed design's (studies/adaptive_design.py).
 4. **Candidates**: `distance_count` distances evenly over `distance_range_m`, keeping only those
    longer than every distance that gave no slip (a lower bound on the force there) and whose
    predicted slip force stays below `max_slip_force_n`: k's upper estimate k + 3·se, plus three
@@ -76,7 +79,7 @@ class DesignSettings:
     distance_count: int = 8
     target_half_width_rel: float = 0.02
     max_trials: int = 24
-    min_trials: int = 6
+    min_trials: int = 10
     startup_trials: int = 3
     min_spread_fraction: float = 0.1
     estimator: EstimatorName = "auto"

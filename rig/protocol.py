@@ -451,7 +451,7 @@ def _adaptive_block(
             "distance_range_m", f"[{lo}, {hi}]; allowed: [shortest, longest] with shortest < longest"
         )
     max_trials = block.integer("max_trials", default=24, min_value=2, max_value=MAX_ITEMS)
-    min_trials = block.integer("min_trials", default=min(6, max_trials), min_value=2, max_value=max_trials)
+    min_trials = block.integer("min_trials", default=min(10, max_trials), min_value=2, max_value=max_trials)
     startup = block.integer("startup_trials", default=min(3, max_trials), min_value=2, max_value=max_trials)
     estimator = block.string("estimator", default=DEFAULT_ESTIMATOR, choices=ESTIMATOR_NAMES)
     design = DesignSettings(

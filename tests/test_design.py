@@ -22,7 +22,9 @@ from model.estimators import KEstimate
 
 K = 0.1615  # kg·m
 G = 9.8
-SETTINGS = DesignSettings(0.03, 0.25, distance_count=8, target_half_width_rel=0.02, max_trials=24)
+SETTINGS = DesignSettings(
+    0.03, 0.25, distance_count=8, target_half_width_rel=0.02, max_trials=24, min_trials=6
+)
 NO_LIMIT = math.inf
 
 

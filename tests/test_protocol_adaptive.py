@@ -50,7 +50,7 @@ def test_an_adaptive_block_keeps_its_budget_of_trial_ids():
     assert protocol.as_metadata()["trials"] == "15"
     design = block.design
     assert (design.distance_min_m, design.distance_max_m, design.max_trials) == (0.03, 0.25, 10)
-    assert (design.min_trials, design.startup_trials, design.estimator) == (6, 3, "auto")
+    assert (design.min_trials, design.startup_trials, design.estimator) == (10, 3, "auto")  # min(10, max)
     assert block.max_force_fraction == 0.8
     trial = block.trial(7, 0.03, 2)
     assert (trial.kind, trial.joint, trial.distance_m, trial.repeat, trial.block) == (
