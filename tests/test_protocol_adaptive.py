@@ -148,3 +148,18 @@ def test_dry_run_shows_the_startup_trials_then_the_adaptive_rest(run_cli, cli_js
 def test_dry_run_of_a_fixed_protocol_has_no_adaptive_key(cli_json):
     plan = cli_json("run", "protocols/joint_estimation.yaml", "--dry-run", "--json")
     assert "adaptive" not in plan and len(plan["trials"]) == 24
+
+
+@pytest.mark.slow  # a few trials on the byte-level simulated rig
+def test_rig_run_on_the_simulated_rig_says_why_the_adaptive_block_stopped(run_cli, protocol_file, tmp_path):
+    body = HEAD + ADAPTIVE.replace("max_trials: 10", "max_trials: 4")
+    body += "    min_trials: 3\n    target_half_width_rel: 0.5\n"
+    body += "    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]\n"
+    path = protocol_file(body)
+    result = run_cli("run", path, "--out", tmp_path / "out", "--run-id", "sim1")
+    assert result.code == 0, result.err
+    summary = result.out.splitlines()
+    assert summary[0].startswith("run sim1: ") and "/4 trials done" in summary[0]
+    stop = next(line for line in summary if line.startswith("adaptive design, block 0 (joint 1): stopped"))
+    assert "target reached" in stop or "trial budget of 4 used" in stop
+    assert "lack of fit" in stop
