@@ -2,8 +2,9 @@
 
 A protocol (YAML, `format: rig-protocol/1`, documented in `protocols/README.md`) names the slip
 detector settings, the ramp, protocol limits, and a list of blocks. A block is a joint-estimation
-series (distances x repeats, optionally shuffled) or a link-validation series (planar
-configurations). Each trial of a block runs the same template of steps (prompt, tare, bend,
+series (distances x repeats, optionally shuffled; or `design: adaptive`, whose distances the
+planner `model.design` chooses one trial at a time, see `AdaptiveBlock`) or a link-validation
+series (planar configurations). Each trial of a block runs the same template of steps (prompt, tare, bend,
 measure, ramp_until_slip, unload, reset, pause). Expansion is deterministic for a given seed, so a
 resumed run sees the same plan.
 """
@@ -18,12 +19,29 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from model.design import DesignSettings
+from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, check_estimator
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
 
 PROTOCOL_FORMAT = "rig-protocol/1"
 BLOCK_KINDS = ("joint_estimation", "link_validation")
+DESIGNS = ("fixed", "adaptive")
+# The keys of each joint-estimation design (docs/formats.md §1): the other design's are refused by name.
+FIXED_KEYS = ("distances_m", "repeats", "shuffle")
+ADAPTIVE_KEYS = (
+    "distance_range_m",
+    "distance_count",
+    "target_half_width_rel",
+    "max_trials",
+    "min_trials",
+    "startup_trials",
+    "min_spread_fraction",
+    "max_force_fraction",
+    "estimator",
+)
+DEFAULT_MAX_FORCE_FRACTION = 0.8
 STEP_KINDS = ("prompt", "tare", "bend", "measure", "ramp_until_slip", "unload", "reset", "pause")
 DEFAULT_STEPS: dict[str, tuple[str, ...]] = {
     "joint_estimation": ("prompt", "tare", "ramp_until_slip", "unload", "pause"),
@@ -94,8 +112,45 @@ class TrialPlan:
 
 
 @dataclass(frozen=True)
+class AdaptiveBlock:
+    """A joint-estimation block with `design: adaptive`: the planner chooses each trial's distance.
+
+    It owns the trial ids `trial_ids` (its budget, `design.max_trials`) whether or not it uses them
+    all, so the blocks after it keep their ids. A trial's distance is never chosen where its
+    predicted slip force exceeds `max_force_fraction` of `max_force_n` (the ramp's, below the ceiling).
+    """
+
+    block: int
+    first_trial_id: int
+    joint: int
+    steps: tuple[StepSpec, ...]
+    design: DesignSettings
+    max_force_fraction: float
+    kind: str = "joint_estimation"
+
+    @property
+    def trial_ids(self) -> range:
+        """The ids this block may use, in order."""
+        return range(self.first_trial_id, self.first_trial_id + self.design.max_trials)
+
+    def trial(self, trial_id: int, distance_m: float, repeat: int) -> TrialPlan:
+        """The plan of one of this block's trials at the distance the planner chose."""
+        if trial_id not in self.trial_ids:
+            raise ValueError(f"trial {trial_id} is outside block {self.block}'s ids {self.trial_ids}")
+        return TrialPlan(
+            trial_id=trial_id,
+            block=self.block,
+            kind=self.kind,
+            repeat=repeat,
+            steps=self.steps,
+            joint=self.joint,
+            distance_m=distance_m,
+        )
+
+
+@dataclass(frozen=True)
 class Protocol:
-    """A validated protocol and its expanded trial plan."""
+    """A validated protocol and its expanded trial plan (fixed trials; adaptive blocks apart)."""
 
     source: Path
     text: str
@@ -107,12 +162,27 @@ class Protocol:
     step_timeout_margin_s: float
     control_period_s: float
     estimates_from: str | None  # "run" (earlier block of this protocol) or a file path
-    trials: tuple[TrialPlan, ...]
+    trials: tuple[TrialPlan, ...]  # the fixed blocks' trials
+    adaptive: tuple[AdaptiveBlock, ...] = ()
 
     @property
     def kinds(self) -> set[str]:
         """The trial kinds the plan contains."""
-        return {t.kind for t in self.trials}
+        return {t.kind for t in self.trials} | {b.kind for b in self.adaptive}
+
+    @property
+    def schedule(self) -> tuple[TrialPlan | AdaptiveBlock, ...]:
+        """Fixed trials and adaptive blocks in the order they run."""
+        items: list[TrialPlan | AdaptiveBlock] = [*self.trials, *self.adaptive]
+        return tuple(
+            sorted(items, key=lambda i: i.trial_id if isinstance(i, TrialPlan) else i.first_trial_id)
+        )
+
+    @property
+    def planned_trial_ids(self) -> list[int]:
+        """Every trial id the run may use: the fixed trials' and each adaptive block's budget."""
+        ids = [t.trial_id for t in self.trials] + [i for b in self.adaptive for i in b.trial_ids]
+        return sorted(ids)
 
     def as_metadata(self) -> dict[str, str]:
         """A flat str->str summary for the MCAP `protocol` metadata record."""
@@ -120,7 +190,7 @@ class Protocol:
             "name": self.name,
             "source": str(self.source),
             "format": PROTOCOL_FORMAT,
-            "trials": str(len(self.trials)),
+            "trials": str(len(self.planned_trial_ids)),
             "kinds": ",".join(sorted(self.kinds)),
             "detector": ",".join(f"{k}={v!r}" for k, v in self.detector.items()),
             "control_period_s": repr(self.control_period_s),
@@ -169,6 +239,8 @@ def parse_protocol(
         )
     rng = random.Random(seed)
     trials: list[TrialPlan] = []
+    adaptive: list[AdaptiveBlock] = []
+    used = 0  # trial ids given out so far (an adaptive block takes its whole budget)
     estimates_from: str | None = None
     name = top.string("name", default=Path(source).stem)
     if top.has("name") and not NAME_PATTERN.fullmatch(name):
@@ -179,21 +251,37 @@ def parse_protocol(
     for b, raw_block in enumerate(blocks):
         block = Section(raw_block, source, f"blocks[{b}]")
         kind = block.string("kind", choices=BLOCK_KINDS)
-        if kind == "joint_estimation":
-            new = _joint_estimation_block(block, b, len(trials), rng, joint_count)
+        if kind == "joint_estimation" and block.has("design"):
+            design = block.string("design", choices=DESIGNS)
         else:
-            new = _link_validation_block(block, b, len(trials), joint_count)
-        if len(trials) + len(new) > MAX_TRIALS:
+            design = "fixed"
+        if design == "adaptive":
+            chosen = _adaptive_block(block, b, used, ramp, joint_count)
+            if used + chosen.design.max_trials > MAX_TRIALS:
+                raise block.error(
+                    "max_trials",
+                    f"the protocol would have more than {MAX_TRIALS} trials; allowed: at most {MAX_TRIALS}",
+                )
+            _check_prompts(block, chosen.trial(chosen.first_trial_id, chosen.design.distance_min_m, 1))
+            adaptive.append(chosen)
+            used += chosen.design.max_trials
+            continue
+        if kind == "joint_estimation":
+            new = _joint_estimation_block(block, b, used, rng, joint_count)
+        else:
+            new = _link_validation_block(block, b, used, joint_count)
+        if used + len(new) > MAX_TRIALS:
             raise block.error(
                 "repeats",
                 f"the protocol would have more than {MAX_TRIALS} trials; allowed: at most {MAX_TRIALS}",
             )
         _check_prompts(block, new[0])
         trials += new
+        used += len(new)
         if kind == "link_validation":
             source_of_estimates = block.string("estimates_from", default="run")
             if source_of_estimates == "run":
-                if not any(t.kind == "joint_estimation" for t in trials):
+                if not adaptive and not any(t.kind == "joint_estimation" for t in trials):
                     raise block.error(
                         "estimates_from",
                         "'run' needs a joint_estimation block earlier in this protocol; "
@@ -223,6 +311,7 @@ def parse_protocol(
         control_period_s=top.number("control_period_s", default=0.02, min_value=0.001, max_value=0.1),
         estimates_from=estimates_from,
         trials=tuple(trials),
+        adaptive=tuple(adaptive),
     )
 
 
@@ -319,7 +408,10 @@ def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
 def _joint_estimation_block(
     block: Section, b: int, offset: int, rng: random.Random, joint_count: int | None
 ) -> list[TrialPlan]:
-    block.reject_unknown(["kind", "joint", "distances_m", "repeats", "shuffle", "steps"])
+    for key in ADAPTIVE_KEYS:
+        if block.has(key):
+            raise block.error(key, "only with design: adaptive; allowed here: distances_m, repeats, shuffle")
+    block.reject_unknown(["kind", "design", "joint", *FIXED_KEYS, "steps"])
     joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
     distances = block.numbers("distances_m", max_length=MAX_ITEMS, min_value=0.001, max_value=2.0)
     repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
@@ -339,6 +431,53 @@ def _joint_estimation_block(
         )
         for i, (d, r) in enumerate(order)
     ]
+
+
+def _adaptive_block(
+    block: Section, b: int, offset: int, ramp: RampSettings, joint_count: int | None
+) -> AdaptiveBlock:
+    """A `design: adaptive` joint-estimation block (docs/formats.md §1), validated."""
+    for key in FIXED_KEYS:
+        if block.has(key):
+            raise block.error(
+                key,
+                "not with design: adaptive (the planner chooses the distances); allowed: distance_range_m",
+            )
+    block.reject_unknown(["kind", "design", "joint", *ADAPTIVE_KEYS, "steps"])
+    joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
+    lo, hi = block.numbers("distance_range_m", length=2, min_value=0.001, max_value=2.0)
+    if not lo < hi:
+        raise block.error(
+            "distance_range_m", f"[{lo}, {hi}]; allowed: [shortest, longest] with shortest < longest"
+        )
+    max_trials = block.integer("max_trials", default=24, min_value=2, max_value=MAX_ITEMS)
+    min_trials = block.integer("min_trials", default=min(10, max_trials), min_value=2, max_value=max_trials)
+    startup = block.integer("startup_trials", default=min(3, max_trials), min_value=2, max_value=max_trials)
+    estimator = block.string("estimator", default=DEFAULT_ESTIMATOR, choices=ESTIMATOR_NAMES)
+    design = DesignSettings(
+        distance_min_m=lo,
+        distance_max_m=hi,
+        distance_count=block.integer("distance_count", default=8, min_value=2, max_value=100),
+        target_half_width_rel=block.number(
+            "target_half_width_rel", default=0.02, min_value=0.001, max_value=0.5
+        ),
+        max_trials=max_trials,
+        min_trials=min_trials,
+        startup_trials=startup,
+        min_spread_fraction=block.number("min_spread_fraction", default=0.1, min_value=0.0, max_value=0.5),
+        estimator=check_estimator(estimator),
+    )
+    fraction = block.number(
+        "max_force_fraction", default=DEFAULT_MAX_FORCE_FRACTION, min_value=0.1, max_value=0.95
+    )
+    return AdaptiveBlock(
+        block=b,
+        first_trial_id=offset + 1,
+        joint=joint,
+        steps=_steps(block, "joint_estimation"),
+        design=design,
+        max_force_fraction=fraction,
+    )
 
 
 def _link_validation_block(block: Section, b: int, offset: int, joint_count: int | None) -> list[TrialPlan]:

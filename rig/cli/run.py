@@ -172,8 +172,17 @@ def _dry_run(args: argparse.Namespace) -> int:
             else f"config {t['configuration_index']}"
         )
         rows.append([t["trial_id"], t["kind"], where, t["repeat"], " ".join(t["steps"])])
-    print(f"protocol {plan['protocol']} on rig {plan['rig']} ({plan['rig_kind']}): {len(rows)} trials\n")
+    adaptive = plan.get("adaptive", [])
+    count = f"{len(rows)} trials" if not adaptive else f"{len(rows)} trials planned ahead"
+    print(f"protocol {plan['protocol']} on rig {plan['rig']} ({plan['rig_kind']}): {count}\n")
     print(format_table(["trial", "kind", "distance / config", "repeat", "steps"], rows))
+    for block in adaptive:
+        startup = ", ".join(str(block["first_trial_id"] + i) for i in range(block["startup_trials"]))
+        print(
+            f"\nblock {block['block']} (adaptive, joint {block['joint']}): trials {startup} are its start-up "
+            f"(a distance whose predicted slip force is too high is replaced by the shortest safe one); "
+            f"{block['text']}"
+        )
     print("\nlimit checks:")
     print(
         format_table(
@@ -216,6 +225,7 @@ def _request(args: argparse.Namespace) -> RunRequest:
 
 def _summary(report: RunReport) -> str:
     lines = [f"run {report.run_id}: {report.completed}/{report.planned} trials done; log {report.log}"]
+    lines += [summary.text for summary in report.design]  # adaptive blocks: where they stopped, and why
     if report.aborted:
         if report.safe_state_verified:
             lines.append(

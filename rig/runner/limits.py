@@ -13,7 +13,7 @@ from typing import Any
 
 from rig.errors import InputError
 from rig.hw.dxl.control_table import table_for_model
-from rig.protocol import Protocol, TrialPlan
+from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
 from rig.rig_config import RigConfig
 
 
@@ -80,6 +80,16 @@ def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
                     False,
                 )
             )
+    for block in protocol.adaptive:
+        if block.joint > config.article.joint_count:
+            checks.append(
+                LimitCheck(
+                    f"block {block.block} (adaptive): joint exists",
+                    str(block.joint),
+                    str(config.article.joint_count),
+                    False,
+                )
+            )
     return checks
 
 
@@ -115,12 +125,38 @@ def estimated_trial_s(
     return seconds
 
 
+def max_slip_force_n(block: AdaptiveBlock, protocol: Protocol, config: RigConfig) -> float:
+    """The highest slip force an adaptive block may aim at: a share of the ramp's maximum and the ceiling."""
+    ceiling = config.limits.force_ceiling_n
+    if protocol.force_ceiling_n is not None:
+        ceiling = min(ceiling, protocol.force_ceiling_n)
+    return block.max_force_fraction * min(protocol.ramp.max_force_n, ceiling)
+
+
+def startup_trials(block: AdaptiveBlock) -> list[TrialPlan]:
+    """An adaptive block's start-up trials as planned (before the force filter moves any of them)."""
+    distances = block.design.startup_m
+    return [
+        block.trial(block.first_trial_id + i, d, 1 + distances[:i].count(d)) for i, d in enumerate(distances)
+    ]
+
+
 def plan_summary(protocol: Protocol, config: RigConfig) -> dict[str, Any]:
-    """The dry-run description: trials, checks and estimated duration."""
+    """The dry-run description: trials, checks and estimated duration.
+
+    For an adaptive block the trials listed are its start-up trials, and `adaptive` says how it goes
+    on; its duration counts its whole budget.
+    """
     checks = limit_checks(protocol, config)
     typical = 0.5 * protocol.ramp.max_force_n
+    shown: list[TrialPlan] = []
+    for item in protocol.schedule:
+        shown += startup_trials(item) if isinstance(item, AdaptiveBlock) else [item]
     durations = [estimated_trial_s(t, protocol, config, typical) for t in protocol.trials]
-    return {
+    for block in protocol.adaptive:
+        sample = block.trial(block.first_trial_id, block.design.distance_max_m, 1)
+        durations.append(block.design.max_trials * estimated_trial_s(sample, protocol, config, typical))
+    summary: dict[str, Any] = {
         "protocol": protocol.name,
         "rig": config.name,
         "rig_kind": config.kind,
@@ -137,12 +173,41 @@ def plan_summary(protocol: Protocol, config: RigConfig) -> dict[str, Any]:
                 else None,
                 "steps": [s.kind for s in t.steps],
             }
-            for t in protocol.trials
+            for t in shown
         ],
         "limit_checks": [{"check": c.name, "value": c.value, "limit": c.limit, "ok": c.ok} for c in checks],
         "estimated_duration_s": sum(durations),
         "duration_assumption": (
             f"slip at {typical:.1f} N in every trial, nominal line stiffness "
             f"{config.line_stiffness_n_per_m:g} N/m, no operator time"
+            + (", every adaptive block's whole budget" if protocol.adaptive else "")
+        ),
+    }
+    if protocol.adaptive:
+        summary["adaptive"] = [adaptive_plan(block, protocol, config) for block in protocol.adaptive]
+    return summary
+
+
+def adaptive_plan(block: AdaptiveBlock, protocol: Protocol, config: RigConfig) -> dict[str, Any]:
+    """What a dry run can say of an adaptive block before any trial."""
+    design = block.design
+    return {
+        "block": block.block,
+        "joint": block.joint,
+        "first_trial_id": block.first_trial_id,
+        "startup_trials": design.startup_trials,
+        "min_trials": design.min_trials,
+        "max_trials": design.max_trials,
+        "distance_range_m": [design.distance_min_m, design.distance_max_m],
+        "candidate_distances_m": list(design.candidates_m),
+        "target_half_width_rel": design.target_half_width_rel,
+        "estimator": design.estimator,
+        "max_slip_force_n": max_slip_force_n(block, protocol, config),
+        "text": (
+            f"then adaptive up to {design.max_trials} trials in all: the distance that most narrows the "
+            f"bound on k ({design.estimator}) among {design.distance_count} from {design.distance_min_m:g} "
+            f"to {design.distance_max_m:g} m whose predicted slip force stays below "
+            f"{max_slip_force_n(block, protocol, config):.1f} N; stops once the half-width is at most "
+            f"{100 * design.target_half_width_rel:g} % of k (after at least {design.min_trials} trials)"
         ),
     }

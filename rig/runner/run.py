@@ -39,6 +39,7 @@ from rig.rig_config import RigConfig, load_rig_config
 from rig.runner.estimation import RunEstimator, load_estimates_file
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
+from rig.runner.planning import AdaptiveSummary, TrialSchedule
 from rig.runner.progress import ProgressReporter
 from rig.runner.results import percentage_error_stats
 from rig.runner.runlock import RunLock
@@ -86,6 +87,7 @@ class RunReport:
     joints: tuple[JointCapacity, ...] = ()
     truth: dict[str, Any] | None = None
     safe_state_verified: bool = True
+    design: tuple[AdaptiveSummary, ...] = ()  # adaptive blocks: where each stands, why it stopped
 
     def as_json(self) -> dict[str, Any]:
         """The `rig run --json` object (docs/design.md §5)."""
@@ -102,6 +104,8 @@ class RunReport:
             "estimate": self.estimate.as_json() if self.estimate is not None else None,
             "joints": [j.to_json() for j in self.joints],
         }
+        if self.design:
+            out["design"] = [d.to_json() for d in self.design]
         if self.percentage_errors is not None:
             out["percentage_errors"] = self.percentage_errors.to_dict()
         if self.truth is not None:
@@ -119,7 +123,7 @@ class PreparedRun:
     run_id: str
     journal: RunJournal
     estimator: RunEstimator
-    remaining: list[TrialPlan]
+    remaining: list[TrialPlan]  # the fixed trials not done yet (adaptive blocks choose theirs as they run)
     log_path: Path  # this invocation's MCAP file
     estimates_path: Path
     lock: RunLock | None = None
@@ -165,7 +169,7 @@ def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
             rig_path=str(config.source),
             rig_hash=content_hash(config.text),
             seed=request.seed,
-            planned_trials=[t.trial_id for t in protocol.trials],
+            planned_trials=protocol.planned_trial_ids,
         )
         return _prepared(request, protocol, config, journal, lock)
 
@@ -251,6 +255,7 @@ def _execute(
     outcome: RunOutcome | None = None
     logger: RunLogger | None = None
     log_error: LogWriteError | None = None
+    schedule: TrialSchedule | None = None
     try:
         with interrupts_held() as early:
             journal.invocations += 1
@@ -261,7 +266,7 @@ def _execute(
                 log_path, clock=session.clock, max_file_bytes=session.log_limit_bytes, live=live
             )
             _write_metadata(logger, prepared, session)
-            progress.start(journal.run_id, len(protocol.trials), len(journal.completed))
+            progress.start(journal.run_id, len(protocol.planned_trial_ids), len(journal.completed))
             runner = TrialRunner(
                 protocol=protocol,
                 config=config,
@@ -272,10 +277,11 @@ def _execute(
                 progress=progress,
                 line_stiffness_n_per_m=config.line_stiffness_n_per_m,
             )
+            schedule = TrialSchedule(protocol, config, journal, runner.announce)
         try:
             if early:
                 raise KeyboardInterrupt
-            outcome = runner.run(prepared.remaining)
+            outcome = runner.run(schedule)
         except KeyboardInterrupt:
             # Before the runner began (nothing connected yet), or just after its safe state.
             if not runner.connected:
@@ -292,7 +298,7 @@ def _execute(
         verified = outcome.safe_state_verified
         outcome = RunOutcome(ExitCode.FAULT, "faulted", reason, outcome.new_results, verified)
     with interrupts_held():
-        return _finish(prepared, session, outcome)
+        return _finish(prepared, session, outcome, schedule)
 
 
 def _finish_log(logger: RunLogger, session: RigSession | None) -> LogWriteError | None:
@@ -317,7 +323,9 @@ def _finish_log(logger: RunLogger, session: RigSession | None) -> LogWriteError 
     return None
 
 
-def _finish(prepared: PreparedRun, session: RigSession, outcome: RunOutcome) -> RunReport:
+def _finish(
+    prepared: PreparedRun, session: RigSession, outcome: RunOutcome, schedule: TrialSchedule | None = None
+) -> RunReport:
     journal, log_path, estimates_path = prepared.journal, prepared.log_path, prepared.estimates_path
     journal.status = outcome.status
     journal.save()
@@ -336,7 +344,7 @@ def _finish(prepared: PreparedRun, session: RigSession, outcome: RunOutcome) -> 
         logs=list(journal.logs),
         trials=list(journal.completed),
         completed=len(journal.completed),
-        planned=len(prepared.protocol.trials),
+        planned=len(prepared.protocol.planned_trial_ids),
         aborted=outcome.exit_code != ExitCode.OK,
         reason=outcome.reason,
         exit_code=outcome.exit_code,
@@ -345,6 +353,7 @@ def _finish(prepared: PreparedRun, session: RigSession, outcome: RunOutcome) -> 
         percentage_errors=percentage_error_stats(journal.completed),
         joints=joints,
         truth=truth,
+        design=tuple(schedule.summaries.values()) if schedule is not None else (),
     )
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import math
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 from model.slip_detector import DetectorParams, SlipEvent, detector_init, detector_step
@@ -141,8 +141,12 @@ class TrialRunner:
 
     # ------------------------------------------------------------------ run
 
-    def run(self, trials: list[TrialPlan]) -> RunOutcome:
-        """Run `trials` in order and always end safe; returns the exit code and status."""
+    def run(self, trials: Iterable[TrialPlan]) -> RunOutcome:
+        """Run `trials` in order and always end safe; returns the exit code and status.
+
+        `trials` may be lazy (`rig.runner.planning.TrialSchedule`): the next trial is asked for only
+        after the previous one is journalled.
+        """
         outcome = RunOutcome(ExitCode.OK, "completed")
         try:
             self._connect()
@@ -186,6 +190,12 @@ class TrialRunner:
                 if late:
                     self._note(LogLevel.WARNING, "Ctrl-C/SIGTERM in the safe state: held until it ended")
         return outcome
+
+    def announce(self, text: str, warning: bool = False) -> None:
+        """A line for the log (`/rig/log`, INFO or WARNING) that the progress display shows too."""
+        self._note(LogLevel.WARNING if warning else LogLevel.INFO, text)
+        if not warning:  # a warning is shown by `_note` already
+            self.progress.message(text)
 
     def _connect(self) -> None:
         self._phase(Phase.CONNECTING, None)

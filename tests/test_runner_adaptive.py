@@ -1,0 +1,155 @@
+"""Adaptive joint-estimation blocks in the runner, on the object-level fakes (rig/sim/fakes.py).
+
+The fake link slips at capacity / distance times a factor fixed per trial id, so the planner's
+choices can be followed and a resumed run compared with an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from mcap.reader import make_reader
+
+from rig.log import schemas
+from rig.runner.journal import RunJournal
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunRequest, execute_run, prepare_run
+from rig.sim.fakes import FakeRig, fake_rig
+
+G = 9.8
+CAPACITY_NM = 1.2  # slips at 40 N at 0.03 m
+# Per-trial capacity factors (about 5 % scatter, proportional to the load).
+FACTORS = [1.0, 1.06, 0.95, 1.03, 0.97, 1.05, 0.94, 1.02, 0.99, 1.04]
+MAX_SLIP_FORCE_N = 0.8 * 70.0  # max_force_fraction x max_force_n
+
+PROTOCOL = """\
+format: rig-protocol/1
+name: adaptive
+detector: {{arm_threshold_n: 2.0, drop_fraction: 0.15}}
+ramp: {{fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}}
+limits: {{force_ceiling_n: 75.0}}
+blocks:
+  - kind: joint_estimation
+    joint: 1
+    design: adaptive
+    distance_range_m: [0.03, 0.25]
+    distance_count: 8
+    max_trials: {max_trials}
+    min_trials: 6
+    target_half_width_rel: {target}
+    estimator: weighted
+    steps: [prompt, {{tare: {{settle_s: 0.1}}}}, ramp_until_slip, unload]
+"""
+
+
+class RecordingProgress(SilentProgress):
+    """Keeps the progress display's one-line messages."""
+
+    def __init__(self) -> None:
+        self.messages: list[str] = []
+
+    def message(self, text: str) -> None:
+        self.messages.append(text)
+
+
+def adaptive_rig(interrupt_at_trial: int | None = None) -> FakeRig:
+    rig = fake_rig(interrupt_at_trial=interrupt_at_trial)
+    forces = rig.line.slip_forces_n
+
+    def begin(trial) -> None:  # the link placed at the trial's distance: its slip force is known
+        forces.append(CAPACITY_NM / trial.distance_m * FACTORS[(trial.trial_id - 1) % len(FACTORS)])
+
+    rig.session.begin_trial = begin
+    return rig
+
+
+@pytest.fixture
+def run_adaptive(tmp_path, protocol_file):
+    """`run_adaptive(target=, max_trials=, run_id=, resume=False, rig=None)` -> (report, progress)."""
+
+    def run(*, target=0.001, max_trials=8, run_id="a1", resume=False, rig=None):
+        protocol = protocol_file(PROTOCOL.format(target=target, max_trials=max_trials), name=f"{run_id}.yaml")
+        request = RunRequest(
+            protocol_path=protocol,
+            rig_path=None,
+            out_dir=tmp_path / "out",
+            seed=1,
+            run_id=None if resume else run_id,
+            resume=run_id if resume else None,
+        )
+        progress = RecordingProgress()
+        rig = rig or adaptive_rig()
+        return execute_run(prepare_run(request), rig.session, progress), progress
+
+    return run
+
+
+def log_messages(path) -> list[str]:
+    with open(path, "rb") as f:
+        return [
+            json.loads(message.data)["message"]
+            for _, channel, message in make_reader(f).iter_messages()
+            if channel.topic == schemas.LOG
+        ]
+
+
+@pytest.mark.slow  # whole runs of 6-16 trials on the fakes: 1-5 s
+def test_the_planner_chooses_every_trial_and_stops_on_the_budget(run_adaptive, tmp_path):
+    report, progress = run_adaptive()
+    assert report.exit_code == 0 and not report.aborted and report.completed == 8 and report.planned == 8
+    distances = [t.distance_m for t in report.trials]
+    assert distances[:2] == [0.25, 0.155714286]  # the start-up, longest first
+    assert distances[2] < 0.155714286  # its third trial: the shortest distance found safe
+    assert all(t.outcome == "slip" for t in report.trials)
+    # Never a slip force above the planner's limit.
+    assert max(t.peak_force_n for t in report.trials) < MAX_SLIP_FORCE_N
+    assert [t.repeat for t in report.trials] == [1 + distances[:i].count(d) for i, d in enumerate(distances)]
+    # Proportional scatter (the weighted estimator's model): the planner spreads over the range.
+    assert len(set(distances)) >= 6
+    (design,) = report.design
+    data = report.as_json()["design"][0]
+    assert data["stop_reason"] == "budget" and data["trials"] == 8 and data["estimator"] == "weighted"
+    assert data["scatter_model"] == "multiplicative"
+    # Replicated distances: the pure-error F test; all distinct: the offset t test.
+    expected_test = "offset_t" if len(set(distances)) == len(distances) else "pure_error_f"
+    assert data["lack_of_fit"]["test"] == expected_test and data["lack_of_fit"]["rejected"] is False
+    assert design.step.stop is not None
+    # Reported after every trial, on the progress display and in the log; the last says why it stopped.
+    reports = [m for m in progress.messages if m.startswith("adaptive design")]
+    assert len(reports) == 9 and "stopped after 8 trial(s): trial budget of 8 used" in reports[-1]
+    assert all("lack of fit" in m for m in reports)
+    logged = [m for m in log_messages(tmp_path / "out" / "a1.mcap") if m.startswith("adaptive design")]
+    assert logged == reports
+    journal = RunJournal.load(tmp_path / "out" / "a1.journal.json")
+    assert journal.planned_trials == list(range(1, 9)) and journal.status == "completed"
+
+
+@pytest.mark.slow  # whole runs of 6-16 trials on the fakes: 1-5 s
+def test_the_block_stops_when_the_target_is_reached(run_adaptive):
+    report, progress = run_adaptive(target=0.5, max_trials=20)
+    assert report.exit_code == 0 and report.completed == 6 and report.planned == 20  # min_trials
+    assert report.as_json()["design"][0]["stop_reason"] == "target_reached"
+    assert "target reached" in progress.messages[-1]
+    assert report.as_json()["design"][0]["half_width_rel"] <= 0.5
+
+
+@pytest.mark.slow  # whole runs of 6-16 trials on the fakes: 1-5 s
+def test_a_resumed_adaptive_run_replans_from_its_journal(run_adaptive, tmp_path):
+    whole, _ = run_adaptive(run_id="whole")
+    interrupted, _ = run_adaptive(run_id="part", rig=adaptive_rig(interrupt_at_trial=5))
+    assert interrupted.exit_code == 130 and interrupted.completed == 4
+    resumed, progress = run_adaptive(run_id="part", resume=True)
+    assert resumed.exit_code == 0 and resumed.completed == 8
+    assert [t.trial_id for t in resumed.trials] == list(range(1, 9))
+    assert [t.distance_m for t in resumed.trials] == [t.distance_m for t in whole.trials]
+    assert "after 4 trial(s)" in next(m for m in progress.messages if m.startswith("adaptive design"))
+    # Resuming a run whose adaptive block already stopped: it stops again at once, nothing runs.
+    journal = RunJournal.load(tmp_path / "out" / "part.journal.json")
+    journal.status = "interrupted"
+    journal.save()
+    again, progress = run_adaptive(run_id="part", resume=True)
+    assert again.exit_code == 0 and again.completed == 8
+    assert next(m for m in progress.messages if m.startswith("adaptive design")).startswith(
+        "adaptive design, block 0 (joint 1): stopped after 8 trial(s)"
+    )
