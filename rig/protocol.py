@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
@@ -108,6 +109,7 @@ class Protocol:
     control_period_s: float
     estimates_from: str | None  # "run" (earlier block of this protocol) or a file path
     trials: tuple[TrialPlan, ...]
+    estimator: EstimatorName = DEFAULT_ESTIMATOR  # of k, for the run's estimate (docs/model.md §4.2)
 
     @property
     def kinds(self) -> set[str]:
@@ -124,6 +126,7 @@ class Protocol:
             "kinds": ",".join(sorted(self.kinds)),
             "detector": ",".join(f"{k}={v!r}" for k, v in self.detector.items()),
             "control_period_s": repr(self.control_period_s),
+            "estimator": self.estimator,
         }
 
 
@@ -153,8 +156,19 @@ def parse_protocol(
     """Validate a parsed protocol mapping and expand its blocks into trials."""
     top = Section(data, source)
     top.reject_unknown(
-        ["format", "name", "description", "detector", "ramp", "limits", "control_period_s", "blocks"]
+        [
+            "format",
+            "name",
+            "description",
+            "estimator",
+            "detector",
+            "ramp",
+            "limits",
+            "control_period_s",
+            "blocks",
+        ]
     )
+    estimator = check_estimator(top.string("estimator", default=DEFAULT_ESTIMATOR, choices=ESTIMATOR_NAMES))
     fmt = top.string("format")
     if fmt != PROTOCOL_FORMAT:
         raise top.error("format", f"'{fmt}' is not supported; allowed: {PROTOCOL_FORMAT}")
@@ -223,6 +237,7 @@ def parse_protocol(
         control_period_s=top.number("control_period_s", default=0.02, min_value=0.001, max_value=0.1),
         estimates_from=estimates_from,
         trials=tuple(trials),
+        estimator=estimator,
     )
 
 

@@ -112,7 +112,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--estimator",
         default=DEFAULT_ESTIMATOR,
         metavar="NAME",
-        help=f"{' | '.join(ESTIMATOR_NAMES)} (default {DEFAULT_ESTIMATOR}); the paper's fit is always shown too",
+        help=f"{' | '.join(ESTIMATOR_NAMES)} (default {DEFAULT_ESTIMATOR}); the paper's fit is shown too",
     )
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
