@@ -237,26 +237,32 @@ def _scatter_step(
     return alpha, np.maximum(beta, 0.0)
 
 
-def auto_batch(distances_m: np.ndarray, masses_kg: np.ndarray, level: float = DEFAULT_LEVEL) -> AutoBatch:
-    """The uncensored `auto` estimate for each row of `masses_kg` (B, n) at `distances_m` (n,)."""
-    level = check_level(level)
-    x = 1.0 / np.asarray(distances_m, dtype=float)
-    m = np.atleast_2d(np.asarray(masses_kg, dtype=float))
-    n = x.size
-    _need_slips(n)
+@dataclass(frozen=True, slots=True)
+class _Core:
+    """The weighted fit under the fitted mixed scatter, per data set (arrays of shape (B,))."""
+
+    k: np.ndarray
+    se_model: np.ndarray  # √(Σw r²/(n − 1) / Σw x²): exact when the weights are right
+    alpha: np.ndarray  # a²
+    beta: np.ndarray  # b²
+    floor: np.ndarray
+
+
+def _auto_core(x: np.ndarray, m: np.ndarray) -> _Core:
+    """Scatter fit and weighted k for each row of `m` (B, n); `x` = 1/l is (n,) or (B, n)."""
+    n = m.shape[1]
+    x = np.broadcast_to(x, m.shape)
     xx = x * x
     # Start: least squares (the additive model) for k, and half of the scatter in each component.
-    k = m @ x / (xx.sum())
+    k = (x * m).sum(axis=1) / xx.sum(axis=1)
     mu = k[:, None] * x
     r = m - mu
-    mean_square = np.mean(m * m, axis=1)
-    floor = np.maximum(mean_square, 1e-300) * _RELATIVE_FLOOR
+    floor = np.maximum(np.mean(m * m, axis=1), 1e-300) * _RELATIVE_FLOOR
     var0 = np.maximum((r * r).mean(axis=1), floor)
     alpha = 0.5 * var0
     beta = 0.5 * var0 / np.mean(mu * mu, axis=1).clip(1e-300)
     for _ in range(SCATTER_ITERATIONS):
-        variance = alpha[:, None] + beta[:, None] * mu * mu
-        w = 1.0 / variance
+        w = 1.0 / (alpha[:, None] + beta[:, None] * mu * mu)
         k = (w * x * m).sum(axis=1) / (w * xx).sum(axis=1)
         mu = k[:, None] * x
         r = m - mu
@@ -264,50 +270,58 @@ def auto_batch(distances_m: np.ndarray, masses_kg: np.ndarray, level: float = DE
         leverage = w * xx / (w * xx).sum(axis=1, keepdims=True)
         r2 = r * r / np.clip(1.0 - leverage, 1e-3, None)
         alpha, beta = _scatter_step(r2, mu * mu, w * w, floor)
-    variance = alpha[:, None] + beta[:, None] * mu * mu
-    w = 1.0 / variance
-    k = (w * x * m).sum(axis=1) / (w * xx).sum(axis=1)
-    mu = k[:, None] * x
-    r = m - mu
+    w = 1.0 / (alpha[:, None] + beta[:, None] * mu * mu)
     info = (w * xx).sum(axis=1)
-    scale2 = (w * r * r).sum(axis=1) / (n - 1) if n > 1 else np.full(k.shape, np.inf)
-    se = np.sqrt(scale2 / info) * _shape_uncertainty_factor(x, alpha, beta, mu, w, info)
-    lr_add, lr_mult = _likelihood_ratios(x, m, alpha, beta, k, floor)
+    k = (w * x * m).sum(axis=1) / info
+    r = m - k[:, None] * x
+    se_model = np.sqrt((w * r * r).sum(axis=1) / (n - 1) / info)
+    return _Core(k=k, se_model=se_model, alpha=alpha, beta=beta, floor=floor)
+
+
+def _jackknife_se(x: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Delete-one jackknife standard error of the whole `auto` k (scatter fit included), per row."""
+    b, n = m.shape
+    if n < 3:
+        return np.zeros(b)
+    keep = ~np.eye(n, dtype=bool)  # row i: every point but i
+    if b * n <= 4096:  # few data sets (online): all n leave-one-out fits in one batch
+        x_out = np.broadcast_to(x, m.shape)[:, None, :].repeat(n, axis=1)[:, keep].reshape(b * n, n - 1)
+        m_out = m[:, None, :].repeat(n, axis=1)[:, keep].reshape(b * n, n - 1)
+        k_out = _auto_core(x_out, m_out).k.reshape(b, n)
+    else:  # many data sets of one design (studies): one batch per left-out point
+        k_out = np.empty((b, n))
+        for i in range(n):
+            x_i = x[keep[i]] if x.ndim == 1 else x[:, keep[i]]
+            k_out[:, i] = _auto_core(x_i, m[:, keep[i]]).k
+    spread = k_out - k_out.mean(axis=1, keepdims=True)
+    jack: np.ndarray = np.sqrt((n - 1) / n * (spread * spread).sum(axis=1))
+    return jack
+
+
+def auto_batch(distances_m: np.ndarray, masses_kg: np.ndarray, level: float = DEFAULT_LEVEL) -> AutoBatch:
+    """The uncensored `auto` estimate for each row of `masses_kg` (B, n) at `distances_m` (n,).
+
+    se is the larger of the weighted fit's model-based standard error (exact when the fitted
+    weights are the true ones) and the delete-one jackknife of the whole estimator (which also sees
+    the scatter fit's own variability and a scatter model that does not hold); bounds k ± t_{n−1}·se.
+    """
+    level = check_level(level)
+    x = 1.0 / np.asarray(distances_m, dtype=float)
+    m = np.atleast_2d(np.asarray(masses_kg, dtype=float))
+    n = x.size
+    _need_slips(n)
+    core = _auto_core(x, m)
+    se = np.maximum(core.se_model, _jackknife_se(x, m))
+    lr_add, lr_mult = _likelihood_ratios(x, m, core.alpha, core.beta, core.k, core.floor)
     return AutoBatch(
-        k=k,
+        k=core.k,
         se=se,
         t=t_quantile(level, n - 1),
-        scatter_a_kg=np.sqrt(alpha),
-        scatter_b=np.sqrt(beta),
+        scatter_a_kg=np.sqrt(core.alpha),
+        scatter_b=np.sqrt(core.beta),
         lr_additive=lr_add,
         lr_multiplicative=lr_mult,
     )
-
-
-def _shape_uncertainty_factor(
-    x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, mu: np.ndarray, w: np.ndarray, info: np.ndarray
-) -> np.ndarray:
-    """√(1 + extra·I): the weighted fit's variance grown by what estimating the weights adds.
-
-    Kackar-Harville: var(k̂) ≈ 1/I + tr(Cov(θ̂)·M), θ = (a², b²), Cov(θ̂) from the Gaussian
-    information ½Σ g gᵀ/σ⁴ with g = (1, μ²), and M = E[∂k̂/∂θ ∂k̂/∂θᵀ]; ∂k̂/∂θ_j = −Σ c_j r / I with
-    c_j = g_j x/σ⁴ and r the residuals, so M_ij = (Σ c_i c_j σ² − Σc_i x·Σc_j x / I) / I². Scaling
-    θ leaves the weights' shape, and so k̂, unchanged: that direction adds nothing, as it must.
-    """
-    variance = alpha[:, None] + beta[:, None] * mu * mu
-    g = (np.ones_like(mu), mu * mu)
-    c = tuple(w * w * gj * x for gj in g)
-    fisher = np.empty((mu.shape[0], 2, 2))
-    m_matrix = np.empty_like(fisher)
-    for i in range(2):
-        for j in range(2):
-            fisher[:, i, j] = 0.5 * (w * w * g[i] * g[j]).sum(axis=1)
-            m_matrix[:, i, j] = (
-                (c[i] * c[j] * variance).sum(axis=1) - (c[i] * x).sum(axis=1) * (c[j] * x).sum(axis=1) / info
-            ) / (info * info)
-    extra: np.ndarray = np.einsum("bij,bji->b", np.linalg.pinv(fisher), m_matrix)
-    factor: np.ndarray = np.sqrt(1.0 + np.maximum(extra, 0.0) * info)
-    return factor
 
 
 def _loglik(m: np.ndarray, mu: np.ndarray, variance: np.ndarray) -> np.ndarray:
