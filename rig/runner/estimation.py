@@ -259,9 +259,7 @@ class RunEstimator:
             return DEFAULT_OBS_SD_LOG
         products = np.asarray(slips)
         relative = float(products.std(ddof=1) / abs(products.mean())) if products.mean() != 0 else 0.0
-        return (
-            max(DEFAULT_OBS_SD_LOG, relative) if math.isfinite(relative) else DEFAULT_OBS_SD_LOG
-        )
+        return max(DEFAULT_OBS_SD_LOG, relative) if math.isfinite(relative) else DEFAULT_OBS_SD_LOG
 
     def joint_estimates(self) -> tuple[JointCapacity, ...]:
         """Per-joint capacities with bounds, once link estimation has begun (else empty)."""
