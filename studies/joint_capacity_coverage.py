@@ -16,6 +16,7 @@ Printed: the share of (run, joint) pairs whose 99 % bounds hold the true capacit
 Wilson interval, and the share of runs where all 8 do.
 
     .venv/bin/python studies/joint_capacity_coverage.py [--runs 400] [--seed 0] [--estimator auto]
+        [--obs-sd-log S]   (hold the filter's trial-to-trial scatter at S instead of the runner's choice)
 """
 
 from __future__ import annotations
@@ -47,15 +48,34 @@ def wilson(successes: int, trials: int, z: float = 1.959964) -> tuple[float, flo
     return centre - half, centre + half
 
 
+class FixedScatterEstimator(RunEstimator):
+    """The runner's estimator with the per-joint filter's scatter held at a given value."""
+
+    obs_sd_log = 0.05
+
+    def _trial_scatter_log(self) -> float:
+        return self.obs_sd_log
+
+
 def one_run(
-    rng: np.random.Generator, estimator: str, configurations: np.ndarray, distances: list[float]
+    rng: np.random.Generator,
+    estimator: str,
+    configurations: np.ndarray,
+    distances: list[float],
+    obs_sd_log: float | None = None,
 ) -> np.ndarray:
     """Whether each joint's 99 % bounds hold its true capacity after one synthetic run."""
     article = load_rig_config(DEFAULT_RIG_CONFIG).article
     joints = article.joint_count
     c0 = K_NOMINAL * G
     capacities = c0 * (1 + JOINT_SPREAD_SD * np.clip(rng.standard_normal(joints), -3, 3))
-    run = RunEstimator(article, estimator=estimator)  # type: ignore[arg-type]
+    run = (
+        RunEstimator(article, estimator=estimator)  # type: ignore[arg-type]
+        if obs_sd_log is None
+        else FixedScatterEstimator(article, estimator=estimator)  # type: ignore[arg-type]
+    )
+    if isinstance(run, FixedScatterEstimator) and obs_sd_log is not None:
+        run.obs_sd_log = obs_sd_log
     for d in rng.permutation(distances):
         factor = 1 + PER_TRIAL_SD * np.clip(rng.standard_normal(), -3, 3)
         run.update_joint_estimation(float(d), c0 * factor / (G * d))
@@ -78,17 +98,23 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=400)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--estimator", default="auto", choices=("paper", "weighted", "auto"))
+    parser.add_argument("--obs-sd-log", type=float, default=None)
     args = parser.parse_args()
     protocol = yaml.safe_load((REPO / "protocols" / "link_validation.yaml").read_text())
     joint_block, link_block = protocol["blocks"]
     distances = [float(d) for d in joint_block["distances_m"]] * int(joint_block.get("repeats", 1))
     configurations = np.radians(np.asarray(link_block["configurations_deg"], float))
     rng = np.random.default_rng(args.seed)
-    covered = np.array([one_run(rng, args.estimator, configurations, distances) for _ in range(args.runs)])
+    covered = np.array(
+        [one_run(rng, args.estimator, configurations, distances, args.obs_sd_log) for _ in range(args.runs)]
+    )
     hits, total = int(covered.sum()), covered.size
     lo, hi = wilson(hits, total)
     per_joint = ", ".join(f"{v:.3f}" for v in covered.mean(axis=0))
-    print(f"estimator {args.estimator}, {args.runs} runs x {covered.shape[1]} joints, 99 % bounds")
+    scatter = "the runner's" if args.obs_sd_log is None else f"held at {args.obs_sd_log}"
+    print(
+        f"estimator {args.estimator}, filter scatter {scatter}, {args.runs} runs x {covered.shape[1]} joints"
+    )
     print(f"coverage {hits / total:.4f} [{lo:.4f}, {hi:.4f}] (95 % Wilson); per joint: {per_joint}")
     print(f"runs with all joints covered: {covered.all(axis=1).mean():.3f}")
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
@@ -40,6 +41,9 @@ from rig.rig_config import ArticleConfig
 # How much the joints of one link are taken to differ from the joint that was fitted (log sd):
 # the paper assumed identical joints; 10 % is the spread a hand-made link plausibly has.
 BETWEEN_JOINT_SD_LOG = 0.10
+# The per-joint filter's trial-to-trial scatter is the upper bound of this one-sided confidence
+# level on the scatter the joint-estimation slips show (see RunEstimator._trial_scatter_log).
+SCATTER_CONFIDENCE_QUANTILE = 0.25
 
 
 @dataclass(frozen=True, slots=True)
@@ -247,10 +251,12 @@ class RunEstimator:
         """σ of the per-joint filter: a joint's capacity scatter from trial to trial (log sd).
 
         The joint-estimation slips measure it: each is one draw of k times a capacity factor, so the
-        relative sd of m·l/k̂ estimates it. Without data (an estimates file) or below 3 slips, the
-        filter's default. Never below that default (it also carries lever-arm and load-cell error).
-        studies/joint_capacity_coverage.py measured the default alone (0.05) against the simulator's
-        0.085 scatter: the bounds of the most loaded joints held the truth in only about 87 % of runs.
+        relative sd of m·l estimates it. From n slips that estimate is itself uncertain (about
+        1/√(2(n − 1)) relative), and a σ too small makes every joint's bounds too narrow, so the
+        filter takes its upper 75 % confidence bound, √((n − 1)/χ²_{0.25, n−1}) times the estimate.
+        Without data (an estimates file) or below 3 slips: the filter's default, which is also the
+        floor (σ carries lever-arm and load-cell error too). studies/joint_capacity_coverage.py
+        measured what the fixed default alone gave against the simulator's 0.085 scatter.
         """
         slips = [
             d * m for d, m, c in zip(self._distances_m, self._masses_kg, self._censored, strict=True) if not c
@@ -258,8 +264,13 @@ class RunEstimator:
         if len(slips) < 3:
             return DEFAULT_OBS_SD_LOG
         products = np.asarray(slips)
-        relative = float(products.std(ddof=1) / abs(products.mean())) if products.mean() != 0 else 0.0
-        return max(DEFAULT_OBS_SD_LOG, relative) if math.isfinite(relative) else DEFAULT_OBS_SD_LOG
+        mean = float(products.mean())
+        relative = float(products.std(ddof=1)) / abs(mean) if mean != 0 else math.inf
+        if not math.isfinite(relative):
+            return DEFAULT_OBS_SD_LOG
+        dof = len(slips) - 1
+        upper = relative * math.sqrt(dof / chi2_quantile(SCATTER_CONFIDENCE_QUANTILE, dof))
+        return max(DEFAULT_OBS_SD_LOG, upper)
 
     def joint_estimates(self) -> tuple[JointCapacity, ...]:
         """Per-joint capacities with bounds, once link estimation has begun (else empty)."""
@@ -431,3 +442,11 @@ def _short(value: Any) -> str:
         return "an integer beyond the float range"
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+@lru_cache(maxsize=256)
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The χ² quantile (scipy, imported on first use)."""
+    from scipy import stats
+
+    return float(stats.chi2.ppf(probability, dof))
