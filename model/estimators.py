@@ -381,10 +381,10 @@ def _tobit(
 ) -> tuple[float, float, float]:
     """Censored maximum likelihood of k with the scatter's shape held: σ_i = s·√(α + β μ_i²).
 
-    Slips contribute the normal density, censored points P(m > bound). Returns (k, se(k), s·√β or
-    s·√α as the fitted relative or absolute scale: the third value is the fitted sd's scale factor
-    times √β, i.e. the relative sd b when α = 0). se comes from the observed information of (k, log s),
-    inflated by √(n/(n−1)) so that without censoring it is the t-interval's standard error.
+    Slips contribute the normal density, censored points P(m > bound). Returns (k, se(k), s·√β): the
+    last is the fitted relative sd b when the shape is purely multiplicative (α = 0, β = 1). se
+    comes from the observed information of (k, ln s), inflated by √(n/(n − 1)) so that without
+    censoring it matches the t-interval's standard error.
     """
     from scipy import optimize, special  # imported on first use (costly import, see model.fit)
 

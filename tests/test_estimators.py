@@ -190,3 +190,23 @@ def test_run_estimator_paper_choice_is_the_online_fit():
     summary = run.summary()
     assert summary is not None and summary == run.paper_summary()
     assert summary.k == fit_inverse_distance(d, m).k
+
+
+def test_a_no_slip_trial_is_a_lower_bound_in_the_run_and_in_replay(tmp_path, write_file, cli_json):
+    # 1.6 N·m at 0.03 m needs about 53 N: beyond max_force_n, so that trial ends without a slip.
+    protocol = write_file(
+        "format: rig-protocol/1\nname: cens\n"
+        "ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 40.0}\n"
+        "limits: {force_ceiling_n: 45.0}\nblocks:\n  - kind: joint_estimation\n"
+        "    distances_m: [0.03, 0.1, 0.15, 0.2]\n"
+        "    steps: [{tare: {settle_s: 0.1}}, ramp_until_slip, unload]\n",
+        "cens.yaml",
+    )
+    report = cli_json("run", protocol, "--out", tmp_path / "out", "--json")
+    assert [t["outcome"] for t in report["trials"]] == ["no_slip", "slip", "slip", "slip"]
+    estimate = report["estimate"]
+    assert estimate["estimator"] == "auto" and estimate["n"] == 4 and estimate["n_censored"] == 1
+    assert estimate["paper"]["n"] == 3
+    replay = cli_json("replay", report["log"], "--json")
+    assert replay["online_agreement"]["agree"] is True and replay["warnings"] == []
+    assert replay["estimate"]["n_censored"] == 1 and replay["estimate"]["k"] == estimate["k"]
