@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from model.design import DesignSettings
-from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, check_estimator
+from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
@@ -164,6 +164,7 @@ class Protocol:
     estimates_from: str | None  # "run" (earlier block of this protocol) or a file path
     trials: tuple[TrialPlan, ...]  # the fixed blocks' trials
     adaptive: tuple[AdaptiveBlock, ...] = ()
+    estimator: EstimatorName = DEFAULT_ESTIMATOR  # of k, for the run's estimate (docs/model.md §4.2)
 
     @property
     def kinds(self) -> set[str]:
@@ -194,6 +195,7 @@ class Protocol:
             "kinds": ",".join(sorted(self.kinds)),
             "detector": ",".join(f"{k}={v!r}" for k, v in self.detector.items()),
             "control_period_s": repr(self.control_period_s),
+            "estimator": self.estimator,
         }
 
 
@@ -223,8 +225,19 @@ def parse_protocol(
     """Validate a parsed protocol mapping and expand its blocks into trials."""
     top = Section(data, source)
     top.reject_unknown(
-        ["format", "name", "description", "detector", "ramp", "limits", "control_period_s", "blocks"]
+        [
+            "format",
+            "name",
+            "description",
+            "estimator",
+            "detector",
+            "ramp",
+            "limits",
+            "control_period_s",
+            "blocks",
+        ]
     )
+    estimator = check_estimator(top.string("estimator", default=DEFAULT_ESTIMATOR, choices=ESTIMATOR_NAMES))
     fmt = top.string("format")
     if fmt != PROTOCOL_FORMAT:
         raise top.error("format", f"'{fmt}' is not supported; allowed: {PROTOCOL_FORMAT}")
@@ -256,7 +269,7 @@ def parse_protocol(
         else:
             design = "fixed"
         if design == "adaptive":
-            chosen = _adaptive_block(block, b, used, ramp, joint_count)
+            chosen = _adaptive_block(block, b, used, ramp, joint_count, estimator)
             if used + chosen.design.max_trials > MAX_TRIALS:
                 raise block.error(
                     "max_trials",
@@ -312,6 +325,7 @@ def parse_protocol(
         estimates_from=estimates_from,
         trials=tuple(trials),
         adaptive=tuple(adaptive),
+        estimator=estimator,
     )
 
 
@@ -410,7 +424,10 @@ def _joint_estimation_block(
 ) -> list[TrialPlan]:
     for key in ADAPTIVE_KEYS:
         if block.has(key):
-            raise block.error(key, "only with design: adaptive; allowed here: distances_m, repeats, shuffle")
+            where = "set it at the protocol's top level, or " if key == "estimator" else ""
+            raise block.error(
+                key, f"{where}only with design: adaptive; allowed here: distances_m, repeats, shuffle"
+            )
     block.reject_unknown(["kind", "design", "joint", *FIXED_KEYS, "steps"])
     joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
     distances = block.numbers("distances_m", max_length=MAX_ITEMS, min_value=0.001, max_value=2.0)
@@ -434,7 +451,12 @@ def _joint_estimation_block(
 
 
 def _adaptive_block(
-    block: Section, b: int, offset: int, ramp: RampSettings, joint_count: int | None
+    block: Section,
+    b: int,
+    offset: int,
+    ramp: RampSettings,
+    joint_count: int | None,
+    protocol_estimator: EstimatorName,
 ) -> AdaptiveBlock:
     """A `design: adaptive` joint-estimation block (docs/formats.md §1), validated."""
     for key in FIXED_KEYS:
@@ -453,7 +475,7 @@ def _adaptive_block(
     max_trials = block.integer("max_trials", default=24, min_value=2, max_value=MAX_ITEMS)
     min_trials = block.integer("min_trials", default=min(10, max_trials), min_value=2, max_value=max_trials)
     startup = block.integer("startup_trials", default=min(3, max_trials), min_value=2, max_value=max_trials)
-    estimator = block.string("estimator", default=DEFAULT_ESTIMATOR, choices=ESTIMATOR_NAMES)
+    estimator = block.string("estimator", default=protocol_estimator, choices=ESTIMATOR_NAMES)
     design = DesignSettings(
         distance_min_m=lo,
         distance_max_m=hi,

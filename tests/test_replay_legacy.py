@@ -27,6 +27,11 @@ def test_a_log_from_before_a_payload_change_replays_exactly_as_it_did(capsys, na
     expected = json.loads((DATA / f"{name}.replay.json").read_text())
     assert out.keys() == expected.keys()
     for key, value in expected.items():
+        if key in ("estimate", "redetected_estimate", "online_estimate") and value is not None:
+            # Since the estimators: the refit names its estimator (a log from before: the paper's,
+            # the only one there was) and carries the paper's fit beside it; the old keys are unchanged.
+            assert out[key]["estimator"] == "paper" and out[key].get("paper", value) == value, key
+            out[key] = {k: out[key][k] for k in value}
         assert out[key] == value, key
     link = [t for t in out["trials"] if t["kind"] == "link_validation"]
     assert len(link) == 1 and link[0]["joint_angles_rad"] is not None

@@ -26,7 +26,8 @@ def test_smoke_run_json(tmp_path, capsys):
     report = json.loads(out)
     assert report["run_id"] == "s1" and report["completed"] == 2 and not report["aborted"]
     assert Path(report["log"]).is_file() and report["logs"] == [report["log"]]
-    assert list(report["estimate"]) == list(SUMMARY_KEYS)
+    assert list(report["estimate"])[: len(SUMMARY_KEYS)] == list(SUMMARY_KEYS)
+    assert report["estimate"]["estimator"] == "auto" and report["estimate"]["paper"]["n"] == 2
     assert report["estimate"]["n"] == 2
     for key in ("k", "capacity_nm", "mu_delta0_pa"):
         assert report["truth"][key] > 0
@@ -199,6 +200,7 @@ def test_resume_refuses_an_edited_protocol(sim_run, protocol_file):
 def test_link_validation_predicts_from_the_rigs_own_estimates(sim_run, protocol_file, assert_safe):
     body = """\
     format: rig-protocol/1
+    estimator: paper
     detector: {arm_threshold_n: 1.0, drop_fraction: 0.15}
     ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
     limits: {force_ceiling_n: 75.0}

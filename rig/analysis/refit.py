@@ -1,8 +1,9 @@
 """Offline refits and link-validation statistics from a run's trial table.
 
-* `refit(distances, masses, ...)`: the joint-estimation fit `m = k/l` (docs/model.md §4) as the `rig fit
-  --json` keys, with the run's level, constant, radius and g. The online fit the runner logs keeps
-  the same exact sums and evaluator, so the offline refit of the logged results equals the last
+* `refit(distances, masses, ...)`: the joint-estimation fit `m = k/l` (docs/model.md §4) by the run's
+  estimator, with the paper's fit under `paper`, as the `rig fit --json` keys, with the run's level,
+  constant, radius and g. The runner's estimate is the same function of the same logged results
+  (the paper's fit also keeps the same exact sums), so the offline refit equals the last
   `/rig/estimate` bit for bit; `compare_estimates` measures any difference.
 * `payload_errors(table)`: Table IV statistics of predicted against measured payloads over the
   link-validation slips (`model.payload_errors`).
@@ -19,7 +20,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from model.fit import SUMMARY_KEYS, capacity_from_fit, fit_inverse_distance, fit_summary
+from model.estimate_summary import summarize_estimate
+from model.estimators import EstimatorName
+from model.fit import SUMMARY_KEYS
 from model.payload_errors import payload_error_stats
 
 AGREEMENT_RTOL = 1e-9
@@ -33,12 +36,20 @@ def refit(
     constant: str,
     radius_m: float | None,
     g: float,
+    estimator: EstimatorName = "paper",
+    censored: Sequence[bool] | None = None,
 ) -> dict[str, Any] | None:
-    """The fit of (distance, slip mass) pairs as `rig fit --json` keys; None below 2 pairs or no radius."""
-    if len(distances_m) < 2 or radius_m is None:
+    """The fit as `rig fit --json` keys (`paper` inside); None below 2 slips or without a radius.
+
+    `censored[i]` marks masses_kg[i] as a no-slip lower bound (the paper's fit leaves those out).
+    """
+    slips = len(masses_kg) - (sum(bool(c) for c in censored) if censored is not None else 0)
+    if slips < 2 or radius_m is None:
         return None
-    fit = fit_inverse_distance(distances_m, masses_kg, level)
-    return fit_summary(fit, capacity_from_fit(fit, radius_m, constant, g)).as_json()
+    summary = summarize_estimate(
+        estimator, distances_m, masses_kg, censored, level=level, radius_m=radius_m, constant=constant, g=g
+    )
+    return summary.as_json()
 
 
 def joint_estimation_pairs(
@@ -55,6 +66,30 @@ def joint_estimation_pairs(
         [float(v) for v in rows[mass_column]],
         [int(v) for v in rows["trial_id"]],
     )
+
+
+def joint_estimation_points(
+    table: pd.DataFrame, mass_column: str = "slip_mass_kg"
+) -> tuple[list[float], list[float], list[bool]]:
+    """Distances, masses and censoring flags of the joint-estimation trials a fit uses, in trial order.
+
+    Slips, and (logged peaks only) no-slip trials as lower bounds: the highest load held.
+    """
+    distances, masses, ids = joint_estimation_pairs(table, mass_column)
+    points = [(i, d, m, False) for i, d, m in zip(ids, distances, masses, strict=True)]
+    if mass_column == "slip_mass_kg":
+        rows = table[
+            (table["kind"] == "joint_estimation")
+            & (table["outcome"] == "no_slip")
+            & table[mass_column].notna()
+            & table["distance_m"].notna()
+        ]
+        points += [
+            (int(i), float(d), float(m), True)
+            for i, d, m in zip(rows["trial_id"], rows["distance_m"], rows[mass_column], strict=True)
+        ]
+    points.sort(key=lambda p: p[0])
+    return [p[1] for p in points], [p[2] for p in points], [p[3] for p in points]
 
 
 def _numbers(value: Any) -> list[float | None]:

@@ -17,13 +17,14 @@ from typing import Any
 
 import pandas as pd
 
+from model.estimators import ESTIMATOR_NAMES, EstimatorName
 from model.slip_detector import DetectorParams
 from rig.analysis import redetect as rd
 from rig.analysis.gaps import sample_gap_warnings
 from rig.analysis.refit import (
     base_moments,
     compare_estimates,
-    joint_estimation_pairs,
+    joint_estimation_points,
     payload_errors,
     refit,
 )
@@ -173,11 +174,27 @@ def replay(
             )
     table = trial_table(records, settings)
 
-    distances, masses, _ = joint_estimation_pairs(table)
-    estimate = refit(distances, masses, level=level, constant=constant, radius_m=radius, g=settings.g)
-    re_distances, re_masses, _ = joint_estimation_pairs(table, "redetected_slip_mass_kg")
+    estimator = _run_estimator(estimates, warnings)
+    distances, masses, censored = joint_estimation_points(table)
+    estimate = refit(
+        distances,
+        masses,
+        level=level,
+        constant=constant,
+        radius_m=radius,
+        g=settings.g,
+        estimator=estimator,
+        censored=censored,
+    )
+    re_distances, re_masses, _ = joint_estimation_points(table, "redetected_slip_mass_kg")
     redetected_estimate = refit(
-        re_distances, re_masses, level=level, constant=constant, radius_m=radius, g=settings.g
+        re_distances,
+        re_masses,
+        level=level,
+        constant=constant,
+        radius_m=radius,
+        g=settings.g,
+        estimator=estimator,
     )
     agreement = compare_estimates(estimate, online)
     if agreement["compared"] and not agreement["agree"]:
@@ -216,8 +233,34 @@ def _logged_estimates(parts: Sequence[LogPart]) -> list[Estimate]:
     ]
 
 
+def _run_estimator(estimates: list[Estimate], warnings: list[str]) -> EstimatorName:
+    """The estimator the run used (its last logged estimate says; logs from before say nothing: paper)."""
+    name = estimates[-1].estimator if estimates else "paper"
+    for known in ESTIMATOR_NAMES:
+        if name == known:
+            return known
+    warnings.append(f"the log names estimator {name!r}, unknown here; refitting with the paper's fit")
+    return "paper"
+
+
 def _online_estimate(estimates: list[Estimate]) -> dict[str, Any] | None:
-    """The last logged online estimate with a fit, as `rig fit --json` keys (None if none has one)."""
-    if not estimates or estimates[-1].fit is None:
+    """The last logged online estimate with a fit, as `rig fit --json` keys (None if none has one).
+
+    With `estimator`, and the paper's fit under `paper` (the keys the log carries) when the run's
+    estimator was another one.
+    """
+    last = estimates[-1] if estimates else None
+    if last is None or last.fit is None:
         return None
-    return estimates[-1].fit.as_json()
+    out = {**last.fit.as_json(), "estimator": last.estimator}
+    if last.estimator != "paper" and last.paper_k is not None:
+        out["paper"] = {
+            "n": last.paper_n,
+            "k": last.paper_k,
+            "k_ci": None if last.paper_k_ci is None else list(last.paper_k_ci),
+            "se": last.paper_se,
+            "rmse": last.paper_rmse,
+            "capacity_nm": last.paper_capacity_nm,
+            "capacity_ci_nm": None if last.paper_capacity_ci_nm is None else list(last.paper_capacity_ci_nm),
+        }
+    return out

@@ -142,13 +142,29 @@ def _fit_figure(result: ReplayResult) -> tuple[Figure, str] | str:
     level_pct = f"{100 * est['level']:g} %"
     t = t_quantile(est["level"], est["dfe"])
     x = 1.0 / grid
-    half_prediction = t * np.sqrt(est["rmse"] ** 2 + (est["se"] * x) ** 2)
+    scatter_sd = est["rmse"]
+    if est.get("estimator") not in (None, "paper") and est.get("scatter_a_kg") is not None:
+        # The estimator's own scatter model: sd(m)² = a² + (b·m)².
+        scatter_sd = np.hypot(est["scatter_a_kg"], est["scatter_b"] * k * x)
+    half_prediction = t * np.sqrt(scatter_sd**2 + (est["se"] * x) ** 2)
     ax.fill_between(
         grid, k_lo * x, k_hi * x, color=BAND_COLOR, alpha=0.18, label=f"{level_pct} bounds on k/l"
     )
     ax.plot(grid, k * x - half_prediction, "--", color="0.45", lw=1)
     ax.plot(grid, k * x + half_prediction, "--", color="0.45", lw=1, label=f"{level_pct} prediction bounds")
-    ax.plot(grid, k * x, color=BAND_COLOR, lw=2, label=f"fit m = k/l, k = {k:.4f} kg·m (n = {est['n']})")
+    name = est.get("estimator", "paper")
+    fit_label = f"fit m = k/l ({name}), k = {k:.4f} kg·m (n = {est['n']})"
+    ax.plot(grid, k * x, color=BAND_COLOR, lw=2, label=fit_label)
+    paper = est.get("paper")
+    if est.get("estimator") not in (None, "paper") and paper:
+        ax.plot(
+            grid,
+            paper["k"] * x,
+            "-.",
+            color="0.25",
+            lw=1.2,
+            label=f"paper's fit, k = {paper['k']:.4f} kg·m [{paper['k_ci'][0]:.4f}, {paper['k_ci'][1]:.4f}]",
+        )
     ax.plot(distances, masses, "o", color="black", ms=5, label="slip mass (logged peaks)")
     re_est = result.redetected_estimate
     if result.detector_overrides and re_est:

@@ -78,7 +78,10 @@ def _interval(pair: Sequence[float] | None, digits: int) -> str | None:
 
 
 def estimates_table(result: ReplayResult) -> Table:
-    """The offline refit, the last online estimate and the refit of re-detected peaks side by side."""
+    """The offline refit, the last online estimate and the refit of re-detected peaks side by side.
+
+    Each by the run's estimator, and the paper's fit of the same data beside it when that is another.
+    """
     headers = [
         "estimate",
         "n",
@@ -91,11 +94,19 @@ def estimates_table(result: ReplayResult) -> Table:
         "RMSE [kg]",
     ]
     rows = []
+    estimates: list[tuple[str, Any]] = []
     for name, est in (
         ("offline refit (logged peaks)", result.estimate),
         ("online (last logged)", result.online_estimate),
         ("refit of re-detected peaks", result.redetected_estimate),
     ):
+        estimator = est.get("estimator") if est else None
+        paper = est.get("paper") if est else None
+        if estimator in (None, "paper"):
+            estimates.append((name, est))
+        else:
+            estimates += [(f"{name}, {estimator}", est), (f"{name}, paper's fit", paper)]
+    for name, est in estimates:
         if not est:
             rows.append([name, None, None, None, None, None, None, None, None])
             continue
@@ -107,7 +118,7 @@ def estimates_table(result: ReplayResult) -> Table:
                 _interval(est.get("k_ci"), 5),
                 _round(est["capacity_nm"], 5),
                 _interval(est.get("capacity_ci_nm"), 5),
-                _round(est["mu_delta0_pa"], 0),
+                _round(est.get("mu_delta0_pa"), 0),
                 _round(est.get("r2"), 5),
                 _round(est.get("rmse"), 5),
             ]

@@ -11,14 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from model.fit import (
-    DEFAULT_LEVEL,
-    CapacityEstimate,
-    InverseFit,
-    capacity_from_fit,
-    fit_inverse_distance,
-    fit_summary,
-)
+from model.estimate_summary import EstimateSummary, summarize_estimate
+from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, check_estimator
+from model.fit import DEFAULT_LEVEL, FitSummary
 from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, resolve_constant
 from rig.cli.output import emit_json, format_table
@@ -28,8 +23,10 @@ from rig.files import read_text_file
 DISTANCE_COLUMN = "distance_m"
 MASS_COLUMN = "mass_kg"
 FORCE_COLUMN = "force_n"
-ALLOWED_COLUMNS = (DISTANCE_COLUMN, MASS_COLUMN, FORCE_COLUMN)
-ALLOWED_COLUMNS_TEXT = "distance_m and mass_kg (or force_n instead of mass_kg)"
+CENSORED_COLUMN = "censored"
+ALLOWED_COLUMNS = (DISTANCE_COLUMN, MASS_COLUMN, FORCE_COLUMN, CENSORED_COLUMN)
+ALLOWED_COLUMNS_TEXT = "distance_m and mass_kg (or force_n instead of mass_kg), optionally censored"
+CENSORED_VALUES = {"0": False, "1": True, "false": False, "true": True, "": False}
 # Ranges (docs/formats.md §4): wide for any bench, narrow enough that the fit's sums of 1/l² and m²
 # neither overflow nor lose everything to subnormals.
 DISTANCE_RANGE_M = (1e-4, 100.0)
@@ -43,9 +40,16 @@ SMALLEST_NONZERO = 1e-9  # kg or N: a mass or force below this (other than 0) is
 
 DESCRIPTION = """\
 Fit the joint-estimation data (docs/model.md §4): slip masses m_s hung at distances l_s from a
-joint follow m_s = k / l_s. One-parameter least squares through the origin in 1/l, with MATLAB
-cftool conventions (dfe = n - 1, bounds k ± t_{(1+level)/2, n-1}·se). From k: the joint capacity
-N_max = k·g [N·m] and mu_s·delta0 = k·g / (c·R³) [Pa].
+joint follow m_s = k / l_s. From k: the joint capacity N_max = k·g [N·m] and
+mu_s·delta0 = k·g / (c·R³) [Pa]. Estimators (--estimator):
+
+  paper     the paper's least squares through the origin in 1/l with MATLAB cftool statistics
+            (dfe = n - 1, bounds k ± t_{(1+level)/2, n-1}·se); assumes equal scatter everywhere
+  weighted  the mean of m·l with a t interval; right when the scatter is proportional to m
+  auto      (default) fits sd(m)² = a² + (b·m)² to the data, weights k by it, and says which
+            scatter model the data support (likelihood-ratio tests); docs/model.md §4.2
+
+The paper's fit is always shown beside the chosen one.
 
 DATA.csv has a header line and one row per slip trial:
 
@@ -55,8 +59,9 @@ DATA.csv has a header line and one row per slip trial:
   0.06,2.70
 
 Columns: distance_m [m, 0.0001-100] and mass_kg [kg, 0 or 1e-9 to 1e4]; or force_n [N, 0 or 1e-9 to 1e5]
-instead of mass_kg (the peak tension, converted with --g). Other columns are ignored. Example:
-protocols/example_fit.csv.
+instead of mass_kg (the peak tension, converted with --g). Optional: censored (1/true: no slip up
+to that load, so the mass is only a lower bound; 0/false/empty: a slip). Other columns are
+ignored. Example: protocols/example_fit.csv.
 """
 
 EPILOG = """\
@@ -65,7 +70,9 @@ mu_s·delta0 compares with it), 'derived' = pi² from the sphere integrals, or a
 c changes mu_s·delta0 only; the capacity k·g does not depend on it.
 
 JSON (--json): n, k, k_ci, sse, sst, r2, rmse, dfe, se, level, constant, c, radius_m,
-mu_delta0_pa, mu_delta0_ci_pa, capacity_nm, capacity_ci_nm. r2 is null when all masses are equal.
+mu_delta0_pa, mu_delta0_ci_pa, capacity_nm, capacity_ci_nm (the chosen estimator's), then
+estimator, scatter_model, n_censored, n_excluded, note, scatter_a_kg, scatter_b, diagnostic, and
+paper (the paper's fit, same keys). r2 is null when all masses are equal. docs/formats.md §4.
 Exit codes: 0 done, 2 invalid input (one line on stderr naming the file, row and column).
 """
 
@@ -100,6 +107,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=str(PAPER_G_M_S2),
         metavar="G",
         help=f"gravity [m/s²], 0.1 to 100 (default {PAPER_G_M_S2}, the paper's)",
+    )
+    parser.add_argument(
+        "--estimator",
+        default=DEFAULT_ESTIMATOR,
+        metavar="NAME",
+        help=f"{' | '.join(ESTIMATOR_NAMES)} (default {DEFAULT_ESTIMATOR}); the paper's fit is shown too",
     )
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
@@ -145,6 +158,7 @@ class FitData:
     distances_m: tuple[float, ...]
     masses_kg: tuple[float, ...]
     mass_source: str  # the column the masses came from
+    censored: tuple[bool, ...] = ()  # per row: the mass is a lower bound (no slip); empty: none
 
 
 def _header_error(path: Path, line: int, names: list[str], missing: str) -> InputError:
@@ -196,10 +210,11 @@ def read_fit_csv(path: str | Path, g: float = PAPER_G_M_S2) -> FitData:
     reader = csv.reader(text.splitlines(keepends=True))
     header: list[str] | None = None
     header_line = 0
-    distance_index = mass_index = -1
+    distance_index = mass_index = censored_index = -1
     mass_column = MASS_COLUMN
     distances: list[float] = []
     masses: list[float] = []
+    censored: list[bool] = []
     try:
         for row in reader:
             line = reader.line_num
@@ -225,6 +240,7 @@ def read_fit_csv(path: str | Path, g: float = PAPER_G_M_S2) -> FitData:
                 mass_column = MASS_COLUMN if has_mass else FORCE_COLUMN
                 distance_index = header.index(DISTANCE_COLUMN)
                 mass_index = header.index(mass_column)
+                censored_index = header.index(CENSORED_COLUMN) if CENSORED_COLUMN in header else -1
                 continue
             where = f"data row {len(distances) + 1} (line {line})"
             if len(row) != len(header):
@@ -237,8 +253,19 @@ def read_fit_csv(path: str | Path, g: float = PAPER_G_M_S2) -> FitData:
                 value = _cell_value(p, where, mass_column, row[mass_index], MASS_RANGE_KG, "kg")
             else:
                 value = _cell_value(p, where, mass_column, row[mass_index], FORCE_RANGE_N, "N")
+            flag = False
+            if censored_index >= 0:
+                cell = row[censored_index].strip().lower()
+                if cell not in CENSORED_VALUES:
+                    shown = repr(cell) if len(cell) <= 40 else repr(cell[:37]) + "..."
+                    raise InputError(
+                        f"{p}: {where}: column {CENSORED_COLUMN!r}: {shown}; allowed: 0, 1, true, false "
+                        "or empty (1/true: no slip up to this load)"
+                    )
+                flag = CENSORED_VALUES[cell]
             distances.append(distance)
             masses.append(value if mass_column == MASS_COLUMN else value / g)
+            censored.append(flag)
     except csv.Error as exc:
         raise InputError(f"{p}: line {reader.line_num}: malformed CSV ({exc})") from None
 
@@ -251,16 +278,19 @@ def read_fit_csv(path: str | Path, g: float = PAPER_G_M_S2) -> FitData:
         raise InputError(
             f"{p}: {len(distances)} data row(s) after the header; allowed: at least 2 (distance, mass) rows"
         )
-    return FitData(tuple(distances), tuple(masses), mass_column)
+    slips = censored.count(False)
+    if slips < 2:
+        raise InputError(
+            f"{p}: {slips} slip row(s) (rows not marked censored); allowed: at least 2 for a fit"
+        )
+    return FitData(tuple(distances), tuple(masses), mass_column, tuple(censored))
 
 
 def _bounds(pair: tuple[float, float]) -> str:
     return f"[{pair[0]:.6g}, {pair[1]:.6g}]"
 
 
-def human_report(path: Path, data: FitData, fit: InverseFit, capacity: CapacityEstimate) -> str:
-    """The readable summary `rig fit` prints without --json."""
-    level_pct = f"{100 * fit.level:g} %"
+def _fit_rows(fit: FitSummary, t_value: float | None) -> list[list[Any]]:
     r2 = "undefined (all masses equal)" if math.isnan(fit.r2) else f"{fit.r2:.6g}"
     rows: list[list[Any]] = [
         ["k", fit.k, _bounds(fit.k_ci), "kg·m"],
@@ -270,18 +300,51 @@ def human_report(path: Path, data: FitData, fit: InverseFit, capacity: CapacityE
         ["RMSE", fit.rmse, "", "kg"],
         ["dfe", fit.dfe, "", ""],
         ["se(k)", fit.se, "", "kg·m"],
-        [f"t({(1 + fit.level) / 2:g}, {fit.dfe})", fit.t, "", ""],
-        ["mu_s·delta0", capacity.mu_delta0_pa, _bounds(capacity.mu_delta0_ci_pa), "Pa"],
-        ["capacity N_max", capacity.capacity_nm, _bounds(capacity.capacity_ci_nm), "N·m"],
     ]
-    source = "" if data.mass_source == MASS_COLUMN else f" (masses from force_n / g, g = {capacity.g:g} m/s²)"
-    lines = [
-        f"{path}: {fit.n} points{source}; fit m = k / l through the origin (MATLAB cftool conventions)",
+    if t_value is not None:
+        rows.append([f"t({(1 + fit.level) / 2:g}, {fit.dfe})", t_value, "", ""])
+    rows += [
+        ["mu_s·delta0", fit.mu_delta0_pa, _bounds(fit.mu_delta0_ci_pa), "Pa"],
+        ["capacity N_max", fit.capacity_nm, _bounds(fit.capacity_ci_nm), "N·m"],
+    ]
+    return rows
+
+
+def human_report(path: Path, data: FitData, summary: EstimateSummary, g: float) -> str:
+    """The readable summary `rig fit` prints without --json: the chosen estimator's fit and the paper's."""
+    fit, est, paper = summary.fit, summary.estimate, summary.paper
+    level_pct = f"{100 * fit.level:g} %"
+    source = "" if data.mass_source == MASS_COLUMN else f" (masses from force_n / g, g = {g:g} m/s²)"
+    censored = f", {est.n_censored} censored (no slip: lower bounds)" if any(data.censored) else ""
+    header = ["quantity", "value", f"{level_pct} bounds", "unit"]
+    lines = [f"{path}: {len(data.masses_kg)} points{censored}{source}; fit m = k / l", ""]
+    if est.estimator != "paper":
+        lines += [
+            f"estimator {est.estimator}: scatter sd(m)² = a² + (b·m)², a = {est.scatter_a_kg:.4g} kg, "
+            f"b = {est.scatter_b:.4g}; model: {est.scatter_model}",
+        ]
+        diagnostic = est.diagnostic
+        if diagnostic is not None:
+            verdict = "supported" if diagnostic.decided else "likelier, but the data cannot tell"
+            lines.append(
+                f"  likelihood ratio vs mixed: additive {diagnostic.lr_additive:.3g} "
+                f"(p = {diagnostic.p_additive:.3g}), multiplicative {diagnostic.lr_multiplicative:.3g} "
+                f"(p = {diagnostic.p_multiplicative:.3g}) -> {diagnostic.supported} ({verdict})"
+            )
+        if est.n_censored:
+            lines.append(f"  {est.n_censored} censored point(s) enter as lower bounds (Tobit likelihood)")
+        lines += ["", format_table(header, _fit_rows(fit, None)), ""]
+        lines.append("the paper's fit (least squares through the origin, MATLAB cftool conventions):")
+    else:
+        lines.append("estimator paper: least squares through the origin (MATLAB cftool conventions)")
+    if est.note:
+        lines.append(f"  {est.note}")
+    if paper is not None:
+        t_value = (paper.k_ci[1] - paper.k) / paper.se if paper.se > 0 else math.nan
+        lines += ["", format_table(header, _fit_rows(paper, t_value))]
+    lines += [
         "",
-        format_table(["quantity", "value", f"{level_pct} bounds", "unit"], rows),
-        "",
-        f"constant c = {capacity.c:.8g} ({capacity.constant}); R = {capacity.radius_m:g} m; "
-        f"g = {capacity.g:g} m/s²",
+        f"constant c = {fit.c:.8g} ({fit.constant}); R = {fit.radius_m:g} m; g = {g:g} m/s²",
         "capacity = k·g does not depend on c; mu_s·delta0 = k·g / (c·R³) does.",
     ]
     return "\n".join(lines)
@@ -290,15 +353,27 @@ def human_report(path: Path, data: FitData, fit: InverseFit, capacity: CapacityE
 def run(args: argparse.Namespace) -> int:
     """Read the CSV, fit, print the table or the JSON object."""
     radius, constant, level, g = _options(args)
+    try:
+        estimator = check_estimator(args.estimator)
+    except ValueError:
+        raise InputError(f"--estimator {args.estimator!r}: allowed: {', '.join(ESTIMATOR_NAMES)}") from None
     path = Path(args.data)
     data = read_fit_csv(path, g=g)
     try:
-        fit = fit_inverse_distance(data.distances_m, data.masses_kg, level=level)
-        capacity = capacity_from_fit(fit, radius, constant, g)
+        summary = summarize_estimate(
+            estimator,
+            data.distances_m,
+            data.masses_kg,
+            data.censored or None,
+            level=level,
+            radius_m=radius,
+            constant=constant,
+            g=g,
+        )
     except ValueError as exc:  # every input was checked above; this keeps any residue one line
         raise InputError(f"{path}: {exc}") from None
     if args.json:
-        emit_json(fit_summary(fit, capacity).as_json())
+        emit_json(summary.as_json())
     else:
-        print(human_report(path, data, fit, capacity))
+        print(human_report(path, data, summary, g))
     return 0

@@ -15,6 +15,7 @@ from rig.errors import InputError
 from rig.rig_config import DEFAULT_RIG_CONFIG
 
 if TYPE_CHECKING:
+    from model.estimate_summary import EstimateSummary
     from model.fit import FitSummary
     from rig.log.live import LivePublisher
     from rig.runner.run import RunReport, RunRequest
@@ -248,9 +249,13 @@ def _summary(report: RunReport) -> str:
                     ["RMSE", est.rmse, "", "kg"],
                     ["R²", est.r2, "", ""],
                     ["n", est.n, "", "trials"],
+                    *_paper_rows(report),
                 ],
             )
         )
+        detail = report.estimate_detail
+        if detail is not None:
+            lines.append(_estimator_text(detail))
     if report.joints:
         lines.append(
             format_table(
@@ -264,6 +269,42 @@ def _summary(report: RunReport) -> str:
     if report.truth is not None:
         lines.append(_truth_text(report.truth, est))
     return "\n\n".join(lines)
+
+
+def _paper_rows(report: RunReport) -> list[list[Any]]:
+    """The paper's k and capacity as extra rows when the run's estimator is another one."""
+    detail = report.estimate_detail
+    if detail is None or detail.estimate.estimator == "paper" or detail.paper is None:
+        return []
+    paper = detail.paper
+    (lo, hi), (clo, chi) = paper.k_ci, paper.capacity_ci_nm
+    return [
+        ["k (paper's fit)", paper.k, f"[{lo:.5g}, {hi:.5g}]", "kg·m"],
+        ["capacity (paper's fit)", paper.capacity_nm, f"[{clo:.5g}, {chi:.5g}]", "N·m"],
+    ]
+
+
+def _estimator_text(detail: EstimateSummary) -> str:
+    """Which estimator made the estimate, and what it found of the scatter."""
+    est = detail.estimate
+    text = f"estimator {est.estimator}"
+    if est.estimator != "paper":
+        text += (
+            f": scatter sd(m)² = a² + (b·m)² with a = {est.scatter_a_kg:.3g} kg, b = {est.scatter_b:.3g}; "
+            f"{est.scatter_model}"
+        )
+    if est.diagnostic is not None:
+        d = est.diagnostic
+        text += (
+            f" (likelihood ratio: additive p = {d.p_additive:.3g}, "
+            f"multiplicative p = {d.p_multiplicative:.3g}"
+            f"{'' if d.decided else '; the data cannot tell'})"
+        )
+    if est.n_censored:
+        text += f"; {est.n_censored} no-slip trial(s) as lower bounds"
+    if est.note:
+        text += f"; {est.note}"
+    return text
 
 
 def _percentage_text(pe: dict[str, Any]) -> str:

@@ -421,19 +421,45 @@ class JointCapacity:
 
 @dataclass(frozen=True, slots=True)
 class Estimate:
-    """The run's estimate after a trial: the joint-estimation fit (None before 2 slips) and joints."""
+    """The run's estimate after a trial: the joint-estimation fit (None before 2 slips) and joints.
+
+    `fit` is the protocol's estimator's (`estimator`); the paper's fit is carried beside it in the
+    `paper_*` fields (equal to `fit`'s when the estimator is `paper`). Logs from before the
+    estimators decode with `estimator` "paper" (the only fit there was) and the rest None.
+    """
 
     trial_id: int
     fit: FitSummary | None
     joints: tuple[JointCapacity, ...] = ()
+    estimator: str = "paper"
+    scatter_model: str | None = None  # what the estimator assumed or the data supported
+    n_censored: int = 0  # no-slip trials in the fit as lower bounds
+    scatter_a_kg: float | None = None  # sd(m)² = a² + (b·m)²
+    scatter_b: float | None = None
+    p_additive: float | None = None  # the diagnostic's p-values (auto only)
+    p_multiplicative: float | None = None
+    paper_n: int | None = None
+    paper_k: float | None = None
+    paper_k_ci: tuple[float, float] | None = None
+    paper_se: float | None = None
+    paper_rmse: float | None = None
+    paper_capacity_nm: float | None = None
+    paper_capacity_ci_nm: tuple[float, float] | None = None
 
     def text(self) -> str:
-        """One line for people: k and the capacity with its bounds."""
+        """One line for people: k and the capacity with its bounds, and the paper's beside them."""
         s = self.fit
         if s is None:
             return "estimate: needs 2 slips"
         lo, hi = s.capacity_ci_nm
-        return f"k={s.k:.4f} kg·m  capacity={s.capacity_nm:.3f} N·m [{lo:.3f}, {hi:.3f}] (n={s.n})"
+        line = f"k={s.k:.4f} kg·m  capacity={s.capacity_nm:.3f} N·m [{lo:.3f}, {hi:.3f}] (n={s.n}"
+        line += f", {self.n_censored} censored)" if self.n_censored else ")"
+        if self.estimator == "paper" or self.paper_capacity_ci_nm is None or self.paper_capacity_nm is None:
+            return line
+        plo, phi = self.paper_capacity_ci_nm
+        scatter = f" {self.scatter_model}" if self.scatter_model else ""
+        paper = f"paper: {self.paper_capacity_nm:.3f} [{plo:.3f}, {phi:.3f}]"
+        return f"{self.estimator}{scatter}: {line}  {paper}"
 
     def to_payload(self) -> dict[str, Any]:
         """The `/rig/estimate` payload: the `rig fit --json` keys (null before a fit; n = 0) and joints."""
@@ -444,6 +470,15 @@ class Estimate:
         if payload["n"] is None:
             payload["n"] = 0
         payload["joints"] = [j.to_json() for j in self.joints]
+        payload["estimator"] = str(self.estimator)
+        payload["scatter_model"] = self.scatter_model
+        payload["n_censored"] = integer(self.n_censored, "n_censored")
+        for name in _ESTIMATE_NUMBERS:
+            payload[name] = number_or_none(getattr(self, name), name)
+        payload["paper_n"] = None if self.paper_n is None else integer(self.paper_n, "paper_n")
+        for name in ("paper_k_ci", "paper_capacity_ci_nm"):
+            pair = getattr(self, name)
+            payload[name] = None if pair is None else [number_or_none(b, name) for b in pair]
         return payload
 
     @classmethod
@@ -453,7 +488,44 @@ class Estimate:
         if payload.get("n") and payload.get("k") is not None:
             fit = FitSummary.from_json(payload)
         joints = tuple(JointCapacity.from_json(j) for j in payload.get("joints") or ())
-        return cls(trial_id=integer(payload["trial_id"], "trial_id"), fit=fit, joints=joints)
+        numbers = {name: _optional_float(payload.get(name)) for name in _ESTIMATE_NUMBERS}
+        scatter = payload.get("scatter_model")
+        paper_n = payload.get("paper_n")
+        return cls(
+            trial_id=integer(payload["trial_id"], "trial_id"),
+            fit=fit,
+            joints=joints,
+            estimator=str(payload.get("estimator") or "paper"),
+            scatter_model=None if scatter is None else str(scatter),
+            n_censored=integer(payload.get("n_censored") or 0, "n_censored"),
+            paper_n=None if paper_n is None else integer(paper_n, "paper_n"),
+            paper_k_ci=_optional_pair(payload.get("paper_k_ci")),
+            paper_capacity_ci_nm=_optional_pair(payload.get("paper_capacity_ci_nm")),
+            **numbers,
+        )
+
+
+_ESTIMATE_NUMBERS = (
+    "scatter_a_kg",
+    "scatter_b",
+    "p_additive",
+    "p_multiplicative",
+    "paper_k",
+    "paper_se",
+    "paper_rmse",
+    "paper_capacity_nm",
+)
+
+
+def _optional_float(value: Any) -> float | None:
+    return None if value is None else float(value)
+
+
+def _optional_pair(value: Any) -> tuple[float, float] | None:
+    if value is None:
+        return None
+    lo, hi = value
+    return (math.nan if lo is None else float(lo), math.nan if hi is None else float(hi))
 
 
 _FIT_INTEGER_KEYS = frozenset({"n", "dfe"})

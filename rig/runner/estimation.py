@@ -1,10 +1,13 @@
-"""The run's estimates: the online joint-estimation fit, per-joint capacities, and predictions.
+"""The run's estimates: the joint-estimation fit, per-joint capacities, and predictions.
 
-Glue between the runner and `model/`: it feeds each finished trial into the pure step functions
-(`model.online_fit`, `model.joint_capacity_estimation`), predicts the next trial's slip load from
-the estimates **the rig itself made** (never from simulator truth), and gives the estimate as one
-`rig.log.records.Estimate` for the log, the progress line and the report. Replaying the same
-results rebuilds the same state, which is how `--resume` restores it.
+Glue between the runner and `model/`: it feeds each finished trial into the pure functions
+(`model.online_fit` for the paper's fit, `model.estimate_summary` for the protocol's estimator,
+`model.joint_capacity_estimation`), predicts the next trial's slip load from the estimates **the rig
+itself made** (never from simulator truth), and gives the estimate as one
+`rig.log.records.Estimate` for the log, the progress line and the report. Slips feed the fit; a
+joint-estimation trial that ended without a slip enters it as a lower bound on the slip mass
+(censored; the paper's fit leaves it out). Replaying the same results rebuilds the same state,
+which is how `--resume` restores it.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
@@ -19,8 +23,11 @@ from typing import Any
 import numpy as np
 
 from model.chain import planar_transforms, predict_slip
+from model.estimate_summary import EstimateSummary, summarize_estimate
+from model.estimators import DEFAULT_ESTIMATOR, EstimatorName
 from model.fit import FitSummary, capacity_from_fit, fit_summary
 from model.joint_capacity_estimation import (
+    DEFAULT_OBS_SD_LOG,
     link_estimator_estimates,
     link_estimator_init,
     link_estimator_update,
@@ -28,12 +35,15 @@ from model.joint_capacity_estimation import (
 from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
 from rig.errors import InputError
 from rig.files import load_json_file
-from rig.log.records import Estimate, JointCapacity, TrialKind, TrialResult
+from rig.log.records import Estimate, JointCapacity, TrialKind, TrialOutcome, TrialResult
 from rig.rig_config import ArticleConfig
 
 # How much the joints of one link are taken to differ from the joint that was fitted (log sd):
 # the paper assumed identical joints; 10 % is the spread a hand-made link plausibly has.
 BETWEEN_JOINT_SD_LOG = 0.10
+# The per-joint filter's trial-to-trial scatter is the upper bound of this one-sided confidence
+# level on the scatter the joint-estimation slips show (see RunEstimator._trial_scatter_log).
+SCATTER_CONFIDENCE_QUANTILE = 0.25
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,22 +67,56 @@ class RunEstimator:
         level: float = 0.99,
         constant: str = "paper",
         prior_summary: FitSummary | None = None,
+        estimator: EstimatorName = DEFAULT_ESTIMATOR,
     ) -> None:
         self.article = article
         self.level = level
         self.constant = constant
-        self.fit_state = online_fit_init()
+        self.estimator: EstimatorName = estimator
+        self.fit_state = online_fit_init()  # the paper's fit, exact and O(1) per trial
         self.link_state: Any = None
         self._file_prior = prior_summary
+        # Every joint-estimation point so far (the estimators other than the paper's refit them all).
+        self._distances_m: list[float] = []
+        self._masses_kg: list[float] = []
+        self._censored: list[bool] = []
+        self._cached: tuple[int, EstimateSummary | None] = (-1, None)
 
     # ---- predictions -------------------------------------------------------------------------
-    def summary(self) -> FitSummary | None:
-        """The current joint-estimation fit, or the estimates file's before 2 trials (else None)."""
+    def paper_summary(self) -> FitSummary | None:
+        """The paper's fit of the slips so far (None before 2 slips)."""
         fit = online_fit_estimate(self.fit_state, self.level)
         if fit is None:
-            return self._file_prior
+            return None
         capacity = capacity_from_fit(fit, self.article.joint_radius_m, self.constant, self.article.g)
         return fit_summary(fit, capacity)
+
+    def estimate_summary(self) -> EstimateSummary | None:
+        """The protocol's estimator's fit with the paper's beside it (None before 2 slips)."""
+        count, cached = self._cached
+        if count == len(self._masses_kg):
+            return cached
+        result = None
+        if self.fit_state.n >= 2:
+            result = summarize_estimate(
+                self.estimator,
+                self._distances_m,
+                self._masses_kg,
+                self._censored,
+                level=self.level,
+                radius_m=self.article.joint_radius_m,
+                constant=self.constant,
+                g=self.article.g,
+            )
+        self._cached = (len(self._masses_kg), result)
+        return result
+
+    def summary(self) -> FitSummary | None:
+        """The current fit by the protocol's estimator; before 2 slips the estimates file's, or None."""
+        if self.estimator == "paper":
+            return self.paper_summary() or self._file_prior
+        full = self.estimate_summary()
+        return self._file_prior if full is None else full.fit
 
     def predict_joint_estimation_force_n(self, distance_m: float) -> float | None:
         """Predicted slip tension at `distance_m` from the fit so far (None before 2 trials)."""
@@ -117,9 +161,13 @@ class RunEstimator:
         )
 
     # ---- updates -----------------------------------------------------------------------------
-    def update_joint_estimation(self, distance_m: float, mass_kg: float) -> None:
-        """Add one joint-estimation slip (distance, slip mass)."""
-        self.fit_state = online_fit_update(self.fit_state, distance_m, mass_kg)
+    def update_joint_estimation(self, distance_m: float, mass_kg: float, *, censored: bool = False) -> None:
+        """Add one joint-estimation point: a slip mass, or (censored) a mass that did not slip."""
+        if not censored:
+            self.fit_state = online_fit_update(self.fit_state, distance_m, mass_kg)
+        self._distances_m.append(float(distance_m))
+        self._masses_kg.append(float(mass_kg))
+        self._censored.append(censored)
 
     def update_link(
         self, lever_arms_m: Sequence[float], peak_force_n: float, slipped_joint: int | None
@@ -159,7 +207,19 @@ class RunEstimator:
                 raise InputError(f"{source}: trial {r.trial_id}: cannot be replayed on this rig: {problem}")
 
     def apply_result(self, result: TrialResult) -> None:
-        """Feed one finished trial's result into the estimators (slips only)."""
+        """Feed one finished trial's result into the estimators.
+
+        Slips feed the fits; a joint-estimation no-slip enters as a lower bound (the highest load
+        held without a slip).
+        """
+        if (
+            result.kind == TrialKind.JOINT_ESTIMATION
+            and result.outcome == TrialOutcome.NO_SLIP
+            and result.distance_m is not None
+            and result.slip_mass_kg is not None
+        ):
+            self.update_joint_estimation(result.distance_m, result.slip_mass_kg, censored=True)
+            return
         if not result.slipped:
             return
         if result.kind == TrialKind.JOINT_ESTIMATION:
@@ -182,8 +242,35 @@ class RunEstimator:
             fit_sd = (math.log(hi) - math.log(lo)) / (2 * z) if 0 < lo < hi else 0.5
             sd_log = math.hypot(fit_sd, BETWEEN_JOINT_SD_LOG)
             joints = self.article.joint_count
-            self.link_state = link_estimator_init(np.full(joints, capacity), np.full(joints, sd_log))
+            self.link_state = link_estimator_init(
+                np.full(joints, capacity), np.full(joints, sd_log), obs_sd_log=self._trial_scatter_log()
+            )
         return self.link_state
+
+    def _trial_scatter_log(self) -> float:
+        """σ of the per-joint filter: a joint's capacity scatter from trial to trial (log sd).
+
+        The joint-estimation slips measure it: each is one draw of k times a capacity factor, so the
+        relative sd of m·l estimates it. From n slips that estimate is itself uncertain (about
+        1/√(2(n − 1)) relative), and a σ too small makes every joint's bounds too narrow, so the
+        filter takes its upper 75 % confidence bound, √((n − 1)/χ²_{0.25, n−1}) times the estimate.
+        Without data (an estimates file) or below 3 slips: the filter's default, which is also the
+        floor (σ carries lever-arm and load-cell error too). studies/joint_capacity_coverage.py
+        measured what the fixed default alone gave against the simulator's 0.085 scatter.
+        """
+        slips = [
+            d * m for d, m, c in zip(self._distances_m, self._masses_kg, self._censored, strict=True) if not c
+        ]
+        if len(slips) < 3:
+            return DEFAULT_OBS_SD_LOG
+        products = np.asarray(slips)
+        mean = float(products.mean())
+        relative = float(products.std(ddof=1)) / abs(mean) if mean != 0 else math.inf
+        if not math.isfinite(relative):
+            return DEFAULT_OBS_SD_LOG
+        dof = len(slips) - 1
+        upper = relative * math.sqrt(dof / chi2_quantile(SCATTER_CONFIDENCE_QUANTILE, dof))
+        return max(DEFAULT_OBS_SD_LOG, upper)
 
     def joint_estimates(self) -> tuple[JointCapacity, ...]:
         """Per-joint capacities with bounds, once link estimation has begun (else empty)."""
@@ -201,8 +288,31 @@ class RunEstimator:
         )
 
     def estimate(self, trial_id: int) -> Estimate:
-        """The estimate after trial `trial_id`: the fit so far and the per-joint capacities."""
-        return Estimate(trial_id=trial_id, fit=self.summary(), joints=self.joint_estimates())
+        """The estimate after trial `trial_id`: the fit so far (and the paper's), the per-joint capacities."""
+        joints = self.joint_estimates()
+        full = self.estimate_summary()
+        if full is None:
+            return Estimate(trial_id=trial_id, fit=self.summary(), joints=joints, estimator=self.estimator)
+        est, paper, diagnostic = full.estimate, full.paper, full.estimate.diagnostic
+        return Estimate(
+            trial_id=trial_id,
+            fit=full.fit,
+            joints=joints,
+            estimator=est.estimator,
+            scatter_model=est.scatter_model,
+            n_censored=est.n_censored,
+            scatter_a_kg=est.scatter_a_kg,
+            scatter_b=est.scatter_b,
+            p_additive=None if diagnostic is None else diagnostic.p_additive,
+            p_multiplicative=None if diagnostic is None else diagnostic.p_multiplicative,
+            paper_n=None if paper is None else paper.n,
+            paper_k=None if paper is None else paper.k,
+            paper_k_ci=None if paper is None else paper.k_ci,
+            paper_se=None if paper is None else paper.se,
+            paper_rmse=None if paper is None else paper.rmse,
+            paper_capacity_nm=None if paper is None else paper.capacity_nm,
+            paper_capacity_ci_nm=None if paper is None else paper.capacity_ci_nm,
+        )
 
 
 # What an estimates file may hold (docs/formats.md §5): wide for any joint, narrow enough that the
@@ -332,3 +442,11 @@ def _short(value: Any) -> str:
         return "an integer beyond the float range"
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+@lru_cache(maxsize=256)
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The χ² quantile (scipy, imported on first use)."""
+    from scipy import stats
+
+    return float(stats.chi2.ppf(probability, dof))

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import rig
+from model.estimate_summary import EstimateSummary
 from model.fit import FitSummary
 from model.payload_errors import PayloadErrorStats
 from rig.errors import ExitCode, InputError
@@ -88,6 +89,8 @@ class RunReport:
     truth: dict[str, Any] | None = None
     safe_state_verified: bool = True
     design: tuple[AdaptiveSummary, ...] = ()  # adaptive blocks: where each stands, why it stopped
+    # The protocol's estimator's fit with the paper's beside it (None before 2 slips).
+    estimate_detail: EstimateSummary | None = None
 
     def as_json(self) -> dict[str, Any]:
         """The `rig run --json` object (docs/design.md §5)."""
@@ -101,7 +104,7 @@ class RunReport:
             "aborted": self.aborted,
             "reason": self.reason,
             "safe_state_verified": self.safe_state_verified,
-            "estimate": self.estimate.as_json() if self.estimate is not None else None,
+            "estimate": _estimate_json(self.estimate, self.estimate_detail),
             "joints": [j.to_json() for j in self.joints],
         }
         if self.design:
@@ -200,7 +203,7 @@ def _prepared(
     prior = None
     if protocol.estimates_from not in (None, "run"):
         prior = load_estimates_file(protocol.estimates_from)
-    estimator = RunEstimator(config.article, prior_summary=prior)
+    estimator = RunEstimator(config.article, prior_summary=prior, estimator=protocol.estimator)
     estimator.replay(journal.completed)
     done = journal.completed_ids
     remaining = [t for t in protocol.trials if t.trial_id not in done]
@@ -330,10 +333,11 @@ def _finish(
     journal.status = outcome.status
     journal.save()
     summary = prepared.estimator.summary()
+    detail = prepared.estimator.estimate_summary()
     joints = prepared.estimator.joint_estimates()
     estimates = {
         "run_id": journal.run_id,
-        "estimate": summary.as_json() if summary is not None else None,
+        "estimate": _estimate_json(summary, detail),
         "joints": [j.to_json() for j in joints],
     }
     atomic_write_text(estimates_path, json.dumps(estimates, indent=1) + "\n")
@@ -354,7 +358,15 @@ def _finish(
         joints=joints,
         truth=truth,
         design=tuple(schedule.summaries.values()) if schedule is not None else (),
+        estimate_detail=detail,
     )
+
+
+def _estimate_json(summary: FitSummary | None, detail: EstimateSummary | None) -> dict[str, Any] | None:
+    """The run's estimate as `rig fit --json` prints it (with the paper's fit), or the prior's keys."""
+    if detail is not None:
+        return detail.as_json()
+    return summary.as_json() if summary is not None else None
 
 
 def _write_metadata(logger: RunLogger, prepared: PreparedRun, session: RigSession) -> None:
