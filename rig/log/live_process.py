@@ -53,6 +53,9 @@ import foxglove
 FRAME_HEADER = struct.Struct("<Q")
 POLL_INTERVAL_S = 0.02  # subscription checks and pipe reads: little latency, few wake-ups
 STATS_INTERVAL_S = 0.25
+# The server sends from its own tasks: messages handed to it just before `stop` may still be queued
+# for a client when the connection closes, so the last ones are given this long to go out first.
+FLUSH_GRACE_S = 0.3
 _SERVER_LOGGER = "foxglove"
 
 
@@ -163,6 +166,8 @@ class LiveServer:
         """Stop the server, giving clients at most `timeout_s` to take their close frames."""
         # stop() waits for every client to take its close frame: a stalled client would hold it
         # (and this process) forever, so it is given `timeout_s` and then left behind.
+        if self.published:
+            time.sleep(min(FLUSH_GRACE_S, timeout_s))
         stopper = threading.Thread(target=self._server.stop, name="rig-live-stop", daemon=True)
         stopper.start()
         stopper.join(timeout_s)
