@@ -403,8 +403,8 @@ class ObjectLoadCell:
         self._k = k
 
     def open(self) -> None:
-        """Start receiving (samples taken while closed are lost)."""
-        self._sample_until(self.clock.monotonic_ns())
+        """Start receiving: samples taken before now were sent to a closed port and are lost."""
+        self._sample_until(self.clock.monotonic_ns() - 1)
         self._open = True
 
     def poll(self) -> list[LoadCellSample]:
