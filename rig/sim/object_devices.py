@@ -51,6 +51,8 @@ class ObjectServo:
         self.table = table
         self.motor = MotorParams(table.stall_torque_nm, table.stall_current_a, table.no_load_speed_rad_s)
         self.actuator = ProfiledActuator(self.motor)
+        self._coulomb_nm = self.motor.coulomb_nm  # a computed property; read every millisecond
+        self._overload_time_ns = round(DEFAULT_OVERLOAD_TIME_S * 1e9)
         self.state = ActuatorState()
         self.external_torque_nm = 0.0  # set by the world
         self.mode = int(table["Operating Mode"].default)
@@ -108,7 +110,7 @@ class ObjectServo:
         state, cmd, tau_ext = self.state, self._cmd, self.external_torque_nm
         # The emulated servo's two shortcuts, so both levels integrate the same steps: idle (torque
         # off, load within the gear's static friction) and settled (holding under the same load).
-        if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self.motor.coulomb_nm:
+        if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self._coulomb_nm:
             state.motor_torque_nm = 0.0
             self._now_ns = now_ns
             self._at_limit_ns = 0
@@ -124,12 +126,14 @@ class ObjectServo:
             return
         step = self.actuator.step
         while t < now_ns:
-            dt_ns = min(now_ns - t, MAX_STEP_NS)
+            dt_ns = now_ns - t
+            if dt_ns > MAX_STEP_NS:
+                dt_ns = MAX_STEP_NS
             step(state, self._cmd, dt_ns * 1e-9, tau_ext)
             t += dt_ns
             if self._cmd.torque_enabled and abs(state.motor_torque_nm) >= self._overload_cap_nm > 0:
                 self._at_limit_ns += dt_ns
-                if self._at_limit_ns >= round(DEFAULT_OVERLOAD_TIME_S * 1e9):
+                if self._at_limit_ns >= self._overload_time_ns:
                     self._latch(ct.HW_ERROR_OVERLOAD)
                     self._at_limit_ns = 0
             else:
@@ -192,7 +196,8 @@ class ObjectServoBus:
     def advance_to(self, now_ns: int) -> None:
         """Integrate every servo's motion up to `now_ns`."""
         for servo in self.servos:
-            servo.advance_to(now_ns)
+            if now_ns > servo._now_ns:
+                servo.advance_to(now_ns)
 
     def connect(self) -> None:
         """Nothing to open: every servo is there."""
@@ -391,14 +396,16 @@ class ObjectLoadCell:
         gauss, tension = self._rng.gauss, self.tension_n
         epoch_offset = self.clock.time_ns() - self.clock.monotonic_ns()
         to_force = self.calibration.force_n
+        counts_of = signal.counts
+        receiving, add = self._open, self._pending.append
         k = self._k
         while True:
             t_ns = start + round(k * 1e9 / rate)
             if t_ns > now_ns:
                 break
-            counts = signal.counts(tension(t_ns), (t_ns - start) / 1e9, gauss(0.0, 1.0))
-            if self._open:
-                self._pending.append(LoadCellSample(t_ns + epoch_offset, counts, to_force(counts)))
+            counts = counts_of(tension(t_ns), (t_ns - start) / 1e9, gauss(0.0, 1.0))
+            if receiving:
+                add(LoadCellSample(t_ns + epoch_offset, counts, to_force(counts)))
             k += 1
         self._k = k
 
