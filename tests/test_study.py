@@ -315,3 +315,18 @@ def test_ctrl_c_stops_workers_and_writes_nothing(tmp_path: Path) -> None:
         time.sleep(0.1)
     else:
         pytest.fail("processes of the study are still running after it exited")
+
+
+def test_ctrl_c_in_process_stops_the_study_not_just_the_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With --jobs 1 the runner turns Ctrl-C into an interrupted run; the study must stop too."""
+    from rig.errors import ExitCode
+    from rig.runner.trial_runner import RunOutcome, TrialRunner
+
+    def interrupted(self: TrialRunner, trials: object) -> RunOutcome:
+        return RunOutcome(ExitCode.INTERRUPTED, "interrupted", "interrupted by the operator")
+
+    monkeypatch.setattr(TrialRunner, "run", interrupted)
+    seen: list[RunRecord] = []
+    with pytest.raises(KeyboardInterrupt):
+        run_local(StudySpec(str(SMOKE), None, "object"), [0, 1], 1, seen.append)
+    assert seen == []

@@ -151,6 +151,8 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
             world = session.truth.detail()["world"]
     except Exception as exc:  # a broken run is counted, never the end of the study
         return RunRecord(seed, "aborted", f"{type(exc).__name__}: {exc}", planned, 0, _since(start), ())
+    if outcome.exit_code == ExitCode.INTERRUPTED:
+        raise KeyboardInterrupt  # Ctrl-C in this process (--jobs 1) stops the study, not just this run
     results = outcome.new_results
     aborted = outcome.exit_code != ExitCode.OK
     joints = score_joints(results, world, spec.level)
