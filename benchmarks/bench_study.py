@@ -48,10 +48,8 @@ def sequential_runs(protocol: Path, seeds: int) -> float:
 
 
 def study(protocol: Path, seeds: int, devices: str) -> float:
-    return timed(
-        [sys.executable, "-m", "rig.cli", "study", str(protocol), "--seeds", f"0-{seeds - 1}", "--jobs", "2"]
-        + ["--devices", devices, "--json"]
-    )
+    command = [sys.executable, "-m", "rig.cli", "study", str(protocol), "--seeds", f"0-{seeds - 1}"]
+    return timed([*command, "--jobs", "2", "--devices", devices, "--json"])
 
 
 def main() -> None:
@@ -75,9 +73,10 @@ def main() -> None:
         wall = {name: measures[name]() for name in order}
         for name in ratios:
             ratios[name].append(wall[name] / wall["runs"])
+        byte, obj = wall["study_byte"], wall["study_object"]
         print(
             f"rep {rep + 1}: {args.seeds} x rig run {wall['runs']:.1f} s; study --jobs 2 byte "
-            f"{wall['study_byte']:.1f} s ({ratios['study_byte'][-1]:.3f}x), object {wall['study_object']:.1f} s "
+            f"{byte:.1f} s ({ratios['study_byte'][-1]:.3f}x), object {obj:.1f} s "
             f"({ratios['study_object'][-1]:.3f}x)",
             flush=True,
         )
