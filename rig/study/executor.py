@@ -1,7 +1,8 @@
 """Running a study's seeds: in local worker processes, or on a Dask cluster.
 
 Local: `jobs` worker processes (started by forkserver, so none inherits the parent's threads or
-open files), fed one seed at a time from a queue. Each run is independent and seeded, so the
+open files; the server imports this module once and the workers fork from it), fed one seed at a
+time from a queue. Each run is independent and seeded, so the
 order they finish in does not matter. A worker that dies mid-run (a crash the run could not catch)
 costs that seed only: it is recorded as aborted with the exit code, and a new worker takes over.
 Workers ignore SIGINT: Ctrl-C reaches the parent, which stops every worker (SIGTERM, then SIGKILL
@@ -108,8 +109,14 @@ def run_local(spec: StudySpec, seeds: Sequence[int], jobs: int, on_record: OnRec
         for seed in seeds:
             collect(run_seed(spec, seed))
         return records
-    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-    pool = _LocalPool(spec, min(jobs, len(seeds)), multiprocessing.get_context(method))
+    ctx: BaseContext
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        forkserver = multiprocessing.get_context("forkserver")
+        forkserver.set_forkserver_preload([__name__])  # the server imports the rig once; workers fork
+        ctx = forkserver
+    else:
+        ctx = multiprocessing.get_context("spawn")
+    pool = _LocalPool(spec, min(jobs, len(seeds)), ctx)
     try:
         for seed in seeds:
             pool.tasks.put(seed)
