@@ -37,11 +37,12 @@ Protocols: the joint_estimation blocks are scored (one case per run and joint). 
 only link_validation blocks is not supported (exit 2): its per-joint capacities come from a prior
 estimate, not from its own trials.
 
-The runs use object-level simulated devices by default (the same world, motion model and load-cell
-signal model as the byte-level rig, without the packets and lines; a test holds both to the same
-trial results); --devices byte runs the real drivers on the emulators, as `rig run` does. No MCAP is
-written (reproduce any seed with its log: `rig run PROTOCOL --seed N`); the table of every run x
-joint x estimator goes to OUT/study.parquet, written whole or not at all.
+The runs use object-level simulated devices by default: the same world, motion model and load-cell
+signal model as the byte-level rig, without the packets and lines (a test holds a seed at both
+levels to the same trials and outcomes, slip loads apart by load-cell noise only); --devices byte
+runs the real drivers on the emulators, as `rig run` does. No MCAP is written (reproduce any seed
+with its log: `rig run PROTOCOL --seed N`). With --out DIR the table of every run x joint x
+estimator goes to DIR/study.parquet, written whole or not at all.
 
 exit codes: 0 done (aborted runs are counted, not failures); 2 invalid input (nothing started);
 130 interrupted (workers stopped, nothing written).
