@@ -9,7 +9,16 @@ from rig.hw.hardware_rig import hardware_session, rig_calibration
 from rig.hw.session import RigSession
 from rig.rig_config import RigConfig
 from rig.runner.run import PreparedRun
+from rig.sim.object_rig import DEVICE_LEVELS, ObjectSimulatedRig, object_simulated_rig
 from rig.sim.simulated_rig import SimulatedRig, simulated_rig
+
+__all__ = [
+    "DEVICE_LEVELS",
+    "check_session_inputs",
+    "open_object_simulated_rig",
+    "open_session",
+    "open_simulated_rig",
+]
 
 
 def check_session_inputs(config: RigConfig) -> None:
@@ -17,16 +26,31 @@ def check_session_inputs(config: RigConfig) -> None:
     rig_calibration(config)
 
 
-def open_session(prepared: PreparedRun) -> RigSession:
+def open_session(prepared: PreparedRun, *, devices: str = "byte") -> RigSession:
     """The rig a prepared run asks for (nothing connected yet).
 
     A hardware config gives the hardware rig (always real time); a simulated one gives the session
-    of `open_simulated_rig`.
+    of `open_simulated_rig` on `devices` ("byte": the real drivers on emulators; "object": the
+    object-level devices, same world; ignored for hardware).
     """
     if prepared.config.kind == "hardware":
         return hardware_session(prepared.config)
     check_session_inputs(prepared.config)
+    if devices not in DEVICE_LEVELS:
+        raise ValueError(f"devices {devices!r}; allowed: {', '.join(DEVICE_LEVELS)}")
+    if devices == "object":
+        return open_object_simulated_rig(prepared).session
     return open_simulated_rig(prepared).session
+
+
+def open_object_simulated_rig(prepared: PreparedRun) -> ObjectSimulatedRig:
+    """`open_simulated_rig` on the object-level devices (same world, seed and virtual clock; no bytes)."""
+    return object_simulated_rig(
+        prepared.config,
+        seed=prepared.journal.seed,
+        realtime=prepared.request.realtime,
+        invocation=prepared.journal.invocations + 1,
+    )
 
 
 def open_simulated_rig(prepared: PreparedRun) -> SimulatedRig:

@@ -18,7 +18,17 @@ from rig.runner.safety import interrupts_held, terminate_as_interrupt
 
 # Each module `rig.cli.<name>` defines `register(subparsers)`, which adds its parser and sets
 # `handler=<callable(args) -> int>` as a default.
-COMMAND_MODULES: tuple[str, ...] = ("run", "fit", "predict", "sim", "scan", "ports", "calibrate", "replay")
+COMMAND_MODULES: tuple[str, ...] = (
+    "run",
+    "fit",
+    "predict",
+    "sim",
+    "scan",
+    "ports",
+    "calibrate",
+    "replay",
+    "study",
+)
 
 
 class _Parser(argparse.ArgumentParser):

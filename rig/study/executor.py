@@ -1,0 +1,180 @@
+"""Running a study's seeds: in local worker processes, or on a Dask cluster.
+
+Local: `jobs` worker processes (started by forkserver, so none inherits the parent's threads or
+open files; the server imports this module once and the workers fork from it), fed one seed at a
+time from a queue. Each run is independent and seeded, so the
+order they finish in does not matter. A worker that dies mid-run (a crash the run could not catch)
+costs that seed only: it is recorded as aborted with the exit code, and a new worker takes over.
+Workers ignore SIGINT: Ctrl-C reaches the parent, which stops every worker (SIGTERM, then SIGKILL
+for any that does not stop within a second) and raises `KeyboardInterrupt` with nothing written.
+
+Dask: `run_seed` mapped over the seeds on the scheduler at ADDRESS (`dask[distributed]`, the
+`study` extra); the workers need this package installed.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import queue
+import signal
+from collections.abc import Callable, Sequence
+from multiprocessing.context import BaseContext
+from multiprocessing.process import BaseProcess
+from typing import Any
+
+from rig.errors import InputError
+from rig.study.worker import RunRecord, StudySpec, run_seed
+
+OnRecord = Callable[[RunRecord], None]
+_STOP_GRACE_S = 1.0
+_POLL_S = 0.2
+
+
+def _worker_main(spec: StudySpec, tasks: Any, results: Any) -> None:
+    """A worker process: take seeds until the None sentinel; report (start, seed) then each record."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    name = multiprocessing.current_process().name
+    while True:
+        seed = tasks.get()
+        if seed is None:
+            return
+        results.put(("start", name, seed))
+        results.put(("done", name, run_seed(spec, seed)))
+
+
+class _LocalPool:
+    """`jobs` worker processes on one task queue; see the module docstring."""
+
+    def __init__(self, spec: StudySpec, jobs: int, ctx: BaseContext) -> None:
+        self.spec = spec
+        self.ctx = ctx
+        self.tasks: Any = ctx.Queue()
+        self.results: Any = ctx.Queue()
+        self.workers: dict[str, BaseProcess] = {}
+        self.current: dict[str, int] = {}  # worker name -> seed it is running
+        for _ in range(jobs):
+            self.start_worker()
+
+    def start_worker(self) -> None:
+        process = self.ctx.Process(  # type: ignore[attr-defined]
+            target=_worker_main, args=(self.spec, self.tasks, self.results), daemon=True
+        )
+        process.start()
+        self.workers[process.name] = process
+
+    def reap_dead(self, on_record: OnRecord) -> int:
+        """Record the seed of every worker that died mid-run as aborted and replace it; returns how many."""
+        lost = 0
+        for name, process in list(self.workers.items()):
+            if process.is_alive():
+                continue
+            del self.workers[name]
+            seed = self.current.pop(name, None)
+            if seed is not None:
+                reason = f"worker process died (exit code {process.exitcode}) during the run"
+                on_record(RunRecord(seed, "aborted", reason, 0, 0, 0.0, ()))
+                lost += 1
+                self.start_worker()
+        return lost
+
+    def stop(self) -> None:
+        """Stop every worker: SIGTERM, then SIGKILL after a grace period."""
+        for process in self.workers.values():
+            if process.is_alive():
+                process.terminate()
+        for process in self.workers.values():
+            process.join(_STOP_GRACE_S)
+            if process.is_alive():
+                process.kill()
+                process.join()
+        self.tasks.cancel_join_thread()
+        self.results.cancel_join_thread()
+
+    def close(self) -> None:
+        """Let the workers take their sentinels and end."""
+        for process in self.workers.values():
+            process.join(_STOP_GRACE_S)
+        self.stop()
+
+
+def run_local(spec: StudySpec, seeds: Sequence[int], jobs: int, on_record: OnRecord) -> list[RunRecord]:
+    """Every seed's record, run in `jobs` processes (in this process if jobs is 1)."""
+    records: list[RunRecord] = []
+
+    def collect(record: RunRecord) -> None:
+        records.append(record)
+        on_record(record)
+
+    if jobs == 1:
+        for seed in seeds:
+            collect(run_seed(spec, seed))
+        return records
+    ctx: BaseContext
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        forkserver = multiprocessing.get_context("forkserver")
+        forkserver.set_forkserver_preload([__name__])  # the server imports the rig once; workers fork
+        ctx = forkserver
+    else:
+        ctx = multiprocessing.get_context("spawn")
+    pool = _LocalPool(spec, min(jobs, len(seeds)), ctx)
+    try:
+        for seed in seeds:
+            pool.tasks.put(seed)
+        for _ in range(len(pool.workers) + len(seeds)):  # a sentinel for every worker, replacements too
+            pool.tasks.put(None)
+        while len(records) < len(seeds):
+            try:
+                kind, name, payload = pool.results.get(timeout=_POLL_S)
+            except queue.Empty:
+                pool.reap_dead(collect)
+                continue
+            if kind == "start":
+                pool.current[name] = payload
+            else:
+                pool.current.pop(name, None)
+                collect(payload)
+        pool.close()
+    except BaseException:
+        pool.stop()
+        raise
+    return records
+
+
+def require_dask() -> None:
+    """`InputError` naming the extra to install when Dask's distributed scheduler is not importable."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise InputError(
+            "--scheduler needs Dask, which is not installed; allowed: install the `study` extra "
+            "(pip install 'slip-trial-rig[study]', i.e. dask[distributed])"
+        ) from None
+
+
+def run_dask(spec: StudySpec, seeds: Sequence[int], address: str, on_record: OnRecord) -> list[RunRecord]:
+    """Every seed's record, run on the Dask scheduler at `address`."""
+    require_dask()
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(address, timeout="10s")
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise InputError(
+            f"--scheduler {address}: cannot connect ({exc}); allowed: a running Dask scheduler"
+        ) from None
+    records: list[RunRecord] = []
+    futures = []
+    try:
+        futures = client.map(run_seed, [spec] * len(seeds), list(seeds), pure=False)
+        for future in as_completed(futures):
+            try:
+                record = future.result()
+            except Exception as exc:  # the worker itself failed (lost, killed): the seed is aborted
+                seed = seeds[futures.index(future)]
+                record = RunRecord(seed, "aborted", f"dask: {type(exc).__name__}: {exc}", 0, 0, 0.0, ())
+            records.append(record)
+            on_record(record)
+    finally:
+        client.cancel(futures)
+        client.close()
+    return records

@@ -1,0 +1,237 @@
+"""One seed of a study: the protocol on a fresh simulated rig, k estimated every way, scored with the truth.
+
+`run_seed` is what a worker process (or a Dask worker) executes; it never raises for a failed run:
+whatever stops it becomes an aborted `RunRecord` with its reason. The run is the same
+`TrialRunner` that `rig run` drives, on the devices the study asks for, with its journal in a
+temporary directory and its log messages discarded: a study's evidence is its Parquet table, and
+an MCAP file per seed would cost a writer process and most of the run's time (`rig run --seed N`
+reproduces any seed with its full log).
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, cast
+
+from model.estimators import ESTIMATOR_NAMES, check_estimator, estimate_k
+from model.fit import DEFAULT_LEVEL
+from rig.errors import ExitCode
+from rig.log.records import TrialKind, TrialOutcome, TrialResult
+from rig.log.writer import RunLogger
+from rig.rigs import open_session
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunRequest, prepare_run
+from rig.runner.trial_runner import TrialRunner
+from rig.study.crlb import crlb_k_variance
+
+# Outcomes whose slip mass is a measured slip load, and those whose mass is only a lower bound.
+SLIP_OUTCOMES = frozenset({TrialOutcome.SLIP.value})
+CENSORED_OUTCOMES = frozenset({TrialOutcome.NO_SLIP.value})
+
+
+@dataclass(frozen=True, slots=True)
+class StudySpec:
+    """What every run of a study shares (picklable: it goes to the worker processes)."""
+
+    protocol_path: str
+    rig_path: str | None
+    devices: str  # "object" or "byte" (rig.rigs.DEVICE_LEVELS)
+    level: float = DEFAULT_LEVEL
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorResult:
+    """One estimator's k on one joint of one run (NaNs and `error` when it could not estimate)."""
+
+    estimator: str
+    k: float
+    k_low: float
+    k_high: float
+    se: float
+    n: int
+    n_censored: int
+    scatter_model: str
+    scatter_a_kg: float
+    scatter_b: float
+    error: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class JointResult:
+    """A run's joint-estimation trials on one joint, the truth, and every estimator's k."""
+
+    joint: int
+    k_true_kg_m: float
+    true_scatter_a_kg: float
+    true_scatter_b: float
+    distances_m: tuple[float, ...]  # every trial with a mass (slips and censored), in run order
+    n_slips: int
+    n_censored: int
+    n_excluded: int  # trials without a usable mass (aborted or faulted trials)
+    crlb_var: float  # Cramér-Rao bound on var(k_hat) for this design and the true scatter
+    estimates: tuple[EstimatorResult, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class RunRecord:
+    """One seed's run: how it ended, what it cost, and the per-joint results."""
+
+    seed: int
+    status: str  # "completed" or "aborted"
+    reason: str | None
+    trials_planned: int
+    trials_completed: int
+    wall_s: float
+    joints: tuple[JointResult, ...]
+
+
+class _DiscardingLogger:
+    """Takes what the runner logs and keeps nothing (a study keeps its results, not its logs)."""
+
+    def __init__(self) -> None:
+        self.messages_logged = 0
+        self.live = None
+
+    def log(self, topic: str, log_time_ns: int, payload: Mapping[str, Any]) -> None:
+        self.messages_logged += 1
+
+    def log_many(self, topic: str, messages: Iterable[tuple[int, Any]]) -> None:
+        self.messages_logged += sum(1 for _ in messages)
+
+    def flush(self, *, wait: bool = True, fsync: bool = False, timeout_s: float = 30.0) -> None:
+        return None
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        return None
+
+    def add_attachment(self, *args: Any, **kwargs: Any) -> None:
+        return None
+
+    def finish(self, timeout_s: float = 60.0) -> None:
+        return None
+
+
+def run_seed(spec: StudySpec, seed: int) -> RunRecord:
+    """Run the protocol with `seed` and score every estimator; a failure is an aborted record."""
+    start = time.perf_counter()
+    planned = 0
+    try:
+        with tempfile.TemporaryDirectory(prefix="rig-study-") as tmp:
+            request = RunRequest(
+                protocol_path=Path(spec.protocol_path),
+                rig_path=None if spec.rig_path is None else Path(spec.rig_path),
+                out_dir=Path(tmp),
+                seed=seed,
+                run_id=f"study-{seed}",
+            )
+            prepared = prepare_run(request)
+            planned = len(prepared.protocol.trials)
+            try:
+                session = open_session(prepared, devices=spec.devices)
+                runner = TrialRunner(
+                    protocol=prepared.protocol,
+                    config=prepared.config,
+                    session=session,
+                    logger=cast(RunLogger, _DiscardingLogger()),
+                    journal=prepared.journal,
+                    estimator=prepared.estimator,
+                    progress=SilentProgress(),
+                    line_stiffness_n_per_m=prepared.config.line_stiffness_n_per_m,
+                )
+                outcome = runner.run(prepared.remaining)
+            finally:
+                prepared.release()
+            if session.truth is None:
+                raise RuntimeError("the rig reports no truth (a study needs the simulated rig)")
+            world = session.truth.detail()["world"]
+    except Exception as exc:  # a broken run is counted, never the end of the study
+        return RunRecord(seed, "aborted", f"{type(exc).__name__}: {exc}", planned, 0, _since(start), ())
+    if outcome.exit_code == ExitCode.INTERRUPTED:
+        raise KeyboardInterrupt  # Ctrl-C in this process (--jobs 1) stops the study, not just this run
+    results = outcome.new_results
+    aborted = outcome.exit_code != ExitCode.OK
+    joints = score_joints(results, world, spec.level)
+    return RunRecord(
+        seed=seed,
+        status="aborted" if aborted else "completed",
+        reason=outcome.reason if aborted else None,
+        trials_planned=planned,
+        trials_completed=len(results),
+        wall_s=_since(start),
+        joints=joints,
+    )
+
+
+def _since(start: float) -> float:
+    return time.perf_counter() - start
+
+
+def true_scatter(world: Mapping[str, Any]) -> tuple[float, float]:
+    """(additive sd [kg], relative sd) of one slip mass in the world's truth (`SimWorld.truth()`).
+
+    Today's world scatters slip masses multiplicatively: a joint's capacity varies from trial to
+    trial by the relative sd `noise.per_trial_capacity_sd`; an additive part, if the world reports
+    one as `noise.additive_sd_kg`, is added.
+    """
+    noise = world.get("noise", {})
+    return float(noise.get("additive_sd_kg", 0.0)), float(noise.get("per_trial_capacity_sd", 0.0))
+
+
+def score_joints(
+    results: Sequence[TrialResult], world: Mapping[str, Any], level: float
+) -> tuple[JointResult, ...]:
+    """Every estimator's k per joint from the joint-estimation trials of `results`, with the truth."""
+    a_kg, b = true_scatter(world)
+    by_joint: dict[int, list[TrialResult]] = {}
+    for r in results:
+        if r.kind == TrialKind.JOINT_ESTIMATION:
+            by_joint.setdefault(r.joint or 1, []).append(r)
+    out = []
+    for joint, trials in sorted(by_joint.items()):
+        usable = [
+            r
+            for r in trials
+            if r.distance_m is not None
+            and r.slip_mass_kg is not None
+            and math.isfinite(r.slip_mass_kg)
+            and r.slip_mass_kg > 0
+            and (r.outcome.value in SLIP_OUTCOMES or r.outcome.value in CENSORED_OUTCOMES)
+        ]
+        distances = [float(r.distance_m) for r in usable if r.distance_m is not None]
+        masses = [float(r.slip_mass_kg) for r in usable if r.slip_mass_kg is not None]
+        censored = [r.outcome.value in CENSORED_OUTCOMES for r in usable]
+        k_true = float(world["joints"][joint - 1]["k_kg_m"])
+        estimates = tuple(_estimate(name, distances, masses, censored, level) for name in ESTIMATOR_NAMES)
+        out.append(
+            JointResult(
+                joint=joint,
+                k_true_kg_m=k_true,
+                true_scatter_a_kg=a_kg,
+                true_scatter_b=b,
+                distances_m=tuple(distances),
+                n_slips=len(usable) - sum(censored),
+                n_censored=sum(censored),
+                n_excluded=len(trials) - len(usable),
+                crlb_var=crlb_k_variance(distances, k_true, a_kg, b),
+                estimates=estimates,
+            )
+        )
+    return tuple(out)
+
+
+def _estimate(
+    name: str, distances: list[float], masses: list[float], censored: list[bool], level: float
+) -> EstimatorResult:
+    nan = math.nan
+    try:
+        e = estimate_k(check_estimator(name), distances, masses, censored, level)
+    except (ValueError, ArithmeticError) as exc:  # numpy's LinAlgError is a ValueError
+        return EstimatorResult(name, nan, nan, nan, nan, 0, 0, "", nan, nan, f"{type(exc).__name__}: {exc}")
+    return EstimatorResult(
+        name, e.k, e.k_ci[0], e.k_ci[1], e.se, e.n, e.n_censored, e.scatter_model, e.scatter_a_kg, e.scatter_b
+    )
