@@ -99,8 +99,14 @@ def crlb_k(
     Fisher information is I_kk = Σ x²/σ² + ½ Σ (∂σ²/∂k)²/σ⁴, but ∂σ²/∂k = (2/k)·b²·∂σ²/∂(b²):
     the variance carries information on k only through a direction b² already spans, so after
     profiling the nuisance (a², b²) the bound is 1/Σ(x_i²/σ_i²), the weighted least squares variance.
+    tests/test_study.py checks it against the inverse of the full information matrix with the
+    nuisance parameters. Pure multiplicative gives b²k²/n (the variance of the mean of m·l), pure
+    additive a²/Σx² (the paper's fit). NaN when the design carries no information (no distances,
+    or no scatter at all).
     """
     x = 1.0 / np.asarray(distances_m, dtype=float)
+    if x.size == 0 or not (scatter_a_kg > 0 or scatter_b > 0):
+        return math.nan
     variance = scatter_a_kg**2 + (scatter_b * k * x) ** 2
     return float(1.0 / np.sum(x * x / variance))
 

@@ -15,11 +15,10 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from model.estimators import ESTIMATOR_NAMES
+from model.estimators import ESTIMATOR_NAMES, crlb_k
 from rig.cli import main
 from rig.errors import InputError
 from rig.study import table as table_module
-from rig.study.crlb import crlb_k_variance
 from rig.study.executor import run_local
 from rig.study.seeds import parse_seeds
 from rig.study.summary import clopper_pearson, summarise
@@ -54,23 +53,23 @@ def test_seeds_bad_syntax_is_an_input_error(text: str) -> None:
 def test_crlb_multiplicative_is_the_variance_of_the_mean_of_m_l() -> None:
     distances = [0.03, 0.1, 0.25] * 4
     k, b = 0.16, 0.085
-    assert crlb_k_variance(distances, k, 0.0, b) == pytest.approx(b**2 * k**2 / len(distances), rel=1e-12)
+    assert crlb_k(distances, k, 0.0, b) == pytest.approx(b**2 * k**2 / len(distances), rel=1e-12)
 
 
 def test_crlb_additive_is_the_weighted_least_squares_variance() -> None:
     distances = np.array([0.03, 0.1, 0.25] * 4)
     a = 0.05
     expected = a**2 / float(np.sum(1.0 / distances**2))
-    assert crlb_k_variance(distances, 0.16, a, 0.0) == pytest.approx(expected, rel=1e-12)
+    assert crlb_k(distances, 0.16, a, 0.0) == pytest.approx(expected, rel=1e-12)
 
 
 def test_crlb_mixed_is_above_either_pure_shape() -> None:
     """Adding a second source of scatter (and a nuisance parameter for it) can only lose information."""
     distances = [0.03, 0.06, 0.1, 0.15, 0.2, 0.25] * 3
     k, a, b = 0.16, 0.05, 0.085
-    mixed = crlb_k_variance(distances, k, a, b)
-    assert mixed > crlb_k_variance(distances, k, a, 0.0)
-    assert mixed > crlb_k_variance(distances, k, 0.0, b)
+    mixed = crlb_k(distances, k, a, b)
+    assert mixed > crlb_k(distances, k, a, 0.0)
+    assert mixed > crlb_k(distances, k, 0.0, b)
 
 
 def test_crlb_is_reached_by_the_mean_of_m_l_in_a_simulation() -> None:
@@ -80,12 +79,42 @@ def test_crlb_is_reached_by_the_mean_of_m_l_in_a_simulation() -> None:
     k, b = 0.16, 0.085
     masses = k / distances * (1 + b * rng.standard_normal((20000, distances.size)))
     estimates = (masses * distances).mean(axis=1)
-    assert float(np.var(estimates)) == pytest.approx(crlb_k_variance(distances, k, 0.0, b), rel=0.05)
+    assert float(np.var(estimates)) == pytest.approx(crlb_k(distances, k, 0.0, b), rel=0.05)
+
+
+def full_information_bound(distances, k, a, b):
+    """var(k̂) bound from the whole Fisher information over (k, a², b²) (the nuisances the truth has)."""
+    inv_l = 1.0 / np.asarray(distances, dtype=float)
+    big_a, big_b = a**2, b**2
+    v = big_a + big_b * (k * inv_l) ** 2
+    dmu = [inv_l]
+    dv = [2.0 * big_b * k * inv_l**2]
+    if big_a > 0:
+        dmu.append(np.zeros_like(inv_l))
+        dv.append(np.ones_like(inv_l))
+    if big_b > 0:
+        dmu.append(np.zeros_like(inv_l))
+        dv.append(k**2 * inv_l**2)
+    info = np.array(
+        [
+            [np.sum(dmu[j] * dmu[i] / v + dv[j] * dv[i] / (2.0 * v**2)) for i in range(len(dmu))]
+            for j in range(len(dmu))
+        ]
+    )
+    return float(np.linalg.inv(info)[0, 0])
+
+
+@pytest.mark.parametrize(("a", "b"), [(0.05, 0.0), (0.0, 0.085), (0.05, 0.085), (0.2, 0.01)])
+def test_crlb_equals_the_full_information_bound_with_the_scatter_as_nuisance(a, b) -> None:
+    distances = [0.03, 0.06, 0.1, 0.15, 0.2, 0.25] * 3
+    assert crlb_k(distances, 0.16, a, b) == pytest.approx(
+        full_information_bound(distances, 0.16, a, b), rel=1e-9
+    )
 
 
 def test_crlb_without_scatter_or_distances_is_nan() -> None:
-    assert math.isnan(crlb_k_variance([0.1, 0.2], 0.16, 0.0, 0.0))
-    assert math.isnan(crlb_k_variance([], 0.16, 0.0, 0.1))
+    assert math.isnan(crlb_k([0.1, 0.2], 0.16, 0.0, 0.0))
+    assert math.isnan(crlb_k([], 0.16, 0.0, 0.1))
 
 
 # ----- statistics ----------------------------------------------------------------------------------

@@ -18,16 +18,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
 
-from model.estimators import ESTIMATOR_NAMES, check_estimator, estimate_k
+from model.estimators import ESTIMATOR_NAMES, check_estimator, crlb_k, estimate_k
 from model.fit import DEFAULT_LEVEL
 from rig.errors import ExitCode
 from rig.log.records import TrialKind, TrialOutcome, TrialResult
 from rig.log.writer import RunLogger
 from rig.rigs import open_session
+from rig.runner.planning import TrialSchedule
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, prepare_run
 from rig.runner.trial_runner import TrialRunner
-from rig.study.crlb import crlb_k_variance
 
 # Outcomes whose slip mass is a measured slip load, and those whose mass is only a lower bound.
 SLIP_OUTCOMES = frozenset({TrialOutcome.SLIP.value})
@@ -130,7 +130,7 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
                 run_id=f"study-{seed}",
             )
             prepared = prepare_run(request)
-            planned = len(prepared.protocol.trials)
+            planned = len(prepared.protocol.planned_trial_ids)
             try:
                 session = open_session(prepared, devices=spec.devices)
                 runner = TrialRunner(
@@ -143,7 +143,10 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
                     progress=SilentProgress(),
                     line_stiffness_n_per_m=prepared.config.line_stiffness_n_per_m,
                 )
-                outcome = runner.run(prepared.remaining)
+                schedule = TrialSchedule(
+                    prepared.protocol, prepared.config, prepared.journal, runner.announce
+                )
+                outcome = runner.run(schedule)
             finally:
                 prepared.release()
             if session.truth is None:
@@ -174,12 +177,13 @@ def _since(start: float) -> float:
 def true_scatter(world: Mapping[str, Any]) -> tuple[float, float]:
     """(additive sd [kg], relative sd) of one slip mass in the world's truth (`SimWorld.truth()`).
 
-    Today's world scatters slip masses multiplicatively: a joint's capacity varies from trial to
-    trial by the relative sd `noise.per_trial_capacity_sd`; an additive part, if the world reports
-    one as `noise.additive_sd_kg`, is added.
+    The world reports its scatter as `scatter` {shape, a_kg, b}: sd(m)² = a² + (b·m)². Truths from
+    before scatter shapes existed were purely multiplicative, by `noise.per_trial_capacity_sd`.
     """
-    noise = world.get("noise", {})
-    return float(noise.get("additive_sd_kg", 0.0)), float(noise.get("per_trial_capacity_sd", 0.0))
+    scatter = world.get("scatter")
+    if isinstance(scatter, Mapping):
+        return float(scatter.get("a_kg", 0.0)), float(scatter.get("b", 0.0))
+    return 0.0, float(world.get("noise", {}).get("per_trial_capacity_sd", 0.0))
 
 
 def score_joints(
@@ -217,7 +221,7 @@ def score_joints(
                 n_slips=len(usable) - sum(censored),
                 n_censored=sum(censored),
                 n_excluded=len(trials) - len(usable),
-                crlb_var=crlb_k_variance(distances, k_true, a_kg, b),
+                crlb_var=crlb_k(distances, k_true, a_kg, b),
                 estimates=estimates,
             )
         )
