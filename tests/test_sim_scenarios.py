@@ -12,7 +12,7 @@ from rig.rig_config import SLIP_KINDS, load_rig_config
 from tests.helpers import QUICK_PROTOCOL
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios"
-NAMES = ("small-drops", "creep", "stick-slip", "noisy-cell", "additive-scatter", "mixed")
+NAMES = ("small-drops", "creep", "stick-slip", "noisy-cell", "additive-scatter", "mixed-scatter", "mixed")
 
 
 def test_every_scenario_is_shipped_and_loads() -> None:
@@ -23,6 +23,13 @@ def test_every_scenario_is_shipped_and_loads() -> None:
     assert noisy is not None and noisy.loadcell.noise_scale == 10 and noisy.loadcell.active
     additive = load_rig_config(SCENARIOS / "additive-scatter.yaml").simulation
     assert additive is not None and (additive.scatter.shape, additive.scatter.a_kg) == ("additive", 0.1)
+    mixed_scatter = load_rig_config(SCENARIOS / "mixed-scatter.yaml").simulation
+    assert mixed_scatter is not None
+    assert (mixed_scatter.scatter.shape, mixed_scatter.scatter.a_kg, mixed_scatter.scatter.b) == (
+        "mixed",
+        0.07,
+        0.06,
+    )
 
 
 @pytest.mark.parametrize(
