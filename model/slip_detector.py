@@ -18,11 +18,19 @@ Detector (docs/model.md §7):
    * `creep`: a CUSUM of the fall relative to the ramp trend and the fall of high below the
      spike-robust peak both reach `creep_k`·σ (the tension sags while the winch reels).
    slope and cusum fire only once the force is at least `min_drop_n` below the peak.
-5. **Latch** after firing: the detector ignores the signal until the force falls below
-   `rearm_below_n`, then waits to arm again. So one slip fires once, and stick-slip fires once per
-   drop that releases the line below the re-arm level. The default re-arm level is half the arm
+5. **Latch** after firing: no trigger fires until the force falls below `rearm_below_n`, then the
+   detector waits to arm again. So one slip fires once, and a slip that releases the line below the
+   re-arm level and re-tensions fires again.
+6. **Count further drops while latched** (stick-slip): a fall of `train_k`·σ from the highest
+   spike-robust level of the last `_TRAIN_SAMPLES` samples, after those samples held steady or rose
+   (a sag that goes on, as creep does, falls as much before as in its last samples: not a drop). The latch starts the count at 0, each
+   counted drop restarts the window. `further_drops` steps the detector over the hold after an
+   event and returns the count: the runner and replay both classify a train with it. The default re-arm level is half the arm
    threshold: re-arming right at the arm threshold would let load-cell noise around it arm the
    detector on the unloading ramp after a slip, and that (real) decline would fire a second event.
+
+Before 2026-11-23 the detector had no noise, creep or train rule; a logged parameter set naming only
+the older fields keeps them off (`from_mapping`), so old runs replay as they ran.
 
 Event times: `onset_time_ns` is the earliest onset the firing triggers point to (the peak time for
 drop, slope and noise, the CUSUM onset for cusum, the trend CUSUM's onset but not before the peak
@@ -86,6 +94,7 @@ _RULES: dict[str, _FieldRule] = {
     "creep_drift_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
     "creep_min_s": _FieldRule(False, 0.0, True, 100.0, True),
     "spike_samples": _FieldRule(False, 1.0, True, 2.0, True),
+    "train_k": _FieldRule(True, 0.0, False, 1e3, True),
 }
 
 # Every field the detector had before the noise and creep triggers. A mapping naming exactly these
@@ -95,7 +104,12 @@ _LEGACY_FIELDS = frozenset(
     {"arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
      "cusum_threshold_n", "cusum_drift_n", "rearm_below_n"}
 )  # fmt: skip
-_LEGACY_DEFAULTS: dict[str, float | None] = {"noise_k": None, "creep_k": None, "spike_samples": 1.0}
+_LEGACY_DEFAULTS: dict[str, float | None] = {
+    "noise_k": None,
+    "creep_k": None,
+    "spike_samples": 1.0,
+    "train_k": None,
+}
 
 
 @dataclass(frozen=True)
@@ -126,6 +140,9 @@ class DetectorParams:
             detected at least this long after its onset, [0, 100] s.
         spike_samples: 2: the percentage drop compares max(f[k−1], f[k]) with the peak of
             min(f[k−1], f[k]) (one spike never fires it); 1: single samples (before 2026-11-23).
+        train_k: after an event, a sudden fall of this many noise σ counts as a further drop of a
+            stick-slip train (`further_drops`), (0, 1e3]; None: off (no train is counted). It
+            changes no event, only how the runner classifies the trial.
     """
 
     arm_threshold_n: float = 1.0
@@ -145,6 +162,7 @@ class DetectorParams:
     creep_drift_n_per_s: float = 0.2
     creep_min_s: float = 0.05
     spike_samples: float = 2.0
+    train_k: float | None = 10.0
 
     def __post_init__(self) -> None:
         """Validate every field (a direct construction is checked like `from_mapping`)."""
@@ -262,6 +280,8 @@ class DetectorState(NamedTuple):
     trend_cusum_n: float = 0.0  # CUSUM of the fall relative to the ramp trend
     trend_onset_ns: int = 0  # the last sample at which trend_cusum_n was zero
     armed_at_n: float = 0.0  # min(f[k−1], f[k]) when the detector armed
+    train_levels_n: tuple[float, ...] = ()  # latched: min(f[k−1], f[k]) of the last samples
+    train_drops: int = 0  # latched: further drops counted since the latch
 
 
 @dataclass(frozen=True, slots=True)
@@ -296,6 +316,14 @@ _WARMUP_INCREMENTS = 16
 # Residuals beyond this many mean |residuals| are clipped in the running estimates (a slip or a
 # spike must not inflate the noise estimate or drag the ramp rate).
 _CLIP = 4.0
+# Latched: a further drop is a fall of the level below the highest of the last this many spike-robust
+# levels; the window also makes the count wait that long after the latch (the tail of the first drop).
+_TRAIN_SAMPLES = 8
+# ... and the samples before it must have held or risen: the mean of the window's first three levels
+# is at most this share of the fall (or of the threshold) above the mean of the three before the
+# newest. A steady sag falls as much across the window as in its last samples, so it never counts.
+_TRAIN_STEADY = 0.25
+_TRAIN_STEADY_FLOOR = 0.15
 # E|x| / σ for x ~ N(0, 2σ²), the difference of two independent noise samples: 2/√π.
 _MEAN_ABS_DIFF_PER_SIGMA = 2.0 / math.sqrt(math.pi)
 
@@ -414,7 +442,7 @@ def detector_step(
     if phase is DetectorPhase.LATCHED:
         if force_n < params.rearm_level_n:
             return idle, None
-        return idle._replace(phase=DetectorPhase.LATCHED), None
+        return _latched_step(params, state, idle, low2, high2), None
 
     # Armed.
     peak_force = state.peak_force_n
@@ -517,6 +545,39 @@ def detector_step(
         trend_onset,
         state.armed_at_n,
     ), None
+
+
+def _latched_step(
+    params: DetectorParams, state: DetectorState, idle: DetectorState, low2: float, high2: float
+) -> DetectorState:
+    """The latched detector's next state: it counts a further drop (a stick-slip) when it sees one."""
+    levels = state.train_levels_n
+    drops = state.train_drops
+    if params.train_k is not None and len(levels) == _TRAIN_SAMPLES:
+        threshold = params.train_k * max(state.scale_n / _MEAN_ABS_DIFF_PER_SIGMA, params.noise_floor_n)
+        fall = max(levels) - high2
+        sag = (levels[0] + levels[1] + levels[2] - levels[-4] - levels[-3] - levels[-2]) / 3.0
+        if fall >= threshold and sag <= max(_TRAIN_STEADY * fall, _TRAIN_STEADY_FLOOR * threshold):
+            return idle._replace(phase=DetectorPhase.LATCHED, train_drops=drops + 1)
+    levels = (*levels[1:], low2) if len(levels) == _TRAIN_SAMPLES else (*levels, low2)
+    return idle._replace(phase=DetectorPhase.LATCHED, train_levels_n=levels, train_drops=drops)
+
+
+def further_drops(
+    params: DetectorParams, state: DetectorState, times_ns: Iterable[int], forces_n: Iterable[float]
+) -> tuple[DetectorState, int]:
+    """Step on from `state` (the detector's state just after an event) over the following samples.
+
+    Returns the state after them and how many further drops they held: drops counted while latched
+    (`train_k`) plus events fired after a re-arm. One or more make the event a stick-slip train.
+    """
+    drops = 0
+    for time_ns, force_n in zip(times_ns, forces_n, strict=True):
+        before = state.train_drops if state.phase is DetectorPhase.LATCHED else 0
+        state, event = detector_step(params, state, int(time_ns), float(force_n))
+        if event is not None or (state.phase is DetectorPhase.LATCHED and state.train_drops > before):
+            drops += 1
+    return state, drops
 
 
 def detect_slips(

@@ -277,7 +277,7 @@ def test_params_round_trip_through_a_mapping():
         "arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
         "cusum_threshold_n", "cusum_drift_n", "rearm_below_n", "noise_k", "noise_floor_n",
         "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k", "creep_drift_n_per_s",
-        "creep_min_s", "spike_samples",
+        "creep_min_s", "spike_samples", "train_k",
     ]  # fmt: skip
 
 
