@@ -20,14 +20,15 @@ Detector (docs/model.md §7):
    slope and cusum fire only once the force is at least `min_drop_n` below the peak.
 5. **Latch** after firing: no trigger fires until the force falls below `rearm_below_n`, then the
    detector waits to arm again. So one slip fires once, and a slip that releases the line below the
-   re-arm level and re-tensions fires again.
-6. **Count further drops while latched** (stick-slip): a fall of `train_k`·σ from the highest
+   re-arm level and re-tensions fires again. The default re-arm level is half the arm threshold:
+   re-arming right at the arm threshold would let load-cell noise around it arm the detector on the
+   unloading ramp after a slip, and that (real) decline would fire a second event.
+6. **Count further drops while latched** (stick-slip): a fall of `train_k`·σ below the highest
    spike-robust level of the last `_TRAIN_SAMPLES` samples, after those samples held steady or rose
-   (a sag that goes on, as creep does, falls as much before as in its last samples: not a drop). The latch starts the count at 0, each
-   counted drop restarts the window. `further_drops` steps the detector over the hold after an
-   event and returns the count: the runner and replay both classify a train with it. The default re-arm level is half the arm
-   threshold: re-arming right at the arm threshold would let load-cell noise around it arm the
-   detector on the unloading ramp after a slip, and that (real) decline would fire a second event.
+   (a sag that goes on, as creep does, falls as much before as in its last samples: not a drop).
+   The latch starts the count at 0; each counted drop restarts the window. `further_drops` steps
+   the detector over the hold after an event and returns the count: the runner and replay both
+   classify a stick-slip train with it. The count changes no event.
 
 Before 2026-11-23 the detector had no noise, creep or train rule; a logged parameter set naming only
 the older fields keeps them off (`from_mapping`), so old runs replay as they ran.
