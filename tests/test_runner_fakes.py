@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rig.analysis.replay import replay
 from rig.hw.seams import ConfigurationReading
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
@@ -309,7 +310,7 @@ def test_a_step_timeout_whose_release_fails_ends_the_run(run_on_fakes, tmp_path)
     assert journal_status(tmp_path) == "faulted"
 
 
-def test_further_drops_after_a_slip_make_it_a_stick_slip(run_on_fakes):
+def test_further_drops_after_a_slip_make_it_a_stick_slip_and_replay_counts_them(run_on_fakes, tmp_path):
     rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
     tension = rig.load_cell.tension
 
@@ -327,6 +328,11 @@ def test_further_drops_after_a_slip_make_it_a_stick_slip(run_on_fakes):
     assert [t.outcome for t in report.trials] == ["slip", "stick_slip", "slip"]
     assert report.trials[1].slipped and report.estimate.n == 3
     assert report.trials[1].peak_force_n == pytest.approx(SLIP_FORCES_N[1], abs=0.05)
+    # Replay finds the same events and counts the same further drops from the logged samples.
+    replayed = replay(tmp_path / "out")
+    assert replayed.redetection_summary()["by_status"] == {"match": 3}
+    assert [r.train_drops for r in replayed.redetections] == [0, 2, 0]
+    assert list(replayed.table["outcome"]) == ["slip", "stick_slip", "slip"]
 
 
 class _SaysJoint:
