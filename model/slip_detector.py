@@ -10,7 +10,8 @@ Detector (docs/model.md §7):
 3. On every sample, **estimate the ramp and the noise** from the increments f[k] − f[k−1]: a robust
    running mean of the increment (the ramp) and of |increment − ramp| (σ·2/√π for white noise).
 4. **Fire** on any enabled trigger ("high" is max(f[k−1], f[k]), so one spike never fires):
-   * `drop`: high is `drop_fraction` of the spike-robust peak and `min_drop_n` below it;
+   * `drop`: high is `drop_fraction` of the spike-robust peak (decaying at `drop_leak_n_per_s`)
+     and `min_drop_n` below it;
    * `slope`: the least-squares slope over the last `slope_window_s` is <= −`slope_n_per_s`;
    * `cusum`: a one-sided CUSUM of force decrements, `g ← max(g + (f[k−1] − f[k]) − drift, 0)`,
      exceeds `cusum_threshold_n`; its onset is the last sample at which g was 0;
@@ -96,6 +97,7 @@ _RULES: dict[str, _FieldRule] = {
     "creep_min_s": _FieldRule(False, 0.0, True, 100.0, True),
     "spike_samples": _FieldRule(False, 1.0, True, 2.0, True),
     "train_k": _FieldRule(True, 0.0, False, 1e3, True),
+    "drop_leak_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
 }
 
 # Every field the detector had before the noise and creep triggers. A mapping naming exactly these
@@ -105,12 +107,19 @@ _LEGACY_FIELDS = frozenset(
     {"arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
      "cusum_threshold_n", "cusum_drift_n", "rearm_below_n"}
 )  # fmt: skip
-_LEGACY_DEFAULTS: dict[str, float | None] = {
-    "noise_k": None,
-    "creep_k": None,
-    "spike_samples": 1.0,
-    "train_k": None,
-}
+# ... and the fields of 2026-11-23, before the train rule and the percentage drop's leaky peak.
+_FIELDS_2026_11_23 = _LEGACY_FIELDS | {
+    "noise_k", "noise_floor_n", "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k",
+    "creep_drift_n_per_s", "creep_min_s", "spike_samples",
+}  # fmt: skip
+# A logged mapping naming exactly one of these field sets keeps the detector of its day.
+_VINTAGES: tuple[tuple[frozenset[str], dict[str, float | None]], ...] = (
+    (
+        _LEGACY_FIELDS,
+        {"noise_k": None, "creep_k": None, "spike_samples": 1.0, "train_k": None, "drop_leak_n_per_s": 0.0},
+    ),
+    (_FIELDS_2026_11_23, {"train_k": None, "drop_leak_n_per_s": 0.0}),
+)
 
 
 @dataclass(frozen=True)
@@ -141,6 +150,9 @@ class DetectorParams:
             detected at least this long after its onset, [0, 100] s.
         spike_samples: 2: the percentage drop compares max(f[k−1], f[k]) with the peak of
             min(f[k−1], f[k]) (one spike never fires it); 1: single samples (before 2026-11-23).
+        drop_leak_n_per_s: the percentage drop's spike-robust peak decays at this rate, so that a
+            slow drift on a noisy cell is not a drop, [0, 1e9] N/s; 0: it never decays (before
+            2026-11-24).
         train_k: after an event, a sudden fall of this many noise σ counts as a further drop of a
             stick-slip train (`further_drops`), (0, 1e3]; None: off (no train is counted). It
             changes no event, only how the runner classifies the trial.
@@ -164,6 +176,7 @@ class DetectorParams:
     creep_min_s: float = 0.05
     spike_samples: float = 2.0
     train_k: float | None = 10.0
+    drop_leak_n_per_s: float = 1.0
 
     def __post_init__(self) -> None:
         """Validate every field (a direct construction is checked like `from_mapping`)."""
@@ -200,8 +213,9 @@ class DetectorParams:
                     f"{source}: unknown field {name!r}{_suggestion(name)}; allowed: {_field_list()}"
                 )
             values[name] = _checked(name, raw, _RULES[name], source)
-        if set(values) == _LEGACY_FIELDS:
-            values.update(_LEGACY_DEFAULTS)
+        for names, defaults in _VINTAGES:
+            if set(values) == names:
+                values.update(defaults)
         try:
             return cls(**values)
         except ValueError as exc:
@@ -283,6 +297,7 @@ class DetectorState(NamedTuple):
     armed_at_n: float = 0.0  # min(f[k−1], f[k]) when the detector armed
     train_levels_n: tuple[float, ...] = ()  # latched: min(f[k−1], f[k]) of the last samples
     train_drops: int = 0  # latched: further drops counted since the latch
+    drop_peak_n: float = 0.0  # the percentage drop's peak: robust_peak_n decaying at drop_leak_n_per_s
 
 
 @dataclass(frozen=True, slots=True)
@@ -437,6 +452,7 @@ def detector_step(
                 leaky_peak_n=low2,
                 trend_onset_ns=time_ns,
                 armed_at_n=low2,
+                drop_peak_n=low2,
             ), None
         return idle, None
 
@@ -461,6 +477,7 @@ def detector_step(
 
     robust_peak = max(state.robust_peak_n, low2)
     leaky_peak = max(state.leaky_peak_n - params.peak_leak_n_per_s * dt_s, low2)
+    drop_peak = max(state.drop_peak_n - params.drop_leak_n_per_s * dt_s, low2)
     sigma = max(state.scale_n / _MEAN_ABS_DIFF_PER_SIGMA, params.noise_floor_n)
     # Clipped residuals: a single-sample spike adds at most a few σ. Capped at twice the threshold:
     # the end of a ramp (a hold) also deviates from the trend, and must be forgotten within
@@ -477,8 +494,10 @@ def detector_step(
     triggers: list[str] = []
     onset = time_ns
     # The percentage drop compares spike-robust levels (max of the last two samples against the peak
-    # of min(f[k−1], f[k])): one spike up and one down no longer make a drop.
-    level_peak, level = (robust_peak, high2) if params.spike_samples == 2.0 else (peak_force, force_n)
+    # of min(f[k−1], f[k])): one spike up and one down no longer make a drop. The peak decays at
+    # drop_leak_n_per_s: noise maxima on the high side of a slow drift and the low side later, on a
+    # cell with 10x the noise, made a percentage "drop" of a quiet hold.
+    level_peak, level = (drop_peak, high2) if params.spike_samples == 2.0 else (peak_force, force_n)
     robust_drop = level_peak - level
     if (
         params.drop_fraction is not None
@@ -545,6 +564,7 @@ def detector_step(
         trend_cusum,
         trend_onset,
         state.armed_at_n,
+        drop_peak_n=drop_peak,
     ), None
 
 

@@ -278,7 +278,7 @@ def test_params_round_trip_through_a_mapping():
         "arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
         "cusum_threshold_n", "cusum_drift_n", "rearm_below_n", "noise_k", "noise_floor_n",
         "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k", "creep_drift_n_per_s",
-        "creep_min_s", "spike_samples", "train_k",
+        "creep_min_s", "spike_samples", "train_k", "drop_leak_n_per_s",
     ]  # fmt: skip
 
 
@@ -473,3 +473,24 @@ def test_old_parameter_sets_count_no_train():
     assert legacy.train_k is None
     assert first_event_and_hold(legacy, times, forces)[1] == 0
     assert first_event_and_hold(DetectorParams(), times, forces)[1] == 1
+
+
+def test_a_parameter_set_logged_on_2026_11_23_keeps_that_days_detector():
+    logged = {
+        k: v for k, v in DetectorParams().to_mapping().items() if k not in ("train_k", "drop_leak_n_per_s")
+    }
+    params = DetectorParams.from_mapping(logged)
+    assert params.train_k is None and params.drop_leak_n_per_s == 0.0
+    assert DetectorParams.from_mapping({**logged, "train_k": 10.0}).drop_leak_n_per_s == 1.0
+
+
+def test_the_percentage_drop_forgets_a_short_high_reading_over_a_slow_drift():
+    # A two-sample high reading of +0.25 N at a 2.5 N hold, then the hold drifts 0.45 N down over 5 s
+    # (a noisy cell's offset drift): 18 % below that reading, but no slip. Only the percentage drop
+    # is on (the noise-scaled triggers would see the high reading itself on a noise-free trace).
+    _, times, forces = ramp_then(2.5, [(0.5, 2.5), (6.0, 2.05)], noise_n=0.0, seed=0)
+    forces[1000] += 0.25  # 0.5 s into the hold
+    forces[1001] += 0.25
+    before = DetectorParams(drop_leak_n_per_s=0.0, noise_k=None, creep_k=None)
+    assert [e.trigger for e in detect_slips(before, times, forces)] == ["drop"]
+    assert detect_slips(DetectorParams(noise_k=None, creep_k=None), times, forces) == []
