@@ -3,8 +3,9 @@
 Run: .venv/bin/python benchmarks/bench_detector_sim.py [--ratios 0.8 0.9 0.95] [--seed 0]
 
 A slip drops the tension to `kinetic_ratio` x the peak (preset: 0.8, a 20 % drop). For each ratio the
-run is made with the current detector defaults and with the detector before the noise and creep
-triggers (`noise_k: null, creep_k: null, spike_samples: 1` added to the protocol's detector section).
+run is made with the current detector defaults and with the detector before the noise, creep and
+train rules (`noise_k: null, creep_k: null, spike_samples: 1, train_k: null, drop_leak_n_per_s: 0`
+added to the protocol's detector section).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import rig.sim.simulated_rig as simulated_rig
 from rig.cli import main as rig_main
 
 PROTOCOL = Path(__file__).resolve().parent.parent / "protocols" / "joint_estimation.yaml"
-BEFORE = "  noise_k: null\n  creep_k: null\n  spike_samples: 1\n"
+BEFORE = "  noise_k: null\n  creep_k: null\n  spike_samples: 1\n  train_k: null\n  drop_leak_n_per_s: 0\n"
 
 
 def run(ratio: float, before: bool, seed: int) -> str:
