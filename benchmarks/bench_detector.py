@@ -208,29 +208,41 @@ class QuietTask:
     params: DetectorParams
     cell: Cell
     seed: int
+    segment: int  # its number, for the alarm descriptions
 
 
-def run_quiet_task(task: QuietTask) -> tuple[int, int]:
-    """(false alarms, samples) on one quiet segment: a 0.5 s ramp to 2.5 N, then the hold."""
+def run_quiet_task(task: QuietTask) -> tuple[list[str], int]:
+    """(a description of each false alarm, samples) on one quiet segment: a 0.5 s ramp to 2.5 N, a hold."""
     rng = np.random.default_rng(task.seed)
     clean = np.concatenate([2.5 * np.arange(500) / 500.0, np.full(SEGMENT, 2.5)])
     forces = task.cell.apply(rng, clean).tolist()
     times = (T0_NS + np.arange(len(forces), dtype=np.int64) * DT_NS).tolist()
     state = detector_init(task.params)
-    alarms = 0
+    alarms = []
     for t_ns, force in zip(times, forces, strict=True):
         state, event = detector_step(task.params, state, t_ns, force)
-        alarms += event is not None
+        if event is not None:
+            after_ramp_s = (event.detection_time_ns - T0_NS) / 1e9 - 0.5
+            alarms.append(
+                f"segment {task.segment}: {event.trigger} ({event.kind}) {after_ramp_s:.3f} s after the "
+                f"ramp, {(event.peak_force_n - event.force_after_n) * 1e3:.0f} mN below the peak "
+                f"{event.peak_force_n:.4f} N"
+            )
     return alarms, SEGMENT
 
 
-def quiet_line(pool: ProcessPoolExecutor, params: DetectorParams, cell: Cell, samples: int, seed: int) -> str:
+def quiet_line(
+    pool: ProcessPoolExecutor, params: DetectorParams, cell: Cell, samples: int, seed: int, show: bool
+) -> str:
     segments = max(1, -(-samples // SEGMENT))
     seeds = np.random.SeedSequence(seed).generate_state(segments)
-    results = list(pool.map(run_quiet_task, [QuietTask(params, cell, int(s)) for s in seeds]))
-    alarms = sum(a for a, _ in results)
+    tasks = [QuietTask(params, cell, int(s), i) for i, s in enumerate(seeds)]
+    results = list(pool.map(run_quiet_task, tasks))
+    alarms = sum(len(a) for a, _ in results)
     total = sum(n for _, n in results)
-    return f"{alarms} false alarms in {total:,} quiet samples ({alarms / total * 1e6:.2f} per 10^6)"
+    line = f"{alarms} false alarms in {total:,} quiet samples ({alarms / total * 1e6:.2f} per 10^6)"
+    details = [d for a, _ in results for d in a] if show else []
+    return "\n".join([line, *(f"    {d}" for d in details)])
 
 
 def main() -> None:
@@ -245,6 +257,13 @@ def main() -> None:
     parser.add_argument("--before", action="store_true", help="also the detector before the new rules")
     parser.add_argument("--skip-quiet", action="store_true")
     parser.add_argument("--skip-slips", action="store_true")
+    parser.add_argument(
+        "--quiet-cases",
+        nargs="*",
+        default=["quiet", "drift", "drift+spikes", "noisy cell"],
+        help="which quiet cases to measure",
+    )
+    parser.add_argument("--show-alarms", action="store_true", help="describe every false alarm")
     parser.add_argument("--detector", nargs="*", default=[], help="key=value overrides of the defaults")
     args = parser.parse_args()
     detectors = {"defaults": DetectorParams(arm_threshold_n=1.0).with_overrides(args.detector)}
@@ -287,8 +306,10 @@ def main() -> None:
                 else:
                     quiet, samples = [("noisy cell", cell)], args.noisy_samples
                 for label, quiet_cell in quiet:
+                    if label not in args.quiet_cases:
+                        continue
                     start = time.perf_counter()
-                    line = quiet_line(pool, params, quiet_cell, samples, args.seed + 1)
+                    line = quiet_line(pool, params, quiet_cell, samples, args.seed + 1, args.show_alarms)
                     print(f"{label:22s} {line}  [{time.perf_counter() - start:.1f} s]", flush=True)
 
 
