@@ -50,8 +50,11 @@ def run(ratio: float, before: bool, seed: int) -> str:
     k_ci = estimate.get("k_ci")
     bounds = f" [{k_ci[0]:.6f}, {k_ci[1]:.6f}]" if k_ci else ""
     k = f"{estimate['k']:.6f}" if "k" in estimate else "none"
+    outcomes: dict[str, int] = {}
+    for trial in report["trials"]:
+        outcomes[trial["outcome"]] = outcomes.get(trial["outcome"], 0) + 1
     return (
-        f"exit {code}, {report['completed']}/{report['planned']} trials, k {k}{bounds}, "
+        f"exit {code}, {report['completed']}/{report['planned']} trials {outcomes}, k {k}{bounds}, "
         f"true {report['truth']['k']:.6f}, {report.get('reason') or ''}"
     )
 
