@@ -151,8 +151,8 @@ class DetectorParams:
         spike_samples: 2: the percentage drop compares max(f[k−1], f[k]) with the peak of
             min(f[k−1], f[k]) (one spike never fires it); 1: single samples (before 2026-11-23).
         drop_leak_n_per_s: the percentage drop's spike-robust peak decays at this rate, so that a
-            slow drift on a noisy cell is not a drop, [0, 1e9] N/s; 0: it never decays (before
-            2026-11-24).
+            slow drift on a noisy cell is not a drop, [0, 1e9] N/s; 0: it never decays (as before
+            the train rule).
         train_k: after an event, a sudden fall of this many noise σ counts as a further drop of a
             stick-slip train (`further_drops`), (0, 1e3]; None: off (no train is counted). It
             changes no event, only how the runner classifies the trial.
