@@ -15,9 +15,9 @@ stepped over the next 0.2 s (the protocols' `hold_after_slip_s`) with `further_d
 counts the events with at least one further drop (a stick-slip classification); for train cases
 "count ok" counts the trials whose further drops are exactly N-1.
 False alarms are counted on quiet holds (2.5 N after a 0.5 s ramp, in 60 s segments): plain; with
-a 0.2 N peak-to-peak drift (20 s sine); with one ±30 σ single-sample spike per 10,000 samples on
+a 0.2 N peak-to-peak drift (20 s sine); with ±30 σ single-sample spikes (each sample with probability 10⁻⁴) on
 top of the drift. The noisy cell (`--noisy-*`) has 10× the noise, an offset drift (the sine plus
-0.1 N/min), one ±30 σ spike per 10,000 samples, 50 Hz mains hum of amplitude 5 σ of the default
+0.1 N/min), ±30 σ spikes (probability 10⁻⁴ per sample), 50 Hz mains hum of amplitude 5 σ of the default
 cell (25 mN) and a gain creeping by +1 %/min; it is measured on quiet holds and on slips.
 Segments run in `--jobs` processes (the step function is pure Python, one core each).
 `--before` adds the detector before the noise, creep and train rules
@@ -50,7 +50,7 @@ class Cell:
     noise_n: float
     drift: bool = False  # 0.2 N peak-to-peak sine over 20 s
     drift_n_per_min: float = 0.0  # offset ramp
-    spikes: bool = False  # one ±30 σ single-sample spike per 10,000 samples
+    spikes: bool = False  # ±30 σ single-sample spikes, 1 in 10,000 samples on average
     hum_n: float = 0.0  # 50 Hz amplitude
     gain_per_min: float = 0.0  # relative gain change per minute
 
@@ -67,8 +67,8 @@ class Cell:
         if self.hum_n:
             out = out + self.hum_n * np.sin(2.0 * np.pi * 50.0 * t_s + 2.0 * np.pi * rng.uniform())
         out = out + rng.normal(0.0, self.noise_n, count)
-        if self.spikes:
-            where = rng.integers(0, count, count // 10_000)
+        if self.spikes:  # each sample a spike with probability 1e-4 (short slip traces get some too)
+            where = np.flatnonzero(rng.random(count) < 1e-4)
             out[where] += rng.choice([-30.0, 30.0], where.size) * self.noise_n
         return out
 
