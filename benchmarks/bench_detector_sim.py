@@ -23,6 +23,10 @@ default noise and with the noisy-cell scenario's artefacts (protocols/rigs/scena
 to a 2.5 N hold. Every detection is a false alarm; the detector restarts after each.
 
 `ratios` is the earlier study: the default run with the simulator's kinetic ratio patched.
+A slip drops the tension to `kinetic_ratio` x the peak (preset: 0.8, a 20 % drop). For each ratio the
+run is made with the current detector defaults and with the detector before the noise, creep and
+train rules (`noise_k: null, creep_k: null, spike_samples: 1, train_k: null, drop_leak_n_per_s: 0`
+added to the protocol's detector section).
 """
 
 from __future__ import annotations
@@ -58,8 +62,17 @@ from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, make_pres
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
 SCENARIOS = ROOT / "protocols" / "rigs" / "scenarios"
-SCENARIO_NAMES = ("default", "small-drops", "creep", "stick-slip", "noisy-cell", "additive-scatter", "mixed")
-BEFORE = "  noise_k: null\n  creep_k: null\n  spike_samples: 1\n"
+SCENARIO_NAMES = (
+    "default",
+    "small-drops",
+    "creep",
+    "stick-slip",
+    "noisy-cell",
+    "additive-scatter",
+    "mixed-scatter",
+    "mixed",
+)
+BEFORE = "  noise_k: null\n  creep_k: null\n  spike_samples: 1\n  train_k: null\n  drop_leak_n_per_s: 0\n"
 RATE_HZ = 1000.0
 SAMPLE_NS = round(1e9 / RATE_HZ)
 
@@ -294,8 +307,11 @@ def run_ratio(ratio: float, before: bool, seed: int) -> str:
     k_ci = estimate.get("k_ci")
     bounds = f" [{k_ci[0]:.6f}, {k_ci[1]:.6f}]" if k_ci else ""
     k = f"{estimate['k']:.6f}" if "k" in estimate else "none"
+    outcomes: dict[str, int] = {}
+    for trial in report["trials"]:
+        outcomes[trial["outcome"]] = outcomes.get(trial["outcome"], 0) + 1
     return (
-        f"exit {code}, {report['completed']}/{report['planned']} trials, k {k}{bounds}, "
+        f"exit {code}, {report['completed']}/{report['planned']} trials {outcomes}, k {k}{bounds}, "
         f"true {report['truth']['k']:.6f}, {report.get('reason') or ''}"
     )
 

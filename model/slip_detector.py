@@ -10,7 +10,8 @@ Detector (docs/model.md §7):
 3. On every sample, **estimate the ramp and the noise** from the increments f[k] − f[k−1]: a robust
    running mean of the increment (the ramp) and of |increment − ramp| (σ·2/√π for white noise).
 4. **Fire** on any enabled trigger ("high" is max(f[k−1], f[k]), so one spike never fires):
-   * `drop`: high is `drop_fraction` of the spike-robust peak and `min_drop_n` below it;
+   * `drop`: high is `drop_fraction` of the spike-robust peak (decaying at `drop_leak_n_per_s`)
+     and `min_drop_n` below it;
    * `slope`: the least-squares slope over the last `slope_window_s` is <= −`slope_n_per_s`;
    * `cusum`: a one-sided CUSUM of force decrements, `g ← max(g + (f[k−1] − f[k]) − drift, 0)`,
      exceeds `cusum_threshold_n`; its onset is the last sample at which g was 0;
@@ -18,11 +19,20 @@ Detector (docs/model.md §7):
    * `creep`: a CUSUM of the fall relative to the ramp trend and the fall of high below the
      spike-robust peak both reach `creep_k`·σ (the tension sags while the winch reels).
    slope and cusum fire only once the force is at least `min_drop_n` below the peak.
-5. **Latch** after firing: the detector ignores the signal until the force falls below
-   `rearm_below_n`, then waits to arm again. So one slip fires once, and stick-slip fires once per
-   drop that releases the line below the re-arm level. The default re-arm level is half the arm
-   threshold: re-arming right at the arm threshold would let load-cell noise around it arm the
-   detector on the unloading ramp after a slip, and that (real) decline would fire a second event.
+5. **Latch** after firing: no trigger fires until the force falls below `rearm_below_n`, then the
+   detector waits to arm again. So one slip fires once, and a slip that releases the line below the
+   re-arm level and re-tensions fires again. The default re-arm level is half the arm threshold:
+   re-arming right at the arm threshold would let load-cell noise around it arm the detector on the
+   unloading ramp after a slip, and that (real) decline would fire a second event.
+6. **Count further drops while latched** (stick-slip): a fall of `train_k`·σ below the highest
+   spike-robust level of the last `_TRAIN_SAMPLES` samples, after those samples held steady or rose
+   (a sag that goes on, as creep does, falls as much before as in its last samples: not a drop).
+   The latch starts the count at 0; each counted drop restarts the window. `further_drops` steps
+   the detector over the hold after an event and returns the count: the runner and replay both
+   classify a stick-slip train with it. The count changes no event.
+
+Before 2026-11-23 the detector had no noise, creep or train rule; a logged parameter set naming only
+the older fields keeps them off (`from_mapping`), so old runs replay as they ran.
 
 Event times: `onset_time_ns` is the earliest onset the firing triggers point to (the peak time for
 drop, slope and noise, the CUSUM onset for cusum, the trend CUSUM's onset but not before the peak
@@ -86,6 +96,8 @@ _RULES: dict[str, _FieldRule] = {
     "creep_drift_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
     "creep_min_s": _FieldRule(False, 0.0, True, 100.0, True),
     "spike_samples": _FieldRule(False, 1.0, True, 2.0, True),
+    "train_k": _FieldRule(True, 0.0, False, 1e3, True),
+    "drop_leak_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
 }
 
 # Every field the detector had before the noise and creep triggers. A mapping naming exactly these
@@ -95,7 +107,19 @@ _LEGACY_FIELDS = frozenset(
     {"arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
      "cusum_threshold_n", "cusum_drift_n", "rearm_below_n"}
 )  # fmt: skip
-_LEGACY_DEFAULTS: dict[str, float | None] = {"noise_k": None, "creep_k": None, "spike_samples": 1.0}
+# ... and the fields of 2026-11-23, before the train rule and the percentage drop's leaky peak.
+_FIELDS_2026_11_23 = _LEGACY_FIELDS | {
+    "noise_k", "noise_floor_n", "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k",
+    "creep_drift_n_per_s", "creep_min_s", "spike_samples",
+}  # fmt: skip
+# A logged mapping naming exactly one of these field sets keeps the detector of its day.
+_VINTAGES: tuple[tuple[frozenset[str], dict[str, float | None]], ...] = (
+    (
+        _LEGACY_FIELDS,
+        {"noise_k": None, "creep_k": None, "spike_samples": 1.0, "train_k": None, "drop_leak_n_per_s": 0.0},
+    ),
+    (_FIELDS_2026_11_23, {"train_k": None, "drop_leak_n_per_s": 0.0}),
+)
 
 
 @dataclass(frozen=True)
@@ -126,6 +150,12 @@ class DetectorParams:
             detected at least this long after its onset, [0, 100] s.
         spike_samples: 2: the percentage drop compares max(f[k−1], f[k]) with the peak of
             min(f[k−1], f[k]) (one spike never fires it); 1: single samples (before 2026-11-23).
+        drop_leak_n_per_s: the percentage drop's spike-robust peak decays at this rate, so that a
+            slow drift on a noisy cell is not a drop, [0, 1e9] N/s; 0: it never decays (as before
+            the train rule).
+        train_k: after an event, a sudden fall of this many noise σ counts as a further drop of a
+            stick-slip train (`further_drops`), (0, 1e3]; None: off (no train is counted). It
+            changes no event, only how the runner classifies the trial.
     """
 
     arm_threshold_n: float = 1.0
@@ -145,6 +175,8 @@ class DetectorParams:
     creep_drift_n_per_s: float = 0.2
     creep_min_s: float = 0.05
     spike_samples: float = 2.0
+    train_k: float | None = 10.0
+    drop_leak_n_per_s: float = 1.0
 
     def __post_init__(self) -> None:
         """Validate every field (a direct construction is checked like `from_mapping`)."""
@@ -181,8 +213,9 @@ class DetectorParams:
                     f"{source}: unknown field {name!r}{_suggestion(name)}; allowed: {_field_list()}"
                 )
             values[name] = _checked(name, raw, _RULES[name], source)
-        if set(values) == _LEGACY_FIELDS:
-            values.update(_LEGACY_DEFAULTS)
+        for names, defaults in _VINTAGES:
+            if set(values) == names:
+                values.update(defaults)
         try:
             return cls(**values)
         except ValueError as exc:
@@ -262,6 +295,9 @@ class DetectorState(NamedTuple):
     trend_cusum_n: float = 0.0  # CUSUM of the fall relative to the ramp trend
     trend_onset_ns: int = 0  # the last sample at which trend_cusum_n was zero
     armed_at_n: float = 0.0  # min(f[k−1], f[k]) when the detector armed
+    train_levels_n: tuple[float, ...] = ()  # latched: min(f[k−1], f[k]) of the last samples
+    train_drops: int = 0  # latched: further drops counted since the latch
+    drop_peak_n: float = 0.0  # the percentage drop's peak: robust_peak_n decaying at drop_leak_n_per_s
 
 
 @dataclass(frozen=True, slots=True)
@@ -296,6 +332,14 @@ _WARMUP_INCREMENTS = 16
 # Residuals beyond this many mean |residuals| are clipped in the running estimates (a slip or a
 # spike must not inflate the noise estimate or drag the ramp rate).
 _CLIP = 4.0
+# Latched: a further drop is a fall of the level below the highest of the last this many spike-robust
+# levels; the window also makes the count wait that long after the latch (the tail of the first drop).
+_TRAIN_SAMPLES = 8
+# ... and the samples before it must have held or risen: the mean of the window's first three levels
+# is at most this share of the fall (or of the threshold) above the mean of the three before the
+# newest. A steady sag falls as much across the window as in its last samples, so it never counts.
+_TRAIN_STEADY = 0.25
+_TRAIN_STEADY_FLOOR = 0.15
 # E|x| / σ for x ~ N(0, 2σ²), the difference of two independent noise samples: 2/√π.
 _MEAN_ABS_DIFF_PER_SIGMA = 2.0 / math.sqrt(math.pi)
 
@@ -408,13 +452,14 @@ def detector_step(
                 leaky_peak_n=low2,
                 trend_onset_ns=time_ns,
                 armed_at_n=low2,
+                drop_peak_n=low2,
             ), None
         return idle, None
 
     if phase is DetectorPhase.LATCHED:
         if force_n < params.rearm_level_n:
             return idle, None
-        return idle._replace(phase=DetectorPhase.LATCHED), None
+        return _latched_step(params, state, idle, low2, high2), None
 
     # Armed.
     peak_force = state.peak_force_n
@@ -432,6 +477,7 @@ def detector_step(
 
     robust_peak = max(state.robust_peak_n, low2)
     leaky_peak = max(state.leaky_peak_n - params.peak_leak_n_per_s * dt_s, low2)
+    drop_peak = max(state.drop_peak_n - params.drop_leak_n_per_s * dt_s, low2)
     sigma = max(state.scale_n / _MEAN_ABS_DIFF_PER_SIGMA, params.noise_floor_n)
     # Clipped residuals: a single-sample spike adds at most a few σ. Capped at twice the threshold:
     # the end of a ramp (a hold) also deviates from the trend, and must be forgotten within
@@ -448,8 +494,10 @@ def detector_step(
     triggers: list[str] = []
     onset = time_ns
     # The percentage drop compares spike-robust levels (max of the last two samples against the peak
-    # of min(f[k−1], f[k])): one spike up and one down no longer make a drop.
-    level_peak, level = (robust_peak, high2) if params.spike_samples == 2.0 else (peak_force, force_n)
+    # of min(f[k−1], f[k])): one spike up and one down no longer make a drop. The peak decays at
+    # drop_leak_n_per_s: noise maxima on the high side of a slow drift and the low side later, on a
+    # cell with 10x the noise, made a percentage "drop" of a quiet hold.
+    level_peak, level = (drop_peak, high2) if params.spike_samples == 2.0 else (peak_force, force_n)
     robust_drop = level_peak - level
     if (
         params.drop_fraction is not None
@@ -516,7 +564,41 @@ def detector_step(
         trend_cusum,
         trend_onset,
         state.armed_at_n,
+        drop_peak_n=drop_peak,
     ), None
+
+
+def _latched_step(
+    params: DetectorParams, state: DetectorState, idle: DetectorState, low2: float, high2: float
+) -> DetectorState:
+    """The latched detector's next state: it counts a further drop (a stick-slip) when it sees one."""
+    levels = state.train_levels_n
+    drops = state.train_drops
+    if params.train_k is not None and len(levels) == _TRAIN_SAMPLES:
+        threshold = params.train_k * max(state.scale_n / _MEAN_ABS_DIFF_PER_SIGMA, params.noise_floor_n)
+        fall = max(levels) - high2
+        sag = (levels[0] + levels[1] + levels[2] - levels[-4] - levels[-3] - levels[-2]) / 3.0
+        if fall >= threshold and sag <= max(_TRAIN_STEADY * fall, _TRAIN_STEADY_FLOOR * threshold):
+            return idle._replace(phase=DetectorPhase.LATCHED, train_drops=drops + 1)
+    levels = (*levels[1:], low2) if len(levels) == _TRAIN_SAMPLES else (*levels, low2)
+    return idle._replace(phase=DetectorPhase.LATCHED, train_levels_n=levels, train_drops=drops)
+
+
+def further_drops(
+    params: DetectorParams, state: DetectorState, times_ns: Iterable[int], forces_n: Iterable[float]
+) -> tuple[DetectorState, int]:
+    """Step on from `state` (the detector's state just after an event) over the following samples.
+
+    Returns the state after them and how many further drops they held: drops counted while latched
+    (`train_k`) plus events fired after a re-arm. One or more make the event a stick-slip train.
+    """
+    drops = 0
+    for time_ns, force_n in zip(times_ns, forces_n, strict=True):
+        before = state.train_drops if state.phase is DetectorPhase.LATCHED else 0
+        state, event = detector_step(params, state, int(time_ns), float(force_n))
+        if event is not None or (state.phase is DetectorPhase.LATCHED and state.train_drops > before):
+            drops += 1
+    return state, drops
 
 
 def detect_slips(

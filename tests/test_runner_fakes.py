@@ -6,8 +6,11 @@ bytes, no emulators. The byte-level simulated rig (tests/test_runner.py) stays t
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+from rig.analysis.replay import replay
+from rig.hw.seams import ConfigurationReading
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
@@ -227,3 +230,126 @@ def test_the_ramp_goal_stays_a_short_way_ahead_of_the_winch(run_on_fakes):
         goal = call.args["goals_rad"][1]
         position = rig.servos.motion_at(1, call.time_ns)[0]
         assert goal - position <= fast_lead + 1e-9, (call.time_ns, goal, position)
+
+
+# ------------------------------------------------------------------- odd slips and step timeouts
+
+
+def slides_at(rig: FakeRig, force_n: float, *, during_trials: set[int] | None = None) -> list[float]:
+    """The link gives way at `force_n` without a drop (no slip to detect) in the trials named.
+
+    Returns a list that gets the line tension at the start of every trial (at its prompt).
+    """
+    tension = rig.load_cell.tension
+    current: list[int] = [0]
+    at_prompt: list[float] = []
+
+    def capped(t_ns: int) -> float:
+        force = tension(t_ns)
+        if force > force_n and (during_trials is None or current[0] in during_trials):
+            rig.line.zero_rad += (force - force_n) / rig.line.stiffness_n_per_rad  # the link gives way
+            return force_n
+        return force
+
+    confirm = rig.operator.confirm
+
+    def confirm_and_note(text, trial, keep_alive):
+        current[0] = trial.trial_id
+        at_prompt.append(capped(rig.clock.monotonic_ns()))
+        confirm(text, trial, keep_alive)
+
+    rig.load_cell.tension = capped
+    rig.operator.confirm = confirm_and_note  # type: ignore[method-assign]
+    return at_prompt
+
+
+def test_a_ramp_that_times_out_with_the_line_loaded_aborts_the_trial_and_the_run_goes_on(
+    run_on_fakes, tmp_path
+):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N[1:])  # trials 2 and 3 slip at their forces
+    at_prompt = slides_at(rig, 8.0, during_trials={1})
+    report = run_on_fakes(rig)
+    assert report.exit_code == 0 and report.completed == 3 and not report.aborted, report.reason
+    first, *others = report.trials
+    assert first.outcome == "aborted" and "ramp_until_slip exceeded its timeout" in first.reason
+    assert first.peak_force_n == pytest.approx(8.0, abs=0.05)  # the line was loaded when it timed out
+    assert not first.slipped
+    assert [t.outcome for t in others] == ["slip", "slip"] and all(t.reason is None for t in others)
+    # The line was released before the next trial: slack at its start, and at the end of the run.
+    assert at_prompt[1] < 0.5
+    assert report.estimate.n == 2  # the aborted trial is not in the fit
+    journal = RunJournal.load(tmp_path / "out" / "f1.journal.json")
+    assert journal.status == "completed" and journal.completed[0].outcome == "aborted"
+    assert journal.completed[0].reason == first.reason
+    assert_released_then_torque_off(rig)
+
+
+def test_a_run_whose_every_trial_times_out_ends_cleanly(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=())
+    at_prompt = slides_at(rig, 8.0)
+    report = run_on_fakes(rig)
+    assert report.exit_code == 0 and report.completed == 3 and not report.aborted, report.reason
+    assert [t.outcome for t in report.trials] == ["aborted"] * 3
+    assert all(p < 0.5 for p in at_prompt)
+    assert report.estimate is None or report.estimate.n == 0
+    assert journal_status(tmp_path) == "completed"
+    assert_released_then_torque_off(rig)
+
+
+def test_a_step_timeout_whose_release_fails_ends_the_run(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=())
+    slides_at(rig, 8.0)
+    released = rig.servos.write_goal_positions
+
+    def stuck(goals_rad):  # the winch ignores the goal that would unwind it: the rig is not healthy
+        released({k: v for k, v in goals_rad.items() if v != 0.0 or rig.servos._shut_down})
+
+    rig.servos.write_goal_positions = stuck  # type: ignore[method-assign]
+    report = run_on_fakes(rig)
+    assert report.exit_code == 1 and report.completed == 0 and "StepTimeoutError" in report.reason
+    assert journal_status(tmp_path) == "faulted"
+
+
+def test_further_drops_after_a_slip_make_it_a_stick_slip_and_replay_counts_them(run_on_fakes, tmp_path):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    tension = rig.load_cell.tension
+
+    def train(t_ns: int) -> float:
+        force = tension(t_ns)
+        slips = [s for s in rig.line.slips if s.time_ns <= t_ns]
+        if len(slips) == 2:  # trial 2: two more drops of 0.5 N, 30 and 60 ms after the first
+            since_s = (t_ns - slips[-1].time_ns) / 1e9
+            force -= 0.5 * ((since_s >= 0.03) + (since_s >= 0.06))
+        return max(force, 0.0)
+
+    rig.load_cell.tension = train
+    report = run_on_fakes(rig)
+    assert report.exit_code == 0
+    assert [t.outcome for t in report.trials] == ["slip", "stick_slip", "slip"]
+    assert report.trials[1].slipped and report.estimate.n == 3
+    assert report.trials[1].peak_force_n == pytest.approx(SLIP_FORCES_N[1], abs=0.05)
+    # Replay finds the same events and counts the same further drops from the logged samples.
+    replayed = replay(tmp_path / "out")
+    assert replayed.redetection_summary()["by_status"] == {"match": 3}
+    assert [r.train_drops for r in replayed.redetections] == [0, 2, 0]
+    assert list(replayed.table["outcome"]) == ["slip", "stick_slip", "slip"]
+
+
+class _SaysJoint:
+    """A configuration source that names joint `joint` as the one that moved."""
+
+    def __init__(self, joint: int) -> None:
+        self.joint = joint
+
+    def measure(self) -> ConfigurationReading:
+        return ConfigurationReading(np.zeros((0, 4, 4)), 0, None, self.joint)
+
+
+def test_a_slip_of_another_joint_is_kept_out_of_the_fit(run_on_fakes):
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    rig.session.configuration = _SaysJoint(3)
+    report = run_on_fakes(rig)
+    assert report.exit_code == 0 and report.completed == 3
+    assert [t.outcome for t in report.trials] == ["other_joint"] * 3
+    assert all(t.slipped_joint == 3 and not t.slipped for t in report.trials)
+    assert report.estimate is None or report.estimate.n == 0

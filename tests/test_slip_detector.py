@@ -15,6 +15,7 @@ from model.slip_detector import (
     detect_slips,
     detector_init,
     detector_step,
+    further_drops,
     noise_sigma_n,
 )
 
@@ -277,7 +278,7 @@ def test_params_round_trip_through_a_mapping():
         "arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
         "cusum_threshold_n", "cusum_drift_n", "rearm_below_n", "noise_k", "noise_floor_n",
         "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k", "creep_drift_n_per_s",
-        "creep_min_s", "spike_samples",
+        "creep_min_s", "spike_samples", "train_k", "drop_leak_n_per_s",
     ]  # fmt: skip
 
 
@@ -409,3 +410,87 @@ def test_a_logged_mapping_from_before_the_new_triggers_keeps_the_old_detector():
     times, forces = piecewise_trace(slip_knots())
     (event,) = detect_slips(params, times, forces)
     assert event.detection_time_ns == ns(3.008) and event.trigger == "drop"
+
+
+# ---- stick-slip trains: further drops counted while latched -----------------------------------
+
+
+def first_event_and_hold(params, times, forces, hold_s=0.2):
+    """The first event, and `further_drops` over the samples up to `hold_s` after its detection."""
+    state = detector_init(params)
+    for i, (t, f) in enumerate(zip(times, forces, strict=True)):
+        state, event = detector_step(params, state, t, f)
+        if event is not None:
+            end = event.detection_time_ns + ns(hold_s) - T0_NS
+            hold = [(u, g) for u, g in zip(times[i + 1 :], forces[i + 1 :], strict=True) if u <= end]
+            _, drops = further_drops(params, state, [u for u, _ in hold], [g for _, g in hold])
+            return event, drops
+    return None, 0
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_drops_after_the_first_are_counted_as_a_train(seed):
+    # 10 % first drop, then two more of 4 % of the peak 30 and 70 ms later (no re-tension).
+    after = [(0.001, 9.0), (0.030, 9.0), (0.031, 8.6), (0.070, 8.6), (0.071, 8.2), (0.3, 8.2)]
+    _, times, forces = ramp_then(10.0, after, noise_n=0.005, seed=seed)
+    event, drops = first_event_and_hold(DetectorParams(), times, forces)
+    assert event is not None and event.kind == "drop" and drops == 2
+    assert detect_slips(DetectorParams(), times, forces) == [event]  # the count changes no event
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_drop_after_the_line_re_tensions_is_counted(seed):
+    after = [(0.001, 9.0), (0.050, 9.4), (0.051, 8.8), (0.3, 8.8)]
+    _, times, forces = ramp_then(10.0, after, noise_n=0.005, seed=seed)
+    assert first_event_and_hold(DetectorParams(), times, forces)[1] == 1
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("sag_s", [0.05, 0.2, 1.0])
+def test_a_sag_that_goes_on_after_the_event_is_no_train(seed, sag_s):
+    # Sudden 5 % drop, then the tension keeps sagging another 10 % (the joint slides on).
+    after = [(0.001, 9.5), (0.001 + sag_s, 8.5), (0.5, 8.5)]
+    _, times, forces = ramp_then(10.0, after, noise_n=0.005, seed=seed)
+    assert first_event_and_hold(DetectorParams(), times, forces, hold_s=0.4)[1] == 0
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_single_drop_with_noise_and_spikes_is_no_train(seed):
+    _, times, forces = ramp_then(10.0, [(0.001, 8.5), (0.5, 8.5)], noise_n=0.005, seed=seed)
+    forces[2100] += 0.3  # single-sample spikes in the hold
+    forces[2200] -= 0.3
+    assert first_event_and_hold(DetectorParams(), times, forces, hold_s=0.4)[1] == 0
+
+
+def test_old_parameter_sets_count_no_train():
+    after = [(0.001, 8.0), (0.030, 8.0), (0.031, 7.0), (0.3, 7.0)]
+    _, times, forces = ramp_then(10.0, after, noise_n=0.005, seed=0)
+    logged = {  # the fields a run logged before the noise, creep and train rules
+        "arm_threshold_n": 1.0, "drop_fraction": 0.15, "min_drop_n": 0.2, "slope_n_per_s": None,
+        "slope_window_s": 0.02, "cusum_threshold_n": None, "cusum_drift_n": 0.05, "rearm_below_n": None,
+    }  # fmt: skip
+    legacy = DetectorParams.from_mapping(logged)
+    assert legacy.train_k is None
+    assert first_event_and_hold(legacy, times, forces)[1] == 0
+    assert first_event_and_hold(DetectorParams(), times, forces)[1] == 1
+
+
+def test_a_parameter_set_logged_on_2026_11_23_keeps_that_days_detector():
+    logged = {
+        k: v for k, v in DetectorParams().to_mapping().items() if k not in ("train_k", "drop_leak_n_per_s")
+    }
+    params = DetectorParams.from_mapping(logged)
+    assert params.train_k is None and params.drop_leak_n_per_s == 0.0
+    assert DetectorParams.from_mapping({**logged, "train_k": 10.0}).drop_leak_n_per_s == 1.0
+
+
+def test_the_percentage_drop_forgets_a_short_high_reading_over_a_slow_drift():
+    # A two-sample high reading of +0.25 N at a 2.5 N hold, then the hold drifts 0.45 N down over 5 s
+    # (a noisy cell's offset drift): 18 % below that reading, but no slip. Only the percentage drop
+    # is on (the noise-scaled triggers would see the high reading itself on a noise-free trace).
+    _, times, forces = ramp_then(2.5, [(0.5, 2.5), (6.0, 2.05)], noise_n=0.0, seed=0)
+    forces[1000] += 0.25  # 0.5 s into the hold
+    forces[1001] += 0.25
+    before = DetectorParams(drop_leak_n_per_s=0.0, noise_k=None, creep_k=None)
+    assert [e.trigger for e in detect_slips(before, times, forces)] == ["drop"]
+    assert detect_slips(DetectorParams(noise_k=None, creep_k=None), times, forces) == []

@@ -15,6 +15,12 @@ and picks the event:
   no hardware error). That state is the one the runner read in the same control tick up to the
   tick's timing, so this reproduces the runner's choice in all but contrived cases.
 
+Stick-slip trains: after the chosen event, the detector, latched by it, is stepped on over the
+samples logged up to the protocol's `hold_after_slip_s` after the detection (as the runner did; up
+to the unloading phase when the protocol is not attached), and counts further drops
+(`further_drops`). With the logged parameters, a count that differs from the logged one (logs that
+have it) is a mismatch.
+
 Overrides are validated like protocol fields: an unknown name or a bad value is an `InputError`
 naming it and its allowed range.
 """
@@ -22,13 +28,20 @@ naming it and its allowed range.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from model.slip_detector import DetectorParams, SlipEvent, detect_slips
+from model.slip_detector import (
+    DetectorParams,
+    DetectorState,
+    SlipEvent,
+    detector_init,
+    detector_step,
+    further_drops,
+)
 from rig.analysis.trials import TrialRecord
 from rig.errors import InputError
 from rig.log import schemas
@@ -56,6 +69,7 @@ class Redetection:
     logged: SlipEvent | None
     samples: int
     detail: str
+    train_drops: int | None = None  # further drops after the event (None: no event)
 
 
 def validate_overrides(assignments: Sequence[str]) -> None:
@@ -114,7 +128,11 @@ class _WinchStates:
 
 
 def redetect_trials(
-    records: Sequence[TrialRecord], params: DetectorParams, *, exact: bool
+    records: Sequence[TrialRecord],
+    params: DetectorParams,
+    *,
+    exact: bool,
+    hold_after_slip_s: float | None = None,
 ) -> list[Redetection]:
     """Re-detect every trial; `exact` when `params` are the logged ones (see the module docstring)."""
     out: list[Redetection] = []
@@ -130,8 +148,55 @@ def redetect_trials(
             )
             winch_by_part[key] = _WinchStates(record.part.log.topic(schemas.SERVO_STATE))
         times, forces = samples_by_part[key]
-        out.append(_redetect_one(record, times, forces, winch_by_part[key], params, exact))
+        found = _redetect_one(record, times, forces, winch_by_part[key], params, exact)
+        out.append(_with_train(found, record, times, forces, params, exact, hold_after_slip_s))
     return out
+
+
+def _events_and_states(
+    params: DetectorParams, times: np.ndarray, forces: np.ndarray
+) -> tuple[list[SlipEvent], list[DetectorState]]:
+    """`detect_slips` over the samples, with the detector's state right after each event."""
+    state = detector_init(params)
+    events: list[SlipEvent] = []
+    states: list[DetectorState] = []
+    for time_ns, force_n in zip(times.tolist(), forces.tolist(), strict=True):
+        state, event = detector_step(params, state, time_ns, force_n)
+        if event is not None:
+            events.append(event)
+            states.append(state)
+    return events, states
+
+
+def _with_train(
+    found: Redetection,
+    record: TrialRecord,
+    times: np.ndarray,
+    forces: np.ndarray,
+    params: DetectorParams,
+    exact: bool,
+    hold_after_slip_s: float | None,
+) -> Redetection:
+    """`found` with the further drops after its event counted (and checked against the logged count)."""
+    event = found.event
+    if event is None or record.ramp_start_ns is None:
+        return found
+    lo = int(np.searchsorted(times, record.ramp_start_ns, side="left"))
+    upto = int(np.searchsorted(times, event.detection_time_ns, side="right"))
+    events, states = _events_and_states(params, times[lo:upto], forces[lo:upto])
+    if not events or events[-1] != event:
+        return found
+    if hold_after_slip_s is not None:
+        end = int(np.searchsorted(times, event.detection_time_ns + round(hold_after_slip_s * 1e9), "right"))
+    else:
+        unloading = record.unloading_ns if record.unloading_ns is not None else record.result.end_time_ns
+        end = int(np.searchsorted(times, unloading, side="left"))
+    _, drops = further_drops(params, states[-1], times[upto:end].tolist(), forces[upto:end].tolist())
+    logged = record.train_drops
+    if exact and found.status == MATCH and logged is not None and drops != logged:
+        detail = f"{drops} further drops re-detected after the slip, {logged} logged"
+        return replace(found, status=MISMATCH, detail=detail, train_drops=drops)
+    return replace(found, train_drops=drops)
 
 
 def _redetect_one(
@@ -152,7 +217,7 @@ def _redetect_one(
     hi = int(np.searchsorted(times, end_ns, side="left"))
     if hi <= lo:
         return Redetection(record.trial_id, NO_SAMPLES, None, logged, 0, "no load-cell samples in the ramp")
-    events = detect_slips(params, times[lo:hi].tolist(), forces[lo:hi].tolist())
+    events, _ = _events_and_states(params, times[lo:hi], forces[lo:hi])
     count = hi - lo
     if exact:
         if logged is None:

@@ -24,6 +24,7 @@ from model.estimate_summary import summarize_estimate
 from model.estimators import EstimatorName
 from model.fit import SUMMARY_KEYS
 from model.payload_errors import payload_error_stats
+from rig.analysis.trials import slipped_rows
 
 AGREEMENT_RTOL = 1e-9
 
@@ -60,7 +61,7 @@ def joint_estimation_pairs(
         (table["kind"] == "joint_estimation") & table[mass_column].notna() & table["distance_m"].notna()
     ]
     if mass_column == "slip_mass_kg":
-        rows = rows[rows["outcome"] == "slip"]
+        rows = rows[slipped_rows(rows)]
     return (
         [float(v) for v in rows["distance_m"]],
         [float(v) for v in rows[mass_column]],
@@ -143,7 +144,7 @@ def compare_estimates(offline: Mapping[str, Any] | None, online: Mapping[str, An
 
 
 def _link_slips(table: pd.DataFrame) -> pd.DataFrame:
-    return table[(table["kind"] == "link_validation") & (table["outcome"] == "slip")]
+    return table[(table["kind"] == "link_validation") & slipped_rows(table)]
 
 
 def payload_errors(table: pd.DataFrame) -> dict[str, Any] | None:

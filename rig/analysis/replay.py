@@ -158,7 +158,9 @@ def replay(
     if settings.radius_m is None and radius is None:
         warnings.append("joint radius unknown (no rig metadata): no fit")
 
-    redetections = rd.redetect_trials(records, params, exact=not overrides)
+    redetections = rd.redetect_trials(
+        records, params, exact=not overrides, hold_after_slip_s=settings.hold_after_slip_s
+    )
     for record, found in zip(records, redetections, strict=True):
         event = found.event
         record.extra = {

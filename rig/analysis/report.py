@@ -33,7 +33,7 @@ from matplotlib.ticker import MaxNLocator
 from model.fit import t_quantile
 from rig.analysis import summary
 from rig.analysis.replay import ReplayResult
-from rig.analysis.trials import write_trial_table
+from rig.analysis.trials import slipped_rows, write_trial_table
 from rig.errors import InputError
 from rig.log import schemas
 from rig.log.records import TrialKind
@@ -123,7 +123,7 @@ def _joint_data(result: ReplayResult, column: str) -> tuple[np.ndarray, np.ndarr
     t = result.table
     rows = t[(t["kind"] == "joint_estimation") & t[column].notna() & t["distance_m"].notna()]
     if column == "slip_mass_kg":
-        rows = rows[rows["outcome"] == "slip"]
+        rows = rows[slipped_rows(rows)]
     return rows["distance_m"].to_numpy(float), rows[column].to_numpy(float)
 
 
@@ -219,7 +219,7 @@ def _residuals_figure(result: ReplayResult) -> tuple[Figure, str] | str:
 
 def _link_rows(result: ReplayResult) -> Any:
     t = result.table
-    return t[(t["kind"] == "link_validation") & (t["outcome"] == "slip") & t["predicted_mass_kg"].notna()]
+    return t[(t["kind"] == "link_validation") & slipped_rows(t) & t["predicted_mass_kg"].notna()]
 
 
 def _payload_figure(result: ReplayResult) -> tuple[Figure, str] | str:
@@ -400,6 +400,13 @@ def _traces_figure(result: ReplayResult) -> tuple[Figure, str] | str:
 # report.md
 
 
+def _outcome_counts(table: pd.DataFrame) -> str:
+    """'22 slip-like; 20 slip, 2 no_slip': how the trials ended (slip-like ones feed the fit)."""
+    counts = table["outcome"].value_counts()
+    each = ", ".join(f"{int(n)} {outcome}" for outcome, n in counts.items())
+    return f"{int(slipped_rows(table).sum())} slip-like; {each}" if each else "none"
+
+
 def _markdown(result: ReplayResult, figures: dict[str, str], skipped: dict[str, str]) -> str:
     s = result.settings
     lines = [f"# Replay of run {s.run_id or '(unknown)'}", ""]
@@ -408,7 +415,7 @@ def _markdown(result: ReplayResult, figures: dict[str, str], skipped: dict[str, 
         f"* files: {', '.join(p.name for p in result.parts)}",
         "* complete: "
         + ("yes" if result.complete else "no (damaged or unfinished; what could be read is used)"),
-        f"* trials: {len(result.table)} ({int((result.table['outcome'] == 'slip').sum())} slips)",
+        f"* trials: {len(result.table)} ({_outcome_counts(result.table)})",
         f"* g = {s.g:g} m/s², joint radius R = {s.radius_m if s.radius_m is not None else 'unknown'} m",
         "",
     ]

@@ -63,6 +63,7 @@ class RunSettings:
     seed: int | None = None
     plans: dict[int, TrialPlan] = field(default_factory=dict)
     truth: dict[str, Any] | None = None
+    hold_after_slip_s: float | None = None  # the protocol's hold after a slip (the stick-slip window)
 
 
 def read_parts(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> list[LogPart]:
@@ -157,6 +158,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
                 joint_count=joint_count,
             )
             settings.plans = {t.trial_id: t for t in protocol.trials}
+            settings.hold_after_slip_s = protocol.ramp.hold_after_slip_s
             if settings.detector is None:
                 settings.detector = dict(protocol.detector)
                 settings.detector_source = "protocol attachment"

@@ -30,10 +30,11 @@ from rig.analysis.runlog import LogPart, RunSettings
 from rig.errors import InputError
 from rig.log import schemas
 from rig.log.frames import frame_payloads
-from rig.log.records import SlipMessage, TrialKind, TrialPhase, TrialResult
+from rig.log.records import SLIP_LIKE, SlipMessage, TrialKind, TrialPhase, TrialResult
 
 RAMP_PHASES = (TrialPhase.RAMP_FAST.value, TrialPhase.RAMP_SLOW.value)
 UNLOADING_PHASE = TrialPhase.UNLOADING.value
+SLIP_LIKE_OUTCOMES = sorted(o.value for o in SLIP_LIKE)  # the `outcome` values the fit uses
 RECOVER_STEP = "recover"  # the runner's step name when it releases the line after a device fault
 
 # Column -> dtype of the trial table (joint angle columns `joint_angle_<i>_rad` are added per joint).
@@ -77,6 +78,8 @@ class TrialRecord:
     unloading_ns: int | None
     slip: SlipEvent | None
     extra: dict[str, Any] = field(default_factory=dict)
+    # Further drops the runner counted after the slip; None if not logged (before the train rule).
+    train_drops: int | None = None
 
     @property
     def trial_id(self) -> int:
@@ -136,10 +139,14 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
             seen[trial_id] = part.name
             start, end = result.start_time_ns, result.end_time_ns
             ramp_start, unloading = _ramp_window(states, trial_id, start, end)
-            slip = _logged_slip(slips, trial_id, start, end)
-            records.append(TrialRecord(part, result, ramp_start, unloading, slip))
+            message = _logged_slip(slips, trial_id, start, end)
+            slip = message.event if message is not None else None
+            train = message.train_drops if message is not None and "train_k" in message.detector else None
+            records.append(TrialRecord(part, result, ramp_start, unloading, slip, train_drops=train))
             if result.slipped and slip is None:
-                warnings.append(f"{part.name}: trial {trial_id}: outcome slip but no /rig/slip event logged")
+                warnings.append(
+                    f"{part.name}: trial {trial_id}: outcome {result.outcome} but no /rig/slip event logged"
+                )
     return records
 
 
@@ -169,11 +176,13 @@ def _ramp_window(
     return ramp_start, int(times[unload_idx[0]]) if unload_idx.size else None
 
 
-def _logged_slip(slips: Sequence[SlipMessage], trial_id: int, start_ns: int, end_ns: int) -> SlipEvent | None:
+def _logged_slip(
+    slips: Sequence[SlipMessage], trial_id: int, start_ns: int, end_ns: int
+) -> SlipMessage | None:
     """The first slip logged for the trial within its time span."""
     for slip in slips:
         if slip.trial_id == trial_id and start_ns <= slip.event.detection_time_ns <= end_ns:
-            return slip.event
+            return slip
     return None
 
 
@@ -299,3 +308,8 @@ def records_json(frame: pd.DataFrame) -> list[dict[str, Any]]:
         row["joint_angles_rad"] = angles if any(a is not None for a in angles) else None
         out.append(row)
     return out
+
+
+def slipped_rows(table: pd.DataFrame) -> pd.Series:
+    """Which rows of a trial table are slips of the joint under test (`SLIP_LIKE`; old logs: `slip`)."""
+    return table["outcome"].isin(SLIP_LIKE_OUTCOMES)

@@ -237,7 +237,13 @@ def _request(args: argparse.Namespace) -> RunRequest:
 
 
 def _summary(report: RunReport) -> str:
-    lines = [f"run {report.run_id}: {report.completed}/{report.planned} trials done; log {report.log}"]
+    outcomes: dict[str, int] = {}
+    for trial in report.trials:
+        outcomes[trial.outcome.value] = outcomes.get(trial.outcome.value, 0) + 1
+    counts = f" ({', '.join(f'{n} {name}' for name, n in outcomes.items())})" if outcomes else ""
+    lines = [
+        f"run {report.run_id}: {report.completed}/{report.planned} trials done{counts}; log {report.log}"
+    ]
     lines += [summary.text for summary in report.design]  # adaptive blocks: where they stopped, and why
     if report.aborted:
         if report.safe_state_verified:

@@ -53,12 +53,27 @@ class TrialKind(StrEnum):
 
 
 class TrialOutcome(StrEnum):
-    """How a trial ended."""
+    """How a trial ended.
+
+    `slip` (a sudden drop), `creep` (the tension sagged) and `stick_slip` (further drops while the
+    line re-tensioned) are slips of the joint under test: their peak is the slip load
+    (`SLIP_LIKE`). `no_slip`: the force limit or the winch travel came first; the peak is a lower
+    bound on the capacity. `other_joint`: the configuration source says another joint moved.
+    `aborted`: a step timed out or a fault stopped the trial (`TrialResult.reason`). `fault` is read
+    in logs and journals from before `aborted` took its place.
+    """
 
     SLIP = "slip"
+    CREEP = "creep"
+    STICK_SLIP = "stick_slip"
     NO_SLIP = "no_slip"
+    OTHER_JOINT = "other_joint"
     ABORTED = "aborted"
     FAULT = "fault"
+
+
+# The outcomes whose peak is a slip load of the joint under test: the only ones the fit uses.
+SLIP_LIKE = frozenset({TrialOutcome.SLIP, TrialOutcome.CREEP, TrialOutcome.STICK_SLIP})
 
 
 class ServoCommandName(StrEnum):
@@ -239,6 +254,7 @@ class SlipMessage:
     event: SlipEvent
     detector: Mapping[str, float | None]  # the detector's parameters by name
     joint: int | None = None  # 1-based joint that slipped, if the configuration source knows
+    train_drops: int = 0  # further drops in the hold after the event (>= 1: a stick-slip train)
 
     def to_payload(self) -> dict[str, Any]:
         """The `/rig/slip` payload: the event's fields inline, with the trial, detector and joint."""
@@ -255,6 +271,7 @@ class SlipMessage:
             "kind": str(e.kind),
             "detector": {str(k): number_or_none(v, f"detector.{k}") for k, v in self.detector.items()},
             "joint": integer_or_none(self.joint, "joint"),
+            "train_drops": integer(self.train_drops, "train_drops"),
         }
 
     @classmethod
@@ -276,6 +293,7 @@ class SlipMessage:
             event=event,
             detector={str(k): number_or_none(v, k) for k, v in detector.items()},
             joint=integer_or_none(payload.get("joint"), "joint"),
+            train_drops=integer(payload.get("train_drops") or 0, "train_drops"),
         )
 
 
@@ -305,11 +323,12 @@ class TrialResult:
     slipped_joint: int | None  # 1-based, when the configuration source reports it
     lever_arms_m: tuple[float, ...] | None  # of the line about each joint (link validation)
     tare_n: float  # load-cell offset removed before the ramp
+    reason: str | None = None  # why an aborted trial stopped (None otherwise)
 
     @property
     def slipped(self) -> bool:
-        """Whether the trial ended in a slip."""
-        return self.outcome == TrialOutcome.SLIP
+        """Whether the trial ended in a slip of the joint under test (`SLIP_LIKE`): fit material."""
+        return self.outcome in SLIP_LIKE
 
     def to_json(self) -> dict[str, Any]:
         """The journal entry and `rig run --json` trial: every field, plain JSON values."""
@@ -345,6 +364,7 @@ class TrialResult:
             slipped_joint=integer_or_none(data.get("slipped_joint"), "slipped_joint"),
             lever_arms_m=_tuple_or_none(data.get("lever_arms_m")),
             tare_n=float(data.get("tare_n") or 0.0),
+            reason=None if data.get("reason") is None else str(data["reason"]),
         )
 
     def to_payload(self) -> dict[str, Any]:
@@ -368,6 +388,7 @@ class TrialResult:
             "slipped_joint": integer_or_none(self.slipped_joint, "slipped_joint"),
             "lever_arms_m": _numbers_or_none(self.lever_arms_m, "lever_arms_m"),
             "tare_n": finite_number(self.tare_n, "tare_n"),
+            "reason": None if self.reason is None else str(self.reason),
         }
 
     @classmethod

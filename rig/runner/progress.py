@@ -14,7 +14,7 @@ from rich.live import Live
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from rig.log.records import Estimate, TrialResult
+from rig.log.records import Estimate, TrialOutcome, TrialResult
 
 
 class ProgressReporter(Protocol):
@@ -61,13 +61,18 @@ class SilentProgress:
 
 
 def _result_line(r: TrialResult) -> str:
-    parts = [f"trial {r.trial_id:>3}", f"{r.outcome:<8}"]
+    parts = [f"trial {r.trial_id:>3}", f"{r.outcome:<11}"]
     if r.distance_m is not None:
         parts.append(f"l={r.distance_m:.3f} m")
     if r.configuration_index is not None:
         parts.append(f"config {r.configuration_index}")
     if r.peak_force_n is not None and r.slip_mass_kg is not None:
-        parts.append(f"peak {r.peak_force_n:.2f} N ({r.slip_mass_kg:.3f} kg)")
+        bound = "" if r.slipped else ">= "  # no slip, or not the joint's: the capacity is above it
+        parts.append(f"peak {bound}{r.peak_force_n:.2f} N ({r.slip_mass_kg:.3f} kg)")
+    if r.outcome == TrialOutcome.OTHER_JOINT:
+        parts.append(f"joint {r.slipped_joint} moved")
+    if r.reason is not None:
+        parts.append(f"({r.reason})")
     if r.predicted_mass_kg is not None:
         parts.append(f"predicted {r.predicted_mass_kg:.3f} kg")
     if r.percentage_error is not None:

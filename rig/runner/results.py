@@ -1,4 +1,9 @@
-"""A trial's measurements as the steps gather them, the `TrialResult` made from them, and run statistics."""
+"""A trial's measurements as the steps gather them, the `TrialResult` made from them, and run statistics.
+
+A trial's outcome (`TrialOutcome`): a detected slip of the joint under test is `slip`, `creep` or
+`stick_slip` (`slip_outcome`); a slip of another joint is `other_joint`; no slip up to the force
+limit or the end of the winch's travel is `no_slip`; a step that timed out is `aborted`.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +12,7 @@ from dataclasses import dataclass
 
 from model.payload_errors import PayloadErrorStats, payload_error_stats, signed_percentage_error
 from model.slip_detector import SlipEvent
-from rig.log.records import TrialKind, TrialOutcome, TrialResult
+from rig.log.records import SLIP_LIKE, TrialKind, TrialOutcome, TrialResult
 from rig.protocol import TrialPlan
 
 
@@ -22,6 +27,31 @@ class TrialMeasurements:
     event: SlipEvent | None = None
     peak_observed_n: float | None = None  # highest tension during the ramp
     slipped_joint: int | None = None
+    train_drops: int = 0  # further drops in the hold after the event
+    reason: str | None = None  # why the trial was aborted
+
+
+def slip_outcome(
+    trial: TrialPlan, event: SlipEvent, train_drops: int, slipped_joint: int | None
+) -> TrialOutcome:
+    """The outcome of a trial whose ramp ended in a confirmed slip event.
+
+    `other_joint` when a joint-estimation trial's configuration source names another joint as the
+    one that moved (None: unknown, taken as the joint under test); else `stick_slip` when further
+    drops followed in the hold, `creep` for an event of kind creep, `slip` for a sudden drop.
+    """
+    if (
+        trial.kind == TrialKind.JOINT_ESTIMATION
+        and slipped_joint is not None
+        and trial.joint is not None
+        and slipped_joint != trial.joint
+    ):
+        return TrialOutcome.OTHER_JOINT
+    if train_drops > 0:
+        return TrialOutcome.STICK_SLIP
+    if event.kind == "creep":
+        return TrialOutcome.CREEP
+    return TrialOutcome.SLIP
 
 
 def trial_result(
@@ -41,7 +71,7 @@ def trial_result(
     slip_mass = peak / g if peak is not None else None
     percentage_error = None
     if (
-        event is not None
+        found.outcome in SLIP_LIKE
         and predicted_mass is not None
         and slip_mass is not None
         and trial.kind == TrialKind.LINK_VALIDATION
@@ -66,6 +96,7 @@ def trial_result(
         slipped_joint=found.slipped_joint,
         lever_arms_m=found.lever_arms_m,
         tare_n=tare_n,
+        reason=found.reason,
     )
 
 

@@ -18,7 +18,14 @@ import traceback
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
-from model.slip_detector import DetectorParams, SlipEvent, detector_init, detector_step
+from model.slip_detector import (
+    DetectorParams,
+    DetectorState,
+    SlipEvent,
+    detector_init,
+    detector_step,
+    further_drops,
+)
 from rig.errors import (
     CommunicationError,
     ExitCode,
@@ -52,7 +59,7 @@ from rig.runner.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
 from rig.runner.journal import RunJournal
 from rig.runner.phases import Phase, PhaseMachine
 from rig.runner.progress import ProgressReporter
-from rig.runner.results import TrialMeasurements, trial_result
+from rig.runner.results import TrialMeasurements, slip_outcome, trial_result
 from rig.runner.safe_state import enter_safe_state, move_timeout_s
 from rig.runner.safety import interrupts_held
 
@@ -374,8 +381,11 @@ class TrialRunner:
         self.progress.trial_started(trial.trial_id, self._describe(trial))
         found = TrialMeasurements(joint_angles_rad=trial.joint_angles_rad)
         lines_before = self._line_stats()
-        for step in trial.steps:
-            self._run_step(step, trial, found)
+        try:
+            for step in trial.steps:
+                self._run_step(step, trial, found)
+        except StepTimeoutError as exc:
+            self._abort_trial(trial, found, exc)
         self._note_line_losses(trial, lines_before)
         result = trial_result(
             trial,
@@ -397,6 +407,18 @@ class TrialRunner:
         self.journal.record_trial(result)
         self.progress.trial_finished(result, estimate)
         return result
+
+    def _abort_trial(self, trial: TrialPlan, found: TrialMeasurements, exc: StepTimeoutError) -> None:
+        """A step timed out: release the line and, if the rig is healthy, record the trial as aborted.
+
+        The run goes on with the next trial. If the line cannot be released or the rig does not
+        answer healthily within `RECOVERY_GRACE_S`, the timeout ends the run (exit 1).
+        """
+        if not self._recover(trial, exc):
+            raise exc
+        found.outcome = TrialOutcome.ABORTED
+        found.reason = str(exc)
+        self._note(LogLevel.WARNING, f"trial {trial.trial_id}: aborted ({exc}); the run goes on")
 
     def _run_step(self, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
         kind = step.kind
@@ -529,10 +551,11 @@ class TrialRunner:
         params = self.detector_params
         state = detector_init(params)
         event: SlipEvent | None = None
+        after_event: list[tuple[int, float]] = []  # samples of the detecting tick after the event
         peak_n = 0.0
         while event is None:
             self._tick()
-            for t_ns, force in self.tick_samples:
+            for i, (t_ns, force) in enumerate(self.tick_samples):
                 if t_ns < ramp_start_ns:
                     continue
                 peak_n = max(peak_n, force)
@@ -540,8 +563,10 @@ class TrialRunner:
                 if fired is not None:
                     if self._confirmed_by_winch(fired):
                         event = fired
+                        after_event = self.tick_samples[i + 1 :]
                         break
                     state = detector_init(params)  # not a slip: start over, so a real one is seen
+            found.peak_observed_n = peak_n
             if event is not None:
                 break
             if fast and self.force_n >= switch_n:
@@ -572,16 +597,36 @@ class TrialRunner:
         self._command(winch, ServoCommandName.GOAL_POSITION, hold, "rad")
         found.peak_observed_n = peak_n
         if event is not None:
-            found.outcome = TrialOutcome.SLIP
             found.event = event
-            self._ticks_for(ramp.hold_after_slip_s)
+            found.train_drops = self._hold_after_slip(event, state, after_event)
             if self.session.configuration is not None:
                 found.slipped_joint = self.session.configuration.measure().slipped_joint
-            self._log(
-                schemas.SLIP,
-                SlipMessage(trial.trial_id, event, params.to_mapping(), found.slipped_joint).to_payload(),
-                event.detection_time_ns,
+            found.outcome = slip_outcome(trial, event, found.train_drops, found.slipped_joint)
+            message = SlipMessage(
+                trial.trial_id, event, params.to_mapping(), found.slipped_joint, found.train_drops
             )
+            self._log(schemas.SLIP, message.to_payload(), event.detection_time_ns)
+            if found.outcome != TrialOutcome.SLIP:
+                self._note(LogLevel.INFO, f"trial {trial.trial_id}: {found.outcome} ({_why(found)})")
+
+    def _hold_after_slip(
+        self, event: SlipEvent, state: DetectorState, pending: list[tuple[int, float]]
+    ) -> int:
+        """Hold the winch for `hold_after_slip_s`, logging; the further drops the detector counts in it.
+
+        The detector, latched by the event, is stepped over the samples up to `hold_after_slip_s`
+        after the detection (a window of sample times, so that replay picks the same samples).
+        """
+        hold_s = self.protocol.ramp.hold_after_slip_s
+        end_ns = event.detection_time_ns + round(hold_s * 1e9)
+        samples = list(pending)
+        stop = self.clock.monotonic_ns() + round(hold_s * 1e9)
+        while self.clock.monotonic_ns() < stop:
+            self._tick()
+            samples += self.tick_samples
+        window = [(t_ns, force) for t_ns, force in samples if t_ns <= end_ns]
+        _, drops = further_drops(self.detector_params, state, [t for t, _ in window], [f for _, f in window])
+        return drops
 
     def _advance_ramp_goal(self, limit_rad: float, speed_rad_s: float, goal_rad: float | None) -> float:
         """Keep the winch's goal a short way ahead of it, never the far end of its travel.
@@ -819,3 +864,17 @@ class TrialRunner:
         if trial.kind == TrialKind.JOINT_ESTIMATION:
             return f"joint {trial.joint} at {trial.distance_m:.3f} m (repeat {trial.repeat})"
         return f"configuration {trial.configuration_index} (repeat {trial.repeat})"
+
+
+def _why(found: TrialMeasurements) -> str:
+    """A few words on why a slip got the outcome it has (for the log)."""
+    event = found.event
+    if found.outcome == TrialOutcome.OTHER_JOINT:
+        return f"joint {found.slipped_joint} moved"
+    if found.outcome == TrialOutcome.STICK_SLIP:
+        return f"{found.train_drops} further drop(s) after the first"
+    return (
+        f"{event.trigger} after {(event.detection_time_ns - event.onset_time_ns) / 1e9:.3f} s"
+        if event
+        else ""
+    )

@@ -30,8 +30,6 @@ from rig.runner.run import RunRequest, prepare_run
 from rig.runner.trial_runner import TrialRunner
 
 # Outcomes whose slip mass is a measured slip load, and those whose mass is only a lower bound.
-SLIP_OUTCOMES = frozenset({TrialOutcome.SLIP.value})
-CENSORED_OUTCOMES = frozenset({TrialOutcome.NO_SLIP.value})
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,11 +202,11 @@ def score_joints(
             and r.slip_mass_kg is not None
             and math.isfinite(r.slip_mass_kg)
             and r.slip_mass_kg > 0
-            and (r.outcome.value in SLIP_OUTCOMES or r.outcome.value in CENSORED_OUTCOMES)
+            and (r.slipped or r.outcome == TrialOutcome.NO_SLIP)
         ]
         distances = [float(r.distance_m) for r in usable if r.distance_m is not None]
         masses = [float(r.slip_mass_kg) for r in usable if r.slip_mass_kg is not None]
-        censored = [r.outcome.value in CENSORED_OUTCOMES for r in usable]
+        censored = [not r.slipped for r in usable]  # no slip before the force limit: a lower bound
         k_true = float(world["joints"][joint - 1]["k_kg_m"])
         estimates = tuple(_estimate(name, distances, masses, censored, level) for name in ESTIMATOR_NAMES)
         out.append(
