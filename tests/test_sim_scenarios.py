@@ -96,9 +96,26 @@ def test_scenario_runs_a_short_protocol_to_the_end(tmp_path: Path, run_cli, name
         for event in trial["slip_events"]:
             assert event["onset_time_ns"] >= trial["start_ns"] + world["run_clock_offset_ns"]
             assert event["load_n"] > 0
-    slipped = [t for t in report["trials"] if t["outcome"] == "slip"]
+    slipped = [t for t in report["trials"] if t["outcome"] in ("slip", "creep", "stick_slip", "other_joint")]
     events = {t["index"]: t["slip_events"] for t in world["trials"]}
     assert all(
         events[i] for i in range(1, len(events) + 1) if world["trials"][i - 1]["slip_kind"] != "no_slip"
     )
     assert len(slipped) >= 1
+
+
+@pytest.mark.slow  # a 24-trial run and its replay
+def test_replay_re_detects_every_creep_of_a_run(tmp_path: Path, run_cli) -> None:
+    """Creep detection hangs on every sample from the ramp's start: the runner must feed the detector
+    the very samples replay reads (it once missed the one stamped at the phase change's instant)."""
+    protocol = Path(__file__).resolve().parent.parent / "protocols" / "joint_estimation.yaml"
+    result = run_cli(
+        "run", protocol, "--rig", SCENARIOS / "creep.yaml", "--seed", 0, "--json", "--out", tmp_path
+    )
+    assert result.code == 0, result.err
+    report = json.loads(result.out)
+    assert "creep" in {t["outcome"] for t in report["trials"]}
+    replay = run_cli("replay", report["log"], "--json")
+    assert replay.code == 0, replay.err
+    redetection = json.loads(replay.out)["redetection"]
+    assert redetection["by_status"] == {"match": report["completed"]}, redetection["mismatches"]

@@ -539,9 +539,11 @@ class TrialRunner:
         deadline = self.clock.monotonic_ns() + round(timeout_s * 1e9)
 
         fast = self.force_n < switch_n
-        # The detector sees exactly the samples received from this instant on, which is also the
-        # log time of the phase change, so `rig replay` can feed it the very same samples.
+        # The detector sees exactly the samples stamped at or after this instant, which is also the
+        # log time of the phase change, so `rig replay` can feed it the very same samples. Those
+        # stamped at this very instant came with the last tick: they are fed first.
         ramp_start_ns = self.clock.time_ns()
+        stamped_at_start = [(t_ns, force) for t_ns, force in self.tick_samples if t_ns >= ramp_start_ns]
         self._phase(
             Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, "ramp_until_slip", ramp_start_ns
         )
@@ -555,7 +557,9 @@ class TrialRunner:
         peak_n = 0.0
         while event is None:
             self._tick()
-            for i, (t_ns, force) in enumerate(self.tick_samples):
+            samples = stamped_at_start + self.tick_samples
+            stamped_at_start = []
+            for i, (t_ns, force) in enumerate(samples):
                 if t_ns < ramp_start_ns:
                     continue
                 peak_n = max(peak_n, force)
@@ -563,7 +567,7 @@ class TrialRunner:
                 if fired is not None:
                     if self._confirmed_by_winch(fired):
                         event = fired
-                        after_event = self.tick_samples[i + 1 :]
+                        after_event = samples[i + 1 :]
                         break
                     state = detector_init(params)  # not a slip: start over, so a real one is seen
             found.peak_observed_n = peak_n
