@@ -20,6 +20,7 @@ from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.object_devices import ObjectLoadCell
 from rig.sim.object_rig import object_simulated_rig
 from rig.sim.physics.article_presets import make_preset
+from rig.sim.simulated_rig import simulated_rig
 
 REPO = Path(__file__).resolve().parents[1]
 JOINT_ESTIMATION = REPO / "protocols" / "joint_estimation.yaml"
@@ -97,3 +98,16 @@ def test_object_rig_refuses_timed_faults() -> None:
     faulty = dataclasses.replace(config, simulation=dataclasses.replace(config.simulation, faults=(fault,)))
     with pytest.raises(ConfigError, match="faults"):
         object_simulated_rig(faulty, seed=0)
+
+
+@pytest.mark.parametrize("scenario", ["additive-scatter", "mixed-scatter", "mixed", "noisy-cell"])
+def test_object_rig_builds_the_same_world_as_the_byte_level_rig(scenario: str) -> None:
+    """Scatter shape, slip kinds and load-cell artefacts of a scenario reach the object-level rig too."""
+    config = load_rig_config(REPO / "protocols" / "rigs" / "scenarios" / f"{scenario}.yaml")
+    byte = simulated_rig(config, seed=4)
+    obj = object_simulated_rig(config, seed=4)
+    assert obj.world.preset == byte.devices.world.preset
+    assert obj.world.truth() == byte.devices.world.truth()
+    assert (obj.load_cell.artefacts is None) == (byte.devices.loadcell_emulator.artefacts is None)
+    if scenario == "noisy-cell":
+        assert obj.load_cell.artefacts is not None

@@ -37,6 +37,7 @@ from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.actuator import POSITION_MODES, ActuatorCommand, ActuatorState, MotorParams, ProfiledActuator
 from rig.sim.dxl.servo import DEFAULT_BOOT_TIME_S, DEFAULT_OVERLOAD_TIME_S, MAX_STEP_NS, OVERLOAD_FRACTION
+from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import MAX_RATE_HZ, MIN_RATE_HZ, SignalModel, TensionSource
 
 _SUPPORTED_MODES = frozenset(int(m) for m in POSITION_MODES)
@@ -375,6 +376,7 @@ class ObjectLoadCell:
         rate_hz: float,
         signal: SignalModel,
         seed: int,
+        artefacts: ArtefactModel | None = None,
     ) -> None:
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
             raise LimitError(f"load-cell rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
@@ -382,6 +384,7 @@ class ObjectLoadCell:
         self.clock = clock
         self.rate_hz = float(rate_hz)
         self.signal = signal
+        self.artefacts = artefacts
         self.calibration = object_calibration(signal)
         self.start_ns = clock.monotonic_ns()
         self._rng = random.Random(seed)
@@ -403,7 +406,10 @@ class ObjectLoadCell:
             t_ns = start + round(k * 1e9 / rate)
             if t_ns > now_ns:
                 break
-            counts = counts_of(tension(t_ns), (t_ns - start) / 1e9, gauss(0.0, 1.0))
+            true_n = tension(t_ns)
+            if self.artefacts is not None:  # as the emulator applies them, before the signal model
+                true_n = self.artefacts.apparent_tension_n(true_n, (t_ns - start) / 1e9, 1.0 / rate)
+            counts = counts_of(true_n, (t_ns - start) / 1e9, gauss(0.0, 1.0))
             if receiving:
                 add(LoadCellSample(t_ns + epoch_offset, counts, to_force(counts)))
             k += 1

@@ -10,27 +10,26 @@ samples it. Timed faults (`simulation.faults`) act on the emulators' bytes and a
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from typing import Any, cast
 
 from rig.errors import ConfigError
 from rig.hw.session import RigSession
-from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, require_simulated
-from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
-from rig.sim.loadcell.emulator import SignalModel
 from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
 from rig.sim.simulated_rig import (
-    VIRTUAL_DAY_NS,
-    PacedVirtualClock,
-    SimBendingFixture,
     SimOperator,
     WorldTruth,
-    _NoFixture,
+    bending_fixture,
+    calibration_json,
+    config_preset,
+    loadcell_artefacts,
+    loadcell_signal,
+    new_world,
+    run_clock,
+    trial_starter,
 )
 
 DEVICE_LEVELS = ("byte", "object")
@@ -56,65 +55,32 @@ def object_simulated_rig(
             f"{config.source}: simulation/faults: the object-level devices have no bytes to corrupt; "
             "allowed: no faults, or the byte-level devices (--devices byte)"
         )
-    article = config.article
-    try:
-        preset = make_preset(
-            sim.preset,
-            seed,
-            noise_scale=sim.noise_scale,
-            torsion_weak_joint=sim.torsion_weak_joint,
-            segment_lengths_m=article.segment_lengths_m,
-            point_m=article.point_m,
-            direction_w=article.direction,
-            joint_radius_m=article.joint_radius_m,
-            drum_radius_m=config.spool_radius_m,
-            g=article.g,
-        )
-    except ValueError as exc:
-        raise ConfigError(f"{config.source}: simulation/article: {exc}") from None
-    epoch_ns = DEFAULT_EPOCH_NS + (invocation - 1) * VIRTUAL_DAY_NS
-    clock: VirtualClock = PacedVirtualClock(epoch_ns) if realtime else VirtualClock(epoch_ns)
-    winch_spec = config.servos.winch
-    benders = config.servos.benders
-    bus = ObjectServoBus(clock, [(s.servo_id, winch_spec.model) for s in config.servos.servos])
-    world = SimWorld(
-        preset,
-        bus.servo(winch_spec.servo_id),
-        bender=bus.servo(benders[0].servo_id) if benders else None,
-        step_devices=bus.advance_to,
-        seed=seed,
-        start_ns=clock.monotonic_ns(),
-    )
-    clock.on_advance(world.advance_to)
-    gain = SignalModel().gain_counts_per_n
+    preset = config_preset(config, seed)
+    clock = run_clock(realtime, invocation)
+    bus = ObjectServoBus(clock, [(s.servo_id, config.servos.winch.model) for s in config.servos.servos])
+    world = new_world(preset, config, bus, clock, seed)
     load_cell = ObjectLoadCell(
         world.tension_at,
         clock,
         rate_hz=sim.loadcell_rate_hz,
-        signal=SignalModel(noise_counts=preset.loadcell_noise_n * gain),
+        signal=loadcell_signal(preset),
         seed=seed,
+        artefacts=loadcell_artefacts(preset, seed),
     )
 
-    def begin_trial(trial: TrialPlan) -> None:
-        if trial.kind == "joint_estimation":
-            world.begin_trial("joint_estimation", distance_m=trial.distance_m, joint=trial.joint)
-        else:
-            world.begin_trial("link_validation")
-
-    calibration = json.dumps(load_cell.calibration.to_dict(), indent=2, allow_nan=False) + "\n"
     session = RigSession(
         kind="simulated",
         clock=clock,
         servos=bus,
         load_cell=load_cell,
         operator=SimOperator(),
-        fixture=SimBendingFixture(world, benders[0].servo_id) if benders else _NoFixture(),
+        fixture=bending_fixture(world, config),
         configuration=SimConfigurationSource(world, clock, seed=seed),
-        winch_id=winch_spec.servo_id,
+        winch_id=config.servos.winch.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
-        begin_trial=begin_trial,
+        begin_trial=trial_starter(world),
         # WorldTruth reads only `bus.servos[*].torque_enabled`, which the object bus has too.
         truth=WorldTruth(world, cast(Any, bus)),
-        attachments=[("loadcell-calibration.json", "application/json", calibration.encode())],
+        attachments=[("loadcell-calibration.json", "application/json", calibration_json(load_cell))],
     )
     return ObjectSimulatedRig(session, world, bus, load_cell)

@@ -21,7 +21,7 @@ import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from rig.errors import ConfigError
 from rig.hw.dxl.bus import DynamixelServoBus
@@ -35,9 +35,9 @@ from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
-from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
+from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, SimPreset, make_preset, stream_rng
 from rig.sim.physics.configuration_source import SimConfigurationSource
-from rig.sim.physics.world import SimWorld
+from rig.sim.physics.world import ShaftLike, SimWorld
 
 
 class PacedVirtualClock(VirtualClock):
@@ -148,9 +148,85 @@ def simulated_rig(
     `invocation` (1 for a new run, 2 for its first resume, ...) sets the start of virtual time.
     """
     sim = require_simulated(config)
+    preset = config_preset(config, seed)
+    clock = run_clock(realtime, invocation)
+    winch_spec = config.servos.winch
+    ids = [s.servo_id for s in config.servos.servos]
+    bus = EmulatedBus.with_servos(clock, ids=ids, model=winch_spec.model, baud=config.servos.baud)
+    world = new_world(preset, config, bus, clock, seed)
+    load_cell, loadcell_emulator = simulated_load_cell(
+        world.tension_at,
+        clock,
+        format_name=config.loadcell.format,
+        rate_hz=sim.loadcell_rate_hz,
+        signal=loadcell_signal(preset),
+        faults=loadcell_rate_faults(sim.faults),
+        seed=seed,
+        stale_timeout_s=config.limits.stale_timeout_s,
+        artefacts=loadcell_artefacts(preset, seed),
+    )
+    schedule = apply_faults(config, sim.faults, bus=bus, loadcell=loadcell_emulator, clock=clock, seed=seed)
+    servos = DynamixelServoBus(
+        config.servos.port,
+        config.servos.baud,
+        config.servos.servos,
+        clock,
+        retries=config.servos.retries,
+        bus_watchdog_ms=config.servos.watchdog_ms,
+        port_factory=lambda name: SimPortHandler(bus, clock, name),
+    )
+
+    session = RigSession(
+        kind="simulated",
+        clock=clock,
+        servos=servos,
+        load_cell=load_cell,
+        operator=SimOperator(),
+        fixture=bending_fixture(world, config),
+        configuration=SimConfigurationSource(world, clock, seed=seed),
+        winch_id=winch_spec.servo_id,
+        roles={s.servo_id: s.role for s in config.servos.servos},
+        begin_trial=trial_starter(world),
+        truth=WorldTruth(world, bus),
+        attachments=[("loadcell-calibration.json", "application/json", calibration_json(load_cell))],
+        log_limit_bytes=log_limit_bytes(sim.faults),
+    )
+    return SimulatedRig(session, SimulatedDevices(bus, world, loadcell_emulator, schedule))
+
+
+def calibration_json(load_cell: Any) -> bytes:
+    """The simulated cell's calibration as the JSON file a real rig would attach."""
+    return (json.dumps(load_cell.calibration.to_dict(), indent=2, allow_nan=False) + "\n").encode()
+
+
+class _NoFixture:
+    """A simulated rig without a bender: link validation would need manual bending, refused here."""
+
+    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
+        raise ConfigError("the simulated rig has no bender servo; add one with role: bender")
+
+    def home_goals(self) -> dict[int, float]:
+        raise ConfigError("the simulated rig has no bender servo; add one with role: bender")
+
+
+class _ShaftBus(Protocol):
+    """What the world needs of a servo bus (emulated or object-level): shafts by id and stepping."""
+
+    def servo(self, servo_id: int) -> ShaftLike:
+        """The servo's shaft."""
+        ...
+
+    def advance_to(self, t_ns: int) -> None:
+        """Let the servos move up to `t_ns`."""
+        ...
+
+
+def config_preset(config: RigConfig, seed: int) -> SimPreset:
+    """The seeded preset of a simulated rig config (ConfigError naming the section if it is invalid)."""
+    sim = require_simulated(config)
     article = config.article
     try:
-        preset = make_preset(
+        return make_preset(
             sim.preset,
             seed,
             noise_scale=sim.noise_scale,
@@ -167,49 +243,54 @@ def simulated_rig(
         )
     except ValueError as exc:
         raise ConfigError(f"{config.source}: simulation/article: {exc}") from None
+
+
+def run_clock(realtime: bool, invocation: int) -> VirtualClock:
+    """The virtual clock of a run; `invocation` (1: a new run, 2: its first resume, ...) sets its start."""
     epoch_ns = DEFAULT_EPOCH_NS + (invocation - 1) * VIRTUAL_DAY_NS
-    clock: VirtualClock = PacedVirtualClock(epoch_ns) if realtime else VirtualClock(epoch_ns)
-    winch_spec = config.servos.winch
+    return PacedVirtualClock(epoch_ns) if realtime else VirtualClock(epoch_ns)
+
+
+def new_world(
+    preset: SimPreset, config: RigConfig, bus: _ShaftBus, clock: VirtualClock, seed: int
+) -> SimWorld:
+    """The world on the bus's winch and bender shafts, integrating on every advance of the clock."""
     benders = config.servos.benders
-    ids = [s.servo_id for s in config.servos.servos]
-    bus = EmulatedBus.with_servos(clock, ids=ids, model=winch_spec.model, baud=config.servos.baud)
-    bender = bus.servo(benders[0].servo_id) if benders else None
     world = SimWorld(
         preset,
-        bus.servo(winch_spec.servo_id),
-        bender=bender,
+        bus.servo(config.servos.winch.servo_id),
+        bender=bus.servo(benders[0].servo_id) if benders else None,
         step_devices=bus.advance_to,
         seed=seed,
         start_ns=clock.monotonic_ns(),
         run_clock_offset_ns=clock.time_ns() - clock.monotonic_ns(),
     )
     clock.on_advance(world.advance_to)
-    gain = SignalModel().gain_counts_per_n
-    load_cell, loadcell_emulator = simulated_load_cell(
-        world.tension_at,
-        clock,
-        format_name=config.loadcell.format,
-        rate_hz=sim.loadcell_rate_hz,
-        signal=SignalModel(noise_counts=preset.loadcell_noise_n * gain),
-        faults=loadcell_rate_faults(sim.faults),
-        seed=seed,
-        stale_timeout_s=config.limits.stale_timeout_s,
-        artefacts=ArtefactModel(
-            preset.loadcell_artefacts, int(stream_rng(seed, STREAM_LOADCELL_ARTEFACTS).integers(2**63))
-        )
-        if preset.loadcell_artefacts.active
-        else None,
+    return world
+
+
+def loadcell_signal(preset: SimPreset) -> SignalModel:
+    """The simulated cell's signal model at the preset's noise."""
+    return SignalModel(noise_counts=preset.loadcell_noise_n * SignalModel().gain_counts_per_n)
+
+
+def loadcell_artefacts(preset: SimPreset, seed: int) -> ArtefactModel | None:
+    """The preset's load-cell artefacts on their own random stream, or None when there are none."""
+    if not preset.loadcell_artefacts.active:
+        return None
+    return ArtefactModel(
+        preset.loadcell_artefacts, int(stream_rng(seed, STREAM_LOADCELL_ARTEFACTS).integers(2**63))
     )
-    schedule = apply_faults(config, sim.faults, bus=bus, loadcell=loadcell_emulator, clock=clock, seed=seed)
-    servos = DynamixelServoBus(
-        config.servos.port,
-        config.servos.baud,
-        config.servos.servos,
-        clock,
-        retries=config.servos.retries,
-        bus_watchdog_ms=config.servos.watchdog_ms,
-        port_factory=lambda name: SimPortHandler(bus, clock, name),
-    )
+
+
+def bending_fixture(world: SimWorld, config: RigConfig) -> SimBendingFixture | _NoFixture:
+    """The motorised fixture on the first bender, or none (link validation then cannot bend)."""
+    benders = config.servos.benders
+    return SimBendingFixture(world, benders[0].servo_id) if benders else _NoFixture()
+
+
+def trial_starter(world: SimWorld) -> Callable[[TrialPlan], None]:
+    """The session's `begin_trial`: the world draws the trial's capacities and sets up its specimen."""
 
     def begin_trial(trial: TrialPlan) -> None:
         if trial.kind == "joint_estimation":
@@ -217,34 +298,4 @@ def simulated_rig(
         else:
             world.begin_trial("link_validation")
 
-    session = RigSession(
-        kind="simulated",
-        clock=clock,
-        servos=servos,
-        load_cell=load_cell,
-        operator=SimOperator(),
-        fixture=SimBendingFixture(world, benders[0].servo_id) if benders else _NoFixture(),
-        configuration=SimConfigurationSource(world, clock, seed=seed),
-        winch_id=winch_spec.servo_id,
-        roles={s.servo_id: s.role for s in config.servos.servos},
-        begin_trial=begin_trial,
-        truth=WorldTruth(world, bus),
-        attachments=[("loadcell-calibration.json", "application/json", _calibration_json(load_cell))],
-        log_limit_bytes=log_limit_bytes(sim.faults),
-    )
-    return SimulatedRig(session, SimulatedDevices(bus, world, loadcell_emulator, schedule))
-
-
-def _calibration_json(load_cell: Any) -> bytes:
-    """The simulated cell's calibration as the JSON file a real rig would attach."""
-    return (json.dumps(load_cell.calibration.to_dict(), indent=2, allow_nan=False) + "\n").encode()
-
-
-class _NoFixture:
-    """A simulated rig without a bender: link validation would need manual bending, refused here."""
-
-    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
-        raise ConfigError("the simulated rig has no bender servo; add one with role: bender")
-
-    def home_goals(self) -> dict[int, float]:
-        raise ConfigError("the simulated rig has no bender servo; add one with role: bender")
+    return begin_trial
