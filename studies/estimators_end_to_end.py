@@ -49,7 +49,7 @@ def study(protocol: Path, rig: Path | None, seeds: str, jobs: int) -> dict[str, 
     command = [
         sys.executable,
         "-m",
-        "rig",
+        "rig.cli",
         "study",
         str(protocol),
         "--seeds",
@@ -60,7 +60,9 @@ def study(protocol: Path, rig: Path | None, seeds: str, jobs: int) -> dict[str, 
     ]
     if rig is not None:
         command += ["--rig", str(rig)]
-    done = subprocess.run(command, check=True, capture_output=True, text=True)
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        sys.exit(f"{' '.join(command)}: exit {done.returncode}\n{done.stderr}")
     result: dict[str, object] = json.loads(done.stdout)
     return result
 
