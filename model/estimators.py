@@ -35,6 +35,9 @@ DEFAULT_ESTIMATOR: Final[EstimatorName] = "auto"
 ScatterModel = Literal["additive", "multiplicative", "mixed"]
 SCATTER_MODELS: Final[tuple[ScatterModel, ...]] = ("additive", "multiplicative", "mixed")
 
+# A no-slip bound the slips' own fit makes this improbable (P(m > bound) below it) is not a lower bound
+# from the same scatter but a joint that held (a jam, a fixture): it is left out, with the reason.
+CENSORED_CONSISTENCY_P: Final[float] = 1e-3
 # The diagnostic rejects a restricted scatter model below this p-value.
 DIAGNOSTIC_ALPHA: Final[float] = 0.05
 # Scoring iterations of the scatter fit: it converges in a handful; a fixed count keeps the batch
@@ -166,6 +169,15 @@ def weighted_estimate(
     level = check_level(level)
     distances, masses, flags = _checked_data(distances_m, masses_kg, censored)
     _need_slips(int((~flags).sum()))
+    note = ""
+    excluded = 0
+    if flags.any():
+        products = distances[~flags] * masses[~flags]
+        k0 = float(products.mean())
+        sd0 = float(products.std(ddof=1)) / k0 if k0 != 0.0 else math.inf
+        keep, note = _screen_censored(1.0 / distances, masses, flags, k0, 0.0, sd0)
+        excluded = int((~keep).sum())
+        distances, masses, flags = distances[keep], masses[keep], flags[keep]
     if flags.any():
         x = 1.0 / distances
         k0 = float(np.mean(masses[~flags] * distances[~flags]))
@@ -182,6 +194,9 @@ def weighted_estimate(
             level,
             0.0,
             sd_rel,
+            None,
+            excluded,
+            note,
         )
     products = distances * masses
     n = int(products.size)
@@ -189,7 +204,21 @@ def weighted_estimate(
     se = float(products.std(ddof=1)) / math.sqrt(n)
     half = t_quantile(level, n - 1) * se
     relative_sd = float(products.std(ddof=1)) / k if k != 0.0 else math.inf
-    return KEstimate("weighted", "multiplicative", n, 0, k, (k - half, k + half), se, level, 0.0, relative_sd)
+    return KEstimate(
+        "weighted",
+        "multiplicative",
+        n,
+        0,
+        k,
+        (k - half, k + half),
+        se,
+        level,
+        0.0,
+        relative_sd,
+        None,
+        excluded,
+        note,
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -382,6 +411,33 @@ def diagnose(lr_additive: float, lr_multiplicative: float) -> ScatterDiagnostic:
     )
 
 
+def _screen_censored(
+    x: np.ndarray, m: np.ndarray, censored: np.ndarray, k: float, a_kg: float, b: float
+) -> tuple[np.ndarray, str]:
+    """Which points to keep: every slip, and the no-slip bounds consistent with the slips' scatter.
+
+    A bound c at x = 1/l is kept if P(m > c) >= `CENSORED_CONSISTENCY_P` under the slips-only fit
+    (mean k·x, sd² = a² + (b·k·x)²). Returns the mask of kept points and the note for those left out.
+    """
+    from scipy import special  # imported on first use (costly import, see model.fit)
+
+    mu = k * x
+    sd = np.sqrt(a_kg * a_kg + (b * mu) ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(sd > 0, (m - mu) / sd, np.inf)
+    log_p = special.log_ndtr(-z)
+    inconsistent = censored & (log_p < math.log(CENSORED_CONSISTENCY_P))
+    count = int(inconsistent.sum())
+    if not count:
+        return np.ones(m.size, dtype=bool), ""
+    note = (
+        f"{count} no-slip point(s) excluded: each held beyond {float(z[inconsistent].min()):.1f} sd above"
+        f" its predicted slip load (P < {CENSORED_CONSISTENCY_P:g} under the slips' scatter): a joint"
+        " that held, not a slip beyond the force limit"
+    )
+    return ~inconsistent, note
+
+
 def _tobit(
     x: np.ndarray, m: np.ndarray, censored: np.ndarray, alpha: float, beta: float, k_start: float
 ) -> tuple[float, float, float]:
@@ -456,6 +512,9 @@ def auto_estimate(
     diagnostic = diagnose(float(batch.lr_additive[0]), float(batch.lr_multiplicative[0]))
     a, b = float(batch.scatter_a_kg[0]), float(batch.scatter_b[0])
     k, se = float(batch.k[0]), float(batch.se[0])
+    keep, note = _screen_censored(1.0 / distances, masses, flags, k, a, b)
+    excluded = int((~keep).sum())
+    distances, masses, flags = distances[keep], masses[keep], flags[keep]
     n_censored = int(flags.sum())
     if n_censored:
         alpha, beta = a * a, b * b
@@ -474,6 +533,8 @@ def auto_estimate(
         a,
         b,
         diagnostic,
+        excluded,
+        note,
     )
 
 

@@ -118,6 +118,24 @@ def test_censored_points_are_lower_bounds_not_dropped():
     assert weighted.n_censored == flags.sum() and abs(weighted.k - K) < 3 * weighted.se
 
 
+@pytest.mark.parametrize("estimator", ["auto", "weighted"])
+def test_a_no_slip_far_beyond_the_slips_scatter_is_excluded_with_the_reason(estimator):
+    # A joint that held to the force limit where its slips predict a tenth of it is not a lower bound
+    # of the same scatter: as a Tobit point it would drag k and the scatter up by an order of magnitude.
+    d, m = synthetic(3, 0.0, 0.085)
+    held = np.append(m, 70.0 / 9.8)  # no slip up to 70 N at 0.25 m: 11x the predicted 0.65 kg
+    distances = np.append(d, 0.25)
+    flags = [False] * m.size + [True]
+    with_it = estimate_k(estimator, distances.tolist(), held.tolist(), flags)
+    without = estimate_k(estimator, d.tolist(), m.tolist())
+    assert with_it.n_excluded == 1 and with_it.n_censored == 0 and "no-slip" in with_it.note
+    assert (with_it.k, with_it.k_ci) == (without.k, without.k_ci)
+    # One just beyond the limit of what the slips make likely is kept, as a lower bound.
+    near = np.append(m, 1.08 * K / 0.25)
+    kept = estimate_k(estimator, distances.tolist(), near.tolist(), flags)
+    assert kept.n_excluded == 0 and kept.n_censored == 1 and kept.note == ""
+
+
 def test_crlb_is_the_weighted_least_squares_variance():
     x = 1 / PAPER_DESIGN
     assert crlb_k(PAPER_DESIGN, K, 0.1, 0.0) == pytest.approx(0.01 / float(x @ x), rel=1e-12)
