@@ -36,14 +36,15 @@ from rig.hw.loadcell.calibration import Calibration
 from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.actuator import POSITION_MODES, ActuatorCommand, ActuatorState, MotorParams, ProfiledActuator
-from rig.sim.dxl.servo import DEFAULT_BOOT_TIME_S, DEFAULT_OVERLOAD_TIME_S, MAX_STEP_NS, OVERLOAD_FRACTION
+from rig.sim.dxl.servo import DEFAULT_BOOT_TIME_S, DEFAULT_OVERLOAD_TIME_S, OVERLOAD_FRACTION
+from rig.sim.dxl.shaft_motion import IntegratedShaft
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import MAX_RATE_HZ, MIN_RATE_HZ, SignalModel, TensionSource
 
 _SUPPORTED_MODES = frozenset(int(m) for m in POSITION_MODES)
 
 
-class ObjectServo:
+class ObjectServo(IntegratedShaft):
     """One servo as a motion model with registers in physical units (a `ShaftLike` for the world)."""
 
     def __init__(self, servo_id: int, model: str, now_ns: int) -> None:
@@ -53,7 +54,7 @@ class ObjectServo:
         self.motor = MotorParams(table.stall_torque_nm, table.stall_current_a, table.no_load_speed_rad_s)
         self.actuator = ProfiledActuator(self.motor)
         self._coulomb_nm = self.motor.coulomb_nm  # a computed property; read every millisecond
-        self._overload_time_ns = round(DEFAULT_OVERLOAD_TIME_S * 1e9)
+        self.overload_time_ns = round(DEFAULT_OVERLOAD_TIME_S * 1e9)
         self.state = ActuatorState()
         self.external_torque_nm = 0.0  # set by the world
         self.mode = int(table["Operating Mode"].default)
@@ -104,45 +105,11 @@ class ObjectServo:
         )
 
     def advance_to(self, now_ns: int) -> None:
-        """Integrate the motion to `now_ns` in substeps of at most 1 ms, with the overload latch."""
-        t = self._now_ns
-        if now_ns <= t:
-            return
-        state, cmd, tau_ext = self.state, self._cmd, self.external_torque_nm
-        # The emulated servo's two shortcuts, so both levels integrate the same steps: idle (torque
-        # off, load within the gear's static friction) and settled (holding under the same load).
-        if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self._coulomb_nm:
-            state.motor_torque_nm = 0.0
-            self._now_ns = now_ns
-            self._at_limit_ns = 0
-            return
-        settled = self._settled
-        if (
-            settled is not None
-            and settled[0] is cmd
-            and settled[1] == tau_ext
-            and settled[2] == state.position_rad
-        ):
-            self._now_ns = now_ns
-            return
-        step = self.actuator.step
-        while t < now_ns:
-            dt_ns = now_ns - t
-            if dt_ns > MAX_STEP_NS:
-                dt_ns = MAX_STEP_NS
-            step(state, self._cmd, dt_ns * 1e-9, tau_ext)
-            t += dt_ns
-            if self._cmd.torque_enabled and abs(state.motor_torque_nm) >= self._overload_cap_nm > 0:
-                self._at_limit_ns += dt_ns
-                if self._at_limit_ns >= self._overload_time_ns:
-                    self._latch(ct.HW_ERROR_OVERLOAD)
-                    self._at_limit_ns = 0
-            else:
-                self._at_limit_ns = 0
-        self._now_ns = now_ns
-        cmd = self._cmd
-        still = state.velocity_rad_s == 0.0 and state.profile_done and not state.saturated
-        self._settled = (cmd, tau_ext, state.position_rad) if still and self._at_limit_ns == 0 else None
+        """Integrate the motion to `now_ns` (`IntegratedShaft`: the emulated servo's very steps)."""
+        self._integrate(now_ns)
+
+    def _on_overload(self) -> None:
+        self._latch(ct.HW_ERROR_OVERLOAD)
 
     def _latch(self, bits: int) -> None:
         self.hardware_error |= bits

@@ -41,11 +41,11 @@ from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.control_table import ControlTable, Field
 from rig.sim.dxl import protocol as p
 from rig.sim.dxl.actuator import ActuatorCommand, ActuatorState, MotorParams, ProfiledActuator
+from rig.sim.dxl.shaft_motion import IntegratedShaft
 
 OVERLOAD_FRACTION = 0.95
 DEFAULT_OVERLOAD_TIME_S = 1.5
 DEFAULT_BOOT_TIME_S = 0.25
-MAX_STEP_NS = 1_000_000  # motion integration sub-step
 WATCHDOG_TRIPPED = 0xFF  # Bus Watchdog reads -1 after a trip
 _INDIRECT_DATA_RANGES = tuple(
     (data_base, data_base + count, addr_base) for addr_base, data_base, count, _ in ct.INDIRECT_ADDRESS_BLOCKS
@@ -100,7 +100,7 @@ class Result:
     params: bytes = b""
 
 
-class Servo:
+class Servo(IntegratedShaft):
     """An emulated X-series servo (see the module docstring for its semantics)."""
 
     def __init__(
@@ -364,56 +364,8 @@ class Servo:
         if self._mem[98]:  # Bus Watchdog enabled (or tripped)
             self._check_watchdog(now_ns)
 
-    def _integrate(self, now_ns: int) -> None:
-        t = self._now_ns
-        if now_ns <= t:
-            return
-        state, cmd = self.state, self._cmd
-        tau_ext = self.external_torque_nm
-        if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self._coulomb_nm:
-            # Idle: torque off and the load inside the gear's static friction band.
-            state.motor_torque_nm = 0.0
-            self._now_ns = now_ns
-            self._at_limit_ns = 0
-            return
-        settled = self._settled
-        if (
-            settled is not None
-            and settled[0] is cmd
-            and settled[1] == tau_ext
-            and settled[2] == state.position_rad
-        ):
-            # Holding still under an unchanged load and command: the quasi-static step is at a
-            # fixed point, so integrating would change nothing (the bender idles most of a run).
-            self._now_ns = now_ns
-            return
-        step = self.actuator.step
-        overload_cap_nm = self._overload_cap_nm
-        while t < now_ns:
-            dt_ns = now_ns - t
-            if dt_ns > MAX_STEP_NS:
-                dt_ns = MAX_STEP_NS
-            step(state, cmd, dt_ns * 1e-9, tau_ext)
-            t += dt_ns
-            if cmd.torque_enabled and abs(state.motor_torque_nm) >= overload_cap_nm > 0:
-                self._at_limit_ns += dt_ns
-                if self._at_limit_ns >= self.overload_time_ns:
-                    self._now_ns = t
-                    self.set_hardware_error(ct.HW_ERROR_OVERLOAD)
-                    cmd = self._cmd
-                    self._at_limit_ns = 0
-            else:
-                self._at_limit_ns = 0
-        self._now_ns = now_ns
-        if (
-            state.velocity_rad_s == 0.0
-            and state.profile_done
-            and not state.saturated
-            and self._at_limit_ns == 0
-        ):
-            self._settled = (cmd, tau_ext, state.position_rad)
-        else:
-            self._settled = None
+    def _on_overload(self) -> None:
+        self.set_hardware_error(ct.HW_ERROR_OVERLOAD)
 
     def _check_watchdog(self, now_ns: int) -> None:
         wd = self._mem[98]
