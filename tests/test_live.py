@@ -150,6 +150,13 @@ def test_unsubscribed_topics_cost_nothing_and_are_not_queued():
     assert stats.dropped == 0
 
 
+def test_the_server_process_has_its_own_process_group_so_a_terminal_ctrl_c_reaches_only_the_run():
+    # The terminal sends SIGINT to its foreground group; the run then closes the view in order.
+    with LivePublisher(port=0) as live:
+        assert os.getpgid(live.pid) == live.pid != os.getpgid(0)
+        live.close()
+
+
 def test_a_server_process_that_falls_behind_loses_batches_counted_and_publishing_never_waits():
     with LivePublisher(port=0, pipe_bytes=4096, client_backlog=1 << 20) as live:
         assert live.wait_ready()  # the server process listens

@@ -115,6 +115,13 @@ def test_nan_without_strict_mode_is_reported_at_the_next_call_and_not_written(tm
         assert b"NaN" not in f.read()
 
 
+def test_the_writer_process_has_its_own_process_group_so_a_terminal_ctrl_c_reaches_only_the_run(tmp_path):
+    # A Ctrl-C in the writer's first instants, before it ignores SIGINT, would lose the log's end.
+    log = RunLogger(tmp_path / "a.mcap")
+    assert os.getpgid(log._process.pid) == log._process.pid != os.getpgid(0)
+    log.finish()
+
+
 def test_writer_process_failure_is_raised_in_the_caller_and_finish_does_not_hang(tmp_path):
     log = RunLogger(tmp_path / "a.mcap")
     log.log(S.LOADCELL, T0_NS, S.loadcell_sample(raw=1, force_n=1.0))

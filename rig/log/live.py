@@ -140,6 +140,9 @@ class LivePublisher:
                 pass_fds=child_fds,
                 stdin=subprocess.DEVNULL,
                 close_fds=True,
+                # Its own process group: a terminal's Ctrl-C reaches the run only, which then
+                # decides when this child ends (it could arrive before the child ignores SIGINT).
+                process_group=0,
             )
         except BaseException:
             for fd in (data_write, reply_read):
