@@ -89,7 +89,7 @@ def one_run(
         run.update_link(arms, float(ratio[weakest]), reported)
     caps = run.joint_capacities()
     assert caps is not None
-    covered: np.ndarray = (caps["ci_lo_nm"] <= capacities) & (capacities <= caps["ci_hi_nm"])
+    covered: np.ndarray = (caps.ci_lo_nm <= capacities) & (capacities <= caps.ci_hi_nm)
     return covered
 
 

@@ -28,6 +28,8 @@ from model.estimators import DEFAULT_ESTIMATOR, EstimatorName
 from model.fit import FitSummary, capacity_from_fit, fit_summary
 from model.joint_capacity_estimation import (
     DEFAULT_OBS_SD_LOG,
+    LinkEstimatorState,
+    PerJointEstimates,
     link_estimator_estimates,
     link_estimator_init,
     link_estimator_update,
@@ -74,7 +76,7 @@ class RunEstimator:
         self.constant = constant
         self.estimator: EstimatorName = estimator
         self.fit_state = online_fit_init()  # the paper's fit, exact and O(1) per trial
-        self.link_state: Any = None
+        self.link_state: LinkEstimatorState | None = None
         self._file_prior = prior_summary
         # Every joint-estimation point so far (the estimators other than the paper's refit them all).
         self._distances_m: list[float] = []
@@ -131,13 +133,12 @@ class RunEstimator:
             np.asarray(joint_angles_rad, float), np.asarray(self.article.segment_lengths_m)
         )
 
-    def joint_capacities(self) -> dict[str, np.ndarray] | None:
-        """Per-joint capacity estimates with bounds, once a prior exists."""
+    def joint_capacities(self) -> PerJointEstimates | None:
+        """Per-joint capacity estimates with bounds at the run's level, once a prior exists."""
         state = self._link()
         if state is None:
             return None
-        est = link_estimator_estimates(state, self.level)
-        return {"capacity_nm": est.capacity_nm, "ci_lo_nm": est.ci_lo_nm, "ci_hi_nm": est.ci_hi_nm}
+        return link_estimator_estimates(state, self.level)
 
     def predict_link(self, joint_angles_rad: Sequence[float]) -> LinkPrediction | None:
         """Predicted slip of the link at a measured configuration from the current estimates."""
@@ -147,7 +148,7 @@ class RunEstimator:
         transforms = self.transforms_for(joint_angles_rad)
         pred = predict_slip(
             transforms,
-            caps["capacity_nm"],
+            caps.capacity_nm,
             np.asarray(self.article.point_m),
             np.asarray(self.article.direction),
             g=self.article.g,
@@ -229,7 +230,7 @@ class RunEstimator:
             assert result.lever_arms_m is not None and result.peak_force_n is not None
             self.update_link(result.lever_arms_m, result.peak_force_n, result.slipped_joint)
 
-    def _link(self) -> Any:
+    def _link(self) -> LinkEstimatorState | None:
         if self.link_state is None:
             prior = self.summary()
             if prior is None:
@@ -280,11 +281,11 @@ class RunEstimator:
         return tuple(
             JointCapacity(
                 joint=j + 1,
-                capacity_nm=float(caps["capacity_nm"][j]),
-                ci_lo_nm=float(caps["ci_lo_nm"][j]),
-                ci_hi_nm=float(caps["ci_hi_nm"][j]),
+                capacity_nm=float(caps.capacity_nm[j]),
+                ci_lo_nm=float(caps.ci_lo_nm[j]),
+                ci_hi_nm=float(caps.ci_hi_nm[j]),
             )
-            for j in range(len(caps["capacity_nm"]))
+            for j in range(len(caps.capacity_nm))
         )
 
     def estimate(self, trial_id: int) -> Estimate:
