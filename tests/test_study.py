@@ -15,7 +15,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from model.estimators import ESTIMATOR_NAMES, crlb_k
+from model.estimators import ESTIMATOR_NAMES, crlb_k, estimate_k
 from rig.cli import main
 from rig.errors import InputError
 from rig.study import table as table_module
@@ -139,7 +139,20 @@ def _record(
         )
         for name in ESTIMATOR_NAMES
     )
-    joint = JointResult(1, k_true, 0.0, 0.1, (0.1,) * trials, trials, 0, 0, 1e-4, estimates)
+    joint = JointResult(
+        1,
+        k_true,
+        0.0,
+        0.1,
+        (0.1,) * trials,
+        (k_true / 0.1,) * trials,
+        (False,) * trials,
+        trials,
+        0,
+        0,
+        1e-4,
+        estimates,
+    )
     return RunRecord(seed, status, None if status == "completed" else "boom", 24, trials, 0.1, (joint,))
 
 
@@ -248,6 +261,10 @@ def test_cli_json_has_exactly_the_documented_keys(tmp_path: Path, capsys: pytest
         assert len(entry["coverage_ci"]) == 2
     rows = pq.read_table(tmp_path / TABLE_NAME).to_pylist()
     assert len(rows) == 2 * len(ESTIMATOR_NAMES)
+    for row in rows:  # the table holds each run's data: refitting it gives the row's estimate
+        assert len(row["masses_kg"]) == len(row["censored"]) == len(row["distances_m"]) > 0
+        refit = estimate_k(row["estimator"], row["distances_m"], row["masses_kg"], row["censored"])
+        assert refit.k == row["k_kg_m"]
 
 
 def _link_only_protocol(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Path:

@@ -38,6 +38,8 @@ SCHEMA = pa.schema(
         ("n_censored", pa.int32()),
         ("n_excluded", pa.int32()),
         ("distances_m", pa.list_(pa.float64())),
+        ("masses_kg", pa.list_(pa.float64())),  # the trials' slip masses, in the order of distances_m
+        ("censored", pa.list_(pa.bool_())),  # no slip before the force limit: the mass is a lower bound
         ("crlb_var_kg2_m2", pa.float64()),
         ("estimator", pa.string()),
         ("k_kg_m", pa.float64()),
@@ -82,6 +84,8 @@ def table_rows(records: Sequence[RunRecord], estimator_names: Sequence[str]) -> 
                 "n_censored": joint.n_censored,
                 "n_excluded": joint.n_excluded,
                 "distances_m": list(joint.distances_m),
+                "masses_kg": list(joint.masses_kg),
+                "censored": list(joint.censored),
                 "crlb_var_kg2_m2": joint.crlb_var,
             }
             for e in joint.estimates:

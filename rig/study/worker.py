@@ -68,6 +68,8 @@ class JointResult:
     true_scatter_a_kg: float
     true_scatter_b: float
     distances_m: tuple[float, ...]  # every trial with a mass (slips and censored), in run order
+    masses_kg: tuple[float, ...]  # their slip masses (for a censored trial, the mass it held)
+    censored: tuple[bool, ...]  # True where the trial reached its force limit without a slip
     n_slips: int
     n_censored: int
     n_excluded: int  # trials without a usable mass (aborted or faulted trials)
@@ -216,6 +218,8 @@ def score_joints(
                 true_scatter_a_kg=a_kg,
                 true_scatter_b=b,
                 distances_m=tuple(distances),
+                masses_kg=tuple(masses),
+                censored=tuple(censored),
                 n_slips=len(usable) - sum(censored),
                 n_censored=sum(censored),
                 n_excluded=len(trials) - len(usable),
