@@ -7,7 +7,12 @@ and the narrower 0.10-0.25 m, the same protocol with its distances replaced), an
 markdown table: per case and estimator, the coverage of the 99 % bounds with its 95 % interval,
 MSE over the Cramér-Rao bound, and the relative bias.
 
-    .venv/bin/python studies/estimators_end_to_end.py [--seeds 0-199] [--jobs 2]
+    .venv/bin/python studies/estimators_end_to_end.py [--seeds 0-199] [--jobs 2] [--keep DIR]
+    .venv/bin/python studies/estimators_end_to_end.py --refit DIR
+
+`--keep DIR` keeps each case's `rig study` table as DIR/<design>-<shape>/study.parquet. `--refit DIR`
+runs nothing: it refits today's estimators to the trials those tables hold (the same scoring as
+`rig study`), e.g. after an estimator changed, without rerunning the rig.
 """
 
 from __future__ import annotations
@@ -17,9 +22,16 @@ import json
 import subprocess
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
+import pyarrow.parquet as pq
 import yaml
+
+from model.estimators import ESTIMATOR_NAMES
+from model.fit import DEFAULT_LEVEL
+from rig.study.summary import summarise
+from rig.study.worker import RunRecord, score_joint
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
@@ -29,6 +41,7 @@ SHAPES = {
     "additive": SCENARIOS / "additive-scatter.yaml",
     "mixed": SCENARIOS / "mixed-scatter.yaml",
 }
+DESIGN_LABELS = {"0.03-0.25 m": "paper", "0.10-0.25 m": "narrow"}  # directory names under --keep
 NARROW_DISTANCES_M = [0.10, 0.1214, 0.1429, 0.1643, 0.1857, 0.2071, 0.2286, 0.25]
 
 
@@ -44,8 +57,8 @@ def narrow_protocol(directory: Path) -> Path:
     return path
 
 
-def study(protocol: Path, rig: Path | None, seeds: str, jobs: int) -> dict[str, object]:
-    """`rig study --json` of one case."""
+def study(protocol: Path, rig: Path | None, seeds: str, jobs: int, out: Path | None) -> dict[str, object]:
+    """`rig study --json` of one case (its table in `out` when given)."""
     command = [
         sys.executable,
         "-m",
@@ -60,6 +73,8 @@ def study(protocol: Path, rig: Path | None, seeds: str, jobs: int) -> dict[str, 
     ]
     if rig is not None:
         command += ["--rig", str(rig)]
+    if out is not None:
+        command += ["--out", str(out)]
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode != 0:
         sys.exit(f"{' '.join(command)}: exit {done.returncode}\n{done.stderr}")
@@ -67,28 +82,80 @@ def study(protocol: Path, rig: Path | None, seeds: str, jobs: int) -> dict[str, 
     return result
 
 
+def refit_case(table: Path) -> dict[str, object]:
+    """`rig study --json`'s summary of a kept table, with today's estimators refitted to its trials."""
+    rows = pq.read_table(table).to_pylist()
+    records = []
+    for seed in sorted({row["seed"] for row in rows}):
+        runs = [row for row in rows if row["seed"] == seed]
+        first = runs[0]
+        joints = tuple(
+            replace(
+                score_joint(
+                    row["joint"],
+                    row["k_true_kg_m"],
+                    (row["true_scatter_a_kg"], row["true_scatter_b"]),
+                    row["distances_m"],
+                    row["masses_kg"],
+                    row["censored"],
+                    DEFAULT_LEVEL,
+                ),
+                n_excluded=row["n_excluded"],
+            )
+            for row in {row["joint"]: row for row in runs if row["joint"] is not None}.values()
+        )
+        records.append(
+            RunRecord(
+                seed,
+                first["status"],
+                first["reason"],
+                first["trials_planned"],
+                first["trials_completed"],
+                first["wall_s"],
+                joints,
+            )
+        )
+    summary = summarise(str(table), [r.seed for r in records], records, ESTIMATOR_NAMES, DEFAULT_LEVEL)
+    return summary.as_json()
+
+
+def print_row(design: str, shape: str, result: dict[str, object]) -> None:
+    """The markdown rows of one case, one per estimator."""
+    estimators = result["estimators"]
+    assert isinstance(estimators, dict)
+    for name, row in estimators.items():
+        lo, hi = row["coverage_ci"]
+        print(
+            f"| {design} | {shape} | {name} | {result['runs']} ({result['aborted']}) "
+            f"| {row['coverage']:.4f} [{lo:.4f}, {hi:.4f}] | {row['mse_over_crlb']:.3f} "
+            f"| {100 * row['bias_rel']:+.2f} % |",
+            flush=True,
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="0-199", help="seeds per case, `rig study` syntax (default 0-199)")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    parser.add_argument("--keep", type=Path, help="keep each case's study table under this directory")
+    parser.add_argument("--refit", type=Path, help="refit the tables kept under this directory; run nothing")
     args = parser.parse_args()
+    print("| design | scatter | estimator | runs (aborted) | coverage [95 % CI] | MSE / CRLB | bias |")
+    print("|---|---|---|---|---|---|---|")
+    if args.refit is not None:
+        for design, label in DESIGN_LABELS.items():
+            for shape in SHAPES:
+                table = args.refit / f"{label}-{shape}" / "study.parquet"
+                if not table.is_file():
+                    sys.exit(f"{table}: no such table; allowed: a directory written by --keep")
+                print_row(design, shape, refit_case(table))
+        return
     with tempfile.TemporaryDirectory() as tmp:
         designs = {"0.03-0.25 m": PROTOCOL, "0.10-0.25 m": narrow_protocol(Path(tmp))}
-        print("| design | scatter | estimator | runs (aborted) | coverage [95 % CI] | MSE / CRLB | bias |")
-        print("|---|---|---|---|---|---|---|")
         for design, protocol in designs.items():
             for shape, rig in SHAPES.items():
-                result = study(protocol, rig, args.seeds, args.jobs)
-                estimators = result["estimators"]
-                assert isinstance(estimators, dict)
-                for name, row in estimators.items():
-                    lo, hi = row["coverage_ci"]
-                    print(
-                        f"| {design} | {shape} | {name} | {result['runs']} ({result['aborted']}) "
-                        f"| {row['coverage']:.3f} [{lo:.3f}, {hi:.3f}] | {row['mse_over_crlb']:.2f} "
-                        f"| {100 * row['bias_rel']:+.2f} % |",
-                        flush=True,
-                    )
+                out = None if args.keep is None else args.keep / f"{DESIGN_LABELS[design]}-{shape}"
+                print_row(design, shape, study(protocol, rig, args.seeds, args.jobs, out))
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ import math
 import tempfile
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -209,25 +209,53 @@ def score_joints(
         distances = [float(r.distance_m) for r in usable if r.distance_m is not None]
         masses = [float(r.slip_mass_kg) for r in usable if r.slip_mass_kg is not None]
         censored = [not r.slipped for r in usable]  # no slip before the force limit: a lower bound
-        k_true = float(world["joints"][joint - 1]["k_kg_m"])
-        estimates = tuple(_estimate(name, distances, masses, censored, level) for name in ESTIMATOR_NAMES)
-        out.append(
-            JointResult(
-                joint=joint,
-                k_true_kg_m=k_true,
-                true_scatter_a_kg=a_kg,
-                true_scatter_b=b,
-                distances_m=tuple(distances),
-                masses_kg=tuple(masses),
-                censored=tuple(censored),
-                n_slips=len(usable) - sum(censored),
-                n_censored=sum(censored),
-                n_excluded=len(trials) - len(usable),
-                crlb_var=crlb_k(distances, k_true, a_kg, b),
-                estimates=estimates,
-            )
+        joint_result = score_joint(
+            joint,
+            float(world["joints"][joint - 1]["k_kg_m"]),
+            (a_kg, b),
+            distances,
+            masses,
+            censored,
+            level,
         )
+        out.append(replace(joint_result, n_excluded=len(trials) - len(usable)))
     return tuple(out)
+
+
+def score_joint(
+    joint: int,
+    k_true_kg_m: float,
+    true_scatter: tuple[float, float],
+    distances_m: Sequence[float],
+    masses_kg: Sequence[float],
+    censored: Sequence[bool],
+    level: float,
+) -> JointResult:
+    """Every estimator's k from one joint's (distance, mass, censored) trials, scored with the truth.
+
+    `true_scatter` is (a [kg], b) of `true_scatter`. A run scores its trials with it, and a study's
+    table can be refitted with it later (its rows keep the data); trials left out are not counted.
+    """
+    distances, masses, flags = (
+        list(map(float, distances_m)),
+        list(map(float, masses_kg)),
+        list(map(bool, censored)),
+    )
+    a_kg, b = true_scatter
+    return JointResult(
+        joint=joint,
+        k_true_kg_m=k_true_kg_m,
+        true_scatter_a_kg=a_kg,
+        true_scatter_b=b,
+        distances_m=tuple(distances),
+        masses_kg=tuple(masses),
+        censored=tuple(flags),
+        n_slips=len(flags) - sum(flags),
+        n_censored=sum(flags),
+        n_excluded=0,
+        crlb_var=crlb_k(distances, k_true_kg_m, a_kg, b),
+        estimates=tuple(_estimate(name, distances, masses, flags, level) for name in ESTIMATOR_NAMES),
+    )
 
 
 def _estimate(
