@@ -8,7 +8,8 @@ markdown table: per case and estimator, the coverage of the 99 % bounds with its
 MSE over the Cramér-Rao bound, and the relative bias.
 
     .venv/bin/python studies/estimators_end_to_end.py [--seeds 0-199] [--jobs 2] [--keep DIR]
-    .venv/bin/python studies/estimators_end_to_end.py --refit DIR
+        [--designs 0.03-0.25 0.10-0.25] [--shapes multiplicative additive mixed]
+    .venv/bin/python studies/estimators_end_to_end.py --refit DIR [--designs ...] [--shapes ...]
 
 `--keep DIR` keeps each case's `rig study` table as DIR/<design>-<shape>/study.parquet. `--refit DIR`
 runs nothing: it refits today's estimators to the trials those tables hold (the same scoring as
@@ -41,7 +42,8 @@ SHAPES = {
     "additive": SCENARIOS / "additive-scatter.yaml",
     "mixed": SCENARIOS / "mixed-scatter.yaml",
 }
-DESIGN_LABELS = {"0.03-0.25 m": "paper", "0.10-0.25 m": "narrow"}  # directory names under --keep
+DESIGNS = ("0.03-0.25", "0.10-0.25")  # the paper's (the shipped protocol) and the narrow one
+DESIGN_LABELS = {"0.03-0.25": "paper", "0.10-0.25": "narrow"}  # directory names under --keep
 NARROW_DISTANCES_M = [0.10, 0.1214, 0.1429, 0.1643, 0.1857, 0.2071, 0.2286, 0.25]
 
 
@@ -126,7 +128,7 @@ def print_row(design: str, shape: str, result: dict[str, object]) -> None:
     for name, row in estimators.items():
         lo, hi = row["coverage_ci"]
         print(
-            f"| {design} | {shape} | {name} | {result['runs']} ({result['aborted']}) "
+            f"| {design} m | {shape} | {name} | {result['runs']} ({result['aborted']}) "
             f"| {row['coverage']:.4f} [{lo:.4f}, {hi:.4f}] | {row['mse_over_crlb']:.3f} "
             f"| {100 * row['bias_rel']:+.2f} % |",
             flush=True,
@@ -137,25 +139,31 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="0-199", help="seeds per case, `rig study` syntax (default 0-199)")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    parser.add_argument(
+        "--designs", nargs="+", choices=DESIGNS, default=list(DESIGNS), help="designs to run (default both)"
+    )
+    parser.add_argument(
+        "--shapes", nargs="+", choices=list(SHAPES), default=list(SHAPES), help="scatter shapes (default all)"
+    )
     parser.add_argument("--keep", type=Path, help="keep each case's study table under this directory")
     parser.add_argument("--refit", type=Path, help="refit the tables kept under this directory; run nothing")
     args = parser.parse_args()
     print("| design | scatter | estimator | runs (aborted) | coverage [95 % CI] | MSE / CRLB | bias |")
     print("|---|---|---|---|---|---|---|")
     if args.refit is not None:
-        for design, label in DESIGN_LABELS.items():
-            for shape in SHAPES:
-                table = args.refit / f"{label}-{shape}" / "study.parquet"
+        for design in args.designs:
+            for shape in args.shapes:
+                table = args.refit / f"{DESIGN_LABELS[design]}-{shape}" / "study.parquet"
                 if not table.is_file():
                     sys.exit(f"{table}: no such table; allowed: a directory written by --keep")
                 print_row(design, shape, refit_case(table))
         return
     with tempfile.TemporaryDirectory() as tmp:
-        designs = {"0.03-0.25 m": PROTOCOL, "0.10-0.25 m": narrow_protocol(Path(tmp))}
-        for design, protocol in designs.items():
-            for shape, rig in SHAPES.items():
+        protocols = {"0.03-0.25": PROTOCOL, "0.10-0.25": narrow_protocol(Path(tmp))}
+        for design in args.designs:
+            for shape in args.shapes:
                 out = None if args.keep is None else args.keep / f"{DESIGN_LABELS[design]}-{shape}"
-                print_row(design, shape, study(protocol, rig, args.seeds, args.jobs, out))
+                print_row(design, shape, study(protocols[design], SHAPES[shape], args.seeds, args.jobs, out))
 
 
 if __name__ == "__main__":
