@@ -344,10 +344,13 @@ class ObjectLoadCell:
         signal: SignalModel,
         seed: int,
         artefacts: ArtefactModel | None = None,
+        tensions_n: Callable[[Sequence[int]], list[float]] | None = None,
     ) -> None:
+        """`tensions_n`, if given, is `tension_n` over a batch of ascending times (`SimWorld.tensions_at`)."""
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
             raise LimitError(f"load-cell rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
         self.tension_n = tension_n
+        self.tensions_n = tensions_n
         self.clock = clock
         self.rate_hz = float(rate_hz)
         self.signal = signal
@@ -362,25 +365,46 @@ class ObjectLoadCell:
         clock.on_advance(self._sample_until)
 
     def _sample_until(self, now_ns: int) -> None:
-        signal, start, rate = self.signal, self.start_ns, self.rate_hz
-        gauss, tension = self._rng.gauss, self.tension_n
-        epoch_offset = self.clock.time_ns() - self.clock.monotonic_ns()
-        to_force = self.calibration.force_n
-        counts_of = signal.counts
-        receiving, add = self._open, self._pending.append
+        start, rate = self.start_ns, self.rate_hz
         k = self._k
+        times: list[int] = []
         while True:
             t_ns = start + round(k * 1e9 / rate)
             if t_ns > now_ns:
                 break
-            true_n = tension(t_ns)
-            if self.artefacts is not None:  # as the emulator applies them, before the signal model
-                true_n = self.artefacts.apparent_tension_n(true_n, (t_ns - start) / 1e9, 1.0 / rate)
-            counts = counts_of(true_n, (t_ns - start) / 1e9, gauss(0.0, 1.0))
-            if receiving:
-                add(LoadCellSample(t_ns + epoch_offset, counts, to_force(counts)))
+            times.append(t_ns)
             k += 1
+        if not times:
+            return
         self._k = k
+        gauss = self._rng.gauss
+        draws = [gauss(0.0, 1.0) for _ in times]  # one draw per sample, taken or not, as the emulator does
+        artefacts = self.artefacts
+        if not self._open and artefacts is None:
+            return  # nobody listens and no artefact stream to advance: the draws were all that counts
+        if self.tensions_n is not None:
+            tensions = self.tensions_n(times)  # fast path: one batch lookup
+        else:
+            tension = self.tension_n
+            tensions = [tension(t_ns) for t_ns in times]
+        elapsed = [(t_ns - start) / 1e9 for t_ns in times]
+        if artefacts is not None:  # as the emulator applies them, before the signal model
+            period_s = 1.0 / rate
+            tensions = [
+                artefacts.apparent_tension_n(n, e, period_s) for n, e in zip(tensions, elapsed, strict=True)
+            ]
+        if not self._open:
+            return
+        counts = self.signal.counts_many(tensions, elapsed, draws)
+        epoch_offset = self.clock.time_ns() - self.clock.monotonic_ns()
+        offset, factor = self.calibration.offset_counts, self.calibration.factor_n_per_count
+        # Calibration.force_n spelled out: (raw - offset) * factor.
+        self._pending.extend(
+            [
+                LoadCellSample(t_ns + epoch_offset, c, (c - offset) * factor)
+                for t_ns, c in zip(times, counts, strict=True)
+            ]
+        )
 
     def open(self) -> None:
         """Start receiving: samples taken before now were sent to a closed port and are lost."""

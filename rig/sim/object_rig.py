@@ -66,6 +66,7 @@ def object_simulated_rig(
         signal=loadcell_signal(preset),
         seed=seed,
         artefacts=loadcell_artefacts(preset, seed),
+        tensions_n=world.tensions_at,
     )
 
     session = RigSession(
