@@ -31,6 +31,65 @@ def _ramping_world() -> SimWorld:
     return world
 
 
+def _scripted_world(skip_still: bool, steps: list[int]) -> tuple[SimWorld, ObjectServoBus]:
+    """Reel to slips, hold, release, torque off, in uneven clock steps; `skip_still`: the rest fast path.
+
+    `steps` gets the time of every device step.
+    """
+    clock = VirtualClock()
+    bus = ObjectServoBus(clock, [(1, "XM430-W350"), (2, "XM430-W350")])
+
+    def step_devices(t_ns: int) -> None:
+        steps.append(t_ns)
+        bus.advance_to(t_ns)
+
+    world = SimWorld(
+        make_preset("link1", 2),
+        bus.servo(1),
+        bender=bus.servo(2),
+        step_devices=step_devices,
+        devices_at_rest=bus.at_rest if skip_still else None,
+    )
+    clock.on_advance(world.advance_to)
+    bus.set_torque([1, 2], True)
+    for trial in range(4):
+        world.begin_trial("joint_estimation", distance_m=0.05 + 0.05 * trial)
+        goal = bus.servo(1).present_position_rad
+        for _ in range(120):  # reel on past the slip
+            goal += 0.03
+            bus.write_goal_positions({1: goal})
+            clock.sleep(0.0213)
+        clock.sleep(0.5)  # hold: the winch settles under the load
+        clock.sleep(0.0004)
+        bus.write_goal_positions({1: goal - 3.0})  # release
+        clock.sleep(0.7)
+        if trial == 2:
+            bus.set_torque([1], False)  # idle shaft
+            clock.sleep(0.3)
+            bus.set_torque([1], True)
+    return world, bus
+
+
+def test_skipping_still_stretches_changes_nothing() -> None:
+    """The world with the devices' at-rest hook integrates exactly as the one without it."""
+    plain_steps: list[int] = []
+    fast_steps: list[int] = []
+    plain, plain_bus = _scripted_world(False, plain_steps)
+    fast, fast_bus = _scripted_world(True, fast_steps)
+    assert len(plain.slips) >= 4
+    assert len(fast_steps) < 0.9 * len(plain_steps)  # the still stretches were skipped
+    assert fast._times_ns == plain._times_ns
+    assert fast._tensions_n == plain._tensions_n
+    assert fast.truth() == plain.truth()
+    for a, b in zip(plain_bus.servos, fast_bus.servos, strict=True):
+        assert (a.state, a._now_ns, a._at_limit_ns, a.hardware_error) == (
+            b.state,
+            b._now_ns,
+            b._at_limit_ns,
+            b.hardware_error,
+        )
+
+
 def test_batch_tension_lookup_equals_the_per_time_lookup() -> None:
     world = _ramping_world()
     times = world._times_ns
