@@ -7,7 +7,8 @@ import random
 
 import pytest
 
-from rig.sim.clock import VirtualClock
+from rig.hw.seams import LoadCellSample
+from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.loadcell.emulator import SignalModel
 from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
 from rig.sim.physics.article_presets import make_preset
@@ -146,3 +147,6 @@ def test_object_load_cell_batch_path_equals_the_per_sample_path() -> None:
         cells.append(out)
     assert len(cells[0]) == 91  # 71 samples, then 20 after the re-open (1 kHz)
     assert cells[0] == cells[1]
+    first = cells[1][0]
+    assert type(first) is LoadCellSample and first.seq is None and first.device_time_us is None
+    assert first.force_n == pytest.approx(tension(first.time_ns - DEFAULT_EPOCH_NS), abs=0.05)

@@ -402,10 +402,12 @@ class ObjectLoadCell:
         counts = self.signal.counts_many(tensions, elapsed, draws)
         epoch_offset = self.clock.time_ns() - self.clock.monotonic_ns()
         offset, factor = self.calibration.offset_counts, self.calibration.factor_n_per_count
-        # Calibration.force_n spelled out: (raw - offset) * factor.
+        # Calibration.force_n spelled out: (raw - offset) * factor. tuple.__new__ builds the very
+        # LoadCellSample(time, raw, force) (seq and device time None) at half the cost of its __new__.
+        make = tuple.__new__
         self._pending.extend(
             [
-                LoadCellSample(t_ns + epoch_offset, c, (c - offset) * factor)
+                make(LoadCellSample, (t_ns + epoch_offset, c, (c - offset) * factor, None, None))
                 for t_ns, c in zip(times, counts, strict=True)
             ]
         )

@@ -347,6 +347,8 @@ class SimWorld:
         step_devices, at_rest = self.step_devices, self.devices_at_rest
         winch, line = self._winch, self.line
         radius, slack, stiffness = line.drum_radius_m, line.slack_angle_rad, line.stiffness_n_per_m
+        times, tensions, keep = self._times_ns, self._tensions_n, 2 * self._history_len
+        last_theta = math.nan
         while t_ns < now_ns:
             t_ns = min(t_ns + step_ns, now_ns)
             fixture = self.fixture
@@ -361,7 +363,10 @@ class SimWorld:
             theta = winch.present_position_rad
             stretch = radius * (theta - slack) - (article.take_up_m + self._clamp_take_up_m)
             tension = stiffness * stretch if stretch > 0.0 else 0.0  # WinchLine.tension_n
-            self._record(t_ns, tension)
+            times.append(t_ns)  # _record, spelled out
+            tensions.append(tension)
+            if len(times) > keep:
+                self._trim_history()
             still = False
             if tension > self._other_load_n:
                 tension = self._other_joint_slip(theta, tension, t_ns)
@@ -369,7 +374,8 @@ class SimWorld:
                 self._start_slip(tension, t_ns)
                 tension = self._continue_slip(theta, tension, (t_ns - self._now_ns) * 1e-9, t_ns)
             else:
-                still = True
+                still = theta == last_theta  # the winch did not move (the cheap test first)
+            last_theta = theta
             winch.external_torque_nm = -tension * radius
             self._now_ns = t_ns
             if still and t_ns < now_ns and at_rest is not None and step_devices is not None and at_rest():
@@ -600,13 +606,16 @@ class SimWorld:
         self._creep = None
 
     def _record(self, t_ns: int, tension_n: float) -> None:
-        times, tensions = self._times_ns, self._tensions_n
-        times.append(t_ns)
-        tensions.append(tension_n)
-        if len(times) > 2 * self._history_len:
-            drop = len(times) - self._history_len
-            del times[:drop]
-            del tensions[:drop]
+        self._times_ns.append(t_ns)
+        self._tensions_n.append(tension_n)
+        if len(self._times_ns) > 2 * self._history_len:
+            self._trim_history()
+
+    def _trim_history(self) -> None:
+        """Keep the last `_history_len` entries (in place: the lists stay the same objects)."""
+        drop = len(self._times_ns) - self._history_len
+        del self._times_ns[:drop]
+        del self._tensions_n[:drop]
 
     def _slide(self, theta: float, tension: float, dt_s: float, t_ns: int) -> float:
         """Advance the current slip by one substep; returns the tension after it."""
