@@ -10,7 +10,7 @@ import pytest
 from rig.hw.seams import LoadCellSample
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.loadcell.emulator import SignalModel
-from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
+from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus, gauss_draws
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.world import SimWorld
 
@@ -150,3 +150,13 @@ def test_object_load_cell_batch_path_equals_the_per_sample_path() -> None:
     first = cells[1][0]
     assert type(first) is LoadCellSample and first.seq is None and first.device_time_us is None
     assert first.force_n == pytest.approx(tension(first.time_ns - DEFAULT_EPOCH_NS), abs=0.05)
+
+
+def test_gauss_draws_equal_random_gauss() -> None:
+    """The same numbers as `random.gauss(0, 1)` in any batch sizes, the generator left in step."""
+    plain, fast = random.Random(9), random.Random(9)
+    sizes = [0, 1, 1, 2, 3, 20, 7, 0, 1, 1000, 5, 2]
+    for size in sizes:
+        expected = [plain.gauss(0.0, 1.0) for _ in range(size)]
+        assert gauss_draws(fast, size) == expected
+        assert fast.getstate() == plain.getstate() and fast.gauss_next == plain.gauss_next

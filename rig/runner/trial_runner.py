@@ -120,6 +120,8 @@ class TrialRunner:
         self.session = session
         self.clock = session.clock
         self.log = logger
+        # A logger that keeps nothing (`rig study`'s) says so: the per-tick rows are then not built.
+        self._log_ticks = not getattr(logger, "discards_everything", False)
         self.journal = journal
         self.estimator = estimator
         self.progress = progress
@@ -266,7 +268,7 @@ class TrialRunner:
         self.tick_samples = [(s.time_ns, s.force_n - tare) for s in samples]
         if samples:
             self.force_n = self.tick_samples[-1][1]
-        if self._log_failed is not None:
+        if self._log_failed is not None or not self._log_ticks:
             return
         try:
             if samples:

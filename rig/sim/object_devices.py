@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import HardwareFault, LimitError
@@ -336,6 +337,36 @@ def object_calibration(signal: SignalModel) -> Calibration:
     )
 
 
+def gauss_draws(rng: random.Random, count: int) -> list[float]:
+    """`count` draws of `rng.gauss(0.0, 1.0)`: the same numbers, and `rng` left in the same state.
+
+    Fast path of `[rng.gauss(0.0, 1.0) for _ in range(count)]`: CPython's Box-Muller pairs
+    (`random.Random.gauss`, its `gauss_next` cache included) spelled out in one loop;
+    tests/test_sim_fast_paths.py holds it equal to `gauss`.
+    """
+    out: list[float] = []
+    if count <= 0:
+        return out
+    cache: Any = rng  # `gauss_next` is CPython's (not in the type stubs)
+    z = cache.gauss_next
+    cache.gauss_next = None
+    if z is not None:
+        out.append(0.0 + z * 1.0)  # mu + z * sigma
+        count -= 1
+    uniform, two_pi = rng.random, 2.0 * math.pi
+    log, sqrt, cos, sin = math.log, math.sqrt, math.cos, math.sin
+    while count > 0:
+        x2pi = uniform() * two_pi
+        g2rad = sqrt(-2.0 * log(1.0 - uniform()))
+        out.append(0.0 + cos(x2pi) * g2rad * 1.0)
+        if count == 1:
+            cache.gauss_next = sin(x2pi) * g2rad
+            break
+        out.append(0.0 + sin(x2pi) * g2rad * 1.0)
+        count -= 2
+    return out
+
+
 class ObjectLoadCell:
     """A `LoadCell` sampling the world's tension through the emulator's `SignalModel`, without lines."""
 
@@ -381,8 +412,7 @@ class ObjectLoadCell:
         if not times:
             return
         self._k = k
-        gauss = self._rng.gauss
-        draws = [gauss(0.0, 1.0) for _ in times]  # one draw per sample, taken or not, as the emulator does
+        draws = gauss_draws(self._rng, len(times))  # one per sample, taken or not, as the emulator does
         artefacts = self.artefacts
         if not self._open and artefacts is None:
             return  # nobody listens and no artefact stream to advance: the draws were all that counts

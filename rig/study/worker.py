@@ -103,6 +103,8 @@ class _UnsavedJournal(RunJournal):
 class _DiscardingLogger:
     """Takes what the runner logs and keeps nothing (a study keeps its results, not its logs)."""
 
+    discards_everything = True  # the runner skips building its per-tick rows for it
+
     def __init__(self) -> None:
         self.messages_logged = 0
         self.live = None
