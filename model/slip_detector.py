@@ -584,6 +584,187 @@ def _latched_step(
     return idle._replace(phase=DetectorPhase.LATCHED, train_levels_n=levels, train_drops=drops)
 
 
+def detector_run(
+    params: DetectorParams,
+    state: DetectorState,
+    times_ns: Sequence[int],
+    forces_n: Sequence[float],
+    start: int = 0,
+) -> tuple[DetectorState, int, SlipEvent | None]:
+    """`detector_step` over `times_ns[start:]`/`forces_n[start:]` until a sample fires.
+
+    Returns (the state after the last sample stepped, the index of the sample that fired or
+    `len(times_ns)`, the event or None). The same states and events as calling `detector_step`
+    sample by sample: the runner's ramp feeds its 1 kHz samples through this.
+
+    Fast path: the quiet stretches (idle below the arm threshold, or armed with no trigger
+    condition met, past the warm-up, without the slope window) are stepped by `_quiet_stretch`, the
+    same arithmetic on local variables without a state per sample; every other sample (arming,
+    a trigger, the latch, the warm-up, bad input) goes through the plain `detector_step`.
+    tests/test_slip_detector_fast_path.py holds both equal on simulated recordings.
+    """
+    count = len(times_ns)
+    if len(forces_n) != count:
+        raise ValueError(f"{count} times but {len(forces_n)} forces; allowed: one force per time")
+    quiet_ok = params.slope_n_per_s is None
+    i = start
+    while i < count:
+        if (
+            quiet_ok
+            and state.phase is not DetectorPhase.LATCHED
+            and state.last_time_ns is not None
+            and state.increments >= _WARMUP_INCREMENTS
+        ):
+            state, i = _quiet_stretch(params, state, times_ns, forces_n, i)
+            if i >= count:
+                break
+        state, event = detector_step(params, state, times_ns[i], forces_n[i])
+        if event is not None:
+            return state, i, event
+        i += 1
+    return state, count, None
+
+
+def _quiet_stretch(
+    params: DetectorParams, state: DetectorState, times_ns: Sequence[int], forces_n: Sequence[float], i: int
+) -> tuple[DetectorState, int]:
+    """Fast path of `detector_run`: step while nothing but the running values can change.
+
+    Returns the state before the first sample that needs the plain `detector_step` (and its index),
+    or after the last sample. Each line mirrors `_estimates` and `detector_step` (same operations
+    in the same order; min/max spelled out with the builtins' tie rules), for an idle or armed
+    state past the warm-up and a detector without the slope window.
+    """
+    first = i
+    armed = state.phase is DetectorPhase.ARMED
+    last, prev = state.last_time_ns, state.previous_force_n
+    assert last is not None
+    rate, scale = state.rate_n, state.scale_n
+    peak_f, peak_t = state.peak_force_n, state.peak_time_ns
+    cusum, cusum_onset = state.cusum_n, state.cusum_onset_ns
+    robust, leaky, drop_peak = state.robust_peak_n, state.leaky_peak_n, state.drop_peak_n
+    trend, trend_onset, armed_at = state.trend_cusum_n, state.trend_onset_ns, state.armed_at_n
+    arm_n = params.arm_threshold_n
+    trend_window, noise_window = params.trend_window_s, params.noise_window_s
+    cusum_drift, cusum_threshold = params.cusum_drift_n, params.cusum_threshold_n
+    peak_leak, drop_leak = params.peak_leak_n_per_s, params.drop_leak_n_per_s
+    creep_drift = params.creep_drift_n_per_s
+    floor, noise_k, creep_k = params.noise_floor_n, params.noise_k, params.creep_k
+    drop_fraction, min_drop = params.drop_fraction, params.min_drop_n
+    spike2 = params.spike_samples == 2.0
+    clip_sigma = _CLIP * _MEAN_ABS_DIFF_PER_SIGMA
+    count = len(times_ns)
+    while i < count:
+        t, f = times_ns[i], forces_n[i]
+        if f - f != 0.0 or t < last:
+            break  # not finite, or back in time: the plain step raises
+        dt_s = (t - last) * 1e-9
+        residual = (f - prev) - rate
+        limit = _CLIP * scale
+        clipped = -limit if -limit > residual else residual
+        clipped = limit if limit < clipped else clipped
+        w = dt_s / trend_window
+        new_rate = rate + (1.0 if w > 1.0 else w) * clipped
+        w = dt_s / noise_window
+        new_scale = scale + (1.0 if w > 1.0 else w) * (abs(clipped) - scale)
+        if not armed:
+            if f >= arm_n:
+                break  # arming: the plain step
+            last, prev, rate, scale = t, f, new_rate, new_scale
+            i += 1
+            continue
+        new_peak_f, new_peak_t = (f, t) if f >= peak_f else (peak_f, peak_t)
+        drop_n = new_peak_f - f
+        new_cusum = cusum + (prev - f) - cusum_drift
+        new_cusum_onset = cusum_onset
+        if new_cusum <= 0.0:
+            new_cusum, new_cusum_onset = 0.0, t
+        low2 = prev if prev < f else f  # min(f, prev)
+        high2 = prev if prev > f else f  # max(f, prev)
+        new_robust = low2 if low2 > robust else robust
+        x = leaky - peak_leak * dt_s
+        new_leaky = low2 if low2 > x else x
+        x = drop_peak - drop_leak * dt_s
+        new_drop_peak = low2 if low2 > x else x
+        x = scale / _MEAN_ABS_DIFF_PER_SIGMA
+        sigma = floor if floor > x else x
+        limit = clip_sigma * sigma
+        x = -limit if -limit > residual else residual
+        x = limit if limit < x else x
+        new_trend = trend - x - creep_drift * dt_s
+        if creep_k is not None:
+            cap = 2.0 * creep_k * sigma
+            new_trend = cap if cap < new_trend else new_trend
+        new_trend_onset = trend_onset
+        if new_trend <= 0.0:
+            new_trend, new_trend_onset = 0.0, t
+        level_peak, level = (new_drop_peak, high2) if spike2 else (new_peak_f, f)
+        robust_drop = level_peak - level
+        warm = new_robust - armed_at >= 2.0 * sigma
+        if (
+            (
+                drop_fraction is not None
+                and robust_drop > 0.0
+                and robust_drop >= min_drop
+                and robust_drop >= drop_fraction * level_peak
+            )
+            or (
+                cusum_threshold is not None
+                and drop_n >= min_drop
+                and drop_n > 0.0
+                and new_cusum > cusum_threshold
+            )
+            or (warm and noise_k is not None and new_leaky - high2 >= noise_k * sigma)
+            or (
+                warm
+                and creep_k is not None
+                and new_trend >= creep_k * sigma
+                and new_robust - high2 >= creep_k * sigma
+            )
+        ):
+            break  # a trigger: the plain step builds the event
+        last, prev, rate, scale = t, f, new_rate, new_scale
+        peak_f, peak_t, cusum, cusum_onset = new_peak_f, new_peak_t, new_cusum, new_cusum_onset
+        robust, leaky, drop_peak = new_robust, new_leaky, new_drop_peak
+        trend, trend_onset = new_trend, new_trend_onset
+        i += 1
+    if i == first:
+        return state, i
+    if armed:
+        out = DetectorState(
+            DetectorPhase.ARMED,
+            last,
+            peak_f,
+            peak_t,
+            prev,
+            cusum,
+            cusum_onset,
+            state.window_times_ns,
+            state.window_forces_n,
+            state.increments,
+            rate,
+            scale,
+            robust,
+            leaky,
+            trend,
+            trend_onset,
+            armed_at,
+            drop_peak_n=drop_peak,
+        )
+    else:
+        out = DetectorState(
+            DetectorPhase.IDLE,
+            last,
+            previous_force_n=prev,
+            window_times_ns=state.window_times_ns,
+            window_forces_n=state.window_forces_n,
+            increments=state.increments,
+            rate_n=rate,
+            scale_n=scale,
+        )
+    return out, i
+
+
 def further_drops(
     params: DetectorParams, state: DetectorState, times_ns: Iterable[int], forces_n: Iterable[float]
 ) -> tuple[DetectorState, int]:

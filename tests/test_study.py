@@ -376,3 +376,21 @@ def test_ctrl_c_in_process_stops_the_study_not_just_the_run(monkeypatch: pytest.
     with pytest.raises(KeyboardInterrupt):
         run_local(StudySpec(str(SMOKE), None, "object"), [0, 1], 1, seen.append)
     assert seen == []
+
+
+def test_workers_fork_only_from_a_single_threaded_process() -> None:
+    """Fork (the rig already imported) while this process has one thread; a forkserver otherwise."""
+    import threading
+
+    from rig.study.executor import _start_context
+
+    if threading.active_count() == 1:
+        assert _start_context().get_start_method() == "fork"
+    release = threading.Event()
+    other = threading.Thread(target=release.wait)
+    other.start()
+    try:
+        assert _start_context().get_start_method() == "forkserver"
+    finally:
+        release.set()
+        other.join()

@@ -23,7 +23,7 @@ from model.slip_detector import (
     DetectorState,
     SlipEvent,
     detector_init,
-    detector_step,
+    detector_run,
     further_drops,
 )
 from rig.errors import (
@@ -120,6 +120,8 @@ class TrialRunner:
         self.session = session
         self.clock = session.clock
         self.log = logger
+        # A logger that keeps nothing (`rig study`'s) says so: the per-tick rows are then not built.
+        self._log_ticks = not getattr(logger, "discards_everything", False)
         self.journal = journal
         self.estimator = estimator
         self.progress = progress
@@ -266,7 +268,7 @@ class TrialRunner:
         self.tick_samples = [(s.time_ns, s.force_n - tare) for s in samples]
         if samples:
             self.force_n = self.tick_samples[-1][1]
-        if self._log_failed is not None:
+        if self._log_failed is not None or not self._log_ticks:
             return
         try:
             if samples:
@@ -559,17 +561,22 @@ class TrialRunner:
             self._tick()
             samples = stamped_at_start + self.tick_samples
             stamped_at_start = []
-            for i, (t_ns, force) in enumerate(samples):
-                if t_ns < ramp_start_ns:
-                    continue
-                peak_n = max(peak_n, force)
-                state, fired = detector_step(params, state, t_ns, force)
-                if fired is not None:
-                    if self._confirmed_by_winch(fired):
-                        event = fired
-                        after_event = samples[i + 1 :]
-                        break
-                    state = detector_init(params)  # not a slip: start over, so a real one is seen
+            fed = [i for i, (t_ns, _) in enumerate(samples) if t_ns >= ramp_start_ns]
+            times = [samples[i][0] for i in fed]
+            forces = [samples[i][1] for i in fed]
+            j = 0
+            while j < len(fed):
+                # detector_run: detector_step over the samples until one fires (with a fast path).
+                state, k, fired = detector_run(params, state, times, forces, j)
+                peak_n = max(peak_n, *forces[j : k + 1])
+                if fired is None:
+                    break
+                if self._confirmed_by_winch(fired):
+                    event = fired
+                    after_event = samples[fed[k] + 1 :]
+                    break
+                state = detector_init(params)  # not a slip: start over, so a real one is seen
+                j = k + 1
             found.peak_observed_n = peak_n
             if event is not None:
                 break

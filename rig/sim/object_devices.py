@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import HardwareFault, LimitError
@@ -165,7 +166,11 @@ class ObjectServoBus:
         """Integrate every servo's motion up to `now_ns`."""
         for servo in self.servos:
             if now_ns > servo._now_ns:
-                servo.advance_to(now_ns)
+                servo._integrate(now_ns)  # ObjectServo.advance_to, without the extra call
+
+    def at_rest(self) -> bool:
+        """True if no servo would move (nor change) until the world changes its load (`SimWorld`)."""
+        return all(servo._at_rest() for servo in self.servos)
 
     def connect(self) -> None:
         """Nothing to open: every servo is there."""
@@ -332,6 +337,36 @@ def object_calibration(signal: SignalModel) -> Calibration:
     )
 
 
+def gauss_draws(rng: random.Random, count: int) -> list[float]:
+    """`count` draws of `rng.gauss(0.0, 1.0)`: the same numbers, and `rng` left in the same state.
+
+    Fast path of `[rng.gauss(0.0, 1.0) for _ in range(count)]`: CPython's Box-Muller pairs
+    (`random.Random.gauss`, its `gauss_next` cache included) spelled out in one loop;
+    tests/test_sim_fast_paths.py holds it equal to `gauss`.
+    """
+    out: list[float] = []
+    if count <= 0:
+        return out
+    cache: Any = rng  # `gauss_next` is CPython's (not in the type stubs)
+    z = cache.gauss_next
+    cache.gauss_next = None
+    if z is not None:
+        out.append(0.0 + z * 1.0)  # mu + z * sigma
+        count -= 1
+    uniform, two_pi = rng.random, 2.0 * math.pi
+    log, sqrt, cos, sin = math.log, math.sqrt, math.cos, math.sin
+    while count > 0:
+        x2pi = uniform() * two_pi
+        g2rad = sqrt(-2.0 * log(1.0 - uniform()))
+        out.append(0.0 + cos(x2pi) * g2rad * 1.0)
+        if count == 1:
+            cache.gauss_next = sin(x2pi) * g2rad
+            break
+        out.append(0.0 + sin(x2pi) * g2rad * 1.0)
+        count -= 2
+    return out
+
+
 class ObjectLoadCell:
     """A `LoadCell` sampling the world's tension through the emulator's `SignalModel`, without lines."""
 
@@ -344,10 +379,13 @@ class ObjectLoadCell:
         signal: SignalModel,
         seed: int,
         artefacts: ArtefactModel | None = None,
+        tensions_n: Callable[[Sequence[int]], list[float]] | None = None,
     ) -> None:
+        """`tensions_n`, if given, is `tension_n` over a batch of ascending times (`SimWorld.tensions_at`)."""
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
             raise LimitError(f"load-cell rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
         self.tension_n = tension_n
+        self.tensions_n = tensions_n
         self.clock = clock
         self.rate_hz = float(rate_hz)
         self.signal = signal
@@ -362,25 +400,47 @@ class ObjectLoadCell:
         clock.on_advance(self._sample_until)
 
     def _sample_until(self, now_ns: int) -> None:
-        signal, start, rate = self.signal, self.start_ns, self.rate_hz
-        gauss, tension = self._rng.gauss, self.tension_n
-        epoch_offset = self.clock.time_ns() - self.clock.monotonic_ns()
-        to_force = self.calibration.force_n
-        counts_of = signal.counts
-        receiving, add = self._open, self._pending.append
+        start, rate = self.start_ns, self.rate_hz
         k = self._k
+        times: list[int] = []
         while True:
             t_ns = start + round(k * 1e9 / rate)
             if t_ns > now_ns:
                 break
-            true_n = tension(t_ns)
-            if self.artefacts is not None:  # as the emulator applies them, before the signal model
-                true_n = self.artefacts.apparent_tension_n(true_n, (t_ns - start) / 1e9, 1.0 / rate)
-            counts = counts_of(true_n, (t_ns - start) / 1e9, gauss(0.0, 1.0))
-            if receiving:
-                add(LoadCellSample(t_ns + epoch_offset, counts, to_force(counts)))
+            times.append(t_ns)
             k += 1
+        if not times:
+            return
         self._k = k
+        draws = gauss_draws(self._rng, len(times))  # one per sample, taken or not, as the emulator does
+        artefacts = self.artefacts
+        if not self._open and artefacts is None:
+            return  # nobody listens and no artefact stream to advance: the draws were all that counts
+        if self.tensions_n is not None:
+            tensions = self.tensions_n(times)  # fast path: one batch lookup
+        else:
+            tension = self.tension_n
+            tensions = [tension(t_ns) for t_ns in times]
+        elapsed = [(t_ns - start) / 1e9 for t_ns in times]
+        if artefacts is not None:  # as the emulator applies them, before the signal model
+            period_s = 1.0 / rate
+            tensions = [
+                artefacts.apparent_tension_n(n, e, period_s) for n, e in zip(tensions, elapsed, strict=True)
+            ]
+        if not self._open:
+            return
+        counts = self.signal.counts_many(tensions, elapsed, draws)
+        epoch_offset = self.clock.time_ns() - self.clock.monotonic_ns()
+        offset, factor = self.calibration.offset_counts, self.calibration.factor_n_per_count
+        # Calibration.force_n spelled out: (raw - offset) * factor. tuple.__new__ builds the very
+        # LoadCellSample(time, raw, force) (seq and device time None) at half the cost of its __new__.
+        make = tuple.__new__
+        self._pending.extend(
+            [
+                make(LoadCellSample, (t_ns + epoch_offset, c, (c - offset) * factor, None, None))
+                for t_ns, c in zip(times, counts, strict=True)
+            ]
+        )
 
     def open(self) -> None:
         """Start receiving: samples taken before now were sent to a closed port and are lost."""

@@ -59,6 +59,7 @@ def object_simulated_rig(
     clock = run_clock(realtime, invocation)
     bus = ObjectServoBus(clock, [(s.servo_id, config.servos.winch.model) for s in config.servos.servos])
     world = new_world(preset, config, bus, clock, seed)
+    world.devices_at_rest = bus.at_rest
     load_cell = ObjectLoadCell(
         world.tension_at,
         clock,
@@ -66,6 +67,7 @@ def object_simulated_rig(
         signal=loadcell_signal(preset),
         seed=seed,
         artefacts=loadcell_artefacts(preset, seed),
+        tensions_n=world.tensions_at,
     )
 
     session = RigSession(

@@ -1,12 +1,13 @@
 """Running a study's seeds: in local worker processes, or on a Dask cluster.
 
-Local: `jobs` worker processes (started by forkserver, so none inherits the parent's threads or
-open files; the server imports this module once and the workers fork from it), fed one seed at a
-time from a queue. Each run is independent and seeded, so the
-order they finish in does not matter. A worker that dies mid-run (a crash the run could not catch)
-costs that seed only: it is recorded as aborted with the exit code, and a new worker takes over.
-Workers ignore SIGINT: Ctrl-C reaches the parent, which stops every worker (SIGTERM, then SIGKILL
-for any that does not stop within a second) and raises `KeyboardInterrupt` with nothing written.
+Local: `jobs` worker processes, forked from this process while it has a single thread (they
+start with the rig imported), else started by a forkserver that imports this module once (so none
+inherits another thread's state), fed one seed at a time from a queue. Each run is independent
+and seeded, so the order they finish in does not matter. A worker that dies mid-run (a crash the
+run could not catch) costs that seed only: it is recorded as aborted with the exit code, and a new
+worker takes over. Workers ignore SIGINT: Ctrl-C reaches the parent, which stops every worker
+(SIGTERM, then SIGKILL for any that does not stop within a second) and raises `KeyboardInterrupt`
+with nothing written.
 
 Dask: `run_seed` mapped over the seeds on the scheduler at ADDRESS (`dask[distributed]`, the
 `study` extra); the workers need this package installed.
@@ -17,6 +18,7 @@ from __future__ import annotations
 import multiprocessing
 import queue
 import signal
+import threading
 from collections.abc import Callable, Sequence
 from multiprocessing.context import BaseContext
 from multiprocessing.process import BaseProcess
@@ -97,6 +99,25 @@ class _LocalPool:
         self.stop()
 
 
+def _start_context() -> BaseContext:
+    """How the workers start: fork while this process has one thread, else forkserver (or spawn).
+
+    A forked worker has every module of the rig imported already (this process imported them to
+    parse the command line and the protocol); a forkserver has to import them all once more,
+    about as long as a run of a seed, before the first worker starts. Forking a process with other
+    threads can leave a lock held in the child, so with any thread besides the main one the
+    workers come from a forkserver that preloads this module.
+    """
+    methods = multiprocessing.get_all_start_methods()
+    if "fork" in methods and threading.active_count() == 1:
+        return multiprocessing.get_context("fork")
+    if "forkserver" in methods:
+        forkserver = multiprocessing.get_context("forkserver")
+        forkserver.set_forkserver_preload([__name__])  # the server imports the rig once; workers fork
+        return forkserver
+    return multiprocessing.get_context("spawn")
+
+
 def run_local(spec: StudySpec, seeds: Sequence[int], jobs: int, on_record: OnRecord) -> list[RunRecord]:
     """Every seed's record, run in `jobs` processes (in this process if jobs is 1)."""
     records: list[RunRecord] = []
@@ -109,14 +130,7 @@ def run_local(spec: StudySpec, seeds: Sequence[int], jobs: int, on_record: OnRec
         for seed in seeds:
             collect(run_seed(spec, seed))
         return records
-    ctx: BaseContext
-    if "forkserver" in multiprocessing.get_all_start_methods():
-        forkserver = multiprocessing.get_context("forkserver")
-        forkserver.set_forkserver_preload([__name__])  # the server imports the rig once; workers fork
-        ctx = forkserver
-    else:
-        ctx = multiprocessing.get_context("spawn")
-    pool = _LocalPool(spec, min(jobs, len(seeds)), ctx)
+    pool = _LocalPool(spec, min(jobs, len(seeds)), _start_context())
     try:
         for seed in seeds:
             pool.tasks.put(seed)

@@ -14,7 +14,7 @@ import math
 import tempfile
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -24,6 +24,7 @@ from rig.errors import ExitCode
 from rig.log.records import TrialKind, TrialOutcome, TrialResult
 from rig.log.writer import RunLogger
 from rig.rigs import open_session
+from rig.runner.journal import RunJournal
 from rig.runner.planning import TrialSchedule
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, prepare_run
@@ -90,8 +91,21 @@ class RunRecord:
     joints: tuple[JointResult, ...]
 
 
+class _UnsavedJournal(RunJournal):
+    """A study run's journal, kept in memory: nothing resumes it, so no file is rewritten per trial.
+
+    `rig run` persists its journal after every trial (write, fsync, rename) so that `--resume` can
+    continue; in a study that cost an fsync per trial and bought nothing.
+    """
+
+    def save(self) -> None:
+        return None
+
+
 class _DiscardingLogger:
     """Takes what the runner logs and keeps nothing (a study keeps its results, not its logs)."""
+
+    discards_everything = True  # the runner skips building its per-tick rows for it
 
     def __init__(self) -> None:
         self.messages_logged = 0
@@ -130,6 +144,8 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
                 run_id=f"study-{seed}",
             )
             prepared = prepare_run(request)
+            journal = prepared.journal
+            prepared.journal = _UnsavedJournal(**{f.name: getattr(journal, f.name) for f in fields(journal)})
             planned = len(prepared.protocol.planned_trial_ids)
             try:
                 session = open_session(prepared, devices=spec.devices)

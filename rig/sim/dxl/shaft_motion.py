@@ -34,6 +34,23 @@ class IntegratedShaft:
         """Latch Overload Error (the motor held its cap for `overload_time_ns`)."""
         raise NotImplementedError
 
+    def _at_rest(self) -> bool:
+        """True if `_integrate` would take the idle or the settled shortcut (under this external torque).
+
+        Either shortcut moves nothing: one `_integrate` to a later time leaves the very state that
+        any number of them in between would (the world skips a still stretch on this).
+        """
+        state, cmd, tau_ext = self.state, self._cmd, self.external_torque_nm
+        if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self._coulomb_nm:
+            return True  # idle: it zeroes motor torque and the overload timer, the same each time
+        settled = self._settled
+        return (
+            settled is not None
+            and settled[0] is cmd
+            and settled[1] == tau_ext
+            and settled[2] == state.position_rad
+        )
+
     def _integrate(self, now_ns: int) -> None:
         t = self._now_ns
         if now_ns <= t:

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -117,6 +117,25 @@ class SignalModel:
         counts = round(value / q) * q
         half_range = 1 << (self.adc_bits - 1)  # adc_max + 1 == -adc_min, without two property calls
         return min(max(counts, -half_range), half_range - 1)
+
+    def counts_many(
+        self, tensions_n: Sequence[float], elapsed_s: Sequence[float], noise_draws: Sequence[float]
+    ) -> list[int]:
+        """`counts` of each (tension, elapsed, draw); a fast path with the very same arithmetic.
+
+        The object-level load cell converts a tick's samples in one call (no method call per
+        sample); tests/test_sim_fast_paths.py holds it equal to `counts`.
+        """
+        offset, gain = self.offset_counts, self.gain_counts_per_n
+        drift, noise = self.drift_counts_per_s, self.noise_counts
+        q = self.quantisation_counts
+        high = (1 << (self.adc_bits - 1)) - 1
+        low = -high - 1
+        out: list[int] = []
+        for tension, elapsed, draw in zip(tensions_n, elapsed_s, noise_draws, strict=True):
+            counts = round((offset + gain * tension + drift * elapsed + noise * draw) / q) * q
+            out.append(low if counts < low else (high if counts > high else counts))
+        return out
 
 
 @dataclass(frozen=True, slots=True)
