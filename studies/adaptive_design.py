@@ -53,6 +53,7 @@ from model.design import (
 from model.estimators import ESTIMATOR_NAMES, KEstimate, check_estimator, estimate_k
 from model.fit import t_quantile
 from rig.rig_config import load_rig_config
+from rig.study.summary import clopper_pearson
 
 K_TRUE = 0.1615  # link 1 of the paper [kg·m]
 G = 9.8
@@ -103,14 +104,6 @@ def masses(rng: np.random.Generator, distances_m: np.ndarray, shape: Shape) -> n
 def covers(estimate: KEstimate) -> bool:
     """Whether the estimate's bounds hold the true k."""
     return estimate.k_ci[0] <= K_TRUE <= estimate.k_ci[1]
-
-
-def clopper_pearson(hits: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """Exact binomial interval of a proportion."""
-    alpha = 1.0 - level
-    lo = float(stats.beta.ppf(alpha / 2, hits, n - hits + 1)) if hits > 0 else 0.0
-    hi = float(stats.beta.ppf(1 - alpha / 2, hits + 1, n - hits)) if hits < n else 1.0
-    return lo, hi
 
 
 def oracle_estimate(distances_m: np.ndarray, masses_kg: np.ndarray, shape: Shape) -> KEstimate:
