@@ -12,11 +12,16 @@ trial that most shrinks it is the one with the largest I(l) among the distances 
    series' estimator through `model.estimators.estimate_k`).
 2. **Lack of fit** of the 1/l law (`lack_of_fit`), reported after every trial: a weighted
    pure-error F test once distances are repeated, else a t test of an offset c in m = k/l + c.
-3. **Stop** when the bound's half-width is at most `target_half_width_rel` of k (after at least
-   `min_trials` trials), or at `max_trials`, or when no candidate distance is safe. The bound
-   stopped on comes from the data that said stop, so a scatter that looks small by chance stops a
-   series early with a bound too narrow; `min_trials` (10 by default) keeps that rare enough that
-   coverage stays the fixed design's (studies/adaptive_design.py).
+3. **Stop** when the bound's half-width is at most `target_half_width_rel` of k even with the
+   scatter's scale at its upper `stop_scale_confidence` confidence limit (`stop_half_width_rel`;
+   after at least `min_trials` trials), or at `max_trials`, or when no candidate distance is safe.
+   Why the upper limit: the bound stopped on comes from the data that said stop. A series whose
+   scatter looks small by chance would otherwise stop early, with a bound whose width is the
+   target but whose true standard error is larger than the estimate says (optional stopping),
+   and the stopped bounds would cover the truth less often than a fixed design's. Asking that the
+   target hold for every scale the data leave plausible at that confidence (chi-square on the
+   bound's degrees of freedom) makes such early stops rare; the bound reported is still the
+   estimator's own. studies/adaptive_design.py measures the coverage at the stop per scatter shape.
 4. **Candidates**: `distance_count` distances evenly over `distance_range_m`, keeping only those
    longer than every distance that gave no slip (a lower bound on the force there) and whose
    predicted slip force stays below `max_slip_force_n`: k's upper estimate k + 3·se, plus three
@@ -51,6 +56,9 @@ NEAR_BEST_INFORMATION: Final = 0.9  # a candidate within 10 % of the best inform
 PRIOR_RELATIVE_SD: Final = 0.25  # scatter of m·l assumed before a fit, for the force filter only
 PREDICTION_SIGMAS: Final = 3.0  # how far above the estimate the force filter looks
 LACK_OF_FIT_ALPHA: Final = 0.01  # the 1/l law is reported as rejected below this p-value
+# The stopping rule's confidence that the scatter is no larger than the scale it assumes (0: the
+# estimate itself); the value is the one studies/adaptive_design.py measured (studies/README.md).
+DEFAULT_STOP_SCALE_CONFIDENCE: Final = 0.95
 _DISTANCE_DIGITS: Final = 9  # distances equal to 1 nm are the same distance (replicates)
 
 
@@ -84,6 +92,7 @@ class DesignSettings:
     min_spread_fraction: float = 0.1
     estimator: EstimatorName = "auto"
     level: float = DEFAULT_LEVEL
+    stop_scale_confidence: float = DEFAULT_STOP_SCALE_CONFIDENCE
 
     def __post_init__(self) -> None:
         """Reject settings the planner cannot work with (the protocol reader gives nicer messages)."""
@@ -102,6 +111,8 @@ class DesignSettings:
             )
         if not 0 <= self.min_spread_fraction <= 0.5:
             raise ValueError(f"min_spread_fraction {self.min_spread_fraction}; allowed: [0, 0.5]")
+        if not 0 <= self.stop_scale_confidence < 1:
+            raise ValueError(f"stop_scale_confidence {self.stop_scale_confidence}; allowed: [0, 1)")
         check_estimator(self.estimator)
         check_level(self.level)
 
@@ -166,6 +177,7 @@ class DesignStep:
     trials_done: int
     estimate: KEstimate | None
     half_width_rel: float | None  # of the current bound, relative to k
+    stop_half_width_rel: float | None  # the same with the scale at its upper limit: what the stop tests
     lack_of_fit: LackOfFit
     next_distance_m: float | None  # None when stopping
     choice: Choice | None
@@ -180,7 +192,8 @@ class DesignStep:
         if est is not None and self.half_width_rel is not None:
             now = (
                 f"k {est.k:.5g} kg·m ({est.estimator}, {est.scatter_model}), half-width "
-                f"{100 * self.half_width_rel:.2f} % (target {100 * settings.target_half_width_rel:g} %)"
+                f"{100 * self.half_width_rel:.2f} % ({100 * (self.stop_half_width_rel or math.inf):.2f} % "
+                f"at the scatter's upper limit; target {100 * settings.target_half_width_rel:g} %)"
             )
         if self.stop is not None:
             what = {
@@ -313,6 +326,29 @@ def half_width_rel(estimate: KEstimate) -> float:
     return 0.5 * (hi - lo) / abs(estimate.k) if estimate.k != 0 else math.inf
 
 
+def scale_upper_factor(dof: int, confidence: float) -> float:
+    """How many times its estimate the scatter's scale may be at `confidence` (chi-square, `dof` df).
+
+    sqrt(dof / q) with q the (1 - confidence) quantile of chi-square on `dof` degrees of freedom;
+    1 for confidence 0, inf without degrees of freedom.
+    """
+    if confidence == 0:
+        return 1.0
+    if dof < 1:
+        return math.inf
+    from scipy import stats  # as model.fit: imported on first use
+
+    return math.sqrt(dof / float(stats.chi2.ppf(1.0 - confidence, dof)))
+
+
+def stop_half_width_rel(settings: DesignSettings, estimate: KEstimate) -> float:
+    """The relative half-width the stopping rule tests: the bound's, with the scale at its upper limit.
+
+    The degrees of freedom are the bound's own (n - 1, as its t quantile).
+    """
+    return half_width_rel(estimate) * scale_upper_factor(estimate.n - 1, settings.stop_scale_confidence)
+
+
 def plan_next(
     settings: DesignSettings,
     observations: Sequence[Observation],
@@ -329,6 +365,7 @@ def plan_next(
     n = len(observations)
     slips = [o for o in observations if not o.censored]
     width = half_width_rel(estimate) if estimate is not None else None
+    stop_width = stop_half_width_rel(settings, estimate) if estimate is not None else None
     if estimate is not None:
         test = lack_of_fit(
             [o.distance_m for o in slips],
@@ -347,11 +384,11 @@ def plan_next(
         choice: Choice | None = None,
         expected: float | None = None,
     ) -> DesignStep:
-        return DesignStep(n, estimate, width, test, distance, choice, expected, stop, safe)
+        return DesignStep(n, estimate, width, stop_width, test, distance, choice, expected, stop, safe)
 
     if n >= settings.max_trials:
         return step(StopReason.BUDGET)
-    if n >= settings.min_trials and width is not None and width <= settings.target_half_width_rel:
+    if n >= settings.min_trials and stop_width is not None and stop_width <= settings.target_half_width_rel:
         return step(StopReason.TARGET_REACHED)
     if not safe:
         return step(StopReason.NO_SAFE_DISTANCE)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from model.design import DesignSettings
+from model.design import DEFAULT_STOP_SCALE_CONFIDENCE, DesignSettings
 from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
@@ -39,6 +39,7 @@ ADAPTIVE_KEYS = (
     "startup_trials",
     "min_spread_fraction",
     "max_force_fraction",
+    "stop_scale_confidence",
     "estimator",
 )
 DEFAULT_MAX_FORCE_FRACTION = 0.8
@@ -488,6 +489,9 @@ def _adaptive_block(
         startup_trials=startup,
         min_spread_fraction=block.number("min_spread_fraction", default=0.1, min_value=0.0, max_value=0.5),
         estimator=check_estimator(estimator),
+        stop_scale_confidence=block.number(
+            "stop_scale_confidence", default=DEFAULT_STOP_SCALE_CONFIDENCE, min_value=0.0, max_value=0.99
+        ),
     )
     fraction = block.number(
         "max_force_fraction", default=DEFAULT_MAX_FORCE_FRACTION, min_value=0.1, max_value=0.95

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from model.design import (
     lack_of_fit,
     plan_next,
     predicted_slip_mass_kg,
+    scale_upper_factor,
 )
 from model.estimators import KEstimate
 
@@ -121,16 +123,51 @@ def test_no_slip_at_the_longest_distance_stops_the_series():
 
 
 def test_stops_on_target_but_not_before_min_trials():
-    tight = estimate(a_kg=0.0, b=0.01, half_rel=0.01)
+    # 0.5 %: within the 2 % target even with the scale of 5 slips at its upper 95 % limit (2.4x).
+    tight = estimate(a_kg=0.0, b=0.01, half_rel=0.005)
     five = exact([0.25, 0.155714286, 0.03, 0.03, 0.03])
     step = plan_next(SETTINGS, five, tight, max_slip_force_n=NO_LIMIT, g=G)
     assert step.stop is None  # 5 < min_trials = 6
     six = [*five, Observation(0.03, K / 0.03)]
     step = plan_next(SETTINGS, six, tight, max_slip_force_n=NO_LIMIT, g=G)
     assert step.stop is StopReason.TARGET_REACHED and step.next_distance_m is None
-    assert step.half_width_rel == pytest.approx(0.01)
-    wide = estimate(a_kg=0.0, b=0.01, half_rel=0.03)
+    assert step.half_width_rel == pytest.approx(0.005)
+    wide = estimate(a_kg=0.0, b=0.01, half_rel=0.015)  # within the target, but not at the upper limit
     assert plan_next(SETTINGS, six, wide, max_slip_force_n=NO_LIMIT, g=G).stop is None
+
+
+def test_the_stop_allows_for_a_scatter_that_looks_small_by_chance():
+    settings = DesignSettings(
+        0.03, 0.25, target_half_width_rel=0.05, max_trials=24, min_trials=10, stop_scale_confidence=0.75
+    )
+    ten = exact([0.25, 0.14, 0.03, 0.03, 0.061, 0.03, 0.25, 0.03, 0.061, 0.03])
+    at_target = estimate(a_kg=0.0, b=0.05, half_rel=0.05, n=10)
+    # Taken at face value (confidence 0) the bound meets the target and the series stops ...
+    face_value = replace(settings, stop_scale_confidence=0.0)
+    assert (
+        plan_next(face_value, ten, at_target, max_slip_force_n=NO_LIMIT, g=G).stop
+        is StopReason.TARGET_REACHED
+    )
+    # ... but the scale of 10 slips may be sqrt(9 / 5.899) = 1.235 times its estimate at 75 %
+    # (chi-square on 9 df, lower quartile 5.899 from tables), so at that confidence it goes on.
+    step = plan_next(settings, ten, at_target, max_slip_force_n=NO_LIMIT, g=G)
+    assert step.stop is None and step.next_distance_m is not None
+    assert step.half_width_rel == pytest.approx(0.05)
+    assert step.stop_half_width_rel == pytest.approx(0.05 * 1.2352, rel=1e-3)
+    assert "6.18 % at the scatter's upper limit" in step.text(settings)
+    narrower = estimate(a_kg=0.0, b=0.05, half_rel=0.05 / 1.236, n=10)
+    assert (
+        plan_next(settings, ten, narrower, max_slip_force_n=NO_LIMIT, g=G).stop is StopReason.TARGET_REACHED
+    )
+
+
+def test_scale_upper_factor():
+    assert scale_upper_factor(9, 0.0) == 1.0
+    assert scale_upper_factor(9, 0.75) == pytest.approx(math.sqrt(9 / 5.899), rel=1e-3)
+    assert scale_upper_factor(0, 0.75) == math.inf
+    # More confidence or fewer degrees of freedom: a larger factor; many degrees of freedom: near 1.
+    assert scale_upper_factor(9, 0.9) > scale_upper_factor(9, 0.75) > scale_upper_factor(23, 0.75) > 1.0
+    assert scale_upper_factor(10_000, 0.75) == pytest.approx(1.0, abs=0.01)
 
 
 def test_stops_on_budget():
@@ -197,5 +234,7 @@ def test_settings_are_checked():
         DesignSettings(0.25, 0.03)
     with pytest.raises(ValueError, match="startup_trials"):
         DesignSettings(0.03, 0.25, max_trials=4, min_trials=6)
+    with pytest.raises(ValueError, match="stop_scale_confidence"):
+        DesignSettings(0.03, 0.25, stop_scale_confidence=1.0)
     with pytest.raises(ValueError, match="estimator"):
         DesignSettings(0.03, 0.25, estimator="best")  # type: ignore[arg-type]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from model.design import DEFAULT_STOP_SCALE_CONFIDENCE
 from rig.errors import ConfigError
 from rig.files import parse_yaml
 from rig.protocol import AdaptiveBlock, TrialPlan, load_protocol, parse_protocol
@@ -52,6 +53,7 @@ def test_an_adaptive_block_keeps_its_budget_of_trial_ids():
     assert (design.distance_min_m, design.distance_max_m, design.max_trials) == (0.03, 0.25, 10)
     assert (design.min_trials, design.startup_trials, design.estimator) == (10, 3, "auto")  # min(10, max)
     assert block.max_force_fraction == 0.8
+    assert block.design.stop_scale_confidence == DEFAULT_STOP_SCALE_CONFIDENCE
     trial = block.trial(7, 0.03, 2)
     assert (trial.kind, trial.joint, trial.distance_m, trial.repeat, trial.block) == (
         "joint_estimation",
@@ -102,6 +104,7 @@ def test_the_shipped_adaptive_protocol_loads():
         (ADAPTIVE + "    estimator: best\n", ["blocks[0].estimator", "allowed: paper, weighted, auto"]),
         (ADAPTIVE + "    max_force_fraction: 1.5\n", ["blocks[0].max_force_fraction", "0.95"]),
         (ADAPTIVE + "    min_spread_fraction: 0.7\n", ["blocks[0].min_spread_fraction", "0.5"]),
+        (ADAPTIVE + "    stop_scale_confidence: 1\n", ["blocks[0].stop_scale_confidence", "0.99"]),
         (ADAPTIVE + "    distance_count: 1\n", ["blocks[0].distance_count", "out of range"]),
         (
             ADAPTIVE.replace("design: adaptive", "design: smart"),

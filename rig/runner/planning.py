@@ -54,6 +54,7 @@ class AdaptiveSummary:
             "max_trials": self.max_trials,
             "stop_reason": step.stop.value if step.stop is not None else None,
             "half_width_rel": step.half_width_rel,
+            "stop_half_width_rel": step.stop_half_width_rel,
             "target_half_width_rel": self.target_half_width_rel,
             "next_distance_m": step.next_distance_m,
             "lack_of_fit": {
