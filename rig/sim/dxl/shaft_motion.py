@@ -40,29 +40,13 @@ class IntegratedShaft:
         Either shortcut moves nothing: one `_integrate` to a later time leaves the very state that
         any number of them in between would (the world skips a still stretch on this).
         """
+        return self._shortcut() is not None
+
+    def _shortcut(self) -> str | None:
+        """ "idle", "settled" or None: the stretch `_integrate` may skip without stepping the actuator."""
         state, cmd, tau_ext = self.state, self._cmd, self.external_torque_nm
         if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self._coulomb_nm:
-            return True  # idle: it zeroes motor torque and the overload timer, the same each time
-        settled = self._settled
-        return (
-            settled is not None
-            and settled[0] is cmd
-            and settled[1] == tau_ext
-            and settled[2] == state.position_rad
-        )
-
-    def _integrate(self, now_ns: int) -> None:
-        t = self._now_ns
-        if now_ns <= t:
-            return
-        state, cmd = self.state, self._cmd
-        tau_ext = self.external_torque_nm
-        if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self._coulomb_nm:
-            # Idle: torque off and the load inside the gear's static friction band.
-            state.motor_torque_nm = 0.0
-            self._now_ns = now_ns
-            self._at_limit_ns = 0
-            return
+            return "idle"  # torque off and the load inside the gear's static friction band
         settled = self._settled
         if (
             settled is not None
@@ -70,9 +54,22 @@ class IntegratedShaft:
             and settled[1] == tau_ext
             and settled[2] == state.position_rad
         ):
-            # Holding still under an unchanged load and command: integrating would change nothing.
-            self._now_ns = now_ns
+            return "settled"  # holding still under an unchanged load and command
+        return None
+
+    def _integrate(self, now_ns: int) -> None:
+        t = self._now_ns
+        if now_ns <= t:
             return
+        shortcut = self._shortcut()
+        if shortcut is not None:
+            if shortcut == "idle":  # zero motor torque and overload timer, the same each time
+                self.state.motor_torque_nm = 0.0
+                self._at_limit_ns = 0
+            self._now_ns = now_ns  # integrating would change nothing
+            return
+        state, cmd = self.state, self._cmd
+        tau_ext = self.external_torque_nm
         step = self.actuator.step
         overload_cap_nm = self._overload_cap_nm
         while t < now_ns:
