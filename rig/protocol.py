@@ -19,7 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from model.design import DEFAULT_STOP_SCALE_CONFIDENCE, DesignSettings
+from model.design import (
+    DEFAULT_MIN_SPREAD_FRACTION,
+    DEFAULT_STARTUP_TRIALS,
+    DEFAULT_STOP_SCALE_CONFIDENCE,
+    DesignSettings,
+)
 from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
@@ -475,7 +480,9 @@ def _adaptive_block(
         )
     max_trials = block.integer("max_trials", default=24, min_value=2, max_value=MAX_ITEMS)
     min_trials = block.integer("min_trials", default=min(10, max_trials), min_value=2, max_value=max_trials)
-    startup = block.integer("startup_trials", default=min(3, max_trials), min_value=2, max_value=max_trials)
+    startup = block.integer(
+        "startup_trials", default=min(DEFAULT_STARTUP_TRIALS, max_trials), min_value=2, max_value=max_trials
+    )
     estimator = block.string("estimator", default=protocol_estimator, choices=ESTIMATOR_NAMES)
     design = DesignSettings(
         distance_min_m=lo,
@@ -487,7 +494,9 @@ def _adaptive_block(
         max_trials=max_trials,
         min_trials=min_trials,
         startup_trials=startup,
-        min_spread_fraction=block.number("min_spread_fraction", default=0.1, min_value=0.0, max_value=0.5),
+        min_spread_fraction=block.number(
+            "min_spread_fraction", default=DEFAULT_MIN_SPREAD_FRACTION, min_value=0.0, max_value=0.5
+        ),
         estimator=check_estimator(estimator),
         stop_scale_confidence=block.number(
             "stop_scale_confidence", default=DEFAULT_STOP_SCALE_CONFIDENCE, min_value=0.0, max_value=0.99

@@ -41,6 +41,8 @@ from scipy import stats
 
 from model import estimators
 from model.design import (
+    DEFAULT_MIN_SPREAD_FRACTION,
+    DEFAULT_STARTUP_TRIALS,
     DEFAULT_STOP_SCALE_CONFIDENCE,
     DesignSettings,
     Observation,
@@ -270,8 +272,8 @@ def main() -> None:
         "--shapes", default=",".join(shapes), help="comma-separated, of: " + ", ".join(shapes)
     )
     parser.add_argument("--min-trials", type=int, default=10)
-    parser.add_argument("--startup-trials", type=int, default=3)
-    parser.add_argument("--min-spread-fraction", type=float, default=0.1)
+    parser.add_argument("--startup-trials", type=int, default=DEFAULT_STARTUP_TRIALS)
+    parser.add_argument("--min-spread-fraction", type=float, default=DEFAULT_MIN_SPREAD_FRACTION)
     parser.add_argument(
         "--stop-confidence",
         type=float,

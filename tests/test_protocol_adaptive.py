@@ -137,12 +137,12 @@ def test_dry_run_shows_the_startup_trials_then_the_adaptive_rest(run_cli, cli_js
     result = run_cli("run", "protocols/joint_estimation_adaptive.yaml", "--dry-run")
     assert result.code == 0, result.err
     out = result.out
-    assert "3 trials planned ahead" in out
-    assert "0.250 m" in out and "0.156 m" in out and "0.030 m" in out
-    assert "trials 1, 2, 3 are its start-up" in out and "then adaptive up to 24 trials" in out
+    assert "2 trials planned ahead" in out  # the shipped protocol's startup_trials
+    assert "0.250 m" in out and "0.030 m" in out
+    assert "trials 1, 2 are its start-up" in out and "then adaptive up to 24 trials" in out
     assert "below 56.0 N" in out  # 0.8 x max_force_n 70 N
     plan = cli_json("run", "protocols/joint_estimation_adaptive.yaml", "--dry-run", "--json")
-    assert [t["distance_m"] for t in plan["trials"]] == [0.25, 0.155714286, 0.03]
+    assert [t["distance_m"] for t in plan["trials"]] == [0.25, 0.03]
     (block,) = plan["adaptive"]
     assert block["max_trials"] == 24 and block["target_half_width_rel"] == 0.06
     assert block["max_slip_force_n"] == pytest.approx(56.0) and len(block["candidate_distances_m"]) == 8

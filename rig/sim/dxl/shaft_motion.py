@@ -43,7 +43,7 @@ class IntegratedShaft:
         return self._shortcut() is not None
 
     def _shortcut(self) -> str | None:
-        """ "idle", "settled" or None: the stretch `_integrate` may skip without stepping the actuator."""
+        """The stretch `_integrate` may skip without stepping the actuator: "idle", "settled" or None."""
         state, cmd, tau_ext = self.state, self._cmd, self.external_torque_nm
         if not cmd.torque_enabled and state.velocity_rad_s == 0.0 and abs(tau_ext) <= self._coulomb_nm:
             return "idle"  # torque off and the load inside the gear's static friction band
