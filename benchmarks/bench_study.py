@@ -43,7 +43,10 @@ def timed(command: list[str], tree: Path = ROOT) -> float:
         "PYTHONPATH": os.pathsep.join(p for p in (str(tree), os.environ.get("PYTHONPATH")) if p),
     }
     start = time.perf_counter()
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    # From the tree itself: `python -m` puts the working directory ahead of PYTHONPATH.
+    subprocess.run(
+        command, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=tree
+    )
     return time.perf_counter() - start
 
 
