@@ -4,9 +4,12 @@ Bare statistics, no simulator: for each design and scatter model, `--datasets` s
 m_i = k/l_i + e_i with e_i ~ N(0, a² + (b·k/l_i)²) (k = 0.1615 kg·m, link 1 of the paper) are fitted by
 the three estimators of `model.estimators`, vectorised over the data sets (paper: the cftool formulas,
 weighted: the mean of m·l, auto: `model.estimators.auto_batch`), each checked against `estimate_k`
-on the first few data sets. Printed per case and estimator: the coverage of the 99 % bounds with
-its 95 % binomial (Wilson) interval, the relative bias, MSE / CRLB (`model.estimators.crlb_k`) and
-the RMSE relative to k (which compares the designs: the CRLB differs between them).
+on the first few data sets. The scatter models are the simulated rig's scenario shapes (additive
+a = 0.1 kg, multiplicative b = 0.085, mixed a = 0.07 kg and b = 0.06, read from their configs) and
+two sized like the paper's fits (additive a = 0.126 kg, mixed a = b = 0.06). Printed per case and
+estimator: the coverage of the 99 % bounds with its 95 % binomial (Wilson) interval, the relative bias,
+MSE / CRLB (`model.estimators.crlb_k`) and the RMSE relative to k (which compares the designs: the CRLB
+differs between them).
 
     .venv/bin/python studies/estimator_coverage.py [--datasets 100000] [--seed 0]
 """
@@ -17,6 +20,7 @@ import argparse
 import math
 
 import numpy as np
+from scatter_shapes import scenario_shapes
 
 from model.estimators import auto_batch, crlb_k, estimate_k
 from model.fit import t_quantile
@@ -27,12 +31,13 @@ DESIGNS = {  # name: distances [m] of one data set (8 distances x 3 repeats)
     "0.10-0.25 m x 8 x 3": np.repeat(np.linspace(0.10, 0.25, 8), 3),
     "0.03-0.25 m x 8 x 3 (paper)": np.repeat(np.linspace(0.03, 0.25, 8), 3),
 }
-# Scatter models: (a [kg], b relative). Sized like the paper's fits (RMSE about 0.13 kg on 0.03-0.25 m):
-# multiplicative b is the simulator's link-1 per-trial capacity sd.
+# Scatter models: (a [kg], b relative). The simulator's three scenario shapes, read from their rig
+# configs (scatter_shapes.py), so these numbers and the end-to-end ones are about the same worlds,
+# and two sized like the paper's fits instead (RMSE about 0.13 kg on 0.03-0.25 m).
 SCATTERS = {
-    "additive": (0.126, 0.0),
-    "multiplicative": (0.0, 0.085),
-    "mixed": (0.06, 0.06),
+    **{name: (shape.a_kg, shape.b) for name, shape in scenario_shapes().items()},
+    "additive-0.126": (0.126, 0.0),
+    "mixed-0.06": (0.06, 0.06),
 }
 
 
