@@ -114,14 +114,15 @@ class TrialRunner:
         estimator: RunEstimator,
         progress: ProgressReporter,
         line_stiffness_n_per_m: float,
+        log_ticks: bool = True,
     ) -> None:
         self.protocol = protocol
         self.config = config
         self.session = session
         self.clock = session.clock
         self.log = logger
-        # A logger that keeps nothing (`rig study`'s) says so: the per-tick rows are then not built.
-        self._log_ticks = not getattr(logger, "discards_everything", False)
+        # False for a logger that keeps nothing (`rig study`'s): the per-tick rows are then not built.
+        self._log_ticks = log_ticks
         self.journal = journal
         self.estimator = estimator
         self.progress = progress

@@ -105,8 +105,6 @@ class _UnsavedJournal(RunJournal):
 class _DiscardingLogger:
     """Takes what the runner logs and keeps nothing (a study keeps its results, not its logs)."""
 
-    discards_everything = True  # the runner skips building its per-tick rows for it
-
     def __init__(self) -> None:
         self.messages_logged = 0
         self.live = None
@@ -158,6 +156,7 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
                     estimator=prepared.estimator,
                     progress=SilentProgress(),
                     line_stiffness_n_per_m=prepared.config.line_stiffness_n_per_m,
+                    log_ticks=False,  # the logger keeps nothing: do not build its per-tick rows
                 )
                 schedule = TrialSchedule(
                     prepared.protocol, prepared.config, prepared.journal, runner.announce
