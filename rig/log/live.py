@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import heapq
 import math
 import operator
@@ -26,7 +25,6 @@ import select
 import socket
 import struct
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -40,6 +38,7 @@ from mcap.reader import NonSeekingReader
 
 from rig.errors import InputError
 from rig.log import schemas
+from rig.log.child_process import start_child
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -118,39 +117,13 @@ class LivePublisher:
         stop_timeout_s: float = 2.0,
     ) -> None:
         port = _free_port(host, port)  # a port in use is an InputError now, before anything moves
-        data_read, data_write = os.pipe()
-        with contextlib.suppress(OSError):  # Linux: room for many batches
-            fcntl.fcntl(data_write, fcntl.F_SETPIPE_SZ, pipe_bytes)
-        reply_read, reply_write = os.pipe()
-        child_fds = (data_read, reply_write)
-        try:
-            self._process = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "rig.log.live_process",
-                    *(str(fd) for fd in child_fds),
-                    host,
-                    str(port),
-                    name,
-                    str(client_backlog),
-                    "1" if playback else "0",
-                    str(stop_timeout_s),
-                ],
-                pass_fds=child_fds,
-                stdin=subprocess.DEVNULL,
-                close_fds=True,
-                # Its own process group: a terminal's Ctrl-C reaches the run only, which then
-                # decides when this child ends (it could arrive before the child ignores SIGINT).
-                process_group=0,
-            )
-        except BaseException:
-            for fd in (data_write, reply_read):
-                os.close(fd)
-            raise
-        finally:
-            for fd in child_fds:
-                os.close(fd)
+        child = start_child(
+            "rig.log.live_process",
+            [host, str(port), name, str(client_backlog), "1" if playback else "0", str(stop_timeout_s)],
+            pipe_bytes=pipe_bytes,
+        )
+        self._process = child.process
+        data_write, reply_read = child.request_fd, child.reply_fd
         os.set_blocking(data_write, False)  # publishing never waits for the server process
         self.host = host
         self.port = port

@@ -16,13 +16,11 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import fcntl
 import itertools
 import operator
 import os
 import pickle
 import subprocess
-import sys
 import threading
 import time
 import weakref
@@ -37,6 +35,7 @@ import rig
 from rig.errors import RigError, RigTimeoutError
 from rig.hw.seams import Clock
 from rig.log import schemas
+from rig.log.child_process import start_child
 from rig.log.writer_process import COMPRESSION
 
 if TYPE_CHECKING:
@@ -124,38 +123,20 @@ class RunLogger:
             live.add_close_hook(self._send_batch)
 
         file_fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
-        request_read, request_write = os.pipe()
-        with contextlib.suppress(AttributeError, OSError):  # Linux: room for several batches
-            fcntl.fcntl(request_write, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
-        reply_read, reply_write = os.pipe()
-        child_fds = (request_read, reply_write, file_fd)
-        try:
-            self._process = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "rig.log.writer_process",
-                    *(str(fd) for fd in child_fds),
-                    LIBRARY,
-                    str(chunk_size),
-                    compression,
-                    str(round(flush_interval_s * 1e9)),
-                    str(max_file_bytes or 0),
-                ],
-                pass_fds=child_fds,
-                stdin=subprocess.DEVNULL,
-                close_fds=True,
-                # Its own process group: a terminal's Ctrl-C reaches the run only, which then
-                # decides when this child ends (it could arrive before the child ignores SIGINT).
-                process_group=0,
-            )
-        except BaseException:
-            for fd in (request_write, reply_read):
-                os.close(fd)
-            raise
-        finally:
-            for fd in child_fds:
-                os.close(fd)
+        child = start_child(
+            "rig.log.writer_process",
+            [
+                LIBRARY,
+                str(chunk_size),
+                compression,
+                str(round(flush_interval_s * 1e9)),
+                str(max_file_bytes or 0),
+            ],
+            pipe_bytes=PIPE_BYTES,
+            extra_fds=(file_fd,),
+        )
+        self._process = child.process
+        request_write, reply_read = child.request_fd, child.reply_fd
         self._requests = Connection(request_write, readable=False)
         self._replies = Connection(reply_read, writable=False)
         self._reader = threading.Thread(
