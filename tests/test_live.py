@@ -351,10 +351,23 @@ def test_the_foxglove_layout_names_only_logged_topics_and_fields():
         topic = next(t for t in sorted(schemas.TOPICS, key=len, reverse=True) if path.startswith(t))
         rest = path[len(topic) :]
         if rest.startswith("{"):
+            condition = rest[1 : rest.index("}")]
+            flag = condition.split("==")[0]
+            assert flag in schemas.TOPICS[topic].schema["properties"], path
             rest = rest[rest.index("}") + 1 :]
         if rest:
             field = rest.lstrip(".").split("[")[0]
             assert field in schemas.TOPICS[topic].schema["properties"], path
+    # A custom x-axis pairs x and y values by position: every series must come from the same messages,
+    # those a boolean flag on the topic marks as carrying every plotted field.
+    for config in panels.values():
+        if config.get("xAxisVal") == "custom":
+            x_path = config["xAxisPath"]["value"]
+            message_filter = x_path[: x_path.index("}") + 1]
+            flag = message_filter.split("{")[1].split("==")[0]
+            topic = message_filter.split("{")[0]
+            assert schemas.TOPICS[topic].schema["properties"][flag]["type"] == "boolean"
+            assert all(p["value"].startswith(message_filter + ".") for p in config["paths"]), config
     # every panel is placed in the layout tree
     text = json.dumps(layout["layout"])
     assert all(f'"{panel}"' in text for panel in panels)
@@ -368,7 +381,7 @@ def test_a_load_cell_row_is_published_as_the_object_the_file_holds(row):
     from rig.log.live_process import row_encoder
 
     fields = schemas.ROW_FIELDS[schemas.LOADCELL]
-    assert json.loads(row_encoder(fields)(row)) == dict(zip(fields, row, strict=True))
+    assert json.loads(row_encoder(fields)(row)) == schemas.row_payload(schemas.LOADCELL, row)
 
 
 def test_rig_run_live_prints_the_address_and_logs_the_counts(tmp_path, protocol_file, run_cli):

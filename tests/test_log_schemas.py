@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 
 import jsonschema
 import numpy as np
@@ -171,17 +173,45 @@ def test_trial_result_reads_payloads_written_before_the_record():
     assert result.joint is None and result.configuration_index is None and result.tare_n == 0.0
 
 
-def test_estimate_payload_nulls_what_is_undefined():
+def test_estimate_payload_leaves_out_what_is_undefined():
     estimate = sample_payloads()[S.ESTIMATE]
-    assert estimate["r2"] is None  # NaN where not defined becomes null
-    assert estimate["k_ci"] == [0.148, 0.185]
+    assert "r2" not in estimate  # NaN where not defined: the field is absent, never null
+    assert estimate["k_ci"] == [0.148, 0.185] and estimate["capacity_bounded"] is True
     empty = Estimate(trial_id=0, fit=None).to_payload()
-    assert empty["n"] == 0 and empty["k"] is None and empty["joints"] == []
+    assert empty["n"] == 0 and "k" not in empty and empty["joints"] == []
+    assert empty["capacity_bounded"] is False
+    assert None not in empty.values()
     S.check_payload(S.ESTIMATE, empty)
     assert Estimate.from_payload(empty).fit is None
-    assert (
-        Estimate(1, None, (JointCapacity(1, None, None, None),)).to_payload()["joints"][0]["ci_lo_nm"] is None
-    )
+    joint = Estimate(1, None, (JointCapacity(1, None, None, None),)).to_payload()["joints"][0]
+    assert joint == {"joint": 1}
+    assert JointCapacity.from_json(joint) == JointCapacity(1, None, None, None)
+
+
+def test_a_pair_with_an_undefined_bound_is_left_out_whole():
+    fit = Estimate.from_payload(sample_payloads()[S.ESTIMATE]).fit
+    assert fit is not None
+    unbounded = dataclasses.replace(fit, capacity_ci_nm=(1.0, math.inf))
+    payload = Estimate(2, unbounded).to_payload()
+    assert "capacity_ci_nm" not in payload and payload["capacity_bounded"] is False
+    assert payload["capacity_nm"] == fit.capacity_nm
+    S.check_payload(S.ESTIMATE, payload)
+    decoded = Estimate.from_payload(payload).fit
+    assert decoded is not None and all(math.isnan(b) for b in decoded.capacity_ci_nm)
+
+
+def test_payloads_of_older_logs_with_nulls_still_decode():
+    # Before 2026-11-27 a missing value was logged as null; the decoders read both forms.
+    state = TrialState.from_payload({"trial_id": None, "phase": "idle", "step": None})
+    assert state == TrialState(None, TrialPhase.IDLE, None)
+    estimate = dict(sample_payloads()[S.ESTIMATE], r2=None, scatter_model=None, paper_k_ci=[None, None])
+    decoded = Estimate.from_payload(estimate)
+    assert decoded.fit is not None and math.isnan(decoded.fit.r2) and decoded.scatter_model is None
+    assert decoded.paper_k_ci is not None and all(math.isnan(b) for b in decoded.paper_k_ci)
+    old_empty = {"trial_id": 1, "n": 0, "k": None, "k_ci": None, "joints": []}
+    assert Estimate.from_payload(old_empty).fit is None
+    command = ServoCommand.from_payload({"servo_id": 1, "role": "winch", "command": "reboot", "value": None})
+    assert command.value is None
 
 
 def test_builders_coerce_numpy():
@@ -193,7 +223,7 @@ def test_builders_coerce_numpy():
 
 def test_builders_convert_hardware_value_types():
     sample = LoadCellSample(time_ns=EPOCH_NS, raw=-12, force_n=0.5, seq=None, device_time_us=1000)
-    assert S.loadcell_payload(sample) == {"seq": None, "raw": -12, "force_n": 0.5, "device_time_us": 1000}
+    assert S.loadcell_payload(sample) == {"raw": -12, "force_n": 0.5, "device_time_us": 1000}
     state = ServoState(1, 0.1, 0.2, 0.3, 4, False, EPOCH_NS)
     payload = S.servo_state_payload(state, "winch")
     assert payload["hardware_error"] == 4 and payload["moving"] is False and payload["role"] == "winch"
@@ -241,11 +271,16 @@ def test_checker_rejects_violations(topic, change, fragment):
         S.check_payload(topic, payload)
 
 
-def test_checker_requires_every_key_and_knows_topics():
+def test_checker_requires_every_key_but_the_optional_ones_and_knows_topics():
     payload = sample_payloads()[S.LOADCELL]
-    del payload["seq"]
-    with pytest.raises(ValueError, match="'seq' is a required property"):
+    del payload["raw"]
+    with pytest.raises(ValueError, match="'raw' is a required property"):
         S.check_payload(S.LOADCELL, payload)
+    optional = sample_payloads()[S.LOADCELL]
+    del optional["seq"]  # a missing value is an absent field
+    S.check_payload(S.LOADCELL, optional)
+    with pytest.raises(ValueError, match="None is not of type 'integer'"):
+        S.check_payload(S.LOADCELL, dict(optional, seq=None))  # ... never null
     with pytest.raises(KeyError, match="unknown topic"):
         S.check_payload("/rig/nope", payload)
 

@@ -251,14 +251,15 @@ def _flatten(table: pa.Table) -> pa.Table:
 
 
 def nullable_integer_fields(topic: str) -> frozenset[str]:
-    """Top-level fields of a rig topic declared `["integer", "null"]`."""
+    """Top-level integer fields of a rig topic that may be missing: optional, or null in older logs."""
     spec = schemas.TOPICS.get(topic)
     if spec is None:
         return frozenset()
+    required = set(spec.schema.get("required", ()))
     return frozenset(
         name
         for name, sub in spec.schema["properties"].items()
-        if {"integer", "null"} <= set(schemas.json_types(sub))
+        if "integer" in (kinds := schemas.json_types(sub)) and (name not in required or "null" in kinds)
     )
 
 

@@ -62,7 +62,8 @@ _SERVER_LOGGER = "foxglove"
 def row_encoder(fields: tuple[str, ...]) -> Callable[[tuple[Any, ...]], bytes]:
     """The JSON of a row: a %-template when every value is an int or a finite float.
 
-    Ten times quicker than a dict through `json.dumps`, which encodes anything else (None).
+    Ten times quicker than a dict through `json.dumps`, which encodes anything else (a None value
+    is left out: a missing value is an absent field, as in the records' payloads).
     """
     template = ("{" + ",".join(f'"{name}":%r' for name in fields) + "}").encode()
     plain = (int, float)
@@ -70,7 +71,7 @@ def row_encoder(fields: tuple[str, ...]) -> Callable[[tuple[Any, ...]], bytes]:
     def encode(row: tuple[Any, ...]) -> bytes:
         if all(type(v) in plain and math.isfinite(v) for v in row):
             return template % row
-        obj = dict(zip(fields, row, strict=True))
+        obj = {name: value for name, value in zip(fields, row, strict=True) if value is not None}
         return json.dumps(obj, separators=(",", ":"), allow_nan=False, default=_json_default).encode()
 
     return encode

@@ -8,8 +8,10 @@ replay, which decodes the logged payload back into the very same record (`from_p
 Payload conventions: a record's fields appear under their own names, except that a time field
 `*_time_ns` (epoch ns, an attribute exact for Python) appears only as a `{sec, nsec}` timestamp
 named without the suffix (`start_time_ns` → `start`): Foxglove's time type, and no payload integer
-beyond 2^53 for JavaScript readers. A missing or non-finite number is `null`. Decoders accept the
-payloads of older logs too (the integer `*_time_ns` fields, and fields added since as None).
+beyond 2^53 for JavaScript readers. A missing value (None, a non-finite number) is an absent field,
+not null: the JSON Schema readers of Foxglove and Lichtblick accept one type per field
+(`rig.log.viewer_schema`). Decoders accept the payloads of older logs too (null for a missing value,
+the integer `*_time_ns` fields, and fields added since as None).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from dataclasses import dataclass, fields
 from enum import IntEnum, StrEnum
 from typing import Any
 
-from model.fit import FitSummary
+from model.fit import SUMMARY_KEYS, FitSummary
 from model.slip_detector import SlipEvent
 
 NS_PER_S = 1_000_000_000
@@ -174,6 +176,11 @@ def integer_or_none(value: Any, name: str) -> int | None:
     return None if value is None else integer(value, name)
 
 
+def present(payload: dict[str, Any]) -> dict[str, Any]:
+    """A payload without its None values: a missing value is an absent field (module docstring)."""
+    return {key: value for key, value in payload.items() if value is not None}
+
+
 def _numbers_or_none(values: Sequence[Any] | None, name: str) -> list[float] | None:
     if values is None:
         return None
@@ -199,14 +206,16 @@ class ServoCommand:
     unit: str  # e.g. rad, A, rad/s, bool, mode; empty if none
 
     def to_payload(self) -> dict[str, Any]:
-        """The `/rig/servo/command` payload."""
-        return {
-            "servo_id": integer(self.servo_id, "servo_id"),
-            "role": str(self.role),
-            "command": ServoCommandName(self.command).value,
-            "value": number_or_none(self.value, "value"),
-            "unit": str(self.unit),
-        }
+        """The `/rig/servo/command` payload (no `value` for a reboot)."""
+        return present(
+            {
+                "servo_id": integer(self.servo_id, "servo_id"),
+                "role": str(self.role),
+                "command": ServoCommandName(self.command).value,
+                "value": number_or_none(self.value, "value"),
+                "unit": str(self.unit),
+            }
+        )
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> ServoCommand:
@@ -229,12 +238,14 @@ class TrialState:
     step: str | None = None
 
     def to_payload(self) -> dict[str, Any]:
-        """The `/rig/trial/state` payload."""
-        return {
-            "trial_id": integer_or_none(self.trial_id, "trial_id"),
-            "phase": TrialPhase(self.phase).value,
-            "step": None if self.step is None else str(self.step),
-        }
+        """The `/rig/trial/state` payload (no `trial_id` outside trials, no `step` outside steps)."""
+        return present(
+            {
+                "trial_id": integer_or_none(self.trial_id, "trial_id"),
+                "phase": TrialPhase(self.phase).value,
+                "step": None if self.step is None else str(self.step),
+            }
+        )
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> TrialState:
@@ -257,22 +268,28 @@ class SlipMessage:
     train_drops: int = 0  # further drops in the hold after the event (>= 1: a stick-slip train)
 
     def to_payload(self) -> dict[str, Any]:
-        """The `/rig/slip` payload: the event's fields inline, with the trial, detector and joint."""
+        """The `/rig/slip` payload: the event's fields inline, with the trial, detector and joint.
+
+        Detector parameters that are unset (None) and an unknown joint are left out.
+        """
         e = self.event
-        return {
-            "trial_id": integer(self.trial_id, "trial_id"),
-            "onset": stamp(e.onset_time_ns),
-            "detection": stamp(e.detection_time_ns),
-            "peak": stamp(e.peak_time_ns),
-            "peak_force_n": finite_number(e.peak_force_n, "peak_force_n"),
-            "force_after_n": finite_number(e.force_after_n, "force_after_n"),
-            "drop_fraction": finite_number(e.drop_fraction, "drop_fraction"),
-            "trigger": str(e.trigger),
-            "kind": str(e.kind),
-            "detector": {str(k): number_or_none(v, f"detector.{k}") for k, v in self.detector.items()},
-            "joint": integer_or_none(self.joint, "joint"),
-            "train_drops": integer(self.train_drops, "train_drops"),
-        }
+        detector = {str(k): number_or_none(v, f"detector.{k}") for k, v in self.detector.items()}
+        return present(
+            {
+                "trial_id": integer(self.trial_id, "trial_id"),
+                "onset": stamp(e.onset_time_ns),
+                "detection": stamp(e.detection_time_ns),
+                "peak": stamp(e.peak_time_ns),
+                "peak_force_n": finite_number(e.peak_force_n, "peak_force_n"),
+                "force_after_n": finite_number(e.force_after_n, "force_after_n"),
+                "drop_fraction": finite_number(e.drop_fraction, "drop_fraction"),
+                "trigger": str(e.trigger),
+                "kind": str(e.kind),
+                "detector": present(detector),
+                "joint": integer_or_none(self.joint, "joint"),
+                "train_drops": integer(self.train_drops, "train_drops"),
+            }
+        )
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> SlipMessage:
@@ -368,28 +385,33 @@ class TrialResult:
         )
 
     def to_payload(self) -> dict[str, Any]:
-        """The `/rig/trial/result` payload: every field (non-finite numbers as null), times as stamps."""
-        return {
-            "trial_id": integer(self.trial_id, "trial_id"),
-            "kind": TrialKind(self.kind).value,
-            "repeat": integer(self.repeat, "repeat"),
-            "joint": integer_or_none(self.joint, "joint"),
-            "distance_m": number_or_none(self.distance_m, "distance_m"),
-            "configuration_index": integer_or_none(self.configuration_index, "configuration_index"),
-            "joint_angles_rad": _numbers_or_none(self.joint_angles_rad, "joint_angles_rad"),
-            "start": stamp(self.start_time_ns),
-            "end": stamp(self.end_time_ns),
-            "outcome": TrialOutcome(self.outcome).value,
-            "peak_force_n": number_or_none(self.peak_force_n, "peak_force_n"),
-            "slip_mass_kg": number_or_none(self.slip_mass_kg, "slip_mass_kg"),
-            "predicted_force_n": number_or_none(self.predicted_force_n, "predicted_force_n"),
-            "predicted_mass_kg": number_or_none(self.predicted_mass_kg, "predicted_mass_kg"),
-            "percentage_error": number_or_none(self.percentage_error, "percentage_error"),
-            "slipped_joint": integer_or_none(self.slipped_joint, "slipped_joint"),
-            "lever_arms_m": _numbers_or_none(self.lever_arms_m, "lever_arms_m"),
-            "tare_n": finite_number(self.tare_n, "tare_n"),
-            "reason": None if self.reason is None else str(self.reason),
-        }
+        """The `/rig/trial/result` payload: every field that has a value, times as stamps.
+
+        None and non-finite numbers are left out.
+        """
+        return present(
+            {
+                "trial_id": integer(self.trial_id, "trial_id"),
+                "kind": TrialKind(self.kind).value,
+                "repeat": integer(self.repeat, "repeat"),
+                "joint": integer_or_none(self.joint, "joint"),
+                "distance_m": number_or_none(self.distance_m, "distance_m"),
+                "configuration_index": integer_or_none(self.configuration_index, "configuration_index"),
+                "joint_angles_rad": _numbers_or_none(self.joint_angles_rad, "joint_angles_rad"),
+                "start": stamp(self.start_time_ns),
+                "end": stamp(self.end_time_ns),
+                "outcome": TrialOutcome(self.outcome).value,
+                "peak_force_n": number_or_none(self.peak_force_n, "peak_force_n"),
+                "slip_mass_kg": number_or_none(self.slip_mass_kg, "slip_mass_kg"),
+                "predicted_force_n": number_or_none(self.predicted_force_n, "predicted_force_n"),
+                "predicted_mass_kg": number_or_none(self.predicted_mass_kg, "predicted_mass_kg"),
+                "percentage_error": number_or_none(self.percentage_error, "percentage_error"),
+                "slipped_joint": integer_or_none(self.slipped_joint, "slipped_joint"),
+                "lever_arms_m": _numbers_or_none(self.lever_arms_m, "lever_arms_m"),
+                "tare_n": finite_number(self.tare_n, "tare_n"),
+                "reason": None if self.reason is None else str(self.reason),
+            }
+        )
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> TrialResult:
@@ -483,14 +505,19 @@ class Estimate:
         return f"{self.estimator}{scatter}: {line}  {paper}"
 
     def to_payload(self) -> dict[str, Any]:
-        """The `/rig/estimate` payload: the `rig fit --json` keys (null before a fit; n = 0) and joints."""
+        """The `/rig/estimate` payload: the `rig fit --json` keys (absent before a fit; n = 0) and joints.
+
+        A pair with an undefined bound is left out whole. `capacity_bounded` says whether the
+        capacity and both its bounds are there: a viewer plotting them against `trial_id` filters
+        on it, so that its series pair up message by message.
+        """
         payload: dict[str, Any] = {"trial_id": integer(self.trial_id, "trial_id")}
         summary = self.fit.as_json() if self.fit is not None else {}
         for f in fields(FitSummary):
             payload[f.name] = _fit_value(f.name, summary.get(f.name))
         if payload["n"] is None:
             payload["n"] = 0
-        payload["joints"] = [j.to_json() for j in self.joints]
+        payload["joints"] = [present(j.to_json()) for j in self.joints]
         payload["estimator"] = str(self.estimator)
         payload["scatter_model"] = self.scatter_model
         payload["n_censored"] = integer(self.n_censored, "n_censored")
@@ -498,16 +525,26 @@ class Estimate:
             payload[name] = number_or_none(getattr(self, name), name)
         payload["paper_n"] = None if self.paper_n is None else integer(self.paper_n, "paper_n")
         for name in ("paper_k_ci", "paper_capacity_ci_nm"):
-            pair = getattr(self, name)
-            payload[name] = None if pair is None else [number_or_none(b, name) for b in pair]
-        return payload
+            payload[name] = _pair_or_none(getattr(self, name), name)
+        payload["capacity_bounded"] = (
+            payload["capacity_nm"] is not None and payload["capacity_ci_nm"] is not None
+        )
+        return present(payload)
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> Estimate:
-        """Decode a `/rig/estimate` payload (no fit when `n` is 0 or the fit keys are null)."""
+        """Decode a `/rig/estimate` payload (no fit when `n` is 0 or `k` is missing).
+
+        Fit values that are null (older logs) or absent become NaN.
+        """
         fit = None
         if payload.get("n") and payload.get("k") is not None:
-            fit = FitSummary.from_json(payload)
+            fit = FitSummary.from_json(
+                {
+                    name: payload.get(name, _MISSING_PAIR if name in _FIT_PAIR_KEYS else None)
+                    for name in SUMMARY_KEYS
+                }
+            )
         joints = tuple(JointCapacity.from_json(j) for j in payload.get("joints") or ())
         numbers = {name: _optional_float(payload.get(name)) for name in _ESTIMATE_NUMBERS}
         scatter = payload.get("scatter_model")
@@ -542,6 +579,18 @@ def _optional_float(value: Any) -> float | None:
     return None if value is None else float(value)
 
 
+_FIT_PAIR_KEYS = frozenset(f.name for f in fields(FitSummary) if f.name.endswith("_ci") or "_ci_" in f.name)
+_MISSING_PAIR = (None, None)
+
+
+def _pair_or_none(pair: Sequence[Any] | None, name: str) -> list[float] | None:
+    """A pair of finite bounds as a list; None (left out) if either bound is missing or not finite."""
+    if pair is None:
+        return None
+    bounds = [number_or_none(b, name) for b in pair]
+    return None if None in bounds else bounds  # type: ignore[return-value]
+
+
 def _optional_pair(value: Any) -> tuple[float, float] | None:
     if value is None:
         return None
@@ -560,7 +609,7 @@ def _fit_value(key: str, value: Any) -> Any:
     if key == "constant":
         return str(value)
     if isinstance(value, list | tuple):
-        return [number_or_none(b, key) for b in value]
+        return _pair_or_none(value, key)
     return number_or_none(value, key)
 
 

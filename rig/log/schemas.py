@@ -3,11 +3,14 @@
 Every topic is JSON-encoded with a `jsonschema` schema whose top level is an object (Foxglove needs
 that). The schemas are not written by hand: each is derived from the fields and type hints of the
 record that makes the payload (`rig.log.records`, and the seams' `ServoState` and `LoadCellSample`),
-so a field added to a record appears in its schema. Conventions: a missing number is `null`
-(`["number", "null"]`), never NaN; every integer stays below 2**53 so that JavaScript readers see
-it exactly; a record's epoch-nanosecond field `*_time_ns` appears as a `{sec, nsec}` timestamp named
-without the suffix (Foxglove's time type). `/rig/log` is Foxglove's well-known `foxglove.Log`, kept
-field for field.
+so a field added to a record appears in its schema. Conventions: every schema stays inside the
+subset Foxglove's and Lichtblick's schema reader understands (`rig.log.viewer_schema`: one `type`
+string per field, enums of numbers as `oneOf` consts); a missing value (`X | None` in the record, a
+non-finite number) is an *absent field*, never null and never NaN, so optional fields are left out
+of `required`; every integer stays below 2**53 so that JavaScript readers see it exactly; a
+record's epoch-nanosecond field `*_time_ns` appears as a `{sec, nsec}` timestamp named without the
+suffix (Foxglove's time type). `/rig/log` is Foxglove's well-known `foxglove.Log`, kept field for
+field. Logs written before 2026-11-27 carry null for a missing value; readers accept both.
 
 `/rig/loadcell` (1 kHz) is logged as rows (`ROW_FIELDS`), not records: no object per sample.
 """
@@ -38,6 +41,7 @@ from rig.log.records import (
     finite_number,
     integer,
     integer_or_none,
+    present,
     stamp_name,
 )
 
@@ -68,18 +72,24 @@ _TIMESTAMP = {
 }
 
 
-def _type_schema(name: str, hint: Any) -> dict[str, Any]:
-    """The JSON Schema of one field from its type hint (`X | None` allows null)."""
-    args = typing.get_args(hint)
+def _optional_inner(hint: Any) -> Any | None:
+    """`X` for a hint `X | None`; None for any other hint."""
     if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        args = typing.get_args(hint)
         inner = [a for a in args if a is not type(None)]
-        if len(inner) != 1:
-            raise TypeError(f"{name}: unsupported union {hint!r}")
-        schema = _type_schema(name, inner[0])
-        if type(None) in args:
-            kinds = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
-            schema = {**schema, "type": [*kinds, "null"]}
-        return schema
+        if len(inner) != 1 or type(None) not in args:
+            raise TypeError(f"unsupported union {hint!r}: only `X | None` (an optional field)")
+        return inner[0]
+    return None
+
+
+def _type_schema(name: str, hint: Any) -> dict[str, Any]:
+    """The JSON Schema of one field's values from its type hint (`X | None` only at the top: `Fields`)."""
+    if _optional_inner(hint) is not None:
+        raise TypeError(
+            f"{name}: an optional value inside a container has no JSON form (use an absent field)"
+        )
+    args = typing.get_args(hint)
     if isinstance(hint, type) and issubclass(hint, Enum):
         return {"type": "string", "enum": [m.value for m in hint]}
     if hint is bool:
@@ -103,61 +113,89 @@ def _type_schema(name: str, hint: Any) -> dict[str, Any]:
             "maxItems": len(args),
         }
     if origin in (Mapping, dict, typing.Mapping):
-        return {"type": "object", "additionalProperties": _type_schema(name, args[1])}
+        value = args[1]
+        inner = _optional_inner(value)  # a None value is left out of the map, like an absent field
+        return {
+            "type": "object",
+            "additionalProperties": _type_schema(name, value if inner is None else inner),
+        }
     raise TypeError(f"{name}: no JSON Schema for {hint!r}")
 
 
-def _field_schemas(record: type, *, exclude: tuple[str, ...] = (), nullable: bool = False) -> dict[str, Any]:
-    """`{payload name: schema}` for a dataclass or NamedTuple, in field order (all nullable if asked).
+@dataclass(frozen=True)
+class Fields:
+    """The payload fields of a record: `{payload name: schema}` in field order, and which may be absent."""
+
+    properties: dict[str, Any]
+    optional: frozenset[str] = frozenset()
+
+    def __add__(self, other: Fields) -> Fields:
+        return Fields({**self.properties, **other.properties}, self.optional | other.optional)
+
+    def with_field(self, name: str, schema: dict[str, Any], *, optional: bool = False) -> Fields:
+        """These fields and one more (or one replaced)."""
+        opt = self.optional | {name} if optional else self.optional - {name}
+        return Fields({**self.properties, name: schema}, opt)
+
+
+def _field_schemas(record: type, *, exclude: tuple[str, ...] = (), optional: bool = False) -> Fields:
+    """The payload fields of a dataclass or NamedTuple (`X | None` fields optional; all if asked).
 
     A `*_time_ns` field is the `{sec, nsec}` timestamp named without the suffix (`records.stamp`).
     """
     hints = typing.get_type_hints(record)
     names = [f.name for f in fields(record)] if is_dataclass(record) else list(record._fields)  # type: ignore[attr-defined]
-    out: dict[str, Any] = {}
+    properties: dict[str, Any] = {}
+    absent: set[str] = set()
     for name in names:
         if name in exclude:
             continue
-        schema = _type_schema(name, hints[name])
-        if nullable and "null" not in schema["type"]:
-            kinds = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
-            schema = {**schema, "type": [*kinds, "null"]}
-        out[stamp_name(name)] = schema
-    return out
+        hint = hints[name]
+        inner = _optional_inner(hint)
+        payload_name = stamp_name(name)
+        properties[payload_name] = _type_schema(name, hint if inner is None else inner)
+        if optional or inner is not None:
+            absent.add(payload_name)
+    return Fields(properties, frozenset(absent))
 
 
-def _rig_object(title: str, description: str, properties: dict[str, Any]) -> dict[str, Any]:
+def _rig_object(title: str, description: str, payload: Fields) -> dict[str, Any]:
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": title,
         "description": description,
         "type": "object",
-        "properties": properties,
-        "required": list(properties),
+        "properties": payload.properties,
+        "required": [name for name in payload.properties if name not in payload.optional],
         "additionalProperties": False,
     }
 
 
-def _servo_state_properties() -> dict[str, Any]:
+def _servo_state_fields() -> Fields:
     state = _field_schemas(ServoState, exclude=("time_ns",))
-    servo_id = state.pop("servo_id")
-    return {"servo_id": servo_id, "role": {"type": "string"}, **state}
+    servo_id = state.properties.pop("servo_id")
+    return Fields({"servo_id": servo_id, "role": {"type": "string"}, **state.properties}, state.optional)
 
 
-def _estimate_properties() -> dict[str, Any]:
-    fit = _field_schemas(FitSummary, nullable=True)
-    fit["n"] = {"type": "integer", "minimum": 0, "maximum": MAX_SAFE_INT}
+def _estimate_fields() -> Fields:
+    fit = _field_schemas(FitSummary, optional=True)
+    fit = fit.with_field("n", {"type": "integer", "minimum": 0, "maximum": MAX_SAFE_INT})
     joint = _field_schemas(JointCapacity)
     joints = {
         "type": "array",
         "items": {
             "type": "object",
-            "properties": joint,
-            "required": list(joint),
+            "properties": joint.properties,
+            "required": [name for name in joint.properties if name not in joint.optional],
             "additionalProperties": False,
         },
     }
-    return {**_field_schemas(Estimate, exclude=("fit", "joints")), **fit, "joints": joints}
+    return (
+        _field_schemas(Estimate, exclude=("fit", "joints"))
+        + fit
+        + Fields({"joints": joints})
+        + Fields({"capacity_bounded": {"type": "boolean"}})
+    )
 
 
 def _foxglove_log() -> dict[str, Any]:
@@ -193,13 +231,13 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     SERVO_STATE: (
         "rig.ServoState",
-        _rig_object("rig.ServoState", "One servo's state from one bus read.", _servo_state_properties()),
+        _rig_object("rig.ServoState", "One servo's state from one bus read.", _servo_state_fields()),
     ),
     SERVO_COMMAND: (
         "rig.ServoCommand",
         _rig_object(
             "rig.ServoCommand",
-            "A command sent to a servo (log_time = when it was sent); value in unit, null for reboot.",
+            "A command sent to a servo (log_time = when it was sent); value in unit, absent for reboot.",
             _field_schemas(ServoCommand),
         ),
     ),
@@ -207,7 +245,7 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         "rig.TrialState",
         _rig_object(
             "rig.TrialState",
-            "A phase change of the runner (trial_id null outside trials).",
+            "A phase change of the runner (trial_id absent outside trials).",
             _field_schemas(TrialState),
         ),
     ),
@@ -215,12 +253,10 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         "rig.SlipEvent",
         _rig_object(
             "rig.SlipEvent",
-            "A slip detected in the load-cell signal; detector parameters by name; joint 1-based or null.",
-            {
-                **_field_schemas(SlipMessage, exclude=("event", "detector", "joint")),
-                **_field_schemas(SlipEvent),
-                **_field_schemas(SlipMessage, exclude=("trial_id", "event")),
-            },
+            "A slip detected in the load-cell signal; detector parameters by name; joint 1-based if known.",
+            _field_schemas(SlipMessage, exclude=("event", "detector", "joint", "train_drops"))
+            + _field_schemas(SlipEvent)
+            + _field_schemas(SlipMessage, exclude=("trial_id", "event")),
         ),
     ),
     TRIAL_RESULT: (
@@ -231,8 +267,9 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         "rig.Estimate",
         _rig_object(
             "rig.Estimate",
-            "The online estimate after a trial (keys as `rig fit --json`; null where undefined).",
-            _estimate_properties(),
+            "The online estimate after a trial (keys as `rig fit --json`, absent where undefined;"
+            " capacity_bounded: capacity_nm and both capacity_ci_nm bounds are present).",
+            _estimate_fields(),
         ),
     ),
     LOG: ("foxglove.Log", _foxglove_log()),
@@ -330,23 +367,30 @@ def loadcell_sample(
         type(raw) is int
         and type(force_n) is float
         and math.isfinite(force_n)
-        and (seq is None or type(seq) is int)
-        and (device_time_us is None or type(device_time_us) is int)
+        and type(seq) is int
+        and type(device_time_us) is int
     ):
         # The common case (1 kHz from the driver): already the exact types the checks below produce.
         return {"seq": seq, "raw": raw, "force_n": force_n, "device_time_us": device_time_us}
-    return {
-        "seq": integer_or_none(seq, "seq"),
-        "raw": integer(raw, "raw"),
-        "force_n": finite_number(force_n, "force_n"),
-        "device_time_us": integer_or_none(device_time_us, "device_time_us"),
-    }
+    return present(
+        {
+            "seq": integer_or_none(seq, "seq"),
+            "raw": integer(raw, "raw"),
+            "force_n": finite_number(force_n, "force_n"),
+            "device_time_us": integer_or_none(device_time_us, "device_time_us"),
+        }
+    )
 
 
 # Topics whose payload may also be given as a row: a tuple of the values in this order (no dict to
 # build and pickle per message at 1 kHz). `RunLogger.log_many` accepts rows; the file holds the
 # same JSON object either way.
 ROW_FIELDS: dict[str, tuple[str, ...]] = {LOADCELL: ("seq", "raw", "force_n", "device_time_us")}
+
+
+def row_payload(topic: str, row: tuple[Any, ...]) -> dict[str, Any]:
+    """The payload of a row of `topic` (`ROW_FIELDS`): its fields by name, None values left out."""
+    return present(dict(zip(ROW_FIELDS[topic], row, strict=True)))
 
 
 def loadcell_payload(sample: LoadCellSample) -> dict[str, Any]:

@@ -177,7 +177,7 @@ class RunLogger:
                 if fields is None or len(payload) != len(fields):
                     raise TypeError(f"{topic}: a row payload needs the fields {fields}; got {payload!r}")
                 if strict:
-                    schemas.check_payload(topic, dict(zip(fields, payload, strict=True)))
+                    schemas.check_payload(topic, schemas.row_payload(topic, payload))
             elif strict:
                 schemas.check_payload(topic, payload)
             if not batch:

@@ -143,7 +143,7 @@ class WriterProcess:
             try:
                 if type(payload) is tuple:  # a row: the values of schemas.ROW_FIELDS[topic], in order
                     data = (topic == schemas.LOADCELL and loadcell_row_json(payload)) or dumps(
-                        dict(zip(schemas.ROW_FIELDS[topic], payload, strict=True))
+                        schemas.row_payload(topic, payload)
                     ).encode()
                 else:
                     data = dumps(payload).encode()
@@ -216,10 +216,9 @@ def _loadcell_row_json(row: tuple[Any, ...]) -> bytes | None:
         return None
     if type(seq) not in _INT_OR_NONE or type(device_us) not in _INT_OR_NONE:
         return None
-    return (
-        f'{{"seq":{"null" if seq is None else seq},"raw":{raw},"force_n":{force!r},'
-        f'"device_time_us":{"null" if device_us is None else device_us}}}'
-    ).encode()
+    if seq is None or device_us is None:
+        return None  # the encoder leaves the missing field out
+    return f'{{"seq":{seq},"raw":{raw},"force_n":{force!r},"device_time_us":{device_us}}}'.encode()
 
 
 def main(argv: list[str]) -> int:
