@@ -19,8 +19,9 @@
  * hardware-latched counter (0.5 us ticks, jitter-free: no interrupt latency in the stamp), clocks
  * the 25 pulses out with interrupts off (25 pulses select channel A, gain 128 for the next
  * conversion; on the HX717 too) and queues the sample. loop() formats the queued samples and hands
- * them to the serial buffer only if the whole line fits; otherwise the line is skipped (seq still
- * counts it, so the host sees the loss), so nothing ever waits for the UART. In between it sleeps.
+ * each to the serial buffer once the whole line fits, so the reads never wait for the UART. If the
+ * queue is full (the UART too slow for the rate), the conversion is read and dropped, and seq
+ * still counts it, so the host sees the loss. In between, the CPU sleeps.
  */
 #include <Arduino.h>
 #include <avr/interrupt.h>
@@ -170,14 +171,16 @@ void setup()
 
 void loop()
 {
+    /* A line goes to the serial buffer only whole and only if it fits, so Serial.write never waits;
+     * a sample that does not fit yet waits in the queue (8 conversions: 100 ms at 80/s). */
     while (queued()) {
         volatile struct Sample *slot = &queue[queue_tail & (QUEUE_LENGTH - 1)];
         char line[LC1_MAX_LINE_BYTES];
         uint8_t n = lc1_format_sample(line, slot->seq, slot->t_us, slot->raw);
+        if (Serial.availableForWrite() < n)
+            break;
+        Serial.write((const uint8_t *)line, n);
         queue_tail++;
-        if (Serial.availableForWrite() >= n)
-            Serial.write((const uint8_t *)line, n);
-        /* else: skipped; the next line's seq shows the host what is missing */
     }
     noInterrupts();
     uint32_t since_ms = millis() - last_conversion_ms;
