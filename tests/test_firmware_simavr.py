@@ -116,6 +116,7 @@ def _check_every_conversion_arrives_as_shifted(run: Run, period_us: int) -> list
     )
     assert (lines.restarts, lines.samples_dropped) == (0, 0)
     assert stats["missed_conversions"] == 0 and stats["pty_bytes_dropped"] == 0
+    assert (stats["raw_mismatches"], stats["unmatched_lines"], stats["bad_lines"]) == (0, 0, 0)  # its own tap
     # The HX711's protocol kept: 25 pulses per read (channel A, gain 128), no high phase over 50 us.
     assert (stats["serial_errors"], stats["long_high_phases"], stats["reads_other_gain"]) == (0, 0, 0)
     # Each raw is the value the model shifted out: the reads from the first one sent on (the firmware

@@ -373,7 +373,6 @@ typedef struct {
     /* line parsing */
     char line[128];
     size_t line_len;
-    uint64_t reads_at_start; /* reads done when the current line's first byte was sent */
     int have_offset;
     int64_t read_offset; /* read index = unwrapped seq + offset */
     int64_t seq_unwrapped;
@@ -461,8 +460,22 @@ static void data_line(uart_tap_t *u, const char *text, uint64_t end_cycle)
     u->last_seq = (uint16_t)seq;
     hx711_t *m = u->model;
     if (!u->have_offset) {
-        /* The first line after a boot belongs to the latest read when it started. */
-        u->read_offset = (int64_t)u->reads_at_start - 1 - u->seq_unwrapped;
+        /* The first line after a boot: t-us counts from when the firmware started Timer1, early in
+         * setup(), so its read is the one whose data-ready time is the least at or after t-us
+         * (earlier reads come a whole period or more before, later ones after). Then seq counts on. */
+        int64_t best = -1, best_gap = INT64_MAX;
+        for (uint64_t r = m->reads > READ_RING ? m->reads - READ_RING : 0; r < m->reads; r++) {
+            int64_t gap = (int64_t)(m->reads_ring[r % READ_RING].ready_cycle / CYCLES_PER_US) - (int64_t)t_us;
+            if (gap >= 0 && gap < best_gap) {
+                best_gap = gap;
+                best = (int64_t)r;
+            }
+        }
+        if (best < 0) {
+            u->unmatched++;
+            return;
+        }
+        u->read_offset = best - u->seq_unwrapped;
         u->have_offset = 1;
     }
     int64_t read_index = u->seq_unwrapped + u->read_offset;
@@ -511,8 +524,6 @@ static void uart_byte(struct avr_irq_t *irq, uint32_t value, void *param)
     if (u->out_len == sizeof u->out)
         flush_out(u);
     u->out[u->out_len++] = c;
-    if (u->line_len == 0)
-        u->reads_at_start = u->model->reads;
     if (u->line_len < sizeof u->line - 1)
         u->line[u->line_len++] = c;
     if (c != '\n')
@@ -798,13 +809,17 @@ int main(int argc, char **argv)
     }
     double wall_s = (double)(now_ns() - wall_start) / 1e9;
     flush_out(&tap);
-    /* Give the reader up to a second to take what is still in the pty before it goes away. */
+    /* Give the reader up to 2 s to take what is still in the pty before it goes away: the kernel
+     * moves bytes from the master to the slave's queue a little later, so the queue must stay
+     * empty for 60 ms. */
     if (slave_fd >= 0) {
-        for (int i = 0; i < 100; i++) {
+        int quiet = 0;
+        for (int i = 0; i < 100 && quiet < 3; i++) {
+            usleep(20000);
             int pending = 0;
-            if (ioctl(slave_fd, FIONREAD, &pending) || pending == 0)
+            if (ioctl(slave_fd, FIONREAD, &pending))
                 break;
-            usleep(10000);
+            quiet = pending ? 0 : quiet + 1;
         }
     }
     if (model.log)
