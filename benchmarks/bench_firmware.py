@@ -40,7 +40,7 @@ def measure(rate: int, samples: int, tmp: Path) -> dict[str, object]:
     link = tmp / f"lc{rate}"
     stats_path = tmp / f"stats{rate}.json"
     argv = [str(HARNESS), "--fast", "--wait-open", "--link", str(link), "--rate", str(rate)]
-    argv += ["--signal", SIGNAL, "--lines", str(samples), "--stats", str(stats_path)]
+    argv += ["--signal", SIGNAL, "--stats", str(stats_path)]  # stopped once the driver has them all
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     assert proc.stdout is not None
     if not proc.stdout.readline().startswith("PTY "):
@@ -52,7 +52,9 @@ def measure(rate: int, samples: int, tmp: Path) -> dict[str, object]:
             received += driver.poll()
             time.sleep(0.01)
         lines = driver.line_stats()
+    proc.terminate()
     proc.wait(timeout=60)
+    received = received[:samples]
     stats = json.loads(stats_path.read_text())
     steps = [(b.device_time_us - a.device_time_us) % 2**32 for a, b in itertools.pairwise(received)]
     return {

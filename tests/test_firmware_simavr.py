@@ -82,8 +82,12 @@ def _harness_process(path: Path, tmp_path: Path, *args: str) -> Iterator[tuple[s
 
 
 def run_firmware(path: Path, tmp_path: Path, lines: int, *args: str, timeout_s: float = 60.0) -> Run:
-    """Run the image until it has sent `lines` data lines, reading them with the rig's driver."""
-    with _harness_process(path, tmp_path, "--lines", str(lines), *args) as (proc, link):
+    """Run the image until the rig's driver has read `lines` data lines, then stop it (SIGTERM).
+
+    With --fast the harness waits for its reader when the pty is full, so a reader slowed down by a
+    busy machine loses nothing; stopping it only once everything wanted is read keeps it that way.
+    """
+    with _harness_process(path, tmp_path, *args) as (proc, link):
         samples: list[LoadCellSample] = []
         driver = SerialLoadCell(str(link), baud=115200, stale_timeout_s=timeout_s)
         with driver:
@@ -93,7 +97,9 @@ def run_firmware(path: Path, tmp_path: Path, lines: int, *args: str, timeout_s: 
                 time.sleep(0.01)
             info = [line.text for line in driver.info_lines()]
             driver_stats = driver.line_stats()
+        proc.terminate()
         proc.wait(timeout=30)
+    samples = samples[:lines]
     stats = json.loads((tmp_path / "stats.json").read_text())
     shifted = [
         (int(a), int(b), int(c))

@@ -65,6 +65,7 @@
 #define READ_RING 4096   /* reads remembered for matching lines to conversions */
 
 static volatile sig_atomic_t stop_requested;
+static int limit_reached; /* --lines or --seconds: wait for the reader before exiting */
 
 static void on_signal(int signo)
 {
@@ -543,7 +544,7 @@ static void uart_byte(struct avr_irq_t *irq, uint32_t value, void *param)
     } else if (!strncmp(u->line, "$LC,", 4)) {
         data_line(u, u->line, end_cycle);
         if (u->line_limit && u->lines >= u->line_limit)
-            stop_requested = 1;
+            stop_requested = limit_reached = 1;
     } else {
         u->bad_lines++;
     }
@@ -807,12 +808,14 @@ int main(int argc, char **argv)
             }
         }
     }
+    if (avr->cycle >= end_cycle)
+        limit_reached = 1;
     double wall_s = (double)(now_ns() - wall_start) / 1e9;
     flush_out(&tap);
     /* Give the reader up to 2 s to take what is still in the pty before it goes away: the kernel
      * moves bytes from the master to the slave's queue a little later, so the queue must stay
      * empty for 60 ms. */
-    if (slave_fd >= 0) {
+    if (slave_fd >= 0 && limit_reached) {
         int quiet = 0;
         for (int i = 0; i < 100 && quiet < 3; i++) {
             usleep(20000);
