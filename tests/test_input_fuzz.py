@@ -426,6 +426,7 @@ def test_rig_sim_loadcell_options(profile):
             "offset_counts": st.one_of(st.floats(), st.just(0.0)),
             "noise_counts": st.one_of(st.floats(), st.just(400.0)),
             "drift_counts_per_s": st.one_of(st.floats(), st.just(5.0)),
+            "banner": st.booleans(),
         }
     )
 

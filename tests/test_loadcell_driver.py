@@ -325,3 +325,46 @@ def test_close_and_reopen_on_the_in_process_port():
     assert len(first) >= 38 and len(second) >= 38
     assert second[0].seq > first[-1].seq + 190  # the device kept counting while the port was closed
     assert driver.stats().missing_samples == 0  # counters restart at open()
+
+
+def test_a_restart_is_logged_counted_and_mapped_afresh_not_a_sequence_gap(caplog):
+    clock = VirtualClock()
+    driver, emulator = simulated_load_cell(ConstantTension(5.0), clock, rate_hz=500)
+    with driver, caplog.at_level("INFO", logger="rig.hw.loadcell.driver"):
+        before = run_for(driver, clock, 1.0)
+        emulator.inject_restart()  # the firmware's reset: the banner, then seq and clock from 0
+        after = run_for(driver, clock, 1.0)
+        info = driver.info_lines()
+        stats = driver.line_stats()
+    samples = before + after
+    restart = next(i for i, s in enumerate(samples) if s.seq == 0 and i > 0)
+    assert [s.seq for s in samples[restart:]] == list(range(len(samples) - restart))
+    assert samples[restart].device_time_us == 0
+    assert (stats.restarts, stats.info_lines, stats.sequence_gaps, stats.missing_samples) == (1, 1, 0, 0)
+    assert not stats.lossless and "restarted 1 times" in stats.describe()
+    assert driver.stats().restarts == 1
+    assert [(i.banner, i.restart) for i in info] == [(True, True)]
+    assert any(r.levelname == "WARNING" and "restarted" in r.getMessage() for r in caplog.records)
+    # The restarted clock is mapped afresh: sample times run on across the restart (mapped with
+    # the old offset, the samples after it would be stamped a second in the past). As after open(),
+    # the first read's lines share its receipt time until the mapping has learnt the latency.
+    steps = [b.time_ns - a.time_ns for a, b in itertools.pairwise(samples)]
+    assert min(steps[5:]) >= 0
+    assert 0 <= steps[restart - 1] <= 20_000_000
+
+
+def test_a_banner_before_the_first_sample_is_information_only():
+    clock = VirtualClock()
+    emulator = LoadCellEmulator(ConstantTension(1.0), rate_hz=100, banner=b"#BOOT fw=test\r\n")
+    driver = SerialLoadCell(
+        "sim://loadcell", clock=clock, serial_factory=in_process_serial_factory(emulator, clock)
+    )
+    with driver:
+        samples = run_for(driver, clock, 0.5)
+        stats = driver.line_stats()
+    assert samples and samples[0].seq == 0
+    assert (stats.info_lines, stats.restarts, stats.garbled_lines) == (1, 0, 0) and stats.lossless
+    assert [i.text for i in driver.info_lines()] == ["BOOT fw=test"]
+    assert emulator.counts.banners == 1
+    with pytest.raises(InputError, match="banner"):
+        LoadCellEmulator(ConstantTension(1.0), format_name="indicator-st", rate_hz=10, banner=b"#BOOT\r\n")

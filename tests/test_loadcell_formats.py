@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from rig.errors import InputError
 from rig.hw.loadcell.formats import (
+    MAX_INFO_LINE_BYTES,
     ChecksumError,
     DeviceReading,
     IndicatorStCodec,
@@ -214,11 +215,14 @@ def test_decoder_accounts_for_every_byte(chunks, data):
     for lo, hi in zip([0, *cuts], [*cuts, len(stream)], strict=True):
         out += decoder.feed(stream[lo:hi])
     ok_bytes = sum(len(LC1.encode(DeviceReading(d.raw, d.seq, d.device_time_us))) for d in out)
+    info = decoder.take_info()  # random bytes may hold an information line, e.g. b"#\n"
     c = decoder.counts()
     assert c.bytes_received == len(stream)
     # Every valid line is counted with CRLF; a line received with a bare LF would be one byte shorter.
-    assert c.bytes_received == ok_bytes + c.bytes_discarded + decoder.pending_bytes
+    info_bytes = sum(i.line_bytes for i in info)
+    assert c.bytes_received == ok_bytes + info_bytes + c.bytes_discarded + decoder.pending_bytes
     assert c.lines_ok == len(out)
+    assert c.info_lines == len(info)
 
 
 @pytest.mark.parametrize("count", [1, 7, 8, 50])
@@ -257,6 +261,94 @@ def test_feed_columns_equals_feed_on_valid_blocks_and_on_each_kind_of_damage():
     assert feed_both([b"no lines\n"]).counts().bytes_discarded == 9
 
 
+# Information lines: printable ASCII but "#" and "$".
+INFO_ALPHABET = "".join(chr(c) for c in range(0x20, 0x7F) if chr(c) not in "#$")
+BANNER = b"#BOOT fw=rig-hx711/1.0.0 adc=HX711 gain=A128 sps=80 period-us=12500\r\n"
+INFO = st.builds(
+    lambda text, crlf: b"#" + text.encode() + (b"\r\n" if crlf else b"\n"),
+    st.one_of(st.just("BOOT fw=rig-hx711/1.0.0 adc=HX711"), st.text(INFO_ALPHABET, max_size=71)),
+    st.booleans(),
+)
+
+
+def test_information_lines_are_counted_and_kept_never_damage_nor_samples():
+    decoder = LineDecoder(LC1)
+    stream = BANNER + b"#INFO dout=D8 sck=D9\n" + b"".join(lc1_lines(3)) + b"#WARN late\r\n"
+    out = decoder.feed(stream)
+    c = decoder.counts()
+    assert [d.seq for d in out] == [0, 1, 2]
+    assert (c.info_lines, c.restarts, c.bytes_discarded, c.corrupt_lines, c.sequence_gaps) == (3, 0, 0, 0, 0)
+    info = decoder.take_info()
+    assert [(i.text, i.banner, i.restart, i.sample_index) for i in info] == [
+        (BANNER[1:-2].decode(), True, False, 0),
+        ("INFO dout=D8 sck=D9", False, False, 0),
+        ("WARN late", False, False, 3),
+    ]
+    assert sum(i.line_bytes for i in info) + sum(map(len, lc1_lines(3))) == len(stream)
+    assert decoder.take_info() == []  # handed over once
+
+
+def test_a_banner_after_a_sample_is_a_restart_not_a_sequence_gap():
+    before, after = lc1_lines(5, start_seq=100), lc1_lines(4)
+    restarted = LineDecoder(LC1)
+    out = restarted.feed(b"".join(before) + BANNER + b"".join(after))
+    assert [d.seq for d in out] == [100, 101, 102, 103, 104, 0, 1, 2, 3]
+    c = restarted.counts()
+    assert (c.restarts, c.sequence_gaps, c.missing_samples, c.info_lines) == (1, 0, 0, 1)
+    assert [(i.restart, i.sample_index) for i in restarted.take_info()] == [(True, 5)]
+    # Without the banner the same stream is a gap; and a banner split from its samples across
+    # reads, or after a line the reset cut short, is the same restart.
+    plain = LineDecoder(LC1)
+    plain.feed(b"".join(before + after))
+    assert (plain.counts().sequence_gaps, plain.counts().restarts) == (1, 0)
+    split = LineDecoder(LC1)
+    for chunk in (b"".join(before), BANNER[:20], BANNER[20:] + after[0], b"".join(after[1:])):
+        split.feed(chunk)
+    cut = LineDecoder(LC1)
+    cut.feed(b"".join(before) + after[0][:9] + BANNER + b"".join(after))
+    for decoder, corrupt in ((split, 0), (cut, 1)):
+        c = decoder.counts()
+        counted = (c.lines_ok, c.restarts, c.sequence_gaps, c.missing_samples, c.corrupt_lines)
+        assert counted == (9, 1, 0, 0, corrupt)
+
+
+def test_what_is_not_an_information_line_stays_garbage():
+    too_long = b"#" + b"x" * (MAX_INFO_LINE_BYTES - 2) + b"\r\n"  # 75 bytes
+    fits = b"#" + b"x" * (MAX_INFO_LINE_BYTES - 3) + b"\r\n"  # 74 bytes
+    for bad in (b"#bell \x07\r\n", b"#dollar $ sign\n", b"#tab\there\n", too_long):
+        decoder = LineDecoder(LC1)
+        decoder.feed(bad + lc1_lines(1)[0])
+        c = decoder.counts()
+        assert (c.info_lines, c.lines_ok, c.bytes_discarded) == (0, 1, len(bad))
+    decoder = LineDecoder(LC1)
+    decoder.feed(fits)
+    assert decoder.counts().info_lines == 1
+    indicator = LineDecoder(IND)  # indicator-st has no information lines
+    indicator.feed(BANNER)
+    assert (indicator.counts().info_lines, indicator.counts().bytes_discarded) == (0, len(BANNER))
+
+
+@settings(max_examples=300)
+@given(
+    st.lists(st.one_of(INFO, st.sampled_from(lc1_lines(10)), st.binary(max_size=20)), max_size=30),
+    st.data(),
+)
+def test_information_lines_survive_damage_around_them(chunks, data):
+    stream = b"".join(chunks)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
+    decoder = LineDecoder(LC1)
+    for lo, hi in zip([0, *cuts], [*cuts, len(stream)], strict=True):
+        decoder.feed(stream[lo:hi])
+    info = decoder.take_info()
+    sent = [c[1:].rstrip(b"\r\n").decode() for c in chunks if c.startswith(b"#") and c.endswith(b"\n")]
+    sent = [text for text in sent if all(ch in INFO_ALPHABET for ch in text) and len(text) <= 71]
+    # Every information line arrives, whatever garbage (without a line end) was glued before it;
+    # more can only come from random bytes that happen to form one.
+    received = iter(i.text for i in info)
+    assert all(text in received for text in sent)  # in order
+    assert decoder.counts().info_lines == len(info) >= len(sent)
+
+
 def garble(line, kind, rng):
     """A rig-lc1 line damaged as a serial link or a firmware bug might (`kind` 0-9): most are then invalid."""
     i = rng.randrange(len(line))
@@ -281,6 +373,7 @@ def garble(line, kind, rng):
 
 
 VALID = st.one_of(
+    INFO,
     st.sampled_from(lc1_lines(40)),
     st.builds(  # an unbroken run of sequence numbers, possibly across the wrap
         lambda n, start: b"".join(lc1_lines(n, start)), st.integers(1, 20), st.integers(65500, 65535)

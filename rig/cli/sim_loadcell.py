@@ -8,7 +8,14 @@ import time
 
 from rig.errors import InputError
 from rig.hw.loadcell.formats import FORMATS
-from rig.sim.loadcell.emulator import DEFAULT_BAUD, FaultPlan, LoadCellEmulator, SignalModel, parse_fault
+from rig.sim.loadcell.emulator import (
+    DEFAULT_BANNER,
+    DEFAULT_BAUD,
+    FaultPlan,
+    LoadCellEmulator,
+    SignalModel,
+    parse_fault,
+)
 from rig.sim.loadcell.profiles import parse_profile
 from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.pty_link import PtyLink, StopFlag
@@ -79,6 +86,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=defaults.drift_counts_per_s,
         help=f"zero drift in counts per second (default {defaults.drift_counts_per_s:g})",
     )
+    parser.add_argument(
+        "--banner",
+        action="store_true",
+        help=f"rig-lc1: send a boot banner ({DEFAULT_BANNER.decode().strip()}) before the first line, "
+        "as firmware/ does",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -103,6 +116,7 @@ def build_emulator(args: argparse.Namespace, start_ns: int) -> LoadCellEmulator:
         faults=plan,
         seed=args.seed,
         start_ns=start_ns,
+        banner=DEFAULT_BANNER if args.banner else None,
     )
 
 

@@ -171,6 +171,8 @@ class LoadCellLineStats:
     missing_samples: int  # sequence numbers never received, summed over the gaps
     sequence_gaps: int  # places where the device's sequence counter skipped
     samples_dropped: int  # decoded samples discarded because poll() came too late (queue full)
+    info_lines: int = 0  # information lines (rig-lc1 `#...`): what the device said, not damage
+    restarts: int = 0  # the device restarted (a boot banner after a sample); samples were lost unseen
 
     def since(self, earlier: LoadCellLineStats) -> LoadCellLineStats:
         """The counts after `earlier` (e.g. one trial's); all of these if the port was reopened since."""
@@ -181,9 +183,9 @@ class LoadCellLineStats:
 
     @property
     def lossless(self) -> bool:
-        """Nothing was lost, garbled or dropped."""
+        """Nothing was lost, garbled or dropped, and the device did not restart."""
         lost = self.checksum_failures + self.garbled_lines + self.missing_samples + self.samples_dropped
-        return lost == 0
+        return lost == 0 and self.restarts == 0
 
     def as_dict(self) -> dict[str, int]:
         """The counts by name (for JSON and log messages)."""
@@ -195,6 +197,8 @@ class LoadCellLineStats:
             f"{self.lines_ok} lines ok; {self.missing_samples} samples missing in {self.sequence_gaps} "
             f"sequence gaps, {self.checksum_failures} checksum failures, {self.garbled_lines} garbled "
             f"lines, {self.samples_dropped} samples dropped (queue full)"
+            + (f"; the device restarted {self.restarts} times" if self.restarts else "")
+            + (f"; {self.info_lines} information lines" if self.info_lines else "")
         )
 
 

@@ -3,6 +3,11 @@
 It also implements `LineStatsSource`: `line_stats()` counts the lines decoded, garbled, failing their
 checksum and missing from the sequence (`stats()` adds bytes and overloads, for diagnostics).
 
+Information lines (rig-lc1 `#...`, e.g. the firmware's boot banner) are logged on this module's
+logger and kept (`info_lines()`); they are counted, never as damage. A boot banner after a sample
+means the device restarted: the driver logs a warning saying so, counts it (`restarts`), follows
+the restarted sequence without counting a gap, and maps the restarted device clock afresh.
+
 `poll()` never blocks. On a real port (a `serial.SerialBase`) a background reader thread reads
 bytes as they arrive, stamps them on receipt with `clock.monotonic_ns()` (plus one epoch anchor
 taken at `open()`), decodes them and feeds a bounded queue that `poll()` drains. On any other
@@ -14,10 +19,11 @@ longer than `stale_timeout_s`, `poll()` raises `StaleDataError`.
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import threading
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from itertools import repeat
 from typing import Any, Literal
@@ -28,7 +34,7 @@ from rig.errors import InputError, NotConnectedError, StaleDataError
 from rig.hw.clock import SystemClock
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.device_time import DeviceClockMapper
-from rig.hw.loadcell.formats import LineDecoder, get_codec
+from rig.hw.loadcell.formats import InfoLine, LineDecoder, get_codec
 from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample
 
 DEFAULT_BAUD = 921600
@@ -36,6 +42,9 @@ DEFAULT_STALE_TIMEOUT_S = 0.5
 DEFAULT_QUEUE_SAMPLES = 20_000  # 10 s at 2 kHz
 _READ_TIMEOUT_S = 0.05  # how often the reader thread checks for close()
 _READ_CHUNK_BYTES = 65536
+_INFO_LINES_KEPT = 64
+
+logger = logging.getLogger(__name__)
 
 SerialFactory = Callable[..., Any]
 
@@ -58,6 +67,8 @@ class LoadCellStats:
     missing_samples: int  # sequence numbers never received (gaps, broken lines, silences)
     overload_lines: int  # valid lines the device flagged as overload
     samples_dropped: int  # decoded samples lost because poll() was not called for too long (queue full)
+    info_lines: int = 0  # information lines (`#...`, e.g. a boot banner): neither samples nor damage
+    restarts: int = 0  # boot banners after a sample: the device restarted
 
 
 class SerialLoadCell:
@@ -100,6 +111,7 @@ class SerialLoadCell:
         self._decoder = LineDecoder(get_codec(format_name))
         self._device_clock = DeviceClockMapper()
         self._samples_dropped = 0
+        self._info: deque[InfoLine] = deque(maxlen=_INFO_LINES_KEPT)
         self._reader_error: BaseException | None = None
         self._anchor_ns = 0
         self._last_valid_mono_ns = 0
@@ -127,6 +139,7 @@ class SerialLoadCell:
         self._device_clock.reset()
         self._queue.clear()
         self._samples_dropped = 0
+        self._info.clear()
         self._reader_error = None
         self._anchor_ns = self.clock.time_ns() - self.clock.monotonic_ns()
         self._last_valid_mono_ns = self.clock.monotonic_ns()  # staleness counts from open()
@@ -222,6 +235,8 @@ class SerialLoadCell:
             c.missing_samples,
             c.overload_lines,
             dropped,
+            c.info_lines,
+            c.restarts,
         )
 
     def line_stats(self) -> LoadCellLineStats:
@@ -236,7 +251,14 @@ class SerialLoadCell:
             missing_samples=c.missing_samples,
             sequence_gaps=c.sequence_gaps,
             samples_dropped=dropped,
+            info_lines=c.info_lines,
+            restarts=c.restarts,
         )
+
+    def info_lines(self) -> list[InfoLine]:
+        """The latest information lines since `open()` (up to 64), oldest first."""
+        with self._lock:
+            return list(self._info)
 
     def _ingest(self, data: bytes, receipt_mono_ns: int) -> None:
         """Decode bytes received at `receipt_mono_ns` and queue their samples."""
@@ -245,9 +267,12 @@ class SerialLoadCell:
         with self._lock:
             # The decoder's fast path: the same lines and counters as `LineDecoder.feed`, as columns.
             raws, seqs, device_times_us = self._decoder.feed_columns(data)
+            info = self._decoder.take_info()
+            if info:
+                self._note_info(info)
             if not raws:
                 return
-            times_ns = self._device_clock.sample_times_ns(device_times_us, time_ns)
+            times_ns = self._sample_times_ns(device_times_us, time_ns, info)
             if cal is None:
                 forces = [math.nan] * len(raws)
             else:
@@ -264,6 +289,35 @@ class SerialLoadCell:
                 self._samples_dropped += overflow  # the bounded deque drops the oldest
             queue.extend(samples)
             self._last_valid_mono_ns = receipt_mono_ns
+
+    def _note_info(self, info: list[InfoLine]) -> None:
+        """Log and keep information lines (called with the lock held)."""
+        self._info.extend(info)
+        for line in info:
+            if line.restart:
+                logger.warning(
+                    "load cell %s restarted (boot banner after a sample: %s); its sequence and clock "
+                    "start again, not counted as a sequence gap",
+                    self.port,
+                    line.text,
+                )
+            else:
+                logger.info("load cell %s: %s", self.port, line.text)
+
+    def _sample_times_ns(
+        self, device_times_us: Sequence[int | None], time_ns: int, info: list[InfoLine]
+    ) -> list[int]:
+        """Host times of the samples; the device clock is mapped afresh after each restart."""
+        cuts = [line.sample_index for line in info if line.restart]
+        if not cuts:
+            return self._device_clock.sample_times_ns(device_times_us, time_ns)
+        times: list[int] = []
+        bounds = zip([0, *cuts], [*cuts, len(device_times_us)], strict=True)
+        for part, (lo, hi) in enumerate(bounds):
+            if part:
+                self._device_clock.reset()
+            times += self._device_clock.sample_times_ns(device_times_us[lo:hi], time_ns)
+        return times
 
     def _read_forever(self) -> None:
         ser, stop, clock = self._serial, self._stop, self.clock

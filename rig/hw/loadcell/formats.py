@@ -9,7 +9,9 @@ The plain decoder (`decode` of each codec, `LineDecoder.feed`) is the specificat
 path, `LineDecoder.feed_columns` (what the driver calls), comes after it in this module, gives the
 same lines and counters, and is tested against `feed` (tests/test_loadcell_formats.py).
 
-* `rig-lc1`, the rig's own: `$LC,<seq>,<t_us>,<raw>*<hh>\r\n` with an NMEA-style XOR checksum.
+* `rig-lc1`, the rig's own: `$LC,<seq>,<t_us>,<raw>*<hh>\r\n` with an NMEA-style XOR checksum, and
+  information lines `#<text>\r\n` (a boot banner `#BOOT ...`, warnings), which the decoder counts and
+  hands over (`take_info`) but never turns into samples or counts as damage.
 * `indicator-st`, a commercial weighing-indicator style: `ST,GS,+0001.23kg\r\n` (no sequence
   number, no device clock, no checksum).
 """
@@ -38,6 +40,26 @@ class LineError(ValueError):
 
 class ChecksumError(LineError):
     """A well-formed line whose checksum does not match its contents."""
+
+
+# rig-lc1 information lines: "#", then printable ASCII except "#" and "$" (so neither kind of line
+# start hides inside one), then CR LF; at most 74 bytes in all, the decoder's limit for a line that
+# is still arriving (2 x the longest data line). A banner starts "#BOOT": after a sample, a restart.
+INFO_LINE_START = b"#"
+BANNER_PREFIX = b"#BOOT"
+MAX_INFO_LINE_BYTES = 74
+_INFO_LINE = re.compile(rb"#[\x20-\x22\x25-\x7e]{0,%d}\r?" % (MAX_INFO_LINE_BYTES - 3))
+
+
+@dataclass(frozen=True, slots=True)
+class InfoLine:
+    """An information line as received: what the device said, and where it came in the stream."""
+
+    text: str  # without the "#" and the terminator
+    line_bytes: int  # bytes it took on the wire, terminator included
+    banner: bool  # a boot banner (`#BOOT ...`)
+    restart: bool  # a banner after a sample since the decoder started: the device restarted
+    sample_index: int  # samples the same `feed` call returned before it
 
 
 class DeviceReading(NamedTuple):
@@ -76,6 +98,7 @@ class LineCodec(Protocol):
     has_checksum: bool  # corruption is detectable per line
     max_line_bytes: int  # longest valid line, terminator included
     header_bytes: int  # a truncated line is recognisable as one if at least this many bytes survive
+    has_info_lines: bool  # lines starting with `#` are information, not samples (INFO_LINE_START)
 
     def encode(self, reading: DeviceReading) -> bytes:
         """The bytes of one line, terminator included."""
@@ -113,6 +136,7 @@ class RigLc1Codec:
     has_checksum = True
     max_line_bytes = len(b"$LC,65535,4294967295,-2147483648*FF\r\n")  # 37
     header_bytes = 1  # the `$`
+    has_info_lines = True
 
     def encode(self, reading: DeviceReading) -> bytes:
         """Format one reading; seq and device time are reduced modulo their wrap."""
@@ -168,6 +192,7 @@ class IndicatorStCodec:
     has_checksum = False
     max_line_bytes = len(b"ST,GS,+0001.23kg\r\n") + 1  # up to a 3-letter unit: 19
     header_bytes = len(b"ST,GS,")
+    has_info_lines = False
 
     def __init__(self, decimals: int = 2, unit: str = "kg") -> None:
         if not 0 <= decimals <= 5:
@@ -262,21 +287,30 @@ class DecoderCounts:
     sequence_gaps: int = 0  # places where the sequence counter skipped
     missing_samples: int = 0  # sequence numbers never received, summed over the gaps
     overload_lines: int = 0  # valid lines flagged as overload by the device
+    info_lines: int = 0  # information lines (`#...`): neither samples nor damage
+    restarts: int = 0  # boot banners after a sample: the device restarted (its seq restarts, no gap)
 
 
 class LineDecoder:
     """Split a byte stream into lines and decode them, resynchronising after damage.
 
-    Bytes are accounted for exactly: `bytes_received == bytes in valid lines + bytes_discarded +
-    pending_bytes`. A discarded stretch that contains line headers counts one corrupt line per
-    header (a truncated line glued to the next one); a stretch with no header is garbage and only
-    adds to `bytes_discarded`. Sequence gaps are counted modulo 2**16, so a silence longer than
-    65536 sample periods is under-counted (documented in protocols/loadcell-formats.md).
+    Bytes are accounted for exactly: `bytes_received == bytes in valid lines (samples and
+    information lines) + bytes_discarded + pending_bytes`. A discarded stretch that contains line
+    headers counts one corrupt line per header (a truncated line glued to the next one); a stretch
+    with no header is garbage and only adds to `bytes_discarded`. Sequence gaps are counted modulo
+    2**16, so a silence longer than 65536 sample periods is under-counted (documented in
+    protocols/loadcell-formats.md).
+
+    Information lines (rig-lc1 `#...`) are collected for `take_info` and counted in `info_lines`;
+    one may follow damage on the same line (a line cut short by a reset, then the banner). A boot
+    banner after a sample is a restart: counted in `restarts`, and the sequence is followed afresh
+    from the next sample instead of counting a gap.
     """
 
     def __init__(self, codec: LineCodec, max_line_bytes: int | None = None) -> None:
         self.codec = codec
         self._fast_lc1 = isinstance(codec, RigLc1Codec)  # `feed_columns` has a fast path for rig-lc1
+        self._info_lines = codec.has_info_lines
         self.max_line_bytes = max_line_bytes or 2 * codec.max_line_bytes
         self._pending = b""
         self._last_seq: int | None = None
@@ -288,6 +322,9 @@ class LineDecoder:
         self.sequence_gaps = 0
         self.missing_samples = 0
         self.overload_lines = 0
+        self.info_lines = 0
+        self.restarts = 0
+        self._new_info: list[InfoLine] = []
 
     @property
     def pending_bytes(self) -> int:
@@ -305,7 +342,14 @@ class LineDecoder:
             self.sequence_gaps,
             self.missing_samples,
             self.overload_lines,
+            self.info_lines,
+            self.restarts,
         )
+
+    def take_info(self) -> list[InfoLine]:
+        """The information lines received since the last call, in order."""
+        info, self._new_info = self._new_info, []
+        return info
 
     def feed(self, data: bytes) -> list[DecodedLine]:
         """Consume received bytes; return the valid lines completed by them, in order."""
@@ -328,19 +372,45 @@ class LineDecoder:
         segments = block.split(b"\n")
         segments.pop()  # the empty string after the final terminator
         lines: list[DecodedLine] = []
+        followed = 0  # lines[:followed] have had their sequence accounted (before a restart)
         for segment in segments:
             try:
                 lines.append(self.codec.decode(segment))
             except LineError:
-                resynced = self._resync(segment)
-                if resynced is not None:
-                    lines.append(resynced)
+                info = self._info_line(segment, len(lines)) if self._info_lines else None
+                if info is None:
+                    resynced = self._resync(segment)
+                    if resynced is not None:
+                        lines.append(resynced)
+                elif info.restart and self.codec.has_sequence:
+                    # The samples before the restart are followed as usual; after it, afresh.
+                    self._account_sequence([line.seq for line in lines[followed:]])  # type: ignore[misc]
+                    followed = len(lines)
+                    self._last_seq = None
         if lines:
             self.lines_ok += len(lines)
             if self.codec.has_sequence:
-                self._account_sequence([line.seq for line in lines])  # type: ignore[misc]
+                self._account_sequence([line.seq for line in lines[followed:]])  # type: ignore[misc]
             self.overload_lines += sum(1 for line in lines if line.overload)
         return lines
+
+    def _info_line(self, segment: bytes, samples_before: int) -> InfoLine | None:
+        """The information line ending `segment`, if there is one (damage before it is discarded)."""
+        start = segment.rfind(INFO_LINE_START)
+        if start < 0 or _INFO_LINE.fullmatch(segment, start) is None:
+            return None
+        if start > 0:
+            prefix = segment[:start]
+            self.bytes_discarded += len(prefix)
+            self.corrupt_lines += self.codec.count_line_starts(prefix)
+        line = segment[start:].rstrip(b"\r")
+        banner = line.startswith(BANNER_PREFIX)
+        restart = banner and self.lines_ok + samples_before > 0
+        info = InfoLine(line[1:].decode("ascii"), len(segment) - start + 1, banner, restart, samples_before)
+        self.info_lines += 1
+        self.restarts += restart
+        self._new_info.append(info)
+        return info
 
     def _account_sequence(self, seqs: Sequence[int]) -> None:
         """Count the gaps in the sequence numbers of consecutive valid lines."""
@@ -377,6 +447,10 @@ class LineDecoder:
         """An unterminated stretch longer than any line: keep only a plausible last line start."""
         start = self.codec.last_line_start(tail)
         keep = tail[start:] if start >= 0 and len(tail) - start <= self.codec.max_line_bytes else b""
+        if not keep and self._info_lines:  # or an information line still arriving
+            start = tail.rfind(INFO_LINE_START)
+            if start >= 0 and len(tail) - start < MAX_INFO_LINE_BYTES and b"$" not in tail[start:]:
+                keep = tail[start:]
         dropped = tail[: len(tail) - len(keep)]
         self.bytes_discarded += len(dropped)
         self.corrupt_lines += self.codec.count_line_starts(dropped)

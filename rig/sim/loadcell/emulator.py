@@ -21,7 +21,10 @@ above; they have their own random stream. With artefacts on, every sample takes 
 Faults (per-line probabilities, scheduled silences, or one-shot injections for tests):
 garbage bytes before a line, a truncated line (its tail, terminator included, lost), a bad
 checksum, a sequence gap (samples taken but never sent), silence (cable unplugged: the device
-keeps sampling and counting, nothing is sent).
+keeps sampling and counting, nothing is sent), a restart (rig-lc1: the boot banner again, then seq
+and the device clock from 0, as the firmware in firmware/ does after a reset).
+
+A rig-lc1 emulator given a `banner` sends it before its first line, as that firmware does at boot.
 """
 
 from __future__ import annotations
@@ -35,7 +38,9 @@ from typing import Any
 from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import InputError
 from rig.hw.loadcell.formats import (
+    BANNER_PREFIX,
     DEVICE_TIME_MODULUS_US,
+    MAX_INFO_LINE_BYTES,
     SEQ_MODULUS,
     DeviceReading,
     IndicatorStCodec,
@@ -58,6 +63,7 @@ GAIN_RANGE_COUNTS_PER_N = (1e-3, 1e9)  # |gain|
 COUNTS_LIMIT = 1e9  # |offset|, |drift per second|, noise
 MAX_SILENCE_S = 1e6  # start and duration of a scheduled silence
 _GARBAGE_ALPHABET = bytes(b for b in range(256) if b not in b"$\r\n")
+DEFAULT_BANNER = b"#BOOT fw=rig-sim-loadcell adc=emulated gain=A128\r\n"
 
 TensionSource = Callable[[int], float]
 _LC1_TAILS = [b"*%02X\r\n" % checksum for checksum in range(256)]  # rig-lc1 line ends by checksum
@@ -203,6 +209,7 @@ class EmulatorCounts:
     gap_samples: int = 0  # samples dropped by sequence gaps
     silenced_samples: int = 0
     overload_lines: int = 0
+    banners: int = 0  # boot banners sent (at start and at each restart)
 
 
 @dataclass(slots=True)
@@ -212,6 +219,8 @@ class _Pending:
     bad_checksum: int = 0
     gap_samples: int = 0
     silence_until_ns: int = -1
+    banner: bool = False  # send the banner before the next line
+    restart: bool = False  # ... and restart seq and the device clock at 0 with it
 
 
 class LoadCellEmulator:
@@ -232,6 +241,7 @@ class LoadCellEmulator:
         device_time_start_us: int = 0,
         indicator_g: float = STANDARD_GRAVITY_M_S2,
         artefacts: ArtefactModel | None = None,
+        banner: bytes | None = None,
     ) -> None:
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
             raise InputError(f"--rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
@@ -245,6 +255,17 @@ class LoadCellEmulator:
                 f"--rate {rate_hz:g} Hz of {format_name} lines (up to {self.codec.max_line_bytes} bytes) "
                 f"needs >= {needed_baud:.0f} baud; --baud {baud}; allowed: a faster baud or a lower rate"
             )
+        if banner is not None and not (
+            self.codec.has_info_lines
+            and banner.startswith(BANNER_PREFIX)
+            and banner.endswith(b"\r\n")
+            and len(banner) <= MAX_INFO_LINE_BYTES
+        ):
+            raise InputError(
+                f"load-cell banner {banner!r}; allowed: a rig-lc1 line `#BOOT ...` CR LF of at most "
+                f"{MAX_INFO_LINE_BYTES} bytes"
+            )
+        self.banner = banner
         self.faults = faults or FaultPlan()
         self.unplugged = False  # the cable is out: the host's port fails (in-process transport)
         if not self.codec.has_checksum and self.faults.bad_checksum_per_line:
@@ -265,7 +286,7 @@ class LoadCellEmulator:
         self._k = 0  # index of the next sample
         self._seq = seq_start
         self._device_time_start_us = device_time_start_us
-        self._pending = _Pending()
+        self._pending = _Pending(banner=banner is not None)
         self._silences_ns = sorted(
             (start_ns + round(s * 1e9), start_ns + round((s + d) * 1e9)) for s, d in self.faults.silences_s
         )
@@ -305,6 +326,12 @@ class LoadCellEmulator:
     def inject_sequence_gap(self, n_samples: int) -> None:
         """Drop the next `n_samples` samples (taken and counted by the device, never sent)."""
         self._pending.gap_samples += n_samples
+
+    def inject_restart(self) -> None:
+        """Restart before the next sample: the banner (`DEFAULT_BANNER` if none), seq and clock from 0."""
+        if not self.codec.has_info_lines:
+            raise InputError(f"format {self.format_name} has no information lines to announce a restart")
+        self._pending.banner = self._pending.restart = True
 
     def inject_silence(self, duration_s: float, at_ns: int | None = None) -> None:
         """Send nothing for `duration_s` from `at_ns` (default: the next sample), as if unplugged."""
@@ -352,7 +379,13 @@ class LoadCellEmulator:
 
     def _pending_faults(self) -> bool:
         pending = self._pending
-        return bool(pending.garbage_bytes or pending.truncate or pending.bad_checksum or pending.gap_samples)
+        return bool(
+            pending.garbage_bytes
+            or pending.truncate
+            or pending.bad_checksum
+            or pending.gap_samples
+            or pending.banner
+        )
 
     def _lc1_lines_until(self, t_ns: int, out: list[tuple[int, bytes]]) -> None:
         """`_sample` for every sample up to `t_ns`, for rig-lc1 with no fault due.
@@ -416,6 +449,25 @@ class LoadCellEmulator:
         return bool(self._silences_ns) and self._silences_ns[0][0] <= t_ns
 
     def _sample(self, t_ns: int) -> bytes:
+        """The bytes sent for the sample at `t_ns`: a pending banner, then the line with its faults.
+
+        On a restart, seq and the device clock start again at 0 with this sample.
+        """
+        pending = self._pending
+        if not pending.banner:
+            return self._sample_line(t_ns)
+        pending.banner = False
+        if pending.restart:
+            pending.restart = False
+            self._seq = 0
+            self._device_time_start_us = -((t_ns - self.start_ns) // 1000)
+        banner = b""
+        if not (self._silences_ns and self._silenced(t_ns)):  # unplugged: lost with everything else
+            banner = self.banner or DEFAULT_BANNER
+            self.counts.banners += 1
+        return banner + self._sample_line(t_ns)
+
+    def _sample_line(self, t_ns: int) -> bytes:
         elapsed_ns = t_ns - self.start_ns
         rng = self._rng
         tension = self.tension_n(t_ns)
