@@ -54,13 +54,11 @@ import bisect
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
-from enum import StrEnum
 from typing import Any, Protocol
 
 import numpy as np
 
 from model.joint import mu_delta0_pa_from_capacity, resolve_constant
-from rig.rig_config import SLIP_KINDS
 from rig.sim.physics.article import ChainArticle
 from rig.sim.physics.article_presets import (
     STREAM_BEND,
@@ -71,6 +69,7 @@ from rig.sim.physics.article_presets import (
 )
 from rig.sim.physics.bending_fixture import BendingFixture
 from rig.sim.physics.winch_line import WinchLine
+from rig.vocabulary import SlipKind, TrialKind
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0
@@ -100,27 +99,6 @@ class ShaftLike(Protocol):
     def present_position_rad(self) -> float:
         """Output-shaft angle [rad], multi-turn, physical direction."""
         ...
-
-
-class TrialKind(StrEnum):
-    """The two trial kinds of the paper."""
-
-    JOINT_ESTIMATION = "joint_estimation"  # V-A: single joint, load at distance l
-    LINK_VALIDATION = "link_validation"  # V-B: the bent link
-
-
-class SlipKind(StrEnum):
-    """How a trial's joint slips (`rig.rig_config.SlipKindMix` documents each)."""
-
-    SUDDEN = "sudden"
-    SMALL_DROP = "small_drop"
-    CREEP = "creep"
-    STICK_SLIP = "stick_slip"
-    OTHER_JOINT = "other_joint"
-    NO_SLIP = "no_slip"
-
-
-assert tuple(k.value for k in SlipKind) == SLIP_KINDS
 
 
 @dataclass(frozen=True)
@@ -758,10 +736,10 @@ class SimWorld:
         rng = self._kind_rng
         u = float(rng.random())
         cumulative = np.cumsum(mix.probabilities)
-        index = min(int(np.searchsorted(cumulative, u, side="right")), len(SLIP_KINDS) - 1)
+        index = min(int(np.searchsorted(cumulative, u, side="right")), len(SlipKind) - 1)
         while mix.probabilities[index] == 0:  # u at the very top of the range: the last kind that can occur
             index -= 1
-        slip_kind = SlipKind(SLIP_KINDS[index])
+        slip_kind = list(SlipKind)[index]
 
         def uniform(bounds: tuple[float, float]) -> float:
             return float(rng.uniform(bounds[0], bounds[1]))
@@ -851,7 +829,7 @@ class SimWorld:
                 "sd_m": "sqrt(a^2 + (b m)^2)",
             },
             "slip_mix": {
-                "probabilities": dict(zip(SLIP_KINDS, p.slip_mix.probabilities, strict=True)),
+                "probabilities": dict(zip(SlipKind, p.slip_mix.probabilities, strict=True)),
                 **{
                     k: list(v)
                     for k, v in asdict(p.slip_mix).items()
