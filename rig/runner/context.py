@@ -11,6 +11,7 @@ from rig.rig_config import RigConfig
 from rig.runner.control_loop import ControlLoop
 from rig.runner.estimation import RunEstimator
 from rig.runner.recorder import RunRecorder
+from rig.runner.release import LineRelease
 
 BENDER_SPEED_RAD_S = 2.0
 
@@ -28,3 +29,14 @@ class StepContext:
     detector_params: DetectorParams
     line_stiffness_n_per_m: float
     winch_zero_rad: float | None = None
+
+    def line_release(self) -> LineRelease:
+        """A release starting from a copy of what the loop saw last (`rig.runner.release`)."""
+        return LineRelease(
+            self.session,
+            self.recorder,
+            self.protocol.ramp,
+            control_period_s=self.protocol.control_period_s,
+            tare_n=self.loop.tare_n,
+            last=self.loop.reading(),
+        )

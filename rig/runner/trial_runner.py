@@ -47,17 +47,14 @@ from rig.runner.journal import RunJournal
 from rig.runner.phases import Phase
 from rig.runner.progress import ProgressReporter
 from rig.runner.recorder import RunRecorder
+from rig.runner.recovery import MAX_TRIAL_RETRIES, is_device_fault, recover
 from rig.runner.release import LineRelease
 from rig.runner.results import TrialMeasurements, trial_result
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD, enter_safe_state
+from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held
 from rig.runner.steps import STEPS
 from rig.vocabulary import ServoRole, TrialKind
 
-# After a device fault in a trial: how many times the trial may be repeated, and how long the rig
-# has to answer healthily again (servos without a hardware error, fresh load-cell samples).
-MAX_TRIAL_RETRIES = 2
-RECOVERY_GRACE_S = 2.0
 LINE_MAY_BE_LOADED = (
     "THE LINE MAY BE LOADED: switch off the servos' power before touching the link, then release the "
     "winch by hand"
@@ -110,7 +107,7 @@ class TrialRunner:
             ceiling=ForceCeiling(ceiling),
             current_limit=CurrentAtLimit(session.winch_id, config.limits.winch_current_limit_a, hold_s=1.0),
         )
-        self.steps = StepContext(
+        self.ctx = StepContext(
             protocol=protocol,
             config=config,
             session=session,
@@ -202,11 +199,11 @@ class TrialRunner:
         self.session.load_cell.open()
         self.loop.restart_pacing()
         self.loop.tick()
-        self.steps.winch_zero_rad = self.loop.states[winch].position_rad
+        self.ctx.winch_zero_rad = self.loop.states[winch].position_rad
         recorder.phase(Phase.IDLE, None)
         recorder.note(
             LogLevel.INFO,
-            f"connected: servos {sorted(self.session.roles)}; winch zero {self.steps.winch_zero_rad:.4f} rad",
+            f"connected: servos {sorted(self.session.roles)}; winch zero {self.ctx.winch_zero_rad:.4f} rad",
         )
 
     # ------------------------------------------------------------------ trial
@@ -215,10 +212,9 @@ class TrialRunner:
         """Run a trial; after a device fault that clears, repeat it (at most `MAX_TRIAL_RETRIES` times).
 
         A device fault (a servo or load cell not answering, stale data, a latched hardware error)
-        stops the attempt in a trial-level safe state: the line is released (a faulted winch is
-        rebooted first). If within `RECOVERY_GRACE_S` every servo answers without a hardware error
-        and the load cell delivers fresh samples, the trial starts again from its first step; the
-        retry is logged and counted in the journal. Otherwise the fault ends the run (exit 1).
+        stops the attempt in a trial-level safe state (`rig.runner.recovery`). If the rig recovers
+        within `RECOVERY_GRACE_S`, the trial starts again from its first step; the retry is logged
+        and counted in the journal. Otherwise the fault ends the run (exit 1).
         """
         for retries in range(MAX_TRIAL_RETRIES + 1):
             try:
@@ -233,8 +229,8 @@ class TrialRunner:
             ) as exc:
                 if (
                     retries == MAX_TRIAL_RETRIES
-                    or not self._device_fault(exc)
-                    or not self._recover(trial, exc)
+                    or not is_device_fault(exc, self.loop.states)
+                    or not recover(self.ctx, trial, exc)
                 ):
                     raise
             self.journal.record_retry(trial.trial_id)
@@ -242,50 +238,6 @@ class TrialRunner:
                 LogLevel.WARNING, f"trial {trial.trial_id}: the rig recovered; repeating the trial"
             )
         raise AssertionError("unreachable")
-
-    def _device_fault(self, exc: RigError) -> bool:
-        """Whether `exc` is a device's fault that may clear (not a step timeout or a tension limit)."""
-        if isinstance(exc, StepTimeoutError):
-            return False
-        if isinstance(exc, InterlockTripped):  # only the hardware-error interlock is a device's fault
-            return any(state.hardware_error for state in self.loop.states.values())
-        return True
-
-    def _recover(self, trial: TrialPlan, exc: RigError) -> bool:
-        """Release the line after a device fault and wait for a healthy rig; True if it recovered."""
-        loop, note = self.loop, self.recorder.note
-        note(LogLevel.WARNING, f"trial {trial.trial_id} stopped: {exc}; releasing the line")
-        self.recorder.phase(Phase.UNLOADING, trial.trial_id, "recover")
-        zero = self.steps.winch_zero_rad
-        if zero is None:
-            return False
-        release = self._line_release()
-        try:
-            self.steps.winch_zero_rad = zero = release.run(zero)
-        except RigError as error:
-            note(LogLevel.ERROR, f"trial {trial.trial_id}: release after the fault failed: {error}")
-            return False
-        finally:
-            loop.adopt(release.reading())
-        winch = self.session.winch_id
-        deadline = self.clock.monotonic_ns() + round(RECOVERY_GRACE_S * 1e9)
-        while self.clock.monotonic_ns() < deadline:
-            self.clock.sleep(self.protocol.control_period_s)
-            try:
-                loop.states = self.session.servos.read_states()
-                samples = self.session.load_cell.poll()
-            except RigError:
-                continue
-            loop.ingest(samples)
-            home = abs(loop.states[winch].position_rad - zero) < POSITION_TOLERANCE_RAD
-            if home and samples and not any(s.hardware_error for s in loop.states.values()):
-                loop.restart_pacing()
-                note(
-                    LogLevel.INFO, f"trial {trial.trial_id}: rig healthy again ({'; '.join(release.report)})"
-                )
-                return True
-        note(LogLevel.ERROR, f"trial {trial.trial_id}: the rig did not recover within {RECOVERY_GRACE_S:g} s")
-        return False
 
     def _run_trial(self, trial: TrialPlan) -> TrialResult:
         self.trial = trial
@@ -296,7 +248,7 @@ class TrialRunner:
         lines_before = self._line_stats()
         try:
             for step in trial.steps:
-                STEPS[step.kind](self.steps, step, trial, found)
+                STEPS[step.kind](self.ctx, step, trial, found)
         except StepTimeoutError as exc:
             self._abort_trial(trial, found, exc)
         self._note_line_losses(trial, lines_before)
@@ -324,7 +276,7 @@ class TrialRunner:
         The run goes on with the next trial. If the line cannot be released or the rig does not
         answer healthily within `RECOVERY_GRACE_S`, the timeout ends the run (exit 1).
         """
-        if not self._recover(trial, exc):
+        if not recover(self.ctx, trial, exc):
             raise exc
         found.outcome = TrialOutcome.ABORTED
         found.reason = str(exc)
@@ -346,17 +298,6 @@ class TrialRunner:
 
     # ------------------------------------------------------------------ safety
 
-    def _line_release(self) -> LineRelease:
-        """A release starting from a copy of what the loop saw last (`rig.runner.release`)."""
-        return LineRelease(
-            self.session,
-            self.recorder,
-            self.protocol.ramp,
-            control_period_s=self.protocol.control_period_s,
-            tare_n=self.loop.tare_n,
-            last=self.loop.reading(),
-        )
-
     def _make_safe(self) -> str | None:
         """Release the line, then torque off every servo, then close; an error text, or None if verified.
 
@@ -364,7 +305,7 @@ class TrialRunner:
         winch's position was read back at its zero-tension angle, the torque-off when every servo
         confirmed it.
         """
-        zero = self.steps.winch_zero_rad
+        zero = self.ctx.winch_zero_rad
         never_loaded = not self.connected or zero is None
         releases: list[LineRelease] = []
 
@@ -372,7 +313,7 @@ class TrialRunner:
             if never_loaded or zero is None:
                 return
             self.recorder.phase_quiet(Phase.UNLOADING, self.trial.trial_id if self.trial else None)
-            releases.append(self._line_release())
+            releases.append(self.ctx.line_release())
             try:
                 releases[0].run(zero)
             finally:
