@@ -72,7 +72,7 @@ class SimConfigurationSource:
         if new_slips:
             last = new_slips[-1]
             probability = self.report_probability
-            if last.kind == SlipKind.OTHER_JOINT.value:
+            if last.kind == SlipKind.OTHER_JOINT:
                 probability = world.preset.slip_mix.other_joint_report_probability
             if self._report_rng.random() < probability:
                 slipped = last.moved_joint
