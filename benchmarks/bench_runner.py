@@ -48,7 +48,7 @@ def instrument_parts() -> collections.Counter[str]:
     from rig.hw.dxl.bus import DynamixelServoBus
     from rig.hw.loadcell.driver import SerialLoadCell
     from rig.log.writer import RunLogger
-    from rig.runner.trial_runner import TrialRunner
+    from rig.runner.control_loop import ControlLoop
     from rig.sim.clock import VirtualClock
 
     totals: collections.Counter[str] = collections.Counter()
@@ -65,11 +65,11 @@ def instrument_parts() -> collections.Counter[str]:
 
         setattr(cls, name, timed)
 
-    wrap(TrialRunner, "_tick", "tick (all of the below and the interlocks)")
+    wrap(ControlLoop, "tick", "tick (all of the below and the interlocks)")
     wrap(VirtualClock, "sleep", "  clock sleep: world, servo and load-cell emulation")
     wrap(DynamixelServoBus, "read_states", "  servo state read (SDK + emulated bus)")
     wrap(SerialLoadCell, "poll", "  load-cell poll (bytes to samples)")
-    wrap(TrialRunner, "_ingest", "  runner ingest and logging calls")
+    wrap(ControlLoop, "ingest", "  runner ingest and logging calls")
     wrap(RunLogger, "flush", "wall time waiting for the writer process to flush (not CPU)", time.perf_counter)
     return totals
 

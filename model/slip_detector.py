@@ -263,6 +263,13 @@ def _checked(name: str, raw: Any, rule: _FieldRule, source: str) -> float | None
     return value
 
 
+class SlipEventKind(StrEnum):
+    """What a detected slip looked like: a sudden drop, or a slow sag (creep)."""
+
+    DROP = "drop"
+    CREEP = "creep"
+
+
 class DetectorPhase(StrEnum):
     """Where the detector is in its arm / fire / re-arm cycle."""
 
@@ -324,7 +331,7 @@ class SlipEvent:
     force_after_n: float
     drop_fraction: float
     trigger: str
-    kind: str = "drop"
+    kind: SlipEventKind = SlipEventKind.DROP
 
 
 # Increments averaged with equal weights before the running estimates switch to their time constants.
@@ -534,7 +541,7 @@ def detector_step(
 
     if triggers:
         slow = triggers == ["creep"] or time_ns - onset >= params.creep_min_s * 1e9
-        kind = "creep" if slow else "drop"
+        kind = SlipEventKind.CREEP if slow else SlipEventKind.DROP
         event = SlipEvent(
             onset_time_ns=onset,
             detection_time_ns=time_ns,

@@ -17,7 +17,7 @@ import re
 import string
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, assert_never
 
 from model.design import (
     DEFAULT_MIN_SPREAD_FRACTION,
@@ -29,9 +29,9 @@ from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, 
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
+from rig.vocabulary import StepKind, TrialKind
 
 PROTOCOL_FORMAT = "rig-protocol/1"
-BLOCK_KINDS = ("joint_estimation", "link_validation")
 DESIGNS = ("fixed", "adaptive")
 # The keys of each joint-estimation design (docs/formats.md §1): the other design's are refused by name.
 FIXED_KEYS = ("distances_m", "repeats", "shuffle")
@@ -48,11 +48,17 @@ ADAPTIVE_KEYS = (
     "estimator",
 )
 DEFAULT_MAX_FORCE_FRACTION = 0.8
-STEP_KINDS = ("prompt", "tare", "bend", "measure", "ramp_until_slip", "unload", "reset", "pause")
-DEFAULT_STEPS: dict[str, tuple[str, ...]] = {
-    "joint_estimation": ("prompt", "tare", "ramp_until_slip", "unload", "pause"),
-    "link_validation": ("bend", "measure", "tare", "ramp_until_slip", "unload", "reset", "pause"),
-}
+DEFAULT_STEPS: dict[TrialKind, tuple[StepKind, ...]] = {
+    TrialKind.JOINT_ESTIMATION: (
+        StepKind.PROMPT, StepKind.TARE, StepKind.RAMP_UNTIL_SLIP, StepKind.UNLOAD, StepKind.PAUSE
+    ),
+    TrialKind.LINK_VALIDATION: (
+        StepKind.BEND, StepKind.MEASURE, StepKind.TARE, StepKind.RAMP_UNTIL_SLIP, StepKind.UNLOAD,
+        StepKind.RESET, StepKind.PAUSE,
+    ),
+}  # fmt: skip
+# Steps that move or read the bending fixture: only a link-validation trial has them.
+LINK_ONLY_STEPS = frozenset({StepKind.BEND, StepKind.RESET, StepKind.MEASURE})
 # Size limits (docs/formats.md §1): generous for any real protocol, small enough that a hostile
 # file cannot make the plan take minutes or gigabytes.
 MAX_BLOCKS = 100
@@ -66,8 +72,10 @@ PROMPT_FIELDS = ("distance_m", "joint", "configuration", "trial", "repeat")
 # A format spec of at most 2-digit width and precision (no nested fields: a width of 10**9 is a hang).
 _PROMPT_SPEC = re.compile(r"(.?[<>=^])?[+\- ]?#?0?\d{0,2}[,_]?(\.\d{1,2})?[bcdeEfFgGnosxX%]?")
 DEFAULT_PROMPTS = {
-    "joint_estimation": "Hang the hook at {distance_m:.3f} m from joint {joint}, then confirm.",
-    "link_validation": "Check configuration {configuration} is set and the line is free, then confirm.",
+    TrialKind.JOINT_ESTIMATION: "Hang the hook at {distance_m:.3f} m from joint {joint}, then confirm.",
+    TrialKind.LINK_VALIDATION: (
+        "Check configuration {configuration} is set and the line is free, then confirm."
+    ),
 }
 
 
@@ -87,7 +95,7 @@ class RampSettings:
 class StepSpec:
     """One step of a trial's template."""
 
-    kind: str
+    kind: StepKind
     text: str | None = None  # prompt text template
     duration_s: float = 0.0  # pause length, tare settle time
 
@@ -98,7 +106,7 @@ class TrialPlan:
 
     trial_id: int
     block: int
-    kind: str
+    kind: TrialKind
     repeat: int
     steps: tuple[StepSpec, ...]
     joint: int | None = None  # joint under test (joint estimation)
@@ -132,7 +140,7 @@ class AdaptiveBlock:
     steps: tuple[StepSpec, ...]
     design: DesignSettings
     max_force_fraction: float
-    kind: str = "joint_estimation"
+    kind: TrialKind = TrialKind.JOINT_ESTIMATION
 
     @property
     def trial_ids(self) -> range:
@@ -173,7 +181,7 @@ class Protocol:
     estimator: EstimatorName = DEFAULT_ESTIMATOR  # of k, for the run's estimate (docs/model.md §4.2)
 
     @property
-    def kinds(self) -> set[str]:
+    def kinds(self) -> set[TrialKind]:
         """The trial kinds the plan contains."""
         return {t.kind for t in self.trials} | {b.kind for b in self.adaptive}
 
@@ -269,8 +277,8 @@ def parse_protocol(
     blocks = top.sequence("blocks", min_length=1, max_length=MAX_BLOCKS)
     for b, raw_block in enumerate(blocks):
         block = Section(raw_block, source, f"blocks[{b}]")
-        kind = block.string("kind", choices=BLOCK_KINDS)
-        if kind == "joint_estimation" and block.has("design"):
+        kind = TrialKind(block.string("kind", choices=tuple(TrialKind)))
+        if kind == TrialKind.JOINT_ESTIMATION and block.has("design"):
             design = block.string("design", choices=DESIGNS)
         else:
             design = "fixed"
@@ -285,10 +293,13 @@ def parse_protocol(
             adaptive.append(chosen)
             used += chosen.design.max_trials
             continue
-        if kind == "joint_estimation":
-            new = _joint_estimation_block(block, b, used, rng, joint_count)
-        else:
-            new = _link_validation_block(block, b, used, joint_count)
+        match kind:
+            case TrialKind.JOINT_ESTIMATION:
+                new = _joint_estimation_block(block, b, used, rng, joint_count)
+            case TrialKind.LINK_VALIDATION:
+                new = _link_validation_block(block, b, used, joint_count)
+            case _:
+                assert_never(kind)
         if used + len(new) > MAX_TRIALS:
             raise block.error(
                 "repeats",
@@ -297,10 +308,10 @@ def parse_protocol(
         _check_prompts(block, new[0])
         trials += new
         used += len(new)
-        if kind == "link_validation":
+        if kind == TrialKind.LINK_VALIDATION:
             source_of_estimates = block.string("estimates_from", default="run")
             if source_of_estimates == "run":
-                if not adaptive and not any(t.kind == "joint_estimation" for t in trials):
+                if not adaptive and not any(t.kind == TrialKind.JOINT_ESTIMATION for t in trials):
                     raise block.error(
                         "estimates_from",
                         "'run' needs a joint_estimation block earlier in this protocol; "
@@ -377,7 +388,7 @@ def _ramp(sec: Section) -> RampSettings:
     )
 
 
-def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
+def _steps(block: Section, kind: TrialKind) -> tuple[StepSpec, ...]:
     raw = block.sequence("steps", default=list(DEFAULT_STEPS[kind]), min_length=1, max_length=MAX_STEPS)
     steps: list[StepSpec] = []
     for i, item in enumerate(raw):
@@ -389,40 +400,43 @@ def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
         else:
             raise block.error(f"steps[{i}]", "expected a step name or a one-key mapping {name: options}")
         field = f"steps[{i}]"
-        if name not in STEP_KINDS:
-            raise block.error(field, f"unknown step '{name}'; allowed: {', '.join(STEP_KINDS)}")
-        if name in ("bend", "reset", "measure") and kind != "link_validation":
+        if name not in tuple(StepKind):
+            raise block.error(field, f"unknown step '{name}'; allowed: {', '.join(StepKind)}")
+        step = StepKind(name)
+        if step in LINK_ONLY_STEPS and kind != TrialKind.LINK_VALIDATION:
             raise block.error(field, f"step '{name}' needs kind: link_validation")
-        opts = Section(options, block.source, block.field(field))
-        if name == "prompt":
-            opts.reject_unknown(["text"])
-            steps.append(StepSpec("prompt", text=_prompt_text(opts, DEFAULT_PROMPTS[kind])))
-        elif name == "pause":
-            opts.reject_unknown(["duration_s"])
-            steps.append(
-                StepSpec(
-                    "pause",
-                    duration_s=opts.number("duration_s", default=0.5, min_value=0.0, max_value=3600.0),
-                )
-            )
-        elif name == "tare":
-            opts.reject_unknown(["settle_s"])
-            steps.append(
-                StepSpec(
-                    "tare", duration_s=opts.number("settle_s", default=0.5, min_value=0.05, max_value=60.0)
-                )
-            )
-        else:
-            opts.reject_unknown([])
-            steps.append(StepSpec(name))
+        steps.append(_step(step, Section(options, block.source, block.field(field)), kind))
     names = [s.kind for s in steps]
-    if names.count("ramp_until_slip") != 1:
+    if names.count(StepKind.RAMP_UNTIL_SLIP) != 1:
         raise block.error("steps", "exactly one 'ramp_until_slip' step is required per trial")
-    if "unload" not in names[names.index("ramp_until_slip") :]:
+    if StepKind.UNLOAD not in names[names.index(StepKind.RAMP_UNTIL_SLIP) :]:
         raise block.error(
             "steps", "an 'unload' step must follow 'ramp_until_slip' (the line must be released)"
         )
     return tuple(steps)
+
+
+def _step(step: StepKind, opts: Section, kind: TrialKind) -> StepSpec:
+    """One step of a template with its options (each kind allows its own, the others none)."""
+    match step:
+        case StepKind.PROMPT:
+            opts.reject_unknown(["text"])
+            return StepSpec(step, text=_prompt_text(opts, DEFAULT_PROMPTS[kind]))
+        case StepKind.PAUSE:
+            opts.reject_unknown(["duration_s"])
+            return StepSpec(
+                step, duration_s=opts.number("duration_s", default=0.5, min_value=0.0, max_value=3600.0)
+            )
+        case StepKind.TARE:
+            opts.reject_unknown(["settle_s"])
+            return StepSpec(
+                step, duration_s=opts.number("settle_s", default=0.5, min_value=0.05, max_value=60.0)
+            )
+        case StepKind.BEND | StepKind.MEASURE | StepKind.RAMP_UNTIL_SLIP | StepKind.UNLOAD | StepKind.RESET:
+            opts.reject_unknown([])
+            return StepSpec(step)
+        case _:
+            assert_never(step)
 
 
 def _joint_estimation_block(
@@ -438,7 +452,7 @@ def _joint_estimation_block(
     joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
     distances = block.numbers("distances_m", max_length=MAX_ITEMS, min_value=0.001, max_value=2.0)
     repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
-    steps = _steps(block, "joint_estimation")
+    steps = _steps(block, TrialKind.JOINT_ESTIMATION)
     order = [(d, r) for r in range(1, repeats + 1) for d in distances]
     if block.boolean("shuffle", default=False):
         rng.shuffle(order)
@@ -446,7 +460,7 @@ def _joint_estimation_block(
         TrialPlan(
             trial_id=offset + i + 1,
             block=b,
-            kind="joint_estimation",
+            kind=TrialKind.JOINT_ESTIMATION,
             repeat=r,
             steps=steps,
             joint=joint,
@@ -509,7 +523,7 @@ def _adaptive_block(
         block=b,
         first_trial_id=offset + 1,
         joint=joint,
-        steps=_steps(block, "joint_estimation"),
+        steps=_steps(block, TrialKind.JOINT_ESTIMATION),
         design=design,
         max_force_fraction=fraction,
     )
@@ -518,7 +532,7 @@ def _adaptive_block(
 def _link_validation_block(block: Section, b: int, offset: int, joint_count: int | None) -> list[TrialPlan]:
     block.reject_unknown(["kind", "configurations_deg", "repeats", "estimates_from", "steps"])
     repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
-    steps = _steps(block, "link_validation")
+    steps = _steps(block, TrialKind.LINK_VALIDATION)
     configs = block.sequence("configurations_deg", min_length=1, max_length=MAX_ITEMS)
     angles: list[tuple[float, ...]] = []
     for c, raw in enumerate(configs):
@@ -534,7 +548,7 @@ def _link_validation_block(block: Section, b: int, offset: int, joint_count: int
                 TrialPlan(
                     trial_id=offset + len(trials) + 1,
                     block=b,
-                    kind="link_validation",
+                    kind=TrialKind.LINK_VALIDATION,
                     repeat=r,
                     steps=steps,
                     joint_angles_rad=config,
@@ -576,7 +590,7 @@ def _prompt_text(opts: Section, default: str) -> str:
 def _check_prompts(block: Section, trial: TrialPlan) -> None:
     """Fill the block's prompt templates once, so a spec that does not suit a field fails now, not mid-run."""
     for i, step in enumerate(trial.steps):
-        if step.kind == "prompt" and step.text is not None:
+        if step.kind == StepKind.PROMPT and step.text is not None:
             try:
                 trial.prompt_text(step.text)
             except (ValueError, TypeError) as exc:

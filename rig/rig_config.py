@@ -18,21 +18,14 @@ from model.gravity import PAPER_G_M_S2
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
 from rig.validate import Section
+from rig.vocabulary import SERVO_BAUDS, LoadCellFormatName, RigKind, ServoModel, ServoRole, SlipKind
 
-RIG_KINDS = ("simulated", "hardware")
-SERVO_ROLES = ("winch", "bender")
-# SERVO_MODELS and STANDARD_BAUDS restate rig.hw.dxl.control_table (MODELS; the BAUD_RATES that are
-# also in SDK_BAUDS): this module sits below rig.hw in the import layers and cannot import it.
-# tests/test_dxl_control_table.py keeps the copies equal.
-SERVO_MODELS = ("XM430-W350", "XL430-W250")
-LOADCELL_FORMATS = ("rig-lc1", "indicator-st")
 SIM_PRESETS = ("link1", "link2")
 # The built-in simulated rig, shipped as package data. A package installed as a directory (a wheel or
 # an editable install) gives a real path, which the journal records for `--resume`.
 DEFAULT_RIG_CONFIG = Path(str(files("rig") / "data" / "simulated.yaml"))
 MAX_JOINTS = 100
 MAX_PORT_CHARS = 4096
-STANDARD_BAUDS = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 
 
 @dataclass(frozen=True)
@@ -40,8 +33,8 @@ class ServoSpec:
     """One servo on the bus and what it does on the rig."""
 
     servo_id: int
-    role: str
-    model: str
+    role: ServoRole
+    model: ServoModel
 
 
 @dataclass(frozen=True)
@@ -57,12 +50,12 @@ class ServoBusConfig:
     @property
     def winch(self) -> ServoSpec:
         """The servo with role `winch` (validation guarantees exactly one)."""
-        return next(s for s in self.servos if s.role == "winch")
+        return next(s for s in self.servos if s.role == ServoRole.WINCH)
 
     @property
     def benders(self) -> tuple[ServoSpec, ...]:
         """The servos with role `bender`, in config order."""
-        return tuple(s for s in self.servos if s.role == "bender")
+        return tuple(s for s in self.servos if s.role == ServoRole.BENDER)
 
 
 @dataclass(frozen=True)
@@ -71,7 +64,7 @@ class LoadCellConfig:
 
     port: str
     baud: int
-    format: str
+    format: LoadCellFormatName
     calibration_path: Path | None
 
 
@@ -135,9 +128,6 @@ class FaultConfig:
     after_bytes: int | None = None
 
 
-# The kinds of slip the simulated joints can make (`simulation.slips.mix`); rig/sim/physics/world.py
-# models each, protocols/README.md describes them for users.
-SLIP_KINDS = ("sudden", "small_drop", "creep", "stick_slip", "other_joint", "no_slip")
 # Allowed ranges of the slip-kind parameters: (lowest, highest), both inclusive.
 SLIP_RANGES: dict[str, tuple[float, float]] = {
     "small_drop_fraction": (0.005, 0.5),
@@ -155,7 +145,7 @@ SLIP_RANGES: dict[str, tuple[float, float]] = {
 class SlipKindMix:
     """Which kinds of slip the simulated joints make, with what probability, and their parameters.
 
-    `probabilities` follows `SLIP_KINDS` and sums to 1; each trial draws one kind. The ranges
+    `probabilities` follows `SlipKind`'s order and sums to 1; each trial draws one kind. The ranges
     (lowest, highest) are drawn uniformly per trial (`stick_slip_drops` as an integer):
 
     * sudden: the joint turns until its moment is `kinetic_ratio` x static (the preset's 0.8).
@@ -188,8 +178,8 @@ class SlipKindMix:
     def __post_init__(self) -> None:
         """Check ranges; a `ValueError` names the field and what is allowed."""
         p = self.probabilities
-        if len(p) != len(SLIP_KINDS) or min(p) < 0 or abs(sum(p) - 1.0) > 1e-9:
-            raise ValueError(f"slip kind probabilities {p}; allowed: {len(SLIP_KINDS)} numbers >= 0, sum 1")
+        if len(p) != len(SlipKind) or min(p) < 0 or abs(sum(p) - 1.0) > 1e-9:
+            raise ValueError(f"slip kind probabilities {p}; allowed: {len(SlipKind)} numbers >= 0, sum 1")
         for name, (lo, hi) in SLIP_RANGES.items():
             first, last = getattr(self, name)
             if not lo <= first <= last <= hi:
@@ -201,9 +191,9 @@ class SlipKindMix:
         if not 1 < self.no_slip_capacity_factor <= 1000:
             raise ValueError("no_slip_capacity_factor; allowed: > 1 and <= 1000")
 
-    def probability(self, kind: str) -> float:
+    def probability(self, kind: SlipKind) -> float:
         """The probability of one kind."""
-        return self.probabilities[SLIP_KINDS.index(kind)]
+        return self.probabilities[list(SlipKind).index(kind)]
 
 
 # Shapes of the trial-to-trial scatter of a joint's capacity, stated for the slip mass m it gives:
@@ -314,7 +304,7 @@ class RigConfig:
     source: Path
     text: str
     name: str
-    kind: str
+    kind: RigKind
     spool_radius_m: float
     line_stiffness_n_per_m: float
     servos: ServoBusConfig
@@ -327,7 +317,7 @@ class RigConfig:
         """A flat str->str summary for the MCAP `rig` metadata record."""
         return {
             "name": self.name,
-            "kind": self.kind,
+            "kind": self.kind.value,
             "source": str(self.source),
             "servo_port": self.servos.port,
             "servo_baud": str(self.servos.baud),
@@ -386,13 +376,13 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             "simulation",
         ]
     )
-    kind = top.string("kind", choices=RIG_KINDS)
+    kind = RigKind(top.string("kind", choices=tuple(RigKind)))
     servos = _servo_bus(top.section("servos"))
     loadcell = _loadcell(top.section("loadcell"), base_dir or Path("."))
     article = _article(top.section("article"))
     limits = _limits(top.section("limits"))
     simulation = None
-    if kind == "simulated":
+    if kind == RigKind.SIMULATED:
         simulation = _simulation(top.section("simulation", default={}), article)
     elif top.has("simulation"):
         raise top.error("simulation", "only allowed with kind: simulated")
@@ -416,8 +406,8 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
 def _servo_bus(sec: Section) -> ServoBusConfig:
     sec.reject_unknown(["port", "baud", "ids", "retries", "watchdog_ms"])
     baud = sec.integer("baud", default=1_000_000)
-    if baud not in STANDARD_BAUDS:
-        raise sec.error("baud", f"{baud} is not a Dynamixel baud rate; allowed: {STANDARD_BAUDS}")
+    if baud not in SERVO_BAUDS:
+        raise sec.error("baud", f"{baud} is not a Dynamixel baud rate; allowed: {SERVO_BAUDS}")
     specs: list[ServoSpec] = []
     for i, item in enumerate(sec.sequence("ids", min_length=1, max_length=253)):
         entry = Section(item, sec.source, f"{sec.field('ids')}[{i}]")
@@ -425,18 +415,20 @@ def _servo_bus(sec: Section) -> ServoBusConfig:
         specs.append(
             ServoSpec(
                 servo_id=entry.integer("id", min_value=0, max_value=252),
-                role=entry.string("role", choices=SERVO_ROLES),
-                model=entry.string("model", default="XM430-W350", choices=SERVO_MODELS),
+                role=ServoRole(entry.string("role", choices=tuple(ServoRole))),
+                model=ServoModel(
+                    entry.string("model", default=ServoModel.XM430_W350, choices=tuple(ServoModel))
+                ),
             )
         )
     ids = [s.servo_id for s in specs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
         raise sec.error("ids", f"duplicate servo id(s) {duplicates}; each id must appear once")
-    winches = [s for s in specs if s.role == "winch"]
+    winches = [s for s in specs if s.role == ServoRole.WINCH]
     if len(winches) != 1:
         raise sec.error("ids", f"expected exactly one servo with role 'winch', found {len(winches)}")
-    if winches[0].model == "XL430-W250":
+    if winches[0].model == ServoModel.XL430_W250:
         raise sec.error(
             "ids", "the winch needs current-based position mode (5); XL430-W250 has no current control"
         )
@@ -462,7 +454,9 @@ def _loadcell(sec: Section, base_dir: Path) -> LoadCellConfig:
     return LoadCellConfig(
         port=_port(sec),
         baud=sec.integer("baud", default=921_600, min_value=1200, max_value=4_000_000),
-        format=sec.string("format", default="rig-lc1", choices=LOADCELL_FORMATS),
+        format=LoadCellFormatName(
+            sec.string("format", default=LoadCellFormatName.RIG_LC1, choices=tuple(LoadCellFormatName))
+        ),
         calibration_path=(base_dir / calibration) if calibration else None,
     )
 
@@ -538,9 +532,9 @@ def _slips(sec: Section) -> SlipKindMix:
     probabilities = defaults.probabilities
     if sec.has("mix"):
         mix = sec.section("mix")
-        mix.reject_unknown(SLIP_KINDS)
+        mix.reject_unknown(tuple(SlipKind))
         probabilities = tuple(
-            mix.number(kind, default=0.0, min_value=0.0, max_value=1.0) for kind in SLIP_KINDS
+            mix.number(kind, default=0.0, min_value=0.0, max_value=1.0) for kind in SlipKind
         )
         if abs(sum(probabilities) - 1.0) > 1e-6:
             raise sec.error("mix", f"the probabilities sum to {sum(probabilities):g}; allowed: they sum to 1")

@@ -5,15 +5,17 @@ This is the one module that knows both rigs; the runner below it sees only `rig.
 
 from __future__ import annotations
 
+from typing import assert_never
+
 from rig.hw.hardware_rig import hardware_session, rig_calibration
 from rig.hw.session import RigSession
 from rig.rig_config import RigConfig
 from rig.runner.run import PreparedRun
-from rig.sim.object_rig import DEVICE_LEVELS, ObjectSimulatedRig, object_simulated_rig
+from rig.sim.object_rig import ObjectSimulatedRig, object_simulated_rig
 from rig.sim.simulated_rig import SimulatedRig, simulated_rig
+from rig.vocabulary import DeviceLevel, RigKind
 
 __all__ = [
-    "DEVICE_LEVELS",
     "check_session_inputs",
     "open_object_simulated_rig",
     "open_session",
@@ -26,21 +28,27 @@ def check_session_inputs(config: RigConfig) -> None:
     rig_calibration(config)
 
 
-def open_session(prepared: PreparedRun, *, devices: str = "byte") -> RigSession:
+def open_session(prepared: PreparedRun, *, devices: DeviceLevel = DeviceLevel.BYTE) -> RigSession:
     """The rig a prepared run asks for (nothing connected yet).
 
     A hardware config gives the hardware rig (always real time); a simulated one gives the session
     of `open_simulated_rig` on `devices` ("byte": the real drivers on emulators; "object": the
     object-level devices, same world; ignored for hardware).
     """
-    if prepared.config.kind == "hardware":
-        return hardware_session(prepared.config)
-    check_session_inputs(prepared.config)
-    if devices not in DEVICE_LEVELS:
-        raise ValueError(f"devices {devices!r}; allowed: {', '.join(DEVICE_LEVELS)}")
-    if devices == "object":
-        return open_object_simulated_rig(prepared).session
-    return open_simulated_rig(prepared).session
+    match prepared.config.kind:
+        case RigKind.HARDWARE:
+            return hardware_session(prepared.config)
+        case RigKind.SIMULATED:
+            check_session_inputs(prepared.config)
+            match DeviceLevel(devices):  # ValueError for a name that is no level
+                case DeviceLevel.BYTE:
+                    return open_simulated_rig(prepared).session
+                case DeviceLevel.OBJECT:
+                    return open_object_simulated_rig(prepared).session
+                case level:
+                    assert_never(level)
+        case kind:
+            assert_never(kind)
 
 
 def open_object_simulated_rig(prepared: PreparedRun) -> ObjectSimulatedRig:

@@ -20,7 +20,7 @@ from rig.hw.dxl.control_table import (
     Field,
     table_for_model,
 )
-from rig.rig_config import SERVO_MODELS, STANDARD_BAUDS
+from rig.vocabulary import SERVO_BAUDS, ServoModel
 
 MODEL_DIR = Path(dynamixel_easy_sdk.__file__).parent / "control_table"
 
@@ -105,7 +105,13 @@ def test_tables_reject_overlaps():
         dataclasses.replace(XM430_W350, fields=(a, b))
 
 
-def test_rig_config_restates_the_control_table_exactly():
-    # rig.rig_config is below rig.hw in the import layers, so it keeps copies; they must not drift.
-    assert tuple(rate for rate in BAUD_RATES.values() if rate in SDK_BAUDS) == STANDARD_BAUDS
-    assert sorted(SERVO_MODELS) == sorted(MODELS)
+def test_every_servo_baud_is_a_register_value_the_sdk_can_set():
+    # The register holds every rate a config may name, and dynamixel-sdk can open the port at it.
+    assert set(SERVO_BAUDS) <= set(SDK_BAUDS)
+    assert [BAUD_RATES[r] for r in range(len(SERVO_BAUDS))] == list(SERVO_BAUDS)
+    assert BAUD_RATES[7] == 4_500_000 and 4_500_000 not in SDK_BAUDS
+
+
+def test_every_servo_model_has_its_control_table():
+    assert sorted(MODELS) == sorted(ServoModel)
+    assert all(MODELS[m].model_name == m for m in ServoModel)

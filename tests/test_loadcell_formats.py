@@ -19,6 +19,7 @@ from rig.hw.loadcell.formats import (
     nmea_checksum,
     nmea_checksums,
 )
+from rig.vocabulary import LoadCellFormatName
 
 LC1 = RigLc1Codec()
 IND = IndicatorStCodec()
@@ -118,6 +119,20 @@ def test_indicator_round_trip(raw, stable, net):
         2,
         "kg",
     )
+
+
+@pytest.mark.parametrize("name", list(LoadCellFormatName))
+def test_every_format_has_a_codec_that_round_trips_and_keeps_its_bounds(name):
+    # docs/extending.md: a new LoadCellFormatName fails here until its codec exists and is sound.
+    codec = get_codec(name)
+    assert codec.name == name
+    for raw, seq in [(0, 0), (123, 7), (-5, 65535), (99999, 1)]:
+        line = codec.encode(DeviceReading(raw, seq, 1000))
+        assert line.endswith(b"\n") and len(line) <= codec.max_line_bytes
+        assert codec.count_line_starts(line) == 1 and codec.last_line_start(line) == 0
+        decoded = codec.decode(line[:-1])
+        assert decoded.raw == raw
+        assert decoded.seq == (seq if codec.has_sequence else None)
 
 
 def test_registry_rejects_unknown_format():

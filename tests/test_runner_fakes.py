@@ -13,8 +13,8 @@ from rig.analysis.replay import replay
 from rig.hw.seams import ConfigurationReading
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
+from rig.runner.ramp import RAMP_GOAL_LEAD_S
 from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.runner.trial_runner import RAMP_GOAL_LEAD_S
 from rig.sim.fakes import FakeRig, fake_rig
 from tests.helpers import QUICK_PROTOCOL
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from rig.analysis.runlog import read_parts, run_settings
-from rig.rig_config import SLIP_KINDS, load_rig_config
+from rig.rig_config import load_rig_config
+from rig.vocabulary import SlipKind
 from tests.helpers import QUICK_PROTOCOL
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios"
@@ -18,7 +19,7 @@ NAMES = ("small-drops", "creep", "stick-slip", "noisy-cell", "additive-scatter",
 def test_every_scenario_is_shipped_and_loads() -> None:
     assert sorted(p.stem for p in SCENARIOS.glob("*.yaml")) == sorted(NAMES)
     mixed = load_rig_config(SCENARIOS / "mixed.yaml").simulation
-    assert mixed is not None and all(mixed.slips.probability(kind) > 0 for kind in SLIP_KINDS)
+    assert mixed is not None and all(mixed.slips.probability(kind) > 0 for kind in tuple(SlipKind))
     noisy = load_rig_config(SCENARIOS / "noisy-cell.yaml").simulation
     assert noisy is not None and noisy.loadcell.noise_scale == 10 and noisy.loadcell.active
     additive = load_rig_config(SCENARIOS / "additive-scatter.yaml").simulation

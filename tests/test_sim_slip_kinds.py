@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rig.rig_config import SLIP_KINDS, CapacityScatter, SlipKindMix
+from rig.rig_config import CapacityScatter, SlipKindMix
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld, SlipKind, TrialKind
@@ -24,7 +24,7 @@ DISTANCE_M = 0.15
 
 def only(kind: str, **params: object) -> SlipKindMix:
     """A mix of one kind."""
-    probabilities = tuple(1.0 if k == kind else 0.0 for k in SLIP_KINDS)
+    probabilities = tuple(1.0 if k == kind else 0.0 for k in tuple(SlipKind))
     return SlipKindMix(probabilities=probabilities, **params)  # type: ignore[arg-type]
 
 
@@ -67,7 +67,7 @@ def test_sudden_and_small_drop_fall_by_their_fraction_within_a_few_ms() -> None:
 
 
 def mix_kind(mix: SlipKindMix) -> str:
-    return SLIP_KINDS[int(np.argmax(mix.probabilities))]
+    return tuple(SlipKind)[int(np.argmax(mix.probabilities))]
 
 
 def test_creep_sags_slowly_over_its_duration_while_the_winch_reels() -> None:
@@ -157,13 +157,13 @@ def test_the_mix_draws_each_kind_with_its_probability_from_its_own_stream() -> N
     for i in range(1500):
         kinds.append(world.begin_trial(TrialKind.JOINT_ESTIMATION, 0.1 + 0.01 * (i % 10)).slip.kind)
         plain.begin_trial(TrialKind.JOINT_ESTIMATION, 0.1 + 0.01 * (i % 10))
-    counts = np.array([kinds.count(k) for k in SLIP_KINDS]) / len(kinds)
+    counts = np.array([kinds.count(k) for k in tuple(SlipKind)]) / len(kinds)
     assert np.allclose(counts, probabilities, atol=0.03)
     # The capacity stream is untouched by the mix: the same draws as a world of sudden slips.
     for mixed, sudden in zip(world.trials, plain.trials, strict=True):
         assert mixed.capacity_factors == sudden.capacity_factors
     # Every kind of link-validation trial slips the link (other_joint is sudden there).
-    assert world.begin_trial(TrialKind.LINK_VALIDATION).slip.kind in SLIP_KINDS
+    assert world.begin_trial(TrialKind.LINK_VALIDATION).slip.kind in tuple(SlipKind)
 
 
 def test_truth_records_every_event_on_the_run_clock_and_is_json() -> None:
@@ -173,7 +173,7 @@ def test_truth_records_every_event_on_the_run_clock_and_is_json() -> None:
         shaft.present_position_rad = 0.0
         world.advance_to(world.now_ns + MS)
         ramp(world, shaft, 1.5, rate_rad_s=1.0)
-        assert trial.slip.kind in SLIP_KINDS
+        assert trial.slip.kind in tuple(SlipKind)
     truth = json.loads(json.dumps(world.truth(), allow_nan=False))
     assert truth["scatter"]["shape"] == "multiplicative"
     events = [e for t in truth["trials"] for e in t["slip_events"]]
@@ -181,7 +181,7 @@ def test_truth_records_every_event_on_the_run_clock_and_is_json() -> None:
     for event, record in zip(events, world.slips, strict=True):
         assert event["onset_time_ns"] == record.onset_ns + 10 * S
         assert event["kind"] == record.kind and event["load_n"] == record.peak_tension_n
-    assert {t["slip_kind"] for t in truth["trials"]} <= set(SLIP_KINDS)
+    assert {t["slip_kind"] for t in truth["trials"]} <= set(tuple(SlipKind))
 
 
 @pytest.mark.parametrize(

@@ -45,6 +45,7 @@ from model.slip_detector import (
 from rig.analysis.trials import TrialRecord
 from rig.errors import InputError
 from rig.log import schemas
+from rig.vocabulary import ServoRole
 
 WINCH_BACKING_OFF_RAD_S = -0.05  # the runner's `_confirmed_by_winch` threshold
 
@@ -115,7 +116,7 @@ class _WinchStates:
         if states.empty or "role" not in states.columns:
             self.times = np.zeros(0, np.int64)
             return
-        winch = states[states["role"] == "winch"]
+        winch = states[states["role"] == ServoRole.WINCH]
         self.times = winch["log_time_ns"].to_numpy(np.int64)
         self.velocity = winch["velocity_rad_s"].to_numpy(float)
         self.error = winch["hardware_error"].to_numpy(np.int64)

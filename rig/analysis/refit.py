@@ -25,6 +25,7 @@ from model.estimators import EstimatorName
 from model.fit import SUMMARY_KEYS
 from model.payload_errors import payload_error_stats
 from rig.analysis.trials import slipped_rows
+from rig.vocabulary import TrialKind
 
 AGREEMENT_RTOL = 1e-9
 
@@ -58,7 +59,9 @@ def joint_estimation_pairs(
 ) -> tuple[list[float], list[float], list[int]]:
     """Distances, masses and trial ids of the joint-estimation slips with a mass in `mass_column`."""
     rows = table[
-        (table["kind"] == "joint_estimation") & table[mass_column].notna() & table["distance_m"].notna()
+        (table["kind"] == TrialKind.JOINT_ESTIMATION)
+        & table[mass_column].notna()
+        & table["distance_m"].notna()
     ]
     if mass_column == "slip_mass_kg":
         rows = rows[slipped_rows(rows)]
@@ -80,7 +83,7 @@ def joint_estimation_points(
     points = [(i, d, m, False) for i, d, m in zip(ids, distances, masses, strict=True)]
     if mass_column == "slip_mass_kg":
         rows = table[
-            (table["kind"] == "joint_estimation")
+            (table["kind"] == TrialKind.JOINT_ESTIMATION)
             & (table["outcome"] == "no_slip")
             & table[mass_column].notna()
             & table["distance_m"].notna()

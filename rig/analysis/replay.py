@@ -40,6 +40,7 @@ from rig.analysis.trials import TrialRecord, records_json, trial_records, trial_
 from rig.log import schemas
 from rig.log.frames import frame_payloads
 from rig.log.records import Estimate
+from rig.vocabulary import TrialKind
 
 
 @dataclass
@@ -75,7 +76,7 @@ class ReplayResult:
     @property
     def has_link_validation(self) -> bool:
         """Whether the run has link-validation trials."""
-        return bool((self.table["kind"] == "link_validation").any())
+        return bool((self.table["kind"] == TrialKind.LINK_VALIDATION).any())
 
     def redetection_summary(self) -> dict[str, Any]:
         """Matches and mismatches of re-detection against the logged events."""

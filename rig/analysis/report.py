@@ -121,7 +121,7 @@ def _strict_json(value: Any) -> Any:
 
 def _joint_data(result: ReplayResult, column: str) -> tuple[np.ndarray, np.ndarray]:
     t = result.table
-    rows = t[(t["kind"] == "joint_estimation") & t[column].notna() & t["distance_m"].notna()]
+    rows = t[(t["kind"] == TrialKind.JOINT_ESTIMATION) & t[column].notna() & t["distance_m"].notna()]
     if column == "slip_mass_kg":
         rows = rows[slipped_rows(rows)]
     return rows["distance_m"].to_numpy(float), rows[column].to_numpy(float)
@@ -219,7 +219,7 @@ def _residuals_figure(result: ReplayResult) -> tuple[Figure, str] | str:
 
 def _link_rows(result: ReplayResult) -> Any:
     t = result.table
-    return t[(t["kind"] == "link_validation") & slipped_rows(t) & t["predicted_mass_kg"].notna()]
+    return t[(t["kind"] == TrialKind.LINK_VALIDATION) & slipped_rows(t) & t["predicted_mass_kg"].notna()]
 
 
 def _payload_figure(result: ReplayResult) -> tuple[Figure, str] | str:

@@ -13,6 +13,7 @@ from typing import Any
 import pandas as pd
 
 from rig.analysis.replay import ReplayResult
+from rig.vocabulary import TrialKind
 
 Table = tuple[list[str], list[list[Any]]]
 
@@ -47,7 +48,7 @@ def trials_table(result: ReplayResult) -> Table:
     ]
     rows = []
     for r in result.table.itertuples():
-        if r.kind == "joint_estimation":
+        if r.kind == TrialKind.JOINT_ESTIMATION:
             where = f"{r.distance_m:.4f}" if _cell(r.distance_m) is not None else None
             kind = "joint est."
         else:

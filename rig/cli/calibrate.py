@@ -23,6 +23,7 @@ from rig.hw.loadcell.driver import DEFAULT_BAUD, DEFAULT_STALE_TIMEOUT_S, Serial
 from rig.hw.loadcell.formats import FORMATS
 from rig.hw.seams import Clock, LoadCell
 from rig.rig_config import load_rig_config
+from rig.vocabulary import RigKind
 
 PromptFn = Callable[[CalibrationStep, str], None]
 
@@ -92,7 +93,7 @@ def apply_rig_config(args: argparse.Namespace) -> None:
     if getattr(args, "rig", None) is None:
         return
     config = load_rig_config(args.rig)
-    if config.kind != "hardware":
+    if config.kind != RigKind.HARDWARE:
         raise InputError(f"{args.rig}: kind: {config.kind}; --rig needs a hardware rig (use --sim to try it)")
     args.port = config.loadcell.port
     args.baud = config.loadcell.baud

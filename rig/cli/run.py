@@ -13,6 +13,7 @@ from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.rig_config import DEFAULT_RIG_CONFIG
+from rig.vocabulary import DeviceLevel
 
 if TYPE_CHECKING:
     from model.estimate_summary import EstimateSummary
@@ -73,8 +74,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument(
         "--devices",
-        choices=("byte", "object"),
-        default="byte",
+        choices=tuple(DeviceLevel),
+        default=DeviceLevel.BYTE,
         help="simulated devices: byte (default: the real drivers on emulators) or object (same world, "
         "no bytes; faster, for studies)",
     )
@@ -131,8 +132,8 @@ def run(args: argparse.Namespace) -> int:
             # The default keeps the one-argument call (tests stand in for open_session with it).
             session = (
                 open_session(prepared)
-                if args.devices == "byte"
-                else open_session(prepared, devices=args.devices)
+                if args.devices == DeviceLevel.BYTE
+                else open_session(prepared, devices=DeviceLevel(args.devices))
             )
             report = execute_run(prepared, session, make_progress(args.json), live=live)
         finally:

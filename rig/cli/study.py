@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import ExitCode, InputError
+from rig.vocabulary import DeviceLevel, RigKind, TrialKind
 
 if TYPE_CHECKING:
     from rig.study.summary import StudySummary
@@ -89,8 +90,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument(
         "--devices",
-        choices=("object", "byte"),
-        default="object",
+        choices=(DeviceLevel.OBJECT, DeviceLevel.BYTE),
+        default=DeviceLevel.OBJECT,
         help="simulated devices: object (default, fast) or byte (the real drivers on emulators)",
     )
     p.add_argument(
@@ -168,18 +169,18 @@ def _checked_spec(args: argparse.Namespace) -> StudySpec:
     request = RunRequest(protocol_path=args.protocol, rig_path=args.rig, out_dir=Path("."), seed=0)
     prepared = prepare_run(request, dry_run=True)
     config = prepared.config
-    if config.kind != "simulated":
+    if config.kind != RigKind.SIMULATED:
         raise InputError(
             f"--rig {config.source}: kind {config.kind}; allowed: a simulated rig (a study needs the truth)"
         )
     check_session_inputs(config)
-    if args.devices == "object" and require_simulated(config).faults:
+    if args.devices == DeviceLevel.OBJECT and require_simulated(config).faults:
         raise InputError(
             f"{config.source}: simulation/faults: timed faults act on the emulators' bytes; "
             "allowed: --devices byte for a config with faults"
         )
     kinds = {t.kind for t in prepared.protocol.trials}
-    if "joint_estimation" not in kinds:
+    if TrialKind.JOINT_ESTIMATION not in kinds:
         raise InputError(
             f"{args.protocol}: only {', '.join(sorted(kinds))} blocks; not supported by rig study, which "
             "scores joint_estimation blocks (a link_validation protocol's capacities come from a prior "
@@ -188,7 +189,7 @@ def _checked_spec(args: argparse.Namespace) -> StudySpec:
     return StudySpec(
         protocol_path=str(args.protocol),
         rig_path=None if args.rig is None else str(args.rig),
-        devices=args.devices,
+        devices=DeviceLevel(args.devices),
     )
 
 

@@ -18,6 +18,7 @@ from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.session import RigSession
 from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig
+from rig.vocabulary import RigKind
 
 
 def rig_calibration(config: RigConfig) -> Calibration | None:
@@ -28,7 +29,7 @@ def rig_calibration(config: RigConfig) -> Calibration | None:
     """
     cal_path = config.loadcell.calibration_path
     if cal_path is None:
-        if config.kind == "hardware":
+        if config.kind == RigKind.HARDWARE:
             raise InputError(
                 f"{config.source}: loadcell.calibration: a hardware rig needs a calibration file; "
                 "make one with `rig calibrate`"
@@ -39,7 +40,7 @@ def rig_calibration(config: RigConfig) -> Calibration | None:
 
 def hardware_session(config: RigConfig) -> RigSession:
     """A session on the serial ports named in a `kind: hardware` rig config."""
-    if config.kind != "hardware":
+    if config.kind != RigKind.HARDWARE:
         raise InputError(f"{config.source}: kind: expected hardware, got {config.kind}")
     calibration = rig_calibration(config)
     cal_path = config.loadcell.calibration_path
@@ -62,7 +63,7 @@ def hardware_session(config: RigConfig) -> RigSession:
         clock=clock,
     )
     return RigSession(
-        kind="hardware",
+        kind=RigKind.HARDWARE,
         clock=clock,
         servos=servos,
         load_cell=load_cell,

@@ -14,6 +14,7 @@ from typing import Any, Protocol
 
 from rig.hw.seams import Clock, ConfigurationSource, LoadCell, ServoBus
 from rig.protocol import TrialPlan
+from rig.vocabulary import RigKind, ServoRole
 
 
 class GroundTruth(Protocol):
@@ -57,7 +58,7 @@ class BendingFixture(Protocol):
 class RigSession:
     """A connected-or-connectable rig as the runner sees it."""
 
-    kind: str  # "simulated" or "hardware"
+    kind: RigKind
     clock: Clock
     servos: ServoBus  # e.g. rig.hw.dxl.bus.DynamixelServoBus
     load_cell: LoadCell
@@ -65,7 +66,7 @@ class RigSession:
     fixture: BendingFixture
     configuration: ConfigurationSource | None
     winch_id: int
-    roles: dict[int, str]
+    roles: dict[int, ServoRole]
     begin_trial: Callable[[TrialPlan], None] = field(default=lambda trial: None)
     truth: GroundTruth | None = None  # simulation only: what the rig should find
     attachments: list[tuple[str, str, bytes]] = field(default_factory=list)  # (name, media type, data)

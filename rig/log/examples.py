@@ -21,6 +21,7 @@ from rig.log.records import (
     TrialResult,
     TrialState,
 )
+from rig.vocabulary import ServoRole
 
 EXAMPLE_TIME_NS = 1_767_225_600_123_456_789  # 2026-01-01T00:00:00.123456789Z
 
@@ -59,14 +60,16 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
         S.LOADCELL: S.loadcell_sample(raw=123456, force_n=1.25, seq=7, device_time_us=None),
         S.SERVO_STATE: S.servo_state(
             servo_id=1,
-            role="winch",
+            role=ServoRole.WINCH,
             position_rad=0.5,
             velocity_rad_s=-0.1,
             current_a=0.2,
             hardware_error=0,
             moving=True,
         ),
-        S.SERVO_COMMAND: ServoCommand(2, "bend", ServoCommandName.GOAL_POSITION, 1.0, "rad").to_payload(),
+        S.SERVO_COMMAND: ServoCommand(
+            2, ServoRole.BENDER, ServoCommandName.GOAL_POSITION, 1.0, "rad"
+        ).to_payload(),
         S.TRIAL_STATE: TrialState(3, TrialPhase.RAMP_SLOW, "ramp").to_payload(),
         S.SLIP: SlipMessage(3, event, {"drop_fraction": 0.2, "slope_n_per_s": None}, None).to_payload(),
         S.TRIAL_RESULT: TrialResult(

@@ -24,7 +24,8 @@ from enum import IntEnum, StrEnum
 from typing import Any
 
 from model.fit import SUMMARY_KEYS, FitSummary
-from model.slip_detector import SlipEvent
+from model.slip_detector import SlipEvent, SlipEventKind
+from rig.vocabulary import SLIP_LIKE, TrialKind, TrialOutcome
 
 NS_PER_S = 1_000_000_000
 
@@ -45,37 +46,6 @@ class TrialPhase(StrEnum):
     DONE = "done"
     ABORTED = "aborted"
     FAULTED = "faulted"
-
-
-class TrialKind(StrEnum):
-    """The two trial kinds of the paper: one joint at a distance, or the whole link bent."""
-
-    JOINT_ESTIMATION = "joint_estimation"
-    LINK_VALIDATION = "link_validation"
-
-
-class TrialOutcome(StrEnum):
-    """How a trial ended.
-
-    `slip` (a sudden drop), `creep` (the tension sagged) and `stick_slip` (further drops while the
-    line re-tensioned) are slips of the joint under test: their peak is the slip load
-    (`SLIP_LIKE`). `no_slip`: the force limit or the winch travel came first; the peak is a lower
-    bound on the capacity. `other_joint`: the configuration source says another joint moved.
-    `aborted`: a step timed out or a fault stopped the trial (`TrialResult.reason`). `fault` is read
-    in logs and journals from before `aborted` took its place.
-    """
-
-    SLIP = "slip"
-    CREEP = "creep"
-    STICK_SLIP = "stick_slip"
-    NO_SLIP = "no_slip"
-    OTHER_JOINT = "other_joint"
-    ABORTED = "aborted"
-    FAULT = "fault"
-
-
-# The outcomes whose peak is a slip load of the joint under test: the only ones the fit uses.
-SLIP_LIKE = frozenset({TrialOutcome.SLIP, TrialOutcome.CREEP, TrialOutcome.STICK_SLIP})
 
 
 class ServoCommandName(StrEnum):
@@ -302,7 +272,9 @@ class SlipMessage:
             force_after_n=float(payload["force_after_n"]),
             drop_fraction=float(payload["drop_fraction"]),
             trigger=str(payload["trigger"]),
-            kind=str(payload.get("kind") or "drop"),  # logs from before events had a kind
+            kind=SlipEventKind(
+                payload.get("kind") or SlipEventKind.DROP
+            ),  # logs from before events had a kind
         )
         detector = payload.get("detector") or {}
         return cls(
@@ -637,6 +609,7 @@ class LogMessage:
 
 
 __all__ = [
+    "SLIP_LIKE",
     "Estimate",
     "JointCapacity",
     "LogLevel",

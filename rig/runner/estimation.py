@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from statistics import NormalDist
-from typing import Any
+from typing import Any, assert_never
 
 import numpy as np
 
@@ -223,12 +223,15 @@ class RunEstimator:
             return
         if not result.slipped:
             return
-        if result.kind == TrialKind.JOINT_ESTIMATION:
-            assert result.distance_m is not None and result.slip_mass_kg is not None
-            self.update_joint_estimation(result.distance_m, result.slip_mass_kg)
-        else:
-            assert result.lever_arms_m is not None and result.peak_force_n is not None
-            self.update_link(result.lever_arms_m, result.peak_force_n, result.slipped_joint)
+        match result.kind:
+            case TrialKind.JOINT_ESTIMATION:
+                assert result.distance_m is not None and result.slip_mass_kg is not None
+                self.update_joint_estimation(result.distance_m, result.slip_mass_kg)
+            case TrialKind.LINK_VALIDATION:
+                assert result.lever_arms_m is not None and result.peak_force_n is not None
+                self.update_link(result.lever_arms_m, result.peak_force_n, result.slipped_joint)
+            case kind:
+                assert_never(kind)
 
     def _link(self) -> LinkEstimatorState | None:
         if self.link_state is None:

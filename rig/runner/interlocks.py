@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from rig.hw.dxl.errors import describe_hardware_error
 from rig.hw.seams import ServoState
+from rig.vocabulary import ServoRole
 
 
 @dataclass
@@ -31,7 +32,7 @@ class ForceCeiling:
 class ServoHealth:
     """Any servo reporting a latched hardware error (overload, overheating, voltage, ...)."""
 
-    roles: dict[int, str]
+    roles: dict[int, ServoRole]
 
     def check(self, states: dict[int, ServoState]) -> str | None:
         """Trip on the first servo whose Hardware Error Status is non-zero."""

@@ -13,7 +13,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, assert_never
 
 from rig.errors import InputError
 from rig.files import atomic_write_text, load_json_file
@@ -180,16 +180,21 @@ def _trial(raw: Any, field: str, fail: Callable[[str, str], InputError]) -> Tria
         if value is None or not bounds[0] <= value <= bounds[1]:
             raise fail(f"{field}.{name}", f"{value!r} for a slip; allowed: {bounds[0]:g} to {bounds[1]:g}")
 
-    if result.kind == TrialKind.JOINT_ESTIMATION:
-        check("distance_m", result.distance_m, _DISTANCE_RANGE_M)
-        check("slip_mass_kg", result.slip_mass_kg, _MASS_RANGE_KG)
-    else:
-        check("peak_force_n", result.peak_force_n, _FORCE_RANGE_N)
-        arms = result.lever_arms_m
-        if not arms or len(arms) > 100:
-            raise fail(f"{field}.lever_arms_m", f"{_short(arms)} for a slip; allowed: 1-100 lever arms [m]")
-        for j, arm in enumerate(arms):
-            check(f"lever_arms_m[{j}]", arm, _LEVER_RANGE_M)
+    match result.kind:
+        case TrialKind.JOINT_ESTIMATION:
+            check("distance_m", result.distance_m, _DISTANCE_RANGE_M)
+            check("slip_mass_kg", result.slip_mass_kg, _MASS_RANGE_KG)
+        case TrialKind.LINK_VALIDATION:
+            check("peak_force_n", result.peak_force_n, _FORCE_RANGE_N)
+            arms = result.lever_arms_m
+            if not arms or len(arms) > 100:
+                raise fail(
+                    f"{field}.lever_arms_m", f"{_short(arms)} for a slip; allowed: 1-100 lever arms [m]"
+                )
+            for j, arm in enumerate(arms):
+                check(f"lever_arms_m[{j}]", arm, _LEVER_RANGE_M)
+        case kind:
+            assert_never(kind)
     return result
 
 

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, assert_never
 
 from rig.errors import InputError
 from rig.hw.dxl.control_table import table_for_model
 from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
 from rig.rig_config import RigConfig
+from rig.vocabulary import StepKind
 
 
 @dataclass(frozen=True)
@@ -118,10 +119,15 @@ def estimated_trial_s(
     )
     seconds += typical_force_n / (k_ang * ramp.unload_speed_rad_s) + ramp.hold_after_slip_s
     for step in trial.steps:
-        if step.kind in ("pause", "tare"):
-            seconds += step.duration_s
-        elif step.kind in ("bend", "reset"):
-            seconds += 1.0
+        match step.kind:
+            case StepKind.PAUSE | StepKind.TARE:
+                seconds += step.duration_s
+            case StepKind.BEND | StepKind.RESET:
+                seconds += 1.0
+            case StepKind.PROMPT | StepKind.MEASURE | StepKind.UNLOAD | StepKind.RAMP_UNTIL_SLIP:
+                pass  # operator time is not counted; the unload and the ramp are counted above
+            case kind:
+                assert_never(kind)
     return seconds
 
 

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import assert_never
 
 from model.payload_errors import PayloadErrorStats, payload_error_stats, signed_percentage_error
-from model.slip_detector import SlipEvent
+from model.slip_detector import SlipEvent, SlipEventKind
 from rig.log.records import SLIP_LIKE, TrialKind, TrialOutcome, TrialResult
 from rig.protocol import TrialPlan
 
@@ -49,9 +50,13 @@ def slip_outcome(
         return TrialOutcome.OTHER_JOINT
     if train_drops > 0:
         return TrialOutcome.STICK_SLIP
-    if event.kind == "creep":
-        return TrialOutcome.CREEP
-    return TrialOutcome.SLIP
+    match event.kind:
+        case SlipEventKind.CREEP:
+            return TrialOutcome.CREEP
+        case SlipEventKind.DROP:
+            return TrialOutcome.SLIP
+        case kind:
+            assert_never(kind)
 
 
 def trial_result(

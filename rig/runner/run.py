@@ -47,6 +47,7 @@ from rig.runner.runlock import RunLock
 from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held
 from rig.runner.trial_runner import RunOutcome, TrialRunner
+from rig.vocabulary import RigKind
 
 # Run ids name files in --out (RUN_ID.mcap, RUN_ID.partN.mcap, RUN_ID.journal.json, ...): no path
 # separators, no leading dot, bounded length, and no `.partN` ending, which a resumed run's logs use.
@@ -378,7 +379,7 @@ def _write_metadata(logger: RunLogger, prepared: PreparedRun, session: RigSessio
             "python": platform.python_version(),
             "host": socket.gethostname(),
             "seed": str(prepared.journal.seed),
-            "clock": "realtime" if request.realtime or session.kind == "hardware" else "virtual",
+            "clock": "realtime" if request.realtime or session.kind == RigKind.HARDWARE else "virtual",
             "run_id": prepared.run_id,
             "invocation": str(prepared.journal.invocations),
             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

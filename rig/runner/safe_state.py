@@ -1,4 +1,4 @@
-"""The safe-state sequence that ends every run, and the timeout of any commanded move.
+"""The safe-state sequence that ends every run, and the timeout and arrival of any commanded move.
 
 Order matters and does not depend on which part failed: first the line is released (the winch
 backs off to its zero-tension angle, through `ServoBus.shutdown(release)`, which then turns torque
@@ -16,6 +16,7 @@ from rig.hw.session import RigSession
 # A move gets twice the time its travel takes at the commanded speed, plus a margin: profiles
 # accelerate, and the servo settles inside the position tolerance at the end.
 MOVE_TIME_FACTOR = 2.0
+POSITION_TOLERANCE_RAD = 0.02  # a servo within this of its goal has arrived
 
 
 def move_timeout_s(travel_rad: float, speed_rad_s: float, margin_s: float) -> float:

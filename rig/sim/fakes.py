@@ -32,6 +32,7 @@ from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample, OperatingMode
 from rig.hw.session import RigSession
 from rig.protocol import TrialPlan
 from rig.sim.clock import VirtualClock
+from rig.vocabulary import RigKind, ServoRole
 
 MOVING_THRESHOLD_RAD_S = 0.02  # |velocity| above this sets the `moving` flag
 _SEGMENTS_KEPT = 64  # motion history per servo, for states asked at past times
@@ -557,14 +558,14 @@ def fake_session(
     load_cell: FakeLoadCell,
     *,
     winch_id: int = 1,
-    roles: Mapping[int, str] | None = None,
+    roles: Mapping[int, ServoRole] | None = None,
     operator: FakeOperator | None = None,
 ) -> RigSession:
     """A `RigSession` on fakes (roles default: the winch, every other servo a bender)."""
-    roles = dict(roles) if roles is not None else {sid: "bender" for sid in servos.servos}
-    roles[winch_id] = "winch"
+    roles = dict(roles) if roles is not None else {sid: ServoRole.BENDER for sid in servos.servos}
+    roles[winch_id] = ServoRole.WINCH
     return RigSession(
-        kind="simulated",
+        kind=RigKind.SIMULATED,
         clock=clock,
         servos=servos,
         load_cell=load_cell,

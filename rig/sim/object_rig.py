@@ -31,8 +31,7 @@ from rig.sim.simulated_rig import (
     run_clock,
     trial_starter,
 )
-
-DEVICE_LEVELS = ("byte", "object")
+from rig.vocabulary import RigKind
 
 
 @dataclass(frozen=True)
@@ -71,7 +70,7 @@ def object_simulated_rig(
     )
 
     session = RigSession(
-        kind="simulated",
+        kind=RigKind.SIMULATED,
         clock=clock,
         servos=bus,
         load_cell=load_cell,

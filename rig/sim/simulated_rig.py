@@ -21,7 +21,7 @@ import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, assert_never
 
 from rig.errors import ConfigError
 from rig.hw.dxl.bus import DynamixelServoBus
@@ -38,6 +38,7 @@ from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, SimPreset, make_preset, stream_rng
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import ShaftLike, SimWorld
+from rig.vocabulary import RigKind, TrialKind
 
 
 class PacedVirtualClock(VirtualClock):
@@ -177,7 +178,7 @@ def simulated_rig(
     )
 
     session = RigSession(
-        kind="simulated",
+        kind=RigKind.SIMULATED,
         clock=clock,
         servos=servos,
         load_cell=load_cell,
@@ -293,9 +294,12 @@ def trial_starter(world: SimWorld) -> Callable[[TrialPlan], None]:
     """The session's `begin_trial`: the world draws the trial's capacities and sets up its specimen."""
 
     def begin_trial(trial: TrialPlan) -> None:
-        if trial.kind == "joint_estimation":
-            world.begin_trial("joint_estimation", distance_m=trial.distance_m, joint=trial.joint)
-        else:
-            world.begin_trial("link_validation")
+        match trial.kind:
+            case TrialKind.JOINT_ESTIMATION:
+                world.begin_trial(trial.kind, distance_m=trial.distance_m, joint=trial.joint)
+            case TrialKind.LINK_VALIDATION:
+                world.begin_trial(trial.kind)
+            case kind:
+                assert_never(kind)
 
     return begin_trial

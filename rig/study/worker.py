@@ -29,6 +29,7 @@ from rig.runner.planning import TrialSchedule
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, prepare_run
 from rig.runner.trial_runner import TrialRunner
+from rig.vocabulary import DeviceLevel
 
 # Outcomes whose slip mass is a measured slip load, and those whose mass is only a lower bound.
 
@@ -39,7 +40,7 @@ class StudySpec:
 
     protocol_path: str
     rig_path: str | None
-    devices: str  # "object" or "byte" (rig.rigs.DEVICE_LEVELS)
+    devices: DeviceLevel
     level: float = DEFAULT_LEVEL
 
 

@@ -22,9 +22,10 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Literal
+from typing import Literal, assert_never
 
 from rig.errors import InputError
+from rig.vocabulary import SERVO_BAUDS, ServoModel
 
 # Conversion constants for raw control-table units.
 PULSES_PER_REV = 4096
@@ -63,10 +64,9 @@ ADDR_PRESENT_CURRENT = 126
 ADDR_PRESENT_VELOCITY = 128
 ADDR_PRESENT_POSITION = 132
 
-# Baud Rate (8) register value -> bit/s.
-BAUD_RATES: Mapping[int, int] = MappingProxyType(
-    {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000, 6: 4_000_000, 7: 4_500_000}
-)
+# Baud Rate (8) register value -> bit/s: 0-6 are the rates dynamixel-sdk can also set (SERVO_BAUDS,
+# in register order), 7 is 4.5 Mbps.
+BAUD_RATES: Mapping[int, int] = MappingProxyType({**dict(enumerate(SERVO_BAUDS)), 7: 4_500_000})
 BAUD_REGISTER_BY_RATE: Mapping[int, int] = MappingProxyType({v: k for k, v in BAUD_RATES.items()})
 # Baud rates dynamixel-sdk's PortHandler.setBaudRate accepts (it has no 4.5 Mbps).
 SDK_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1_000_000,
@@ -138,7 +138,7 @@ class Field:
 class ControlTable:
     """The control table of one model, with O(1) lookup by name and by address."""
 
-    model_name: str
+    model_name: ServoModel
     model_number: int
     fields: tuple[Field, ...]
     operating_modes: frozenset[int]
@@ -362,7 +362,7 @@ def _x430_fields(
 
 
 XM430_W350 = ControlTable(
-    model_name="XM430-W350",
+    model_name=ServoModel.XM430_W350,
     model_number=1020,
     fields=_x430_fields(
         model_number=1020,
@@ -381,7 +381,7 @@ XM430_W350 = ControlTable(
 )
 
 XL430_W250 = ControlTable(
-    model_name="XL430-W250",
+    model_name=ServoModel.XL430_W250,
     model_number=1060,
     fields=_x430_fields(
         model_number=1060,
@@ -399,8 +399,25 @@ XL430_W250 = ControlTable(
     no_load_speed_rad_s=61.0 * 2.0 * math.pi / 60.0,
 )
 
-MODELS: Mapping[str, ControlTable] = MappingProxyType({t.model_name: t for t in (XM430_W350, XL430_W250)})
+
+def control_table(model: ServoModel) -> ControlTable:
+    """The control table of one model (mypy names this match when a model is added)."""
+    match model:
+        case ServoModel.XM430_W350:
+            return XM430_W350
+        case ServoModel.XL430_W250:
+            return XL430_W250
+        case _:
+            assert_never(model)
+
+
+MODELS: Mapping[ServoModel, ControlTable] = MappingProxyType({m: control_table(m) for m in ServoModel})
 MODELS_BY_NUMBER: Mapping[int, ControlTable] = MappingProxyType({t.model_number: t for t in MODELS.values()})
+
+
+def _table_named(name: str) -> ControlTable | None:
+    """The table of a model name, or None for a name that is no `ServoModel`."""
+    return MODELS[ServoModel(name)] if name in MODELS else None
 
 
 def table_for_model(name_or_number: str | int) -> ControlTable:
@@ -408,7 +425,7 @@ def table_for_model(name_or_number: str | int) -> ControlTable:
     table = (
         MODELS_BY_NUMBER.get(name_or_number)
         if isinstance(name_or_number, int)
-        else MODELS.get(name_or_number)
+        else _table_named(name_or_number)
     )
     if table is None:
         known = ", ".join(f"{t.model_name} ({t.model_number})" for t in MODELS.values())
@@ -418,7 +435,7 @@ def table_for_model(name_or_number: str | int) -> ControlTable:
 
 def model_number_for(name: str) -> int:
     """Model number of a model name such as "XM430-W350"; `InputError` listing the known names."""
-    table = MODELS.get(name)
+    table = _table_named(name)
     if table is None:
         raise InputError(f"servo model {name!r} is unknown; allowed: {', '.join(sorted(MODELS))}")
     return table.model_number

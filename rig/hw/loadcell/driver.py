@@ -36,6 +36,7 @@ from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.device_time import DeviceClockMapper
 from rig.hw.loadcell.formats import InfoLine, LineDecoder, get_codec
 from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample
+from rig.vocabulary import LoadCellFormatName
 
 DEFAULT_BAUD = 921600
 DEFAULT_STALE_TIMEOUT_S = 0.5
@@ -79,7 +80,7 @@ class SerialLoadCell:
         port: str,
         *,
         baud: int = DEFAULT_BAUD,
-        format_name: str = "rig-lc1",
+        format_name: LoadCellFormatName = LoadCellFormatName.RIG_LC1,
         calibration: Calibration | None = None,
         stale_timeout_s: float = DEFAULT_STALE_TIMEOUT_S,
         clock: Clock | None = None,

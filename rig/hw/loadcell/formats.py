@@ -22,11 +22,12 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from itertools import repeat
-from typing import NamedTuple, Protocol
+from typing import NamedTuple, Protocol, assert_never
 
 import numpy as np
 
 from rig.errors import InputError
+from rig.vocabulary import LoadCellFormatName
 
 SEQ_MODULUS = 1 << 16  # rig-lc1 sequence counter wraps at 65536
 DEVICE_TIME_MODULUS_US = 1 << 32  # rig-lc1 device clock wraps at 2**32 us (about 71.6 min)
@@ -93,7 +94,7 @@ Columns = tuple[list[int], Sequence[int | None], Sequence[int | None]]
 class LineCodec(Protocol):
     """One line format: how a device writes a reading and how the host reads it back."""
 
-    name: str
+    name: LoadCellFormatName
     has_sequence: bool  # lines carry a 16-bit wrapping sequence counter
     has_checksum: bool  # corruption is detectable per line
     max_line_bytes: int  # longest valid line, terminator included
@@ -131,7 +132,7 @@ _LC1_LINE = re.compile(rb"\$LC,([0-9]{1,5}),([0-9]{1,10}),(-?[0-9]{1,10})\*([0-9
 class RigLc1Codec:
     r"""`$LC,<seq>,<t_us>,<raw>*<hh>\r\n`: sequence, device microseconds, raw counts, XOR checksum."""
 
-    name = "rig-lc1"
+    name = LoadCellFormatName.RIG_LC1
     has_sequence = True
     has_checksum = True
     max_line_bytes = len(b"$LC,65535,4294967295,-2147483648*FF\r\n")  # 37
@@ -187,7 +188,7 @@ class IndicatorStCodec:
     decimals 2.
     """
 
-    name = "indicator-st"
+    name = LoadCellFormatName.INDICATOR_ST
     has_sequence = False
     has_checksum = False
     max_line_bytes = len(b"ST,GS,+0001.23kg\r\n") + 1  # up to a 3-letter unit: 19
@@ -258,17 +259,27 @@ class IndicatorStCodec:
         return len(_INDICATOR_START.findall(segment))
 
 
-FORMATS: dict[str, Callable[[], LineCodec]] = {
-    RigLc1Codec.name: RigLc1Codec,
-    IndicatorStCodec.name: IndicatorStCodec,
+def codec_class(name: LoadCellFormatName) -> Callable[[], LineCodec]:
+    """The codec of one format (mypy names this match when a format is added)."""
+    match name:
+        case LoadCellFormatName.RIG_LC1:
+            return RigLc1Codec
+        case LoadCellFormatName.INDICATOR_ST:
+            return IndicatorStCodec
+        case _:
+            assert_never(name)
+
+
+FORMATS: dict[LoadCellFormatName, Callable[[], LineCodec]] = {
+    name: codec_class(name) for name in LoadCellFormatName
 }
 
 
 def get_codec(name: str) -> LineCodec:
     """A fresh codec for the format `name`; `InputError` listing the known formats otherwise."""
     try:
-        factory = FORMATS[name]
-    except KeyError:
+        factory = FORMATS[LoadCellFormatName(name)]
+    except ValueError:
         raise InputError(
             f"load-cell format {name!r} unknown; allowed: {', '.join(sorted(FORMATS))}"
         ) from None

@@ -50,6 +50,7 @@ from rig.hw.loadcell.formats import (
     nmea_checksums,
 )
 from rig.sim.loadcell.artefacts import ArtefactModel
+from rig.vocabulary import LoadCellFormatName
 
 MIN_RATE_HZ = 10.0
 MAX_RATE_HZ = 2000.0
@@ -230,7 +231,7 @@ class LoadCellEmulator:
         self,
         tension_n: TensionSource,
         *,
-        format_name: str = "rig-lc1",
+        format_name: LoadCellFormatName = LoadCellFormatName.RIG_LC1,
         rate_hz: float = 1000.0,
         baud: int = DEFAULT_BAUD,
         signal: SignalModel | None = None,

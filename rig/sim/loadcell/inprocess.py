@@ -30,6 +30,7 @@ from rig.sim.loadcell.emulator import (
     TensionSource,
     wrong_baud_garbage,
 )
+from rig.vocabulary import LoadCellFormatName
 
 DEFAULT_RX_BUFFER_BYTES = 65536
 SIM_PORT = "sim://loadcell"
@@ -216,7 +217,7 @@ def simulated_load_cell(
     tension_n: TensionSource,
     clock: VirtualClock,
     *,
-    format_name: str = "rig-lc1",
+    format_name: LoadCellFormatName = LoadCellFormatName.RIG_LC1,
     rate_hz: float = 1000.0,
     calibration: Calibration | None = None,
     signal: SignalModel | None = None,

@@ -30,7 +30,8 @@ from model.chain import planar_transforms
 from rig.hw.seams import Clock, ConfigurationReading
 from rig.sim.physics.article import rotation_about_axis
 from rig.sim.physics.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
-from rig.sim.physics.world import SimWorld, SlipKind
+from rig.sim.physics.world import SimWorld
+from rig.vocabulary import SlipKind
 
 
 class SimConfigurationSource:
@@ -71,7 +72,7 @@ class SimConfigurationSource:
         if new_slips:
             last = new_slips[-1]
             probability = self.report_probability
-            if last.kind == SlipKind.OTHER_JOINT.value:
+            if last.kind == SlipKind.OTHER_JOINT:
                 probability = world.preset.slip_mix.other_joint_report_probability
             if self._report_rng.random() < probability:
                 slipped = last.moved_joint

@@ -54,13 +54,11 @@ import bisect
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
-from enum import StrEnum
 from typing import Any, Protocol
 
 import numpy as np
 
 from model.joint import mu_delta0_pa_from_capacity, resolve_constant
-from rig.rig_config import SLIP_KINDS
 from rig.sim.physics.article import ChainArticle
 from rig.sim.physics.article_presets import (
     STREAM_BEND,
@@ -71,6 +69,7 @@ from rig.sim.physics.article_presets import (
 )
 from rig.sim.physics.bending_fixture import BendingFixture
 from rig.sim.physics.winch_line import WinchLine
+from rig.vocabulary import SlipKind, TrialKind
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0
@@ -102,32 +101,11 @@ class ShaftLike(Protocol):
         ...
 
 
-class TrialKind(StrEnum):
-    """The two trial kinds of the paper."""
-
-    JOINT_ESTIMATION = "joint_estimation"  # V-A: single joint, load at distance l
-    LINK_VALIDATION = "link_validation"  # V-B: the bent link
-
-
-class SlipKind(StrEnum):
-    """How a trial's joint slips (`rig.rig_config.SlipKindMix` documents each)."""
-
-    SUDDEN = "sudden"
-    SMALL_DROP = "small_drop"
-    CREEP = "creep"
-    STICK_SLIP = "stick_slip"
-    OTHER_JOINT = "other_joint"
-    NO_SLIP = "no_slip"
-
-
-assert tuple(k.value for k in SlipKind) == SLIP_KINDS
-
-
 @dataclass(frozen=True)
 class SlipPlan:
     """The slip kind one trial drew and its parameters (None where the kind has none)."""
 
-    kind: str
+    kind: SlipKind
     drop_fraction: float | None = None  # small_drop, stick_slip (each drop), other_joint
     creep_duration_s: float | None = None
     creep_drop_fraction: float | None = None
@@ -165,7 +143,7 @@ class SlipRecord:
     end_ns: int | None = None
     tension_after_n: float | None = None
     rotation_rad: float = 0.0
-    kind: str = SlipKind.SUDDEN.value
+    kind: SlipKind = SlipKind.SUDDEN
     moved_joint: int = 0
     onset_time_ns: int | None = None
 
@@ -179,7 +157,7 @@ class TrialTruth:
     """What was true for one trial: its capacities and the exact slip load at its start."""
 
     index: int  # 1-based, in begin_trial order
-    kind: str
+    kind: TrialKind
     distance_m: float | None
     specimen_joint: int | None  # joint estimation: the link joint used as the specimen (None: nominal)
     start_ns: int
@@ -188,7 +166,7 @@ class TrialTruth:
     slip_force_n: float  # static slip load of the configuration at begin_trial (inf: cannot slip)
     slip_mass_kg: float
     first_slip_joint: int  # 1-based, 0 if nothing can slip
-    slip: SlipPlan = SlipPlan(SlipKind.SUDDEN.value)
+    slip: SlipPlan = SlipPlan(SlipKind.SUDDEN)
     capacity_relative_sds: tuple[float, ...] = ()  # s of each capacity factor 1 + s·z
 
     def as_dict(self) -> dict[str, Any]:
@@ -460,7 +438,7 @@ class SimWorld:
 
     def _plan(self) -> SlipPlan:
         """The slip plan of the current trial (sudden before any trial)."""
-        return self.trials[-1].slip if self.trials else SlipPlan(SlipKind.SUDDEN.value)
+        return self.trials[-1].slip if self.trials else SlipPlan(SlipKind.SUDDEN)
 
     def _moved_joint(self, article_joint: int) -> int:
         """The link joint that a slip of `article_joint` of the present article moves."""
@@ -512,7 +490,7 @@ class SimWorld:
             onset_ns=t_ns,
             peak_tension_n=tension,
             threshold_n=article.slip_threshold_n,
-            kind=kind.value,
+            kind=kind,
             moved_joint=self._moved_joint(joint),
             onset_time_ns=t_ns + self.run_clock_offset_ns,
         )
@@ -585,7 +563,7 @@ class SimWorld:
             onset_ns=t_ns,
             peak_tension_n=tension,
             threshold_n=tension,
-            kind=SlipKind.OTHER_JOINT.value,
+            kind=SlipKind.OTHER_JOINT,
             moved_joint=plan.other_joint,
             onset_time_ns=t_ns + self.run_clock_offset_ns,
         )
@@ -724,17 +702,17 @@ class SimWorld:
             factors = np.maximum(1.0 + relative_sds * draws, MIN_CAPACITY_FACTOR)
         plan = self._draw_plan(kind, joint)
         capacities = nominal * factors
-        if plan.kind == SlipKind.NO_SLIP.value:
+        if plan.kind == SlipKind.NO_SLIP:
             capacities = capacities * preset.slip_mix.no_slip_capacity_factor
         self._article.set_capacities(capacities)
         threshold = self._article.slip_threshold_n
-        if plan.kind == SlipKind.OTHER_JOINT.value:
+        if plan.kind == SlipKind.OTHER_JOINT:
             assert plan.other_load_n is not None
             self._other_load_n = plan.other_load_n * threshold  # inf if the specimen cannot slip
             plan = replace(plan, other_load_n=self._other_load_n)
         trial = TrialTruth(
             index=len(self.trials) + 1,
-            kind=kind.value,
+            kind=kind,
             distance_m=None if distance_m is None else float(distance_m),
             specimen_joint=joint,
             start_ns=self._now_ns,
@@ -758,19 +736,19 @@ class SimWorld:
         rng = self._kind_rng
         u = float(rng.random())
         cumulative = np.cumsum(mix.probabilities)
-        index = min(int(np.searchsorted(cumulative, u, side="right")), len(SLIP_KINDS) - 1)
+        index = min(int(np.searchsorted(cumulative, u, side="right")), len(SlipKind) - 1)
         while mix.probabilities[index] == 0:  # u at the very top of the range: the last kind that can occur
             index -= 1
-        slip_kind = SlipKind(SLIP_KINDS[index])
+        slip_kind = list(SlipKind)[index]
 
         def uniform(bounds: tuple[float, float]) -> float:
             return float(rng.uniform(bounds[0], bounds[1]))
 
         if slip_kind is SlipKind.SMALL_DROP:
-            return SlipPlan(slip_kind.value, drop_fraction=uniform(mix.small_drop_fraction))
+            return SlipPlan(slip_kind, drop_fraction=uniform(mix.small_drop_fraction))
         if slip_kind is SlipKind.CREEP:
             return SlipPlan(
-                slip_kind.value,
+                slip_kind,
                 creep_duration_s=uniform(mix.creep_duration_s),
                 creep_drop_fraction=uniform(mix.creep_drop_fraction),
             )
@@ -778,24 +756,24 @@ class SimWorld:
             low, high = (int(x) for x in mix.stick_slip_drops)
             drops = int(rng.integers(low, high + 1))
             return SlipPlan(
-                slip_kind.value,
+                slip_kind,
                 drop_fraction=uniform(mix.stick_slip_drop_fraction),
                 train_drops=drops,
                 dwells_s=tuple(uniform(mix.stick_slip_dwell_s) for _ in range(drops - 1)),
             )
         if slip_kind is SlipKind.OTHER_JOINT:
             if kind is not TrialKind.JOINT_ESTIMATION:
-                return SlipPlan(SlipKind.SUDDEN.value)  # every joint of the link is under test
+                return SlipPlan(SlipKind.SUDDEN)  # every joint of the link is under test
             specimen = 1 if joint is None else joint
             count = self.preset.joint_count
             neighbour = specimen + 1 if specimen < count else specimen - 1  # 0: the clamp of a 1-joint link
             return SlipPlan(
-                slip_kind.value,
+                slip_kind,
                 other_joint=neighbour,
                 other_load_n=uniform(mix.other_joint_load_fraction),
                 drop_fraction=uniform(mix.other_joint_drop_fraction),
             )
-        return SlipPlan(slip_kind.value)
+        return SlipPlan(slip_kind)
 
     # --- ground truth ------------------------------------------------------------------------
     def _trial_truth(self, trial: TrialTruth) -> dict[str, Any]:
@@ -851,7 +829,7 @@ class SimWorld:
                 "sd_m": "sqrt(a^2 + (b m)^2)",
             },
             "slip_mix": {
-                "probabilities": dict(zip(SLIP_KINDS, p.slip_mix.probabilities, strict=True)),
+                "probabilities": dict(zip(SlipKind, p.slip_mix.probabilities, strict=True)),
                 **{
                     k: list(v)
                     for k, v in asdict(p.slip_mix).items()

@@ -1,0 +1,42 @@
+"""What every step of a trial works with: the rig, the protocol, the control loop and the recorder."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from model.slip_detector import DetectorParams
+from rig.hw.session import RigSession
+from rig.protocol import Protocol
+from rig.rig_config import RigConfig
+from rig.runner.control_loop import ControlLoop
+from rig.runner.estimation import RunEstimator
+from rig.runner.recorder import RunRecorder
+from rig.runner.release import LineRelease
+
+BENDER_SPEED_RAD_S = 2.0
+
+
+@dataclass
+class StepContext:
+    """The run's parts a step uses; `winch_zero_rad` is set on connecting (and moved by a winch reboot)."""
+
+    protocol: Protocol
+    config: RigConfig
+    session: RigSession
+    loop: ControlLoop
+    recorder: RunRecorder
+    estimator: RunEstimator
+    detector_params: DetectorParams
+    line_stiffness_n_per_m: float
+    winch_zero_rad: float | None = None
+
+    def line_release(self) -> LineRelease:
+        """A release starting from a copy of what the loop saw last (`rig.runner.release`)."""
+        return LineRelease(
+            self.session,
+            self.recorder,
+            self.protocol.ramp,
+            control_period_s=self.protocol.control_period_s,
+            tare_n=self.loop.tare_n,
+            last=self.loop.reading(),
+        )

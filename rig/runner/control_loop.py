@@ -1,0 +1,119 @@
+"""The control loop: one tick per control period reads everything, logs it and checks the interlocks.
+
+A tick waits for its period, reads the servo states (one sync read), drains the load cell (never
+blocking), hands both to the recorder and checks the interlocks; the steps read what the tick saw
+(`states`, `tick_samples`, `force_n`) and wait with `ticks_for` / `wait_until`. The safe state's
+release does not tick here: it keeps its own readings (`rig.runner.release`) and hands them back
+when it ends (`adopt`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from rig.errors import InterlockTripped, StepTimeoutError
+from rig.hw.seams import LoadCellSample, ServoState
+from rig.hw.session import RigSession
+from rig.runner.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
+from rig.runner.recorder import RunRecorder
+
+
+def tare_corrected(samples: list[LoadCellSample], tare_n: float) -> list[tuple[int, float]]:
+    """(time_ns, force minus tare) of each sample."""
+    return [(s.time_ns, s.force_n - tare_n) for s in samples]
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What the last tick saw: every servo's state, the tare-corrected samples, the latest tension."""
+
+    states: dict[int, ServoState]
+    tick_samples: list[tuple[int, float]]
+    force_n: float
+
+
+class ControlLoop:
+    """Ticks at the protocol's control period; holds what the last tick read."""
+
+    def __init__(
+        self,
+        session: RigSession,
+        recorder: RunRecorder,
+        *,
+        period_s: float,
+        ceiling: ForceCeiling,
+        current_limit: CurrentAtLimit,
+    ) -> None:
+        self.session = session
+        self.clock = session.clock
+        self.recorder = recorder
+        self.period_ns = round(period_s * 1e9)
+        self.ceiling = ceiling
+        self.health = ServoHealth(dict(session.roles))
+        self.current_limit = current_limit
+        self._next_tick_ns = 0
+        self.tare_n = 0.0
+        self.force_n = 0.0  # latest tare-corrected tension
+        self.states: dict[int, ServoState] = {}
+        self.tick_samples: list[tuple[int, float]] = []  # (time_ns, tare-corrected force) this tick
+
+    def restart_pacing(self) -> None:
+        """Count the next period from now (after connecting, or after a pause outside the loop)."""
+        self._next_tick_ns = self.clock.monotonic_ns()
+
+    def tick(self) -> None:
+        """One control period: wait, read everything, log it, check the interlocks."""
+        if self.recorder.failed is not None:
+            raise self.recorder.failed  # a run whose log cannot be written stops (a fault)
+        self._next_tick_ns += self.period_ns
+        now = self.clock.monotonic_ns()
+        if self._next_tick_ns > now:
+            self.clock.sleep((self._next_tick_ns - now) / 1e9)
+        else:
+            self._next_tick_ns = now  # late: do not try to catch up with a burst of ticks
+        self.states = self.session.servos.read_states()
+        samples = self.session.load_cell.poll()
+        self.ingest(samples)
+        now_ns = self.clock.monotonic_ns()
+        reason = (
+            self.ceiling.check(max((f for _, f in self.tick_samples), default=self.force_n))
+            or self.health.check(self.states)
+            or self.current_limit.check(self.states, now_ns)
+        )
+        if reason is not None:
+            raise InterlockTripped(reason)
+
+    def ingest(self, samples: list[LoadCellSample]) -> None:
+        """Take one read's samples (tare-corrected) and log them with the servo states."""
+        self.tick_samples = tare_corrected(samples, self.tare_n)
+        if samples:
+            self.force_n = self.tick_samples[-1][1]
+        self.recorder.tick_rows(samples, self.tick_samples, self.states)
+
+    def reading(self) -> Reading:
+        """A copy of what the last tick saw (for the release, which must not share it)."""
+        return Reading(dict(self.states), list(self.tick_samples), self.force_n)
+
+    def adopt(self, reading: Reading) -> None:
+        """Take over what the release read last, so the next tick and fault checks start from it."""
+        self.states = reading.states
+        self.tick_samples = reading.tick_samples
+        self.force_n = reading.force_n
+
+    def ticks_for(self, seconds: float) -> None:
+        """Tick for `seconds`."""
+        end = self.clock.monotonic_ns() + round(seconds * 1e9)
+        while self.clock.monotonic_ns() < end:
+            self.tick()
+
+    def wait_until(
+        self, done: Callable[[], bool], timeout_s: float, what: str, step: Callable[[], None] | None = None
+    ) -> None:
+        """Call `step` (a control tick by default) until `done()`; StepTimeoutError after `timeout_s`."""
+        step = step or self.tick
+        deadline = self.clock.monotonic_ns() + round(timeout_s * 1e9)
+        while not done():
+            if self.clock.monotonic_ns() > deadline:
+                raise StepTimeoutError(f"step {what} did not finish within its timeout of {timeout_s:.1f} s")
+            step()

@@ -1,0 +1,274 @@
+"""The ramp_until_slip step: drive the winch (fast, then slow) and feed the detector until a slip.
+
+Two parts with their own state: `WinchDrive` moves the winch (its speed, a goal kept a short way
+ahead of it, the end of its travel) and `DetectorFeed` hands every sample stamped since the ramp
+began to the slip detector, confirms what fires, and counts the further drops in the hold after
+the slip. `ramp_until_slip` ticks the control loop and passes each tick to both.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import assert_never
+
+from model.slip_detector import (
+    DetectorParams,
+    DetectorState,
+    SlipEvent,
+    detector_init,
+    detector_run,
+    further_drops,
+)
+from rig.errors import InterlockTripped, StepTimeoutError
+from rig.log import schemas
+from rig.log.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcome
+from rig.protocol import TrialPlan
+from rig.runner.context import StepContext
+from rig.runner.control_loop import ControlLoop
+from rig.runner.phases import Phase
+from rig.runner.results import TrialMeasurements, slip_outcome
+from rig.runner.safe_state import POSITION_TOLERANCE_RAD
+from rig.vocabulary import StepKind, TrialKind
+
+# How far ahead of the winch its ramp goal is kept, in seconds of motion at the ramp's speed.
+RAMP_GOAL_LEAD_S = 0.5
+# A tension drop while the winch turns back faster than this is the winch backing off, not a slip.
+_BACKING_OFF_RAD_S = -0.05
+
+
+class WinchDrive:
+    """Reels the winch in towards `limit_rad`, the goal never more than a short lead ahead of it."""
+
+    def __init__(self, ctx: StepContext, limit_rad: float) -> None:
+        self.loop = ctx.loop
+        self.recorder = ctx.recorder
+        self.servos = ctx.session.servos
+        self.winch = ctx.session.winch_id
+        self.limit_rad = limit_rad
+        self.speed_rad_s = 0.0
+        self.goal_rad: float | None = None
+
+    def set_speed(self, speed_rad_s: float) -> None:
+        """Change the winch's profile speed and set a new goal for it."""
+        self.speed_rad_s = speed_rad_s
+        self.servos.set_profile(self.winch, velocity_rad_s=speed_rad_s)
+        self.goal_rad = None
+        self.advance()
+
+    def advance(self) -> None:
+        """Keep the winch's goal a short way ahead of it, never the far end of its travel.
+
+        The goal leads the winch by `RAMP_GOAL_LEAD_S` of motion and is moved on once the winch is
+        halfway there. If the host stops talking (crash, lost link), the winch stops within that
+        lead instead of reeling on to `limit_rad`.
+        """
+        position = self.loop.states[self.winch].position_rad
+        lead = self.speed_rad_s * RAMP_GOAL_LEAD_S
+        goal = self.goal_rad
+        if goal is not None and (goal >= self.limit_rad or goal - position > lead / 2):
+            return
+        self.goal_rad = min(self.limit_rad, position + lead)
+        self.servos.write_goal_positions({self.winch: self.goal_rad})
+        self.recorder.command(self.winch, ServoCommandName.GOAL_POSITION, self.goal_rad, "rad")
+
+    def travel_exhausted(self) -> bool:
+        """The winch has reached the end of its allowed travel."""
+        return self.loop.states[self.winch].position_rad >= self.limit_rad - POSITION_TOLERANCE_RAD
+
+    def hold(self) -> None:
+        """Stop reeling: the goal is where the winch is now."""
+        hold = self.loop.states[self.winch].position_rad
+        self.servos.write_goal_positions({self.winch: hold})
+        self.recorder.command(self.winch, ServoCommandName.GOAL_POSITION, hold, "rad")
+
+
+class DetectorFeed:
+    """The slip detector over the samples stamped at or after `start_ns`, until a confirmed slip.
+
+    `start_ns` is also the log time of the ramp's phase change, so `rig replay` can feed the
+    detector the very same samples. The samples stamped at that very instant came with the last
+    tick (`already_read`): they are fed first.
+    """
+
+    def __init__(
+        self,
+        params: DetectorParams,
+        start_ns: int,
+        already_read: list[tuple[int, float]],
+        confirm: Callable[[SlipEvent], bool],
+    ) -> None:
+        self.params = params
+        self.start_ns = start_ns
+        self._pending = [(t_ns, force) for t_ns, force in already_read if t_ns >= start_ns]
+        self.confirm = confirm
+        self.state: DetectorState = detector_init(params)
+        self.peak_n = 0.0
+        self.event: SlipEvent | None = None
+        self.after_event: list[tuple[int, float]] = []  # samples of the detecting tick after the event
+
+    def feed(self, tick_samples: list[tuple[int, float]]) -> SlipEvent | None:
+        """Step the detector over one tick's samples; the confirmed slip, if one fired."""
+        params = self.params
+        samples = self._pending + tick_samples
+        self._pending = []
+        fed = [i for i, (t_ns, _) in enumerate(samples) if t_ns >= self.start_ns]
+        times = [samples[i][0] for i in fed]
+        forces = [samples[i][1] for i in fed]
+        j = 0
+        while j < len(fed):
+            # detector_run: detector_step over the samples until one fires (with a fast path).
+            self.state, k, fired = detector_run(params, self.state, times, forces, j)
+            self.peak_n = max(self.peak_n, *forces[j : k + 1])
+            if fired is None:
+                break
+            if self.confirm(fired):
+                self.event = fired
+                self.after_event = samples[fed[k] + 1 :]
+                break
+            self.state = detector_init(params)  # not a slip: start over, so a real one is seen
+            j = k + 1
+        return self.event
+
+    def drops_in_hold(self, loop: ControlLoop, hold_s: float) -> int:
+        """Tick for `hold_s` after the slip; the further drops the latched detector counts in it.
+
+        The detector is stepped over the samples up to `hold_s` after the detection (a window of
+        sample times, so that replay picks the same samples).
+        """
+        event = self.event
+        assert event is not None
+        end_ns = event.detection_time_ns + round(hold_s * 1e9)
+        samples = list(self.after_event)
+        stop = loop.clock.monotonic_ns() + round(hold_s * 1e9)
+        while loop.clock.monotonic_ns() < stop:
+            loop.tick()
+            samples += loop.tick_samples
+        window = [(t_ns, force) for t_ns, force in samples if t_ns <= end_ns]
+        _, drops = further_drops(self.params, self.state, [t for t, _ in window], [f for _, f in window])
+        return drops
+
+
+def predicted_force_n(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements) -> float | None:
+    """The slip force the estimates so far predict for this trial (recorded in `found`)."""
+    match trial.kind:
+        case TrialKind.JOINT_ESTIMATION:
+            assert trial.distance_m is not None
+            found.predicted_force_n = ctx.estimator.predict_joint_estimation_force_n(trial.distance_m)
+            found.lever_arms_m = None
+            return found.predicted_force_n
+        case TrialKind.LINK_VALIDATION:
+            prediction = ctx.estimator.predict_link(found.joint_angles_rad or ())
+            if prediction is None:
+                raise InterlockTripped("link validation needs joint estimates, and none are available")
+            found.predicted_force_n = prediction.slip_force_n
+            found.lever_arms_m = prediction.lever_arms_m
+            return prediction.slip_force_n
+        case kind:
+            assert_never(kind)
+
+
+def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Load the line, fast to a share of the predicted slip force and slow after, until a slip.
+
+    Ends with the winch holding where it is: after a slip (kept `hold_after_slip_s` longer to
+    count the further drops), or with `no_slip` at the ramp's force limit or the winch's travel.
+    """
+    ramp = ctx.protocol.ramp
+    loop, recorder = ctx.loop, ctx.recorder
+    predicted = predicted_force_n(ctx, trial, found)
+    switch_n = ctx.detector_params.arm_threshold_n
+    if predicted is not None and math.isfinite(predicted):
+        switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
+    zero = ctx.winch_zero_rad
+    assert zero is not None
+    drive = WinchDrive(ctx, zero + ctx.config.limits.max_winch_travel_rev * 2 * math.pi)
+    # Timeout from the motion: the slow ramp to the protocol's maximum force, with the nominal line
+    # stiffness, three times over, plus the margin.
+    slow_s = ramp.max_force_n / (
+        ctx.line_stiffness_n_per_m * ctx.config.spool_radius_m * ramp.slow_speed_rad_s
+    )
+    timeout_s = 3.0 * slow_s + ctx.protocol.step_timeout_margin_s
+    deadline = loop.clock.monotonic_ns() + round(timeout_s * 1e9)
+
+    fast = loop.force_n < switch_n
+    start_ns = loop.clock.time_ns()
+    feed = DetectorFeed(
+        ctx.detector_params, start_ns, loop.tick_samples, lambda e: _confirmed_by_winch(ctx, e)
+    )
+    recorder.phase(
+        Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP, start_ns
+    )
+    drive.set_speed(ramp.fast_speed_rad_s if fast else ramp.slow_speed_rad_s)
+    while feed.event is None:
+        loop.tick()
+        event = feed.feed(loop.tick_samples)
+        found.peak_observed_n = feed.peak_n
+        if event is not None:
+            break
+        if fast and loop.force_n >= switch_n:
+            fast = False
+            drive.set_speed(ramp.slow_speed_rad_s)
+            recorder.phase(Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP)
+        else:
+            drive.advance()
+        if loop.force_n >= ramp.max_force_n:
+            found.outcome = TrialOutcome.NO_SLIP
+            recorder.note(LogLevel.WARNING, f"trial {trial.trial_id}: no slip up to {ramp.max_force_n:.1f} N")
+            break
+        if drive.travel_exhausted():
+            found.outcome = TrialOutcome.NO_SLIP
+            recorder.note(LogLevel.WARNING, f"trial {trial.trial_id}: winch travel exhausted without a slip")
+            break
+        if loop.clock.monotonic_ns() > deadline:
+            raise StepTimeoutError(
+                f"trial {trial.trial_id}: ramp_until_slip exceeded its timeout of {timeout_s:.1f} s"
+            )
+    drive.hold()  # and keep logging the post-slip tension briefly
+    found.peak_observed_n = feed.peak_n
+    if feed.event is not None:
+        _record_slip(ctx, trial, found, feed)
+
+
+def _record_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements, feed: DetectorFeed) -> None:
+    """After a confirmed slip: hold, count further drops, ask which joint moved, log the slip."""
+    event = feed.event
+    assert event is not None
+    found.event = event
+    found.train_drops = feed.drops_in_hold(ctx.loop, ctx.protocol.ramp.hold_after_slip_s)
+    if ctx.session.configuration is not None:
+        found.slipped_joint = ctx.session.configuration.measure().slipped_joint
+    found.outcome = slip_outcome(trial, event, found.train_drops, found.slipped_joint)
+    message = SlipMessage(
+        trial.trial_id, event, feed.params.to_mapping(), found.slipped_joint, found.train_drops
+    )
+    ctx.recorder.write(schemas.SLIP, message.to_payload(), event.detection_time_ns)
+    if found.outcome != TrialOutcome.SLIP:
+        ctx.recorder.note(LogLevel.INFO, f"trial {trial.trial_id}: {found.outcome} ({_why(found)})")
+
+
+def _confirmed_by_winch(ctx: StepContext, event: SlipEvent) -> bool:
+    """A tension drop is a slip only if the winch was not backing off (it reels in or holds)."""
+    winch = ctx.loop.states.get(ctx.session.winch_id)
+    if winch is None or winch.hardware_error:
+        return False
+    confirmed = winch.velocity_rad_s > _BACKING_OFF_RAD_S
+    if not confirmed:
+        ctx.recorder.note(
+            LogLevel.WARNING, f"drop at {event.peak_force_n:.2f} N ignored: winch was backing off"
+        )
+    return confirmed
+
+
+def _why(found: TrialMeasurements) -> str:
+    """A few words on why a slip got the outcome it has (for the log)."""
+    event = found.event
+    if found.outcome == TrialOutcome.OTHER_JOINT:
+        return f"joint {found.slipped_joint} moved"
+    if found.outcome == TrialOutcome.STICK_SLIP:
+        return f"{found.train_drops} further drop(s) after the first"
+    return (
+        f"{event.trigger} after {(event.detection_time_ns - event.onset_time_ns) / 1e9:.3f} s"
+        if event
+        else ""
+    )

@@ -1,0 +1,140 @@
+"""The release of the line when something failed: the winch back to its zero-tension angle, whatever broke.
+
+It runs in the safe state that ends every run (`rig.runner.safe_state.enter_safe_state`, before
+torque goes off) and after a device fault inside a trial. It keeps its own state: it starts from
+a copy of what the control loop saw last and reads the rig itself from then on, so nothing a step
+or the ramp does to the loop's readings can change what it sees or waits for. `reading()` hands
+its last readings back to the loop when it ends.
+
+Each stage goes on when an earlier one failed, and what was verified is recorded in `report`: a
+winch with a latched hardware error is rebooted first (its turn count is lost, so the zero is
+carried over into the new count); the goal goes out as a broadcast sync write, which needs no
+reply; the wait reads the winch's position back, and if the winch stops answering it waits the
+travel time blind. The load cell is optional: it may be what failed.
+"""
+
+from __future__ import annotations
+
+import math
+
+from rig.errors import RigError, StepTimeoutError
+from rig.hw.seams import LoadCellSample
+from rig.hw.session import RigSession
+from rig.log.records import ServoCommandName
+from rig.protocol import RampSettings
+from rig.runner.control_loop import Reading, tare_corrected
+from rig.runner.recorder import RunRecorder
+from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
+
+# The safe state waits this long beyond the winch's travel time: interlocks are off by then, and
+# the load cell may be what failed, so arrival at the zero-tension angle is all it waits for.
+SAFE_STATE_MARGIN_S = 2.0
+
+
+class LineRelease:
+    """One release of the line, from the readings it was given; see the module docstring."""
+
+    def __init__(
+        self,
+        session: RigSession,
+        recorder: RunRecorder,
+        ramp: RampSettings,
+        *,
+        control_period_s: float,
+        tare_n: float,
+        last: Reading,
+    ) -> None:
+        self.session = session
+        self.clock = session.clock
+        self.recorder = recorder
+        self.ramp = ramp
+        self.control_period_s = control_period_s
+        self.tare_n = tare_n
+        self.states = dict(last.states)
+        self.tick_samples = list(last.tick_samples)
+        self.force_n = last.force_n
+        self.report: list[str] = []  # what the release did and verified
+        self.verified = False  # the winch's position was read back at its zero-tension angle
+
+    def reading(self) -> Reading:
+        """What the release read last."""
+        return Reading(self.states, self.tick_samples, self.force_n)
+
+    def run(self, zero_rad: float) -> float:
+        """Back the winch off to `zero_rad`; its zero-tension angle in its (possibly new) turn count.
+
+        StepTimeoutError if the winch answers but does not get there in time.
+        """
+        winch = self.session.winch_id
+        servos = self.session.servos
+        report = self.report
+        zero_rad = self._recover_winch(zero_rad)
+        speed = self.ramp.unload_speed_rad_s
+        try:
+            servos.set_profile(winch, velocity_rad_s=speed)
+        except RigError as exc:
+            # The profile in force is one the ramp set: wait as long as the slowest would take.
+            speed = min(speed, self.ramp.slow_speed_rad_s, self.ramp.fast_speed_rad_s)
+            report.append(f"release speed not confirmed ({exc})")
+        servos.write_goal_positions({winch: zero_rad})
+        self.recorder.command(winch, ServoCommandName.GOAL_POSITION, zero_rad, "rad")
+        last = self.states.get(winch)
+        travel = abs(last.position_rad - zero_rad) if last is not None else 2 * math.pi
+        wait_s = move_timeout_s(travel, speed, SAFE_STATE_MARGIN_S)
+        deadline = self.clock.monotonic_ns() + round(wait_s * 1e9)
+        answered = False
+        while self.clock.monotonic_ns() < deadline:
+            try:
+                self._tick_without_interlocks()
+            except RigError:
+                self.clock.sleep(self.control_period_s)  # not answering: wait out the travel
+                continue
+            answered = True
+            if abs(self.states[winch].position_rad - zero_rad) < POSITION_TOLERANCE_RAD:
+                self.verified = True
+                report.append("winch back at its zero-tension angle (read back)")
+                if self.tick_samples:  # the load cell, when it still works, says what is left
+                    report.append(f"tension {self.force_n:+.2f} N (load cell)")
+                return zero_rad
+        if answered:
+            raise StepTimeoutError("winch did not return to zero tension within its timeout")
+        report.append(
+            f"winch not answering: its zero-tension goal went out by broadcast; it was given {wait_s:.1f} s"
+            " (not verified)"
+        )
+        return zero_rad
+
+    def _recover_winch(self, zero_rad: float) -> float:
+        """Reboot a winch whose hardware error dropped its torque; the zero-tension angle after it.
+
+        A reboot folds the multi-turn position into one turn, and the shaft does not move while
+        its torque is off, so the turns lost are the difference of the positions before and after.
+        """
+        winch = self.session.winch_id
+        state = self.states.get(winch)
+        if state is None or not state.hardware_error:
+            return zero_rad
+        servos = self.session.servos
+        servos.reboot(winch)
+        self.states = servos.read_states()
+        turns = round((state.position_rad - self.states[winch].position_rad) / (2 * math.pi))
+        self.report.append(f"winch rebooted after hardware error 0x{state.hardware_error:02X}")
+        return zero_rad - turns * 2 * math.pi
+
+    def _tick_without_interlocks(self) -> None:
+        """One control period of the release: read the servos and log; the load cell is optional.
+
+        The load cell may be what failed (stale, unplugged, a port error): the release goes on
+        without it, since only the winch's position is waited for.
+        """
+        self.clock.sleep(self.control_period_s)
+        self.states = self.session.servos.read_states()
+        samples: list[LoadCellSample]
+        try:
+            samples = self.session.load_cell.poll()
+        except Exception:  # whatever the load cell's failure, the line still has to be released
+            samples = []
+        self.tick_samples = tare_corrected(samples, self.tare_n)
+        if samples:
+            self.force_n = self.tick_samples[-1][1]
+        self.recorder.tick_rows(samples, self.tick_samples, self.states)

@@ -1,0 +1,171 @@
+"""The steps a trial is made of, one function each, and the table that maps a step kind to its function.
+
+A trial runs its protocol template (`TrialPlan.steps`) in order through `STEPS`; every step gets
+the run's parts (`StepContext`), its own options (`StepSpec`), the trial and what the trial has
+measured so far. `STEPS` is built through a `match` over `StepKind`, so mypy names this module
+when a step kind is added.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from types import MappingProxyType
+from typing import assert_never
+
+from rig.errors import StaleDataError
+from rig.log.records import LogLevel, ServoCommandName
+from rig.protocol import StepSpec, TrialPlan
+from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
+from rig.runner.phases import Phase
+from rig.runner.ramp import ramp_until_slip
+from rig.runner.results import TrialMeasurements
+from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
+from rig.vocabulary import StepKind
+
+_RELEASED_TENSION_N = 0.5
+
+StepUnit = Callable[[StepContext, StepSpec, TrialPlan, TrialMeasurements], None]
+
+
+def prompt(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Ask the operator to do what the prompt says (the loop ticks while waiting)."""
+    ctx.recorder.phase(Phase.PROMPTING, trial.trial_id, StepKind.PROMPT)
+    ctx.session.operator.confirm(trial.prompt_text(step.text or ""), trial, ctx.loop.tick)
+
+
+def tare(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Average the load cell over `duration_s`: the force the later readings are taken relative to."""
+    loop = ctx.loop
+    settle_s = step.duration_s
+    ctx.recorder.phase(Phase.TARING, trial.trial_id, StepKind.TARE)
+    loop.tare_n = 0.0
+    raw_forces: list[float] = []
+    end = loop.clock.monotonic_ns() + round(settle_s * 1e9)
+    while loop.clock.monotonic_ns() < end:
+        loop.tick()
+        raw_forces += [f for _, f in loop.tick_samples]
+    if not raw_forces:
+        raise StaleDataError(f"no load-cell samples during the {settle_s:.2f} s tare window")
+    loop.tare_n = sum(raw_forces) / len(raw_forces)
+    ctx.recorder.note(
+        LogLevel.INFO, f"trial {trial.trial_id}: tare {loop.tare_n:+.4f} N over {len(raw_forces)} samples"
+    )
+
+
+def bend(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Bend the link to the trial's configuration: by the fixture's servos, or by the operator."""
+    ctx.recorder.phase(Phase.BENDING, trial.trial_id, StepKind.BEND)
+    angles = trial.joint_angles_rad or ()
+    goals = ctx.session.fixture.bend_goals(angles)
+    if not goals:
+        degrees = ", ".join(f"{math.degrees(a):.1f}" for a in angles)
+        ctx.session.operator.confirm(
+            f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg",
+            trial,
+            ctx.loop.tick,
+        )
+        return
+    _move_servos(ctx, goals, StepKind.BEND, speed_rad_s=BENDER_SPEED_RAD_S)
+
+
+def measure(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Read the link's configuration, when the rig has a source for it."""
+    source = ctx.session.configuration
+    if source is None:
+        return  # the commanded configuration stands for the measured one
+    reading = source.measure()
+    if reading.joint_angles_rad is not None:
+        found.joint_angles_rad = tuple(reading.joint_angles_rad)
+
+
+def ramp(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Load the line until the joint slips (`rig.runner.ramp`)."""
+    ramp_until_slip(ctx, trial, found)
+
+
+def unload(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Back the winch off to its zero-tension angle with the interlocks live.
+
+    It waits until the winch is home and the load cell reads the line slack. The release after a
+    failure, which must not depend on the load cell or on replies, is `rig.runner.release`.
+    """
+    ctx.recorder.phase(Phase.UNLOADING, trial.trial_id, StepKind.UNLOAD)
+    loop = ctx.loop
+    winch = ctx.session.winch_id
+    zero = ctx.winch_zero_rad
+    if zero is None:
+        return
+    speed = ctx.protocol.ramp.unload_speed_rad_s
+    ctx.session.servos.set_profile(winch, velocity_rad_s=speed)
+    ctx.session.servos.write_goal_positions({winch: zero})
+    ctx.recorder.command(winch, ServoCommandName.GOAL_POSITION, zero, "rad")
+
+    def done() -> bool:
+        home = abs(loop.states[winch].position_rad - zero) < POSITION_TOLERANCE_RAD
+        return home and loop.force_n < _RELEASED_TENSION_N + abs(loop.tare_n)
+
+    travel = loop.states[winch].position_rad - zero
+    loop.wait_until(done, move_timeout_s(travel, speed, ctx.protocol.step_timeout_margin_s), StepKind.UNLOAD)
+
+
+def reset(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Straighten the link: by the fixture's servos, or by the operator."""
+    ctx.recorder.phase(Phase.RESETTING, trial.trial_id, StepKind.RESET)
+    goals = ctx.session.fixture.home_goals()
+    if not goals:
+        ctx.session.operator.confirm("Straighten the link (reset), then confirm.", trial, ctx.loop.tick)
+        return
+    _move_servos(ctx, goals, StepKind.RESET, speed_rad_s=BENDER_SPEED_RAD_S)
+
+
+def pause(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
+    """Wait `duration_s`, ticking."""
+    ctx.recorder.phase(Phase.PAUSING, trial.trial_id, StepKind.PAUSE)
+    ctx.loop.ticks_for(step.duration_s)
+
+
+def _move_servos(ctx: StepContext, goals: dict[int, float], what: str, speed_rad_s: float) -> None:
+    """Send the servos to `goals` and wait until each has arrived and stopped."""
+    if not goals:
+        return
+    loop = ctx.loop
+    ctx.session.servos.write_goal_positions(goals)
+    for sid, goal in goals.items():
+        ctx.recorder.command(sid, ServoCommandName.GOAL_POSITION, goal, "rad")
+    travel = max(abs(goal - loop.states[sid].position_rad) for sid, goal in goals.items())
+    timeout = move_timeout_s(travel, speed_rad_s, ctx.protocol.step_timeout_margin_s)
+
+    def arrived() -> bool:
+        return all(
+            abs(loop.states[sid].position_rad - goal) < POSITION_TOLERANCE_RAD and not loop.states[sid].moving
+            for sid, goal in goals.items()
+        )
+
+    loop.wait_until(arrived, timeout, what)
+
+
+def _unit(kind: StepKind) -> StepUnit:
+    """The function of one step kind (mypy names this match when a kind is added)."""
+    match kind:
+        case StepKind.PROMPT:
+            return prompt
+        case StepKind.TARE:
+            return tare
+        case StepKind.BEND:
+            return bend
+        case StepKind.MEASURE:
+            return measure
+        case StepKind.RAMP_UNTIL_SLIP:
+            return ramp
+        case StepKind.UNLOAD:
+            return unload
+        case StepKind.RESET:
+            return reset
+        case StepKind.PAUSE:
+            return pause
+        case _:
+            assert_never(kind)
+
+
+STEPS: Mapping[StepKind, StepUnit] = MappingProxyType({kind: _unit(kind) for kind in StepKind})

@@ -1,0 +1,131 @@
+"""The rig's vocabulary: every kind, role and name that more than one layer uses, defined once.
+
+These enums sit at the bottom of the import layers (beside `rig.errors`), so that a protocol
+parser, a device driver, the simulator, the runner and the log all speak of the same members.
+Each value is the string (or number) that files, logs and JSON have always carried, so a
+`StrEnum` member compares, hashes, formats and serialises exactly as that string does.
+
+Code that does something per kind dispatches with `match` and `typing.assert_never`: mypy then
+names every place a new member has to be handled (docs/extending.md lists them).
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+# The detector's event kinds are the model's (model/ may not import rig): re-used, not restated.
+from model.slip_detector import SlipEventKind
+
+
+class TrialKind(StrEnum):
+    """The two trial kinds of the paper: one joint loaded at a distance, or the whole link bent."""
+
+    JOINT_ESTIMATION = "joint_estimation"  # V-A: a single joint, the load at a distance l
+    LINK_VALIDATION = "link_validation"  # V-B: the bent link
+
+
+class StepKind(StrEnum):
+    """The steps a trial's template is made of (`steps:` of a protocol block)."""
+
+    PROMPT = "prompt"
+    TARE = "tare"
+    BEND = "bend"
+    MEASURE = "measure"
+    RAMP_UNTIL_SLIP = "ramp_until_slip"
+    UNLOAD = "unload"
+    RESET = "reset"
+    PAUSE = "pause"
+
+
+class TrialOutcome(StrEnum):
+    """How a trial ended.
+
+    `slip` (a sudden drop), `creep` (the tension sagged) and `stick_slip` (further drops while the
+    line re-tensioned) are slips of the joint under test: their peak is the slip load
+    (`SLIP_LIKE`). `no_slip`: the force limit or the winch travel came first; the peak is a lower
+    bound on the capacity. `other_joint`: the configuration source says another joint moved.
+    `aborted`: a step timed out or a fault stopped the trial (`TrialResult.reason`). `fault` is read
+    in logs and journals from before `aborted` took its place.
+    """
+
+    SLIP = "slip"
+    CREEP = "creep"
+    STICK_SLIP = "stick_slip"
+    NO_SLIP = "no_slip"
+    OTHER_JOINT = "other_joint"
+    ABORTED = "aborted"
+    FAULT = "fault"
+
+
+# The outcomes whose peak is a slip load of the joint under test: the only ones the fit uses.
+SLIP_LIKE = frozenset({TrialOutcome.SLIP, TrialOutcome.CREEP, TrialOutcome.STICK_SLIP})
+
+
+class SlipKind(StrEnum):
+    """How a simulated joint slips (`simulation.slips.mix`; `rig.rig_config.SlipKindMix` describes each).
+
+    The order is that of the mix's probabilities.
+    """
+
+    SUDDEN = "sudden"
+    SMALL_DROP = "small_drop"
+    CREEP = "creep"
+    STICK_SLIP = "stick_slip"
+    OTHER_JOINT = "other_joint"
+    NO_SLIP = "no_slip"
+
+
+class ServoRole(StrEnum):
+    """What a servo does on the rig: the winch loads the line, a bender bends the link."""
+
+    WINCH = "winch"
+    BENDER = "bender"
+
+
+class RigKind(StrEnum):
+    """Which rig a config describes (`kind:` of a rig config)."""
+
+    SIMULATED = "simulated"
+    HARDWARE = "hardware"
+
+
+class DeviceLevel(StrEnum):
+    """The simulated devices a run talks to: the real drivers on byte-level emulators, or objects."""
+
+    BYTE = "byte"
+    OBJECT = "object"
+
+
+class LoadCellFormatName(StrEnum):
+    """The load cell's line formats (protocols/loadcell-formats.md; codecs in rig.hw.loadcell.formats)."""
+
+    RIG_LC1 = "rig-lc1"
+    INDICATOR_ST = "indicator-st"
+
+
+class ServoModel(StrEnum):
+    """The Dynamixel models the rig supports (control tables in rig.hw.dxl.control_table)."""
+
+    XM430_W350 = "XM430-W350"
+    XL430_W250 = "XL430-W250"
+
+
+# The baud rates a Dynamixel X servo's Baud Rate register (8) holds that dynamixel-sdk can also set,
+# in register order (values 0-6; 7 is 4.5 Mbps, which the SDK cannot set). ROBOTIS e-manual, XM430-W350.
+SERVO_BAUDS: tuple[int, ...] = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+
+
+__all__ = [
+    "SERVO_BAUDS",
+    "SLIP_LIKE",
+    "DeviceLevel",
+    "LoadCellFormatName",
+    "RigKind",
+    "ServoModel",
+    "ServoRole",
+    "SlipEventKind",
+    "SlipKind",
+    "StepKind",
+    "TrialKind",
+    "TrialOutcome",
+]

@@ -1,0 +1,89 @@
+"""The release after a failure works from its own copy of the control loop's last reading."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, cast
+
+from rig.log.writer import RunLogger
+from rig.protocol import RampSettings
+from rig.runner.control_loop import ControlLoop
+from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
+from rig.runner.progress import SilentProgress
+from rig.runner.recorder import RunRecorder
+from rig.runner.release import LineRelease
+from rig.sim.fakes import fake_rig
+
+RAMP = RampSettings(
+    fast_speed_rad_s=2.0,
+    slow_speed_rad_s=0.5,
+    fast_until_fraction=0.6,
+    max_force_n=50.0,
+    unload_speed_rad_s=2.0,
+    hold_after_slip_s=0.2,
+)
+
+
+class _Log:
+    def __init__(self) -> None:
+        self.messages: list[tuple[str, int, Any]] = []
+
+    def log(self, topic: str, time_ns: int, payload: Any) -> None:
+        self.messages.append((topic, time_ns, payload))
+
+    def log_many(self, topic: str, rows: Any) -> None:
+        self.messages.append((topic, 0, list(rows)))
+
+
+def _loop_on_a_fake_rig() -> tuple[Any, ControlLoop, RunRecorder]:
+    rig = fake_rig()
+    session = rig.session
+    recorder = RunRecorder(cast(RunLogger, _Log()), session.clock, SilentProgress(), session.roles)
+    loop = ControlLoop(
+        session,
+        recorder,
+        period_s=0.01,
+        ceiling=ForceCeiling(100.0),
+        current_limit=CurrentAtLimit(session.winch_id, 1.0, hold_s=1.0),
+    )
+    session.servos.connect()
+    session.servos.set_torque([session.winch_id], True)
+    session.load_cell.open()
+    loop.restart_pacing()
+    loop.tick()
+    return rig, loop, recorder
+
+
+def test_release_waits_from_its_own_copy_and_leaves_the_loop_alone_until_adopted():
+    rig, loop, recorder = _loop_on_a_fake_rig()
+    winch = rig.session.winch_id
+    start_rad = loop.states[winch].position_rad
+    zero_rad = start_rad - 1.0  # the ramp reeled in one radian
+    release = LineRelease(rig.session, recorder, RAMP, control_period_s=0.01, tare_n=0.0, last=loop.reading())
+    # What a step or the ramp might do to the loop's readings after the release was made:
+    loop.states = {}
+    loop.tick_samples.append((0, 1e6))
+    loop.force_n = 1e6
+
+    assert release.run(zero_rad) == zero_rad
+    assert release.verified
+    assert release.report[0] == "winch back at its zero-tension angle (read back)"
+    assert abs(release.states[winch].position_rad - zero_rad) < 0.02
+    # The loop saw none of the release's reads ...
+    assert loop.states == {} and loop.force_n == 1e6
+    # ... until it takes them over.
+    loop.adopt(release.reading())
+    assert loop.states[winch].position_rad == release.states[winch].position_rad
+    assert loop.force_n == release.force_n
+
+
+def test_release_reboots_a_faulted_winch_from_the_state_it_was_given():
+    rig, loop, recorder = _loop_on_a_fake_rig()
+    winch = rig.session.winch_id
+    last = loop.reading()
+    faulted = dataclasses.replace(last.states[winch], hardware_error=0x20)
+    last.states[winch] = faulted
+    release = LineRelease(rig.session, recorder, RAMP, control_period_s=0.01, tare_n=0.0, last=last)
+    release.run(faulted.position_rad)
+    assert release.report[0] == "winch rebooted after hardware error 0x20"
+    assert rig.winch.reboots == 1  # the fake servo had no error: only the given state said so
