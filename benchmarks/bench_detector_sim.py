@@ -54,10 +54,11 @@ from rig.log import schemas
 from rig.log.frames import frame_payloads
 from rig.log.records import SlipMessage
 from rig.protocol import load_protocol
-from rig.rig_config import LoadCellArtefacts, load_rig_config
+from rig.rig_config import load_rig_config
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
+from rig.sim_config import LoadCellArtefacts
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"

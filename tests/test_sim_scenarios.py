@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from rig.analysis.runlog import read_parts, run_settings
-from rig.rig_config import SLIP_KINDS, load_rig_config
+from rig.rig_config import load_rig_config
+from rig.sim_config import SLIP_KINDS
 from tests.helpers import QUICK_PROTOCOL
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios"
