@@ -271,7 +271,7 @@ def false_alarms(
 
 
 def quiet(samples: int, seed: int) -> None:
-    params = DetectorParams.from_mapping(load_protocol(PROTOCOL).detector)
+    params = load_protocol(PROTOCOL).detector
     noisy = load_rig_config(SCENARIOS / "noisy-cell.yaml").simulation
     assert noisy is not None
     print("| load cell | quiet samples | false alarms | per 1e6 samples |")

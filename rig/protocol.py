@@ -15,7 +15,7 @@ import math
 import random
 import re
 import string
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,9 +26,12 @@ from model.design import (
     DesignSettings,
 )
 from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
+from model.field_spec import choice, custom, keys_within, number, section
+from model.field_spec import text as text_field
+from model.slip_detector import DetectorParams
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
-from rig.validate import Section
+from rig.validate import Section, read_field, read_fields, reject_undeclared
 
 PROTOCOL_FORMAT = "rig-protocol/1"
 BLOCK_KINDS = ("joint_estimation", "link_validation")
@@ -71,16 +74,52 @@ DEFAULT_PROMPTS = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RampSettings:
     """How the winch loads the line: fast to a fraction of the predicted slip load, then slow."""
 
-    fast_speed_rad_s: float
-    slow_speed_rad_s: float
-    fast_until_fraction: float
-    max_force_n: float
-    unload_speed_rad_s: float
-    hold_after_slip_s: float
+    fast_speed_rad_s: float = field(default=1.0, metadata=number(0.001, 20.0, unit="rad/s"))
+    slow_speed_rad_s: float = field(
+        default=0.1, metadata=number(0.001, 20.0, unit="rad/s", doc="≤ `fast_speed_rad_s`")
+    )
+    fast_until_fraction: float = field(
+        default=0.7, metadata=number(0.0, 0.95, doc="a share of the predicted slip load")
+    )
+    max_force_n: float = field(
+        default=40.0, metadata=number(0.1, 500.0, unit="N", doc="below `limits.force_ceiling_n`")
+    )
+    unload_speed_rad_s: float = field(default=2.0, metadata=number(0.001, 20.0, unit="rad/s"))
+    hold_after_slip_s: float = field(default=0.2, metadata=number(0.0, 10.0, unit="s"))
+
+
+# The options of the steps that have any (`steps: [{pause: {duration_s: 1}}]`); the others take none.
+@dataclass(frozen=True)
+class PromptOptions:
+    """`prompt` step options."""
+
+    text: str = field(metadata=custom(doc="the operator prompt"))
+
+
+@dataclass(frozen=True)
+class TareOptions:
+    """`tare` step options."""
+
+    settle_s: float = field(default=0.5, metadata=number(0.05, 60.0, unit="s"))
+
+
+@dataclass(frozen=True)
+class PauseOptions:
+    """`pause` step options."""
+
+    duration_s: float = field(default=0.5, metadata=number(0.0, 3600.0, unit="s"))
+
+
+@dataclass(frozen=True)
+class NoOptions:
+    """The options of a step that takes none."""
+
+
+STEP_OPTIONS: dict[str, type] = {"prompt": PromptOptions, "tare": TareOptions, "pause": PauseOptions}
 
 
 @dataclass(frozen=True)
@@ -154,23 +193,57 @@ class AdaptiveBlock:
         )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Protocol:
     """A validated protocol and its expanded trial plan (fixed trials; adaptive blocks apart)."""
 
     source: Path
     text: str
-    name: str
-    description: str
-    detector: dict[str, float | None]
-    ramp: RampSettings
-    force_ceiling_n: float | None
-    step_timeout_margin_s: float
-    control_period_s: float
-    estimates_from: str | None  # "run" (earlier block of this protocol) or a file path
-    trials: tuple[TrialPlan, ...]  # the fixed blocks' trials
+    format: str = field(metadata=custom(allowed_doc=f"`{PROTOCOL_FORMAT}`"))
+    name: str = field(
+        metadata=custom(
+            default_doc="the file name without extension",
+            allowed_doc="1-64 letters, digits, `.`, `_`, `-` (it becomes part of the run id)",
+        )
+    )
+    description: str = field(default="", metadata=text_field())
+    # Of k, for the run's estimate (docs/model.md §4.2).
+    estimator: EstimatorName = field(
+        default=DEFAULT_ESTIMATOR,
+        metadata=choice(
+            ESTIMATOR_NAMES,
+            doc="how the run estimates k ([model.md §4.2](model.md#42-estimators-and-scatter-models)); "
+            "the paper's fit is always computed beside it",
+        ),
+    )
+    detector: DetectorParams = field(
+        default=DetectorParams(),
+        metadata=section(
+            default_doc="the detector's defaults",
+            doc="the fields of [model.md §7](model.md#7-slip-detection)",
+            expand_doc=False,
+        ),
+    )
+    ramp: RampSettings = field(default=RampSettings(), metadata=section())
+    force_ceiling_n: float | None = field(
+        default=None,
+        metadata=number(0.1, 500.0, unit="N", within="limits", default_doc="none (the rig's applies)"),
+    )
+    step_timeout_margin_s: float = field(default=5.0, metadata=number(0.1, 600.0, unit="s", within="limits"))
+    control_period_s: float = field(
+        default=0.02,
+        metadata=number(0.001, 0.1, unit="s", doc="every load-cell sample is processed whatever the period"),
+    )
+    trials: tuple[TrialPlan, ...] = field(  # the fixed blocks' trials
+        metadata=custom(
+            key="blocks",
+            allowed_doc=f"a list of 1-{MAX_BLOCKS} blocks, at most {MAX_TRIALS:,} trials in all".replace(
+                ",", " "
+            ),
+        )
+    )
     adaptive: tuple[AdaptiveBlock, ...] = ()
-    estimator: EstimatorName = DEFAULT_ESTIMATOR  # of k, for the run's estimate (docs/model.md §4.2)
+    estimates_from: str | None = None  # "run" (earlier block of this protocol) or a file path
 
     @property
     def kinds(self) -> set[str]:
@@ -199,7 +272,7 @@ class Protocol:
             "format": PROTOCOL_FORMAT,
             "trials": str(len(self.planned_trial_ids)),
             "kinds": ",".join(sorted(self.kinds)),
-            "detector": ",".join(f"{k}={v!r}" for k, v in self.detector.items()),
+            "detector": ",".join(f"{k}={v!r}" for k, v in self.detector.to_mapping().items()),
             "control_period_s": repr(self.control_period_s),
             "estimator": self.estimator,
         }
@@ -230,28 +303,16 @@ def parse_protocol(
 ) -> Protocol:
     """Validate a parsed protocol mapping and expand its blocks into trials."""
     top = Section(data, source)
-    top.reject_unknown(
-        [
-            "format",
-            "name",
-            "description",
-            "estimator",
-            "detector",
-            "ramp",
-            "limits",
-            "control_period_s",
-            "blocks",
-        ]
-    )
-    estimator = check_estimator(top.string("estimator", default=DEFAULT_ESTIMATOR, choices=ESTIMATOR_NAMES))
+    reject_undeclared(top, Protocol)
+    estimator = check_estimator(read_field(top, Protocol, "estimator"))
     fmt = top.string("format")
     if fmt != PROTOCOL_FORMAT:
         raise top.error("format", f"'{fmt}' is not supported; allowed: {PROTOCOL_FORMAT}")
     detector = _detector(top.section("detector", default={}))
     ramp = _ramp(top.section("ramp", default={}))
     limits = top.section("limits", default={})
-    limits.reject_unknown(["force_ceiling_n", "step_timeout_margin_s"])
-    ceiling = limits.number("force_ceiling_n", default=None, min_value=0.1, max_value=500.0)
+    limits.reject_unknown(keys_within(Protocol, "limits"))
+    ceiling = read_field(limits, Protocol, "force_ceiling_n")
     if ceiling is not None and ramp.max_force_n >= ceiling:
         raise top.error(
             "ramp.max_force_n", f"{ramp.max_force_n} must be below limits.force_ceiling_n ({ceiling})"
@@ -316,29 +377,23 @@ def parse_protocol(
             if estimates_from not in (None, source_of_estimates):
                 raise block.error("estimates_from", "all link_validation blocks must use the same estimates")
             estimates_from = source_of_estimates
-    return Protocol(
-        source=Path(source),
-        text=text,
-        name=name,
-        description=top.string("description", default=""),
-        detector=detector,
-        ramp=ramp,
-        force_ceiling_n=ceiling,
-        step_timeout_margin_s=limits.number(
-            "step_timeout_margin_s", default=5.0, min_value=0.1, max_value=600
-        ),
-        control_period_s=top.number("control_period_s", default=0.02, min_value=0.001, max_value=0.1),
-        estimates_from=estimates_from,
-        trials=tuple(trials),
-        adaptive=tuple(adaptive),
-        estimator=estimator,
-    )
+    given = {
+        "source": Path(source),
+        "text": text,
+        "format": fmt,
+        "name": name,
+        "estimator": estimator,
+        "detector": detector,
+        "ramp": ramp,
+        "trials": tuple(trials),
+        "adaptive": tuple(adaptive),
+        "estimates_from": estimates_from,
+    }
+    return Protocol(**read_fields(top, Protocol, given=given))
 
 
-def _detector(sec: Section) -> dict[str, float | None]:
+def _detector(sec: Section) -> DetectorParams:
     """Detector settings, validated by the model's own parameter type."""
-    from model.slip_detector import DetectorParams
-
     for key, value in sec.data.items():
         if isinstance(value, int) and abs(value) > 1e300:  # beyond the float range
             digits = int(value.bit_length() * math.log10(2)) + 1
@@ -346,35 +401,19 @@ def _detector(sec: Section) -> dict[str, float | None]:
                 str(key), f"an integer of {digits} digits is out of range; allowed: docs/model.md §7"
             )
     try:
-        params = DetectorParams.from_mapping(dict(sec.data), source=f"{sec.source}: detector")
+        return DetectorParams.from_mapping(dict(sec.data), source=f"{sec.source}: detector")
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    return dict(params.to_mapping())
 
 
 def _ramp(sec: Section) -> RampSettings:
-    sec.reject_unknown(
-        [
-            "fast_speed_rad_s",
-            "slow_speed_rad_s",
-            "fast_until_fraction",
-            "max_force_n",
-            "unload_speed_rad_s",
-            "hold_after_slip_s",
-        ]
-    )
-    fast = sec.number("fast_speed_rad_s", default=1.0, min_value=0.001, max_value=20.0)
-    slow = sec.number("slow_speed_rad_s", default=0.1, min_value=0.001, max_value=20.0)
+    reject_undeclared(sec, RampSettings)
+    fast = read_field(sec, RampSettings, "fast_speed_rad_s")
+    slow = read_field(sec, RampSettings, "slow_speed_rad_s")
     if slow > fast:
         raise sec.error("slow_speed_rad_s", f"{slow} must not exceed fast_speed_rad_s ({fast})")
-    return RampSettings(
-        fast_speed_rad_s=fast,
-        slow_speed_rad_s=slow,
-        fast_until_fraction=sec.number("fast_until_fraction", default=0.7, min_value=0.0, max_value=0.95),
-        max_force_n=sec.number("max_force_n", default=40.0, min_value=0.1, max_value=500.0),
-        unload_speed_rad_s=sec.number("unload_speed_rad_s", default=2.0, min_value=0.001, max_value=20.0),
-        hold_after_slip_s=sec.number("hold_after_slip_s", default=0.2, min_value=0.0, max_value=10.0),
-    )
+    values = read_fields(sec, RampSettings, given={"fast_speed_rad_s": fast, "slow_speed_rad_s": slow})
+    return RampSettings(**values)
 
 
 def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
@@ -388,32 +427,20 @@ def _steps(block: Section, kind: str) -> tuple[StepSpec, ...]:
             options = {} if options is None else options
         else:
             raise block.error(f"steps[{i}]", "expected a step name or a one-key mapping {name: options}")
-        field = f"steps[{i}]"
+        where = f"steps[{i}]"
         if name not in STEP_KINDS:
-            raise block.error(field, f"unknown step '{name}'; allowed: {', '.join(STEP_KINDS)}")
+            raise block.error(where, f"unknown step '{name}'; allowed: {', '.join(STEP_KINDS)}")
         if name in ("bend", "reset", "measure") and kind != "link_validation":
-            raise block.error(field, f"step '{name}' needs kind: link_validation")
-        opts = Section(options, block.source, block.field(field))
+            raise block.error(where, f"step '{name}' needs kind: link_validation")
+        opts = Section(options, block.source, block.field(where))
+        reject_undeclared(opts, STEP_OPTIONS.get(name, NoOptions))
         if name == "prompt":
-            opts.reject_unknown(["text"])
             steps.append(StepSpec("prompt", text=_prompt_text(opts, DEFAULT_PROMPTS[kind])))
         elif name == "pause":
-            opts.reject_unknown(["duration_s"])
-            steps.append(
-                StepSpec(
-                    "pause",
-                    duration_s=opts.number("duration_s", default=0.5, min_value=0.0, max_value=3600.0),
-                )
-            )
+            steps.append(StepSpec("pause", duration_s=read_field(opts, PauseOptions, "duration_s")))
         elif name == "tare":
-            opts.reject_unknown(["settle_s"])
-            steps.append(
-                StepSpec(
-                    "tare", duration_s=opts.number("settle_s", default=0.5, min_value=0.05, max_value=60.0)
-                )
-            )
+            steps.append(StepSpec("tare", duration_s=read_field(opts, TareOptions, "settle_s")))
         else:
-            opts.reject_unknown([])
             steps.append(StepSpec(name))
     names = [s.kind for s in steps]
     if names.count("ramp_until_slip") != 1:
@@ -564,11 +591,9 @@ def _prompt_text(opts: Section, default: str) -> str:
         fields = [(f, spec, conv) for _, f, spec, conv in string.Formatter().parse(text) if f is not None]
     except ValueError as exc:
         raise opts.error("text", f"{exc}; allowed: {allowed}") from None
-    for field, spec, conversion in fields:
-        if field not in PROMPT_FIELDS or conversion is not None or not _PROMPT_SPEC.fullmatch(spec or ""):
-            shown = (
-                "{" + field + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
-            )
+    for name, spec, conversion in fields:
+        if name not in PROMPT_FIELDS or conversion is not None or not _PROMPT_SPEC.fullmatch(spec or ""):
+            shown = "{" + name + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
             raise opts.error("text", f"placeholder {shown!r:.60} is not allowed; allowed: {allowed}")
     return text
 

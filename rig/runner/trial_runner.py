@@ -19,7 +19,6 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 from model.slip_detector import (
-    DetectorParams,
     DetectorState,
     SlipEvent,
     detector_init,
@@ -127,7 +126,7 @@ class TrialRunner:
         self.estimator = estimator
         self.progress = progress
         self.stiffness_n_per_m = line_stiffness_n_per_m
-        self.detector_params = DetectorParams.from_mapping(protocol.detector, source=str(protocol.source))
+        self.detector_params = protocol.detector
         ceiling = config.limits.force_ceiling_n
         if protocol.force_ceiling_n is not None:
             ceiling = min(ceiling, protocol.force_ceiling_n)
