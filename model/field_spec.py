@@ -52,17 +52,28 @@ class Bounds:
             return False
         return self.hi is None or (value < self.hi if self.hi_open else value <= self.hi)
 
-    def interval(self, *, integer: bool = False) -> str:
-        """The interval as the docs write it: `[0.001, 0.2]`, `(0, 1)`, `0..10` for integers, `>= 0`."""
+    def interval(self, *, integer: bool = False, short: bool = False) -> str:
+        """The interval as text: `[0.001, 0.2]`, `(0, 1)`, `0..10` for integers, `>= 0`.
+
+        Numbers as `{:g}` writes them (`1e+06`), or with `short` as the docs do (`1e6`).
+        """
+        lo, hi = _number_text(self.lo, short, integer), _number_text(self.hi, short, integer)
         if self.lo is None and self.hi is None:
             return "any finite number"
         if integer and not (self.lo_open or self.hi_open) and self.lo is not None and self.hi is not None:
-            return f"{self.lo:g}..{self.hi:g}"
+            return f"{lo}..{hi}"
         if self.hi is None:
-            return f"{'>' if self.lo_open else '>='} {self.lo:g}"
+            return f"{'>' if self.lo_open else '>='} {lo}"
         if self.lo is None:
-            return f"{'<' if self.hi_open else '<='} {self.hi:g}"
-        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{')' if self.hi_open else ']'}"
+            return f"{'<' if self.hi_open else '<='} {hi}"
+        return f"{'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open else ']'}"
+
+
+def _number_text(value: float | None, short: bool, integer: bool) -> str:
+    if integer and value is not None:
+        return str(int(value))
+    text = f"{value:g}"
+    return text.replace("e+0", "e").replace("e+", "e").replace("e-0", "e-") if short else text
 
 
 @dataclass(frozen=True)
@@ -101,11 +112,20 @@ def number(
     key: str = "",
     within: str = "",
     default_doc: str = "",
+    allowed_doc: str = "",
 ) -> Mapping[str, Any]:
     """A real number in [lo, hi] (or with an open side); `optional`: None turns it off."""
     bounds = Bounds(lo, hi, lo_open, hi_open)
     spec = FieldSpec(
-        FieldType.NUMBER, bounds, unit, doc, key, within, optional=optional, default_doc=default_doc
+        FieldType.NUMBER,
+        bounds,
+        unit,
+        doc,
+        key,
+        within,
+        optional=optional,
+        default_doc=default_doc,
+        allowed_doc=allowed_doc,
     )
     return _metadata(spec)
 
@@ -254,7 +274,9 @@ def value_text(value: Any) -> str:
         return "true" if value else "false"
     if isinstance(value, str):
         return f"`{value}`" if value else "empty"
-    if isinstance(value, int | float):
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
         return f"{value:g}"
     if isinstance(value, tuple | list):
         return "[" + ", ".join(value_text(v) for v in value) + "]"
@@ -269,9 +291,11 @@ def allowed_text(declared: Declared) -> str:
     unit = f" {spec.unit}" if spec.unit else ""
     match spec.type:
         case FieldType.NUMBER:
-            allowed = spec.bounds.interval() + unit + ("; none turns it off" if spec.optional else "")
+            allowed = (
+                spec.bounds.interval(short=True) + unit + ("; none turns it off" if spec.optional else "")
+            )
         case FieldType.INTEGER:
-            allowed = spec.bounds.interval(integer=True) + unit
+            allowed = spec.bounds.interval(integer=True, short=True) + unit
         case FieldType.CHOICE:
             allowed = ", ".join(f"`{c}`" for c in spec.choices)
         case FieldType.FLAG:
@@ -279,7 +303,7 @@ def allowed_text(declared: Declared) -> str:
         case FieldType.TEXT:
             allowed = "text"
         case FieldType.NUMBERS:
-            each = spec.bounds.interval() + unit
+            each = spec.bounds.interval(short=True) + unit
             if spec.length is not None:
                 allowed = f"{spec.length} numbers, each in {each}"
             else:

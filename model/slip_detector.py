@@ -132,7 +132,8 @@ class DetectorParams:
     )
     cusum_drift_n: float = field(default=0.05, metadata=number(0.0, 1e6, unit="N"))
     rearm_below_n: float | None = field(
-        default=None, metadata=number(0.0, 1e6, lo_open=True, unit="N", optional=True)
+        default=None,
+        metadata=number(0.0, 1e6, lo_open=True, unit="N", optional=True, default_doc="none (= arm/2)"),
     )
     noise_k: float | None = field(default=10.0, metadata=number(0.0, 1e3, lo_open=True, optional=True))
     noise_floor_n: float = field(default=0.002, metadata=number(0.0, 1e6, lo_open=True, unit="N"))
@@ -142,7 +143,12 @@ class DetectorParams:
     creep_k: float | None = field(default=10.0, metadata=number(0.0, 1e3, lo_open=True, optional=True))
     creep_drift_n_per_s: float = field(default=0.2, metadata=number(0.0, 1e9, unit="N/s"))
     creep_min_s: float = field(default=0.05, metadata=number(0.0, 100.0, unit="s"))
-    spike_samples: float = field(default=2.0, metadata=number(1.0, 2.0))
+    spike_samples: float = field(
+        default=2.0,
+        metadata=number(
+            1.0, 2.0, allowed_doc="1 or 2 (1: the percentage drop on single samples, as before 2026-11-23)"
+        ),
+    )
     train_k: float | None = field(default=10.0, metadata=number(0.0, 1e3, lo_open=True, optional=True))
     drop_leak_n_per_s: float = field(default=1.0, metadata=number(0.0, 1e9, unit="N/s"))
 

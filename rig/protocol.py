@@ -236,10 +236,7 @@ class Protocol:
     )
     trials: tuple[TrialPlan, ...] = field(  # the fixed blocks' trials
         metadata=custom(
-            key="blocks",
-            allowed_doc=f"a list of 1-{MAX_BLOCKS} blocks, at most {MAX_TRIALS:,} trials in all".replace(
-                ",", " "
-            ),
+            key="blocks", allowed_doc=f"a list of 1-{MAX_BLOCKS} blocks, at most {MAX_TRIALS} trials in all"
         )
     )
     adaptive: tuple[AdaptiveBlock, ...] = ()

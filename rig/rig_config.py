@@ -68,7 +68,7 @@ class ServoBusConfig:
     servos: tuple[ServoSpec, ...] = field(
         metadata=custom(
             key="ids",
-            allowed_doc=f"list of 1-253 {inline_text(ServoSpec)}; ids unique; exactly one winch, which must "
+            allowed_doc=f"list of 1-253 `{inline_text(ServoSpec)}`; ids unique; exactly one winch, which must "
             "not be an XL430-W250 (no current control)",
         )
     )
@@ -95,7 +95,8 @@ class LoadCellConfig:
 
     port: str = field(
         metadata=text_field(
-            allowed_doc=f"{_PORT} or a pyserial URL (`sim://loadcell` by convention when simulated)"
+            allowed_doc=f"serial port or pyserial URL, 1-{MAX_PORT_CHARS} characters (`sim://loadcell` by "
+            "convention when simulated)"
         )
     )
     baud: int = field(default=921_600, metadata=integer(1200, 4_000_000))
