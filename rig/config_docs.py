@@ -82,7 +82,8 @@ def rendered(page: str, text: str) -> str:
         pattern = _pattern(name)
         if not pattern.search(text):
             raise ValueError(f"{page}: no <!-- fields: {name} --> ... <!-- /fields --> markers")
-        text = pattern.sub(lambda m, t=table: m.group(1) + t() + m.group(3), text)
+        fresh = table()
+        text = pattern.sub(lambda m: m.group(1) + fresh + m.group(3), text)
     return text
 
 
