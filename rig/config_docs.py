@@ -79,11 +79,10 @@ def rendered(page: str, text: str) -> str:
     for name, (where, table) in TABLES.items():
         if where != page:
             continue
-        pattern = _pattern(name)
-        if not pattern.search(text):
+        found = _pattern(name).search(text)
+        if found is None:
             raise ValueError(f"{page}: no <!-- fields: {name} --> ... <!-- /fields --> markers")
-        fresh = table()
-        text = pattern.sub(lambda m: m.group(1) + fresh + m.group(3), text)
+        text = text[: found.start(2)] + table() + text[found.end(2) :]
     return text
 
 

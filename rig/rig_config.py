@@ -68,8 +68,8 @@ class ServoBusConfig:
     servos: tuple[ServoSpec, ...] = field(
         metadata=custom(
             key="ids",
-            allowed_doc=f"list of 1-253 `{inline_text(ServoSpec)}`; ids unique; exactly one winch, which must "
-            "not be an XL430-W250 (no current control)",
+            allowed_doc=f"list of 1-253 `{inline_text(ServoSpec)}`; ids unique; exactly one winch, which "
+            "must not be an XL430-W250 (no current control)",
         )
     )
     retries: int = field(default=2, metadata=integer(0, 10, doc="retries per bus transaction"))

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -12,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
+from rig.files import check_out_dir
 from rig.rig_config import DEFAULT_RIG_CONFIG
 
 if TYPE_CHECKING:
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
     if args.resume is not None and args.run_id is not None:
         raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
-    _check_out_dir(args.out)
+    check_out_dir(args.out)
     if args.dry_run:
         return _dry_run(args)
     # Everything is validated before anything is written (the --out directory, the lock, the journal):
@@ -207,19 +207,6 @@ def _dry_run(args: argparse.Namespace) -> int:
     print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan['duration_assumption']})")
     print("dry run: nothing was moved")
     return 0
-
-
-def _check_out_dir(out: Path) -> None:
-    """The --out directory exists and is writable, or can be made (the run writes its log there)."""
-    existing = out
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise InputError(
-            f"--out {out}: {existing} is not a directory; allowed: a directory for the run's files"
-        )
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise InputError(f"--out {out}: {existing} is not writable; allowed: a directory for the run's files")
 
 
 def _request(args: argparse.Namespace) -> RunRequest:
