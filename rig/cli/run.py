@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Any
 
 from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
+from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
 from rig.files import check_out_dir
-from rig.rig_config import DEFAULT_RIG_CONFIG
 
 if TYPE_CHECKING:
     from model.estimate_summary import EstimateSummary
@@ -57,14 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("protocol", type=Path, metavar="PROTOCOL", help="protocol YAML (see protocols/README.md)")
-    p.add_argument(
-        "--rig",
-        type=Path,
-        default=None,
-        metavar="CONFIG",
-        help=f"rig config YAML (default: the built-in simulated rig, {DEFAULT_RIG_CONFIG})",
-    )
+    add_protocol_and_rig(p)
     p.add_argument(
         "--out", type=Path, default=Path("logs"), metavar="DIR", help="where logs go (default: logs/)"
     )

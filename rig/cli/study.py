@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rig.cli.output import emit_json, format_table
+from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import ExitCode, InputError
 from rig.files import check_out_dir
 
@@ -67,14 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("protocol", type=Path, metavar="PROTOCOL", help="protocol YAML (see protocols/README.md)")
-    p.add_argument(
-        "--rig",
-        type=Path,
-        default=None,
-        metavar="CONFIG",
-        help="simulated rig config YAML (default: the built-in simulated rig)",
-    )
+    add_protocol_and_rig(p, simulated_only=True)
     p.add_argument(
         "--seeds",
         required=True,
