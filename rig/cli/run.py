@@ -168,36 +168,31 @@ def _dry_run(args: argparse.Namespace) -> int:
     check_session_inputs(prepared.config)
     plan = plan_summary(prepared.protocol, prepared.config)
     if args.json:
-        emit_json(plan)
+        emit_json(plan.as_json())
         return 0
     rows = []
-    for t in plan["trials"]:
-        where = (
-            f"{t['distance_m']:.3f} m"
-            if t["distance_m"] is not None
-            else f"config {t['configuration_index']}"
-        )
-        rows.append([t["trial_id"], t["kind"], where, t["repeat"], " ".join(t["steps"])])
-    adaptive = plan.get("adaptive", [])
-    count = f"{len(rows)} trials" if not adaptive else f"{len(rows)} trials planned ahead"
-    print(f"protocol {plan['protocol']} on rig {plan['rig']} ({plan['rig_kind']}): {count}\n")
+    for t in plan.trials:
+        where = f"{t.distance_m:.3f} m" if t.distance_m is not None else f"config {t.configuration_index}"
+        rows.append([t.trial_id, t.kind, where, t.repeat, " ".join(t.steps)])
+    count = f"{len(rows)} trials" if not plan.adaptive else f"{len(rows)} trials planned ahead"
+    print(f"protocol {plan.protocol} on rig {plan.rig} ({plan.rig_kind}): {count}\n")
     print(format_table(["trial", "kind", "distance / config", "repeat", "steps"], rows))
-    for block in adaptive:
-        startup = ", ".join(str(block["first_trial_id"] + i) for i in range(block["startup_trials"]))
+    for block in plan.adaptive:
+        startup = ", ".join(str(block.first_trial_id + i) for i in range(block.startup_trials))
         print(
-            f"\nblock {block['block']} (adaptive, joint {block['joint']}): trials {startup} are its start-up "
+            f"\nblock {block.block} (adaptive, joint {block.joint}): trials {startup} are its start-up "
             f"(a distance whose predicted slip force is too high is replaced by the shortest safe one); "
-            f"{block['text']}"
+            f"{block.text}"
         )
     print("\nlimit checks:")
     print(
         format_table(
             ["check", "value", "limit", "ok"],
-            [[c["check"], c["value"], c["limit"], "yes" if c["ok"] else "NO"] for c in plan["limit_checks"]],
+            [[c.name, c.value, c.limit, "yes" if c.ok else "NO"] for c in plan.limit_checks],
         )
     )
-    minutes = plan["estimated_duration_s"] / 60
-    print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan['duration_assumption']})")
+    minutes = plan.estimated_duration_s / 60
+    print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan.duration_assumption})")
     print("dry run: nothing was moved")
     return 0
 
