@@ -151,11 +151,11 @@ def _text(result: ReplayResult) -> str:
     lines += [f"warning: {w}" for w in result.warnings]
     lines += ["", format_table(*trials_table(result)), "", format_table(*estimates_table(result))]
     agreement = result.agreement
-    if agreement["compared"]:
-        verdict = "agree" if agreement["agree"] else "DIFFER in " + ", ".join(agreement["differing"])
+    if agreement.compared:
+        verdict = "agree" if agreement.agree else "DIFFER in " + ", ".join(agreement.differing)
         lines.append(
             f"offline refit and last online estimate {verdict} "
-            f"(max relative difference {agreement['max_relative_difference']:.3g})"
+            f"(max relative difference {agreement.max_relative_difference:.3g})"
         )
     red = result.redetection_summary()
     lines.append(
