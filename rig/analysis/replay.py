@@ -45,7 +45,7 @@ from rig.analysis.runlog import (
 from rig.analysis.trials import TrialRecord, records_json, trial_records, trial_table
 from rig.log import schemas
 from rig.log.frames import frame_payloads
-from rig.log.records import Estimate
+from rig.log.records import Estimate, TrialLinkStats
 
 
 @dataclass
@@ -67,6 +67,7 @@ class ReplayResult:
     percentage_errors: PayloadErrors | None
     base_moments: BaseMoments | None
     warnings: list[str] = field(default_factory=list)
+    links: list[TrialLinkStats] = field(default_factory=list)  # per trial; logs before 2026-11-27 have none
 
     @property
     def files(self) -> list[Path]:
@@ -118,6 +119,8 @@ class ReplayResult:
             "redetected_estimate": _json_or_none(self.redetected_estimate),
             "redetection": self.redetection_summary(),
         }
+        if self.links:
+            out["links"] = [links.to_payload() for links in self.links]
         if self.has_link_validation:
             out["percentage_errors"] = _json_or_none(self.percentage_errors)
             out["base_moments"] = _json_or_none(self.base_moments)
@@ -230,6 +233,7 @@ def replay(
         percentage_errors=payload_errors(table),
         base_moments=base_moments(table),
         warnings=list(dict.fromkeys(all_warnings)),
+        links=_trial_links(parts),
     )
 
 
@@ -239,6 +243,16 @@ def _logged_estimates(parts: Sequence[LogPart]) -> list[Estimate]:
         Estimate.from_payload(payload)
         for part in parts
         for _, payload in frame_payloads(part.log.topic(schemas.ESTIMATE))
+    ]
+
+
+def _trial_links(parts: Sequence[LogPart]) -> list[TrialLinkStats]:
+    """Every `/rig/trial/links` message of the run (the servo bus's and load cell's counts per trial)."""
+    return [
+        TrialLinkStats.from_payload(payload)
+        for part in parts
+        if part.log.message_counts.get(schemas.TRIAL_LINKS)
+        for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_LINKS))
     ]
 
 

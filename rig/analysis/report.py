@@ -441,6 +441,16 @@ def _markdown(result: ReplayResult, figures: dict[str, str], skipped: dict[str, 
     ]
     if red["mismatches"]:
         lines += [f"* trial {m['trial_id']} ({m['status']}): {m['detail']}" for m in red["mismatches"]] + [""]
+    links = summary.links_table(result)
+    if links is not None:
+        lines += [
+            "## Device links per trial",
+            "",
+            "What the servo bus's exchanges and the load cell's serial line delivered and lost.",
+            "",
+            summary.markdown_table(links),
+            "",
+        ]
     table_iv = summary.payload_errors_table(result)
     if table_iv is not None:
         lines += [

@@ -206,6 +206,48 @@ def base_moments_table(result: ReplayResult) -> Table | None:
     return headers, rows
 
 
+def links_table(result: ReplayResult) -> Table | None:
+    """Per trial, what the servo bus and the load-cell line delivered and lost (None for older logs)."""
+    if not result.links:
+        return None
+    headers = [
+        "trial",
+        "bus operations",
+        "retries",
+        "timeouts",
+        "corrupt replies",
+        "failures",
+        "reboots",
+        "load-cell lines ok",
+        "samples missing",
+        "checksum failures",
+        "garbled lines",
+        "samples dropped",
+    ]
+    rows: list[list[Any]] = []
+    for links in result.links:
+        bus, lines = links.bus, links.loadcell
+        row: list[Any] = [links.trial_id]
+        row += (
+            [None] * 6
+            if bus is None
+            else [bus.operations, bus.retries, bus.timeouts, bus.corrupt, bus.failures, bus.reboots]
+        )
+        row += (
+            [None] * 5
+            if lines is None
+            else [
+                lines.lines_ok,
+                lines.missing_samples,
+                lines.checksum_failures,
+                lines.garbled_lines,
+                lines.samples_dropped,
+            ]
+        )
+        rows.append(row)
+    return headers, rows
+
+
 def _fmt(value: float | None, spec: str) -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 

@@ -34,7 +34,8 @@ trial table as trials.csv and trials.parquet. DIR must be new or empty; it appea
 at all.
 
 JSON (--json): files, complete, warnings, trials, estimate (offline refit, `rig fit --json` keys),
-online_estimate, online_agreement, redetected_estimate, redetection; for link-validation runs also
+online_estimate, online_agreement, redetected_estimate, redetection, links (per trial: the servo
+bus's and load-cell line's counts; logs from before 2026-11-27 have none); for link-validation runs also
 percentage_errors, base_moments and joints; under simulation truth.
 Exit codes: 0 done (also for damaged files, with warnings); 2 invalid input (missing or non-MCAP
 file, no rig message readable, bad --detector value, unusable --report directory).
@@ -141,7 +142,13 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _text(result: ReplayResult) -> str:
-    from rig.analysis.summary import base_moments_table, estimates_table, payload_errors_table, trials_table
+    from rig.analysis.summary import (
+        base_moments_table,
+        estimates_table,
+        links_table,
+        payload_errors_table,
+        trials_table,
+    )
 
     s = result.settings
     lines = [
@@ -163,6 +170,7 @@ def _text(result: ReplayResult) -> str:
     )
     lines += [f"  trial {m['trial_id']} {m['status']}: {m['detail']}" for m in red["mismatches"]]
     for title, table in (
+        ("device links per trial (servo bus exchanges, load-cell lines)", links_table(result)),
         ("payload errors (Table IV)", payload_errors_table(result)),
         ("base moment at slip (Table V)", base_moments_table(result)),
     ):

@@ -26,13 +26,15 @@ from typing import Any
 
 from model.fit import FitSummary
 from model.slip_detector import SlipEvent
-from rig.hw.seams import LoadCellSample, ServoState
+from rig.hw.dxl.transport import BusStats
+from rig.hw.seams import LoadCellLineStats, LoadCellSample, ServoState
 from rig.log.records import (
     Estimate,
     JointCapacity,
     LogLevel,
     ServoCommand,
     SlipMessage,
+    TrialLinkStats,
     TrialResult,
     TrialState,
     finite_number,
@@ -52,6 +54,7 @@ TRIAL_STATE = "/rig/trial/state"
 SLIP = "/rig/slip"
 TRIAL_RESULT = "/rig/trial/result"
 ESTIMATE = "/rig/estimate"
+TRIAL_LINKS = "/rig/trial/links"
 LOG = "/rig/log"
 
 # ---------------------------------------------------------------------------------------------
@@ -160,6 +163,31 @@ def _estimate_properties() -> dict[str, Any]:
     return {**_field_schemas(Estimate, exclude=("fit", "joints")), **fit, "joints": joints}
 
 
+def _trial_links() -> dict[str, Any]:
+    """`/rig/trial/links`: the trial id, and each device's counts as an object when it keeps them."""
+
+    def counts(record: type, what: str) -> dict[str, Any]:
+        properties = _field_schemas(record)
+        return {
+            "type": "object",
+            "description": what,
+            "properties": properties,
+            "required": list(properties),
+            "additionalProperties": False,
+        }
+
+    schema = _rig_object(
+        "rig.TrialLinkStats",
+        "What the device links delivered and lost during one trial; a device that keeps no counts is absent.",
+        {
+            **_field_schemas(TrialLinkStats, exclude=("bus", "loadcell")),
+            "bus": counts(BusStats, "the servo bus's exchanges during the trial"),
+            "loadcell": counts(LoadCellLineStats, "the load cell's serial lines during the trial"),
+        },
+    )
+    return {**schema, "required": ["trial_id"]}
+
+
 def _foxglove_log() -> dict[str, Any]:
     # The exact well-known schema (name and fields) that Foxglove's Log panel recognizes.
     return {
@@ -235,6 +263,7 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             _estimate_properties(),
         ),
     ),
+    TRIAL_LINKS: ("rig.TrialLinkStats", _trial_links()),
     LOG: ("foxglove.Log", _foxglove_log()),
 }
 

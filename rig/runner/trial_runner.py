@@ -36,7 +36,7 @@ from rig.errors import (
     StaleDataError,
     StepTimeoutError,
 )
-from rig.hw.seams import LineStatsSource, LoadCellLineStats, LoadCellSample, OperatingMode, ServoState
+from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
 from rig.hw.session import RigSession
 from rig.log import schemas
 from rig.log.records import (
@@ -46,6 +46,7 @@ from rig.log.records import (
     ServoCommandName,
     SlipMessage,
     TrialKind,
+    TrialLinkStats,
     TrialOutcome,
     TrialResult,
     TrialState,
@@ -56,6 +57,7 @@ from rig.rig_config import RigConfig
 from rig.runner.estimation import RunEstimator
 from rig.runner.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
 from rig.runner.journal import RunJournal
+from rig.runner.link_counts import TrialLinkCounter
 from rig.runner.phases import Phase, PhaseMachine
 from rig.runner.progress import ProgressReporter
 from rig.runner.results import TrialMeasurements, slip_outcome, trial_result
@@ -382,13 +384,13 @@ class TrialRunner:
         start_ns = self.clock.time_ns()
         self.progress.trial_started(trial.trial_id, self._describe(trial))
         found = TrialMeasurements(joint_angles_rad=trial.joint_angles_rad)
-        lines_before = self._line_stats()
+        links = TrialLinkCounter(self.session)
         try:
             for step in trial.steps:
                 self._run_step(step, trial, found)
         except StepTimeoutError as exc:
             self._abort_trial(trial, found, exc)
-        self._note_line_losses(trial, lines_before)
+        self._log_links(links.finish(trial.trial_id))
         result = trial_result(
             trial,
             found,
@@ -656,19 +658,13 @@ class TrialRunner:
         self._command(winch, ServoCommandName.GOAL_POSITION, goal, "rad")
         return goal
 
-    def _line_stats(self) -> LoadCellLineStats | None:
-        """The load cell's line counts, when it keeps them."""
-        cell = self.session.load_cell
-        return cell.line_stats() if isinstance(cell, LineStatsSource) else None
-
-    def _note_line_losses(self, trial: TrialPlan, before: LoadCellLineStats | None) -> None:
-        """Log what the load cell lost during the trial (garbled, bad checksums, missing samples)."""
-        after = self._line_stats()
-        if before is None or after is None:
-            return
-        lines = after.since(before)
-        level = LogLevel.INFO if lines.lossless else LogLevel.WARNING
-        self._note(level, f"trial {trial.trial_id}: load cell {lines.describe()}")
+    def _log_links(self, links: TrialLinkStats) -> None:
+        """Log the trial's link counts, and what the load cell lost as a note (a warning if anything)."""
+        self._log(schemas.TRIAL_LINKS, links.to_payload())
+        lines = links.loadcell
+        if lines is not None:
+            level = LogLevel.INFO if lines.lossless else LogLevel.WARNING
+            self._note(level, f"trial {links.trial_id}: load cell {lines.describe()}")
 
     def _confirmed_by_winch(self, event: SlipEvent) -> bool:
         """A tension drop is a slip only if the winch was not backing off (it reels in or holds)."""
