@@ -144,10 +144,12 @@ def text(*, doc: str = "", key: str = "", default_doc: str = "", allowed_doc: st
     )
 
 
-def choice(choices: Iterable[str], *, doc: str = "", key: str = "") -> Mapping[str, Any]:
+def choice(
+    choices: Iterable[str], *, doc: str = "", key: str = "", default_doc: str = ""
+) -> Mapping[str, Any]:
     """One of `choices` (a tuple of names, or an enum class: its values)."""
     names = tuple(str(getattr(c, "value", c)) for c in choices)
-    return _metadata(FieldSpec(FieldType.CHOICE, doc=doc, key=key, choices=names))
+    return _metadata(FieldSpec(FieldType.CHOICE, doc=doc, key=key, choices=names, default_doc=default_doc))
 
 
 def flag(*, doc: str = "", key: str = "") -> Mapping[str, Any]:

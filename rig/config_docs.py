@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from model.field_spec import (
+    Declared,
     FieldType,
     allowed_text,
     declared_fields,
@@ -23,7 +24,7 @@ from model.field_spec import (
     value_text,
 )
 from model.slip_detector import DetectorParams
-from rig.protocol import Protocol
+from rig.protocol import AdaptiveBlockFields, FixedBlockFields, LinkValidationBlockFields, Protocol
 from rig.rig_config import RigConfig
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -49,6 +50,32 @@ def field_table(cls: type) -> str:
     return "\n".join(lines)
 
 
+# The block declarations and the kind column's name for each.
+_BLOCKS = (
+    ("fixed", FixedBlockFields),
+    ("adaptive", AdaptiveBlockFields),
+    ("link_validation", LinkValidationBlockFields),
+)
+
+
+def blocks_table() -> str:
+    """The fields of a protocol's blocks, with the kinds (and designs) each belongs to."""
+    found: dict[str, tuple[Declared, list[str]]] = {}
+    for label, cls in _BLOCKS:
+        for declared in declared_fields(cls):
+            found.setdefault(declared.key, (declared, []))[1].append(label)
+    lines = ["| field | kind | default | allowed |", "|---|---|---|---|"]
+    for key, (declared, labels) in found.items():
+        if len(labels) == len(_BLOCKS):
+            kind = "all"
+        elif labels == ["fixed", "adaptive"]:
+            kind = "joint_estimation"
+        else:
+            kind = ", ".join(labels)
+        lines.append(f"| `{key}` | {kind} | {default_text(declared)} | {allowed_text(declared)} |")
+    return "\n".join(lines)
+
+
 def detector_table() -> str:
     """The slip detector's parameters: default with its unit, and the range (`none` turns a trigger off)."""
     lines = ["| parameter | default | allowed |", "|---|---|---|"]
@@ -65,6 +92,7 @@ def detector_table() -> str:
 # Table name -> (page, writer).
 TABLES: dict[str, tuple[str, Callable[[], str]]] = {
     "protocol": ("docs/formats.md", lambda: field_table(Protocol)),
+    "protocol-blocks": ("docs/formats.md", blocks_table),
     "rig-config": ("docs/formats.md", lambda: field_table(RigConfig)),
     "detector": ("docs/model.md", detector_table),
 }

@@ -26,7 +26,7 @@ from model.design import (
     DesignSettings,
 )
 from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
-from model.field_spec import choice, custom, keys_within, number, section
+from model.field_spec import choice, custom, flag, integer, keys_within, number, numbers, section, top_keys
 from model.field_spec import text as text_field
 from model.slip_detector import DetectorParams
 from rig.errors import ConfigError
@@ -36,20 +36,6 @@ from rig.validate import Section, read_field, read_fields, reject_undeclared
 PROTOCOL_FORMAT = "rig-protocol/1"
 BLOCK_KINDS = ("joint_estimation", "link_validation")
 DESIGNS = ("fixed", "adaptive")
-# The keys of each joint-estimation design (docs/formats.md §1): the other design's are refused by name.
-FIXED_KEYS = ("distances_m", "repeats", "shuffle")
-ADAPTIVE_KEYS = (
-    "distance_range_m",
-    "distance_count",
-    "target_half_width_rel",
-    "max_trials",
-    "min_trials",
-    "startup_trials",
-    "min_spread_fraction",
-    "max_force_fraction",
-    "stop_scale_confidence",
-    "estimator",
-)
 DEFAULT_MAX_FORCE_FRACTION = 0.8
 STEP_KINDS = ("prompt", "tare", "bend", "measure", "ramp_until_slip", "unload", "reset", "pause")
 DEFAULT_STEPS: dict[str, tuple[str, ...]] = {
@@ -72,6 +58,114 @@ DEFAULT_PROMPTS = {
     "joint_estimation": "Hang the hook at {distance_m:.3f} m from joint {joint}, then confirm.",
     "link_validation": "Check configuration {configuration} is set and the line is free, then confirm.",
 }
+
+
+# The fields of a block of each kind (docs/formats.md §1), declared for reading and the docs table;
+# `_joint_estimation_block`, `_adaptive_block` and `_link_validation_block` make the trials.
+_JOINT = custom(default_doc="1", allowed_doc="1..J (J from the rig config, at most 100)")
+_STEPS = custom(
+    default_doc="see below",
+    allowed_doc=f"1-{MAX_STEPS} step names or one-key mappings `{{name: {{options}}}}`",
+)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FixedBlockFields:
+    """A joint-estimation block with `design: fixed` (the default): distances x repeats."""
+
+    kind: str = field(metadata=choice(BLOCK_KINDS))
+    design: str = field(
+        default="fixed",
+        metadata=choice(
+            DESIGNS,
+            doc="`fixed`: `distances_m` × `repeats`; `adaptive`: the planner chooses every distance "
+            "([protocols/README.md](../protocols/README.md#adaptive-design-design-adaptive)); the keys of "
+            "kind `fixed` are refused in an `adaptive` block and those of kind `adaptive` in a `fixed` one",
+        ),
+    )
+    joint: int = field(default=1, metadata=_JOINT)
+    distances_m: tuple[float, ...] = field(metadata=numbers(0.001, 2.0, max_length=MAX_ITEMS, unit="m"))
+    repeats: int = field(default=1, metadata=integer(1, 100))
+    shuffle: bool = field(default=False, metadata=flag(doc="shuffled with `rig run --seed`"))
+    steps: tuple[str, ...] = field(default=(), metadata=_STEPS)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AdaptiveBlockFields:
+    """A joint-estimation block with `design: adaptive`: the planner chooses every distance."""
+
+    kind: str = field(metadata=choice(BLOCK_KINDS))
+    design: str = field(metadata=choice(DESIGNS))
+    joint: int = field(default=1, metadata=_JOINT)
+    distance_range_m: tuple[float, float] = field(
+        metadata=numbers(0.001, 2.0, length=2, unit="m", doc="[shortest, longest], shortest < longest")
+    )
+    distance_count: int = field(
+        default=8, metadata=integer(2, 100, doc="candidate distances, evenly over the range")
+    )
+    target_half_width_rel: float = field(
+        default=0.02,
+        metadata=number(
+            0.001,
+            0.5,
+            doc="stop when the 99 % bound's half-width (with the scatter's scale at its upper "
+            "`stop_scale_confidence` limit, if set) is at most this share of k",
+        ),
+    )
+    max_trials: int = field(
+        default=24, metadata=integer(2, MAX_ITEMS, doc="the block owns this many trial ids")
+    )
+    min_trials: int = field(
+        default=10, metadata=custom(default_doc="10 (at most `max_trials`)", allowed_doc="2..`max_trials`")
+    )
+    startup_trials: int = field(
+        default=DEFAULT_STARTUP_TRIALS,
+        metadata=custom(
+            default_doc=f"{DEFAULT_STARTUP_TRIALS} (at most `max_trials`)", allowed_doc="2..`max_trials`"
+        ),
+    )
+    min_spread_fraction: float = field(default=DEFAULT_MIN_SPREAD_FRACTION, metadata=number(0.0, 0.5))
+    max_force_fraction: float = field(
+        default=DEFAULT_MAX_FORCE_FRACTION,
+        metadata=number(0.1, 0.95, doc="a share of `ramp.max_force_n` (and the ceiling)"),
+    )
+    stop_scale_confidence: float = field(
+        default=DEFAULT_STOP_SCALE_CONFIDENCE,
+        metadata=number(
+            0.0,
+            0.99,
+            doc="the stop tests the bound with the scatter's scale at this upper confidence limit "
+            "(0: the bound as estimated)",
+        ),
+    )
+    estimator: str = field(
+        default=DEFAULT_ESTIMATOR, metadata=choice(ESTIMATOR_NAMES, default_doc="the protocol's `estimator`")
+    )
+    steps: tuple[str, ...] = field(default=(), metadata=_STEPS)
+
+
+@dataclass(frozen=True, kw_only=True)
+class LinkValidationBlockFields:
+    """A link-validation block: configurations x repeats, each trial predicted before it runs."""
+
+    kind: str = field(metadata=choice(BLOCK_KINDS))
+    configurations_deg: tuple[tuple[float, ...], ...] = field(
+        metadata=custom(allowed_doc=f"1-{MAX_ITEMS} lists of J joint angles about y, each in [−90, 90]°")
+    )
+    repeats: int = field(default=1, metadata=integer(1, 100))
+    estimates_from: str = field(
+        default="run",
+        metadata=text_field(
+            allowed_doc="`run` (needs an earlier joint_estimation block) or a §5 file, relative to the "
+            "protocol; the same in every link_validation block"
+        ),
+    )
+    steps: tuple[str, ...] = field(default=(), metadata=_STEPS)
+
+
+# The keys of each joint-estimation design: the other design's are refused by name.
+FIXED_KEYS = tuple(k for k in top_keys(FixedBlockFields) if k not in top_keys(AdaptiveBlockFields))
+ADAPTIVE_KEYS = tuple(k for k in top_keys(AdaptiveBlockFields) if k not in top_keys(FixedBlockFields))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -356,7 +450,7 @@ def parse_protocol(
         trials += new
         used += len(new)
         if kind == "link_validation":
-            source_of_estimates = block.string("estimates_from", default="run")
+            source_of_estimates = read_field(block, LinkValidationBlockFields, "estimates_from")
             if source_of_estimates == "run":
                 if not adaptive and not any(t.kind == "joint_estimation" for t in trials):
                     raise block.error(
@@ -458,13 +552,13 @@ def _joint_estimation_block(
             raise block.error(
                 key, f"{where}only with design: adaptive; allowed here: distances_m, repeats, shuffle"
             )
-    block.reject_unknown(["kind", "design", "joint", *FIXED_KEYS, "steps"])
+    reject_undeclared(block, FixedBlockFields)
     joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
-    distances = block.numbers("distances_m", max_length=MAX_ITEMS, min_value=0.001, max_value=2.0)
-    repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
+    distances = read_field(block, FixedBlockFields, "distances_m")
+    repeats = read_field(block, FixedBlockFields, "repeats")
     steps = _steps(block, "joint_estimation")
     order = [(d, r) for r in range(1, repeats + 1) for d in distances]
-    if block.boolean("shuffle", default=False):
+    if read_field(block, FixedBlockFields, "shuffle"):
         rng.shuffle(order)
     return [
         TrialPlan(
@@ -495,40 +589,36 @@ def _adaptive_block(
                 key,
                 "not with design: adaptive (the planner chooses the distances); allowed: distance_range_m",
             )
-    block.reject_unknown(["kind", "design", "joint", *ADAPTIVE_KEYS, "steps"])
+    reject_undeclared(block, AdaptiveBlockFields)
     joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
-    lo, hi = block.numbers("distance_range_m", length=2, min_value=0.001, max_value=2.0)
+    lo, hi = read_field(block, AdaptiveBlockFields, "distance_range_m")
     if not lo < hi:
         raise block.error(
             "distance_range_m", f"[{lo}, {hi}]; allowed: [shortest, longest] with shortest < longest"
         )
-    max_trials = block.integer("max_trials", default=24, min_value=2, max_value=MAX_ITEMS)
+    max_trials = read_field(block, AdaptiveBlockFields, "max_trials")
     min_trials = block.integer("min_trials", default=min(10, max_trials), min_value=2, max_value=max_trials)
     startup = block.integer(
         "startup_trials", default=min(DEFAULT_STARTUP_TRIALS, max_trials), min_value=2, max_value=max_trials
     )
-    estimator = block.string("estimator", default=protocol_estimator, choices=ESTIMATOR_NAMES)
+    estimator = read_field(block, AdaptiveBlockFields, "estimator", default=protocol_estimator)
+
+    def declared(name: str) -> Any:
+        return read_field(block, AdaptiveBlockFields, name)
+
     design = DesignSettings(
         distance_min_m=lo,
         distance_max_m=hi,
-        distance_count=block.integer("distance_count", default=8, min_value=2, max_value=100),
-        target_half_width_rel=block.number(
-            "target_half_width_rel", default=0.02, min_value=0.001, max_value=0.5
-        ),
+        distance_count=declared("distance_count"),
+        target_half_width_rel=declared("target_half_width_rel"),
         max_trials=max_trials,
         min_trials=min_trials,
         startup_trials=startup,
-        min_spread_fraction=block.number(
-            "min_spread_fraction", default=DEFAULT_MIN_SPREAD_FRACTION, min_value=0.0, max_value=0.5
-        ),
+        min_spread_fraction=declared("min_spread_fraction"),
         estimator=check_estimator(estimator),
-        stop_scale_confidence=block.number(
-            "stop_scale_confidence", default=DEFAULT_STOP_SCALE_CONFIDENCE, min_value=0.0, max_value=0.99
-        ),
+        stop_scale_confidence=declared("stop_scale_confidence"),
     )
-    fraction = block.number(
-        "max_force_fraction", default=DEFAULT_MAX_FORCE_FRACTION, min_value=0.1, max_value=0.95
-    )
+    fraction = declared("max_force_fraction")
     return AdaptiveBlock(
         block=b,
         first_trial_id=offset + 1,
@@ -540,8 +630,8 @@ def _adaptive_block(
 
 
 def _link_validation_block(block: Section, b: int, offset: int, joint_count: int | None) -> list[TrialPlan]:
-    block.reject_unknown(["kind", "configurations_deg", "repeats", "estimates_from", "steps"])
-    repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
+    reject_undeclared(block, LinkValidationBlockFields)
+    repeats = read_field(block, LinkValidationBlockFields, "repeats")
     steps = _steps(block, "link_validation")
     configs = block.sequence("configurations_deg", min_length=1, max_length=MAX_ITEMS)
     angles: list[tuple[float, ...]] = []
