@@ -198,7 +198,7 @@ def test_redetection_parameters_move_the_peaks_the_expected_way(logs):
     # The refit uses the re-detected peaks.
     eager_result = replay(logs["link"].log, HAIR_TRIGGER)
     assert eager_result.redetected_estimate.fit.k < eager_result.estimate.fit.k
-    assert eager_result.redetection_summary()["source"] == "command line"
+    assert eager_result.redetection_summary().source == "command line"
 
 
 @pytest.mark.parametrize(

@@ -48,6 +48,39 @@ from rig.log.frames import frame_payloads
 from rig.log.records import Estimate, TrialLinkStats
 
 
+@dataclass(frozen=True)
+class RedetectionSummary:
+    """How re-detection compares with the logged events: matches, and the trials that differ."""
+
+    detector: DetectorParams  # the parameters re-detection used
+    source: str  # where they came from: "command line", "protocol metadata", ...
+    overrides: tuple[str, ...]  # `--detector key=value` assignments
+    trials: int
+    matches: int
+    mismatches: tuple[rd.Redetection, ...]
+    by_status: dict[str, int]
+
+    @property
+    def exact(self) -> bool:
+        """Whether re-detection used the logged parameters (so every trial should match)."""
+        return not self.overrides
+
+    def as_json(self) -> dict[str, Any]:
+        """The `redetection` object of `rig replay --json`."""
+        return {
+            "detector": self.detector.to_mapping(),
+            "source": self.source,
+            "overrides": list(self.overrides),
+            "trials": self.trials,
+            "matches": self.matches,
+            "mismatches": [
+                {"trial_id": r.trial_id, "status": r.status, "detail": r.detail} for r in self.mismatches
+            ],
+            "by_status": self.by_status,
+            "exact": self.exact,
+        }
+
+
 @dataclass
 class ReplayResult:
     """Everything `rig replay` found in a run (see the module docstring)."""
@@ -84,25 +117,20 @@ class ReplayResult:
         """Whether the run has link-validation trials."""
         return bool((self.table["kind"] == "link_validation").any())
 
-    def redetection_summary(self) -> dict[str, Any]:
+    def redetection_summary(self) -> RedetectionSummary:
         """Matches and mismatches of re-detection against the logged events."""
         by_status: dict[str, int] = {}
         for r in self.redetections:
             by_status[r.status] = by_status.get(r.status, 0) + 1
-        return {
-            "detector": self.detector.to_mapping(),
-            "source": "command line" if self.detector_overrides else self.settings.detector_source,
-            "overrides": list(self.detector_overrides),
-            "trials": len(self.redetections),
-            "matches": by_status.get(rd.MATCH, 0),
-            "mismatches": [
-                {"trial_id": r.trial_id, "status": r.status, "detail": r.detail}
-                for r in self.redetections
-                if r.status != rd.MATCH
-            ],
-            "by_status": by_status,
-            "exact": not self.detector_overrides,
-        }
+        return RedetectionSummary(
+            detector=self.detector,
+            source="command line" if self.detector_overrides else self.settings.detector_source,
+            overrides=tuple(self.detector_overrides),
+            trials=len(self.redetections),
+            matches=by_status.get(rd.MATCH, 0),
+            mismatches=tuple(r for r in self.redetections if r.status != rd.MATCH),
+            by_status=by_status,
+        )
 
     def as_json(self) -> dict[str, Any]:
         """The `rig replay --json` object."""
@@ -117,7 +145,7 @@ class ReplayResult:
             "online_estimate": online_estimate_json(self.online_estimate),
             "online_agreement": self.agreement.as_json(),
             "redetected_estimate": _json_or_none(self.redetected_estimate),
-            "redetection": self.redetection_summary(),
+            "redetection": self.redetection_summary().as_json(),
         }
         if self.links:
             out["links"] = [links.to_payload() for links in self.links]

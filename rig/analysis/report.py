@@ -428,19 +428,19 @@ def _markdown(result: ReplayResult, figures: dict[str, str], skipped: dict[str, 
             "",
         ]
     red = result.redetection_summary()
-    params = ", ".join(f"{k}={v}" for k, v in red["detector"].items())
+    params = ", ".join(f"{k}={v}" for k, v in red.detector.to_mapping().items())
     lines += [
         "## Re-detection",
         "",
-        f"Detector ({red['source']}): {params}.",
+        f"Detector ({red.source}): {params}.",
         "",
-        f"{red['matches']} of {red['trials']} trials reproduce the logged slip event exactly."
-        if red["exact"]
-        else f"{red['matches']} of {red['trials']} trials give the logged event; the others changed.",
+        f"{red.matches} of {red.trials} trials reproduce the logged slip event exactly."
+        if red.exact
+        else f"{red.matches} of {red.trials} trials give the logged event; the others changed.",
         "",
     ]
-    if red["mismatches"]:
-        lines += [f"* trial {m['trial_id']} ({m['status']}): {m['detail']}" for m in red["mismatches"]] + [""]
+    if red.mismatches:
+        lines += [f"* trial {m.trial_id} ({m.status}): {m.detail}" for m in red.mismatches] + [""]
     links = summary.links_table(result)
     if links is not None:
         lines += [

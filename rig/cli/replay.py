@@ -165,10 +165,8 @@ def _text(result: ReplayResult) -> str:
             f"(max relative difference {agreement.max_relative_difference:.3g})"
         )
     red = result.redetection_summary()
-    lines.append(
-        f"re-detection ({red['source']}): {red['matches']} of {red['trials']} trials give the logged event"
-    )
-    lines += [f"  trial {m['trial_id']} {m['status']}: {m['detail']}" for m in red["mismatches"]]
+    lines.append(f"re-detection ({red.source}): {red.matches} of {red.trials} trials give the logged event")
+    lines += [f"  trial {m.trial_id} {m.status}: {m.detail}" for m in red.mismatches]
     for title, table in (
         ("device links per trial (servo bus exchanges, load-cell lines)", links_table(result)),
         ("payload errors (Table IV)", payload_errors_table(result)),

@@ -17,6 +17,7 @@ from rig.files import check_out_dir
 if TYPE_CHECKING:
     from model.estimate_summary import EstimateSummary
     from model.fit import FitSummary
+    from model.payload_errors import PayloadErrorStats
     from rig.log.live import LivePublisher
     from rig.runner.run import RunReport, RunRequest
 
@@ -258,7 +259,7 @@ def _summary(report: RunReport) -> str:
         )
     pe = report.percentage_errors
     if pe is not None:
-        lines.append(_percentage_text(pe.to_dict()))
+        lines.append(_percentage_text(pe))
     if report.truth is not None:
         lines.append(_truth_text(report.truth, est))
     return "\n\n".join(lines)
@@ -300,11 +301,11 @@ def _estimator_text(detail: EstimateSummary) -> str:
     return text
 
 
-def _percentage_text(pe: dict[str, Any]) -> str:
-    parts = [f"link validation: {len(pe['percentage_errors'])} predictions"]
-    parts.append(f"percentage error mean {pe['mean_pct']:.2f} % ± {pe['std_pct']:.2f} %")
-    for threshold, share in pe.get("share_below_pct", {}).items():
-        parts.append(f"{share * 100:.1f} % of errors below {threshold} %")
+def _percentage_text(pe: PayloadErrorStats) -> str:
+    parts = [f"link validation: {len(pe.percentage_errors)} predictions"]
+    parts.append(f"percentage error mean {pe.mean_pct:.2f} % ± {pe.std_pct:.2f} %")
+    for threshold, share in pe.share_below_pct:
+        parts.append(f"{share * 100:.1f} % of errors below {threshold:g} %")
     return "; ".join(parts)
 
 
