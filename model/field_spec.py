@@ -239,6 +239,7 @@ def declared_fields(cls: type) -> tuple[Declared, ...]:
     return tuple(found)
 
 
+@functools.cache
 def section_type(cls: type, name: str) -> type:
     """The dataclass type of section field `name` of `cls` (from its annotation; `X | None` gives X)."""
     hint = typing.get_type_hints(cls)[name]
