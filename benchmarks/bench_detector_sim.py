@@ -54,10 +54,11 @@ from rig.log import schemas
 from rig.log.frames import frame_payloads
 from rig.log.records import SlipMessage
 from rig.protocol import load_protocol
-from rig.rig_config import LoadCellArtefacts, load_rig_config
+from rig.rig_config import load_rig_config
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
+from rig.sim_config import LoadCellArtefacts
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
@@ -270,7 +271,7 @@ def false_alarms(
 
 
 def quiet(samples: int, seed: int) -> None:
-    params = DetectorParams.from_mapping(load_protocol(PROTOCOL).detector)
+    params = load_protocol(PROTOCOL).detector
     noisy = load_rig_config(SCENARIOS / "noisy-cell.yaml").simulation
     assert noisy is not None
     print("| load cell | quiet samples | false alarms | per 1e6 samples |")

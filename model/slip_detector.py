@@ -51,54 +51,14 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from typing import Any, NamedTuple
 
+from model.field_spec import Declared, FieldSpec, declared_fields, number
+
 _NONE_WORDS = frozenset({"none", "null", "off", "disabled", ""})
 
-
-@dataclass(frozen=True)
-class _FieldRule:
-    optional: bool
-    minimum: float
-    minimum_inclusive: bool
-    maximum: float
-    maximum_inclusive: bool
-
-    def allowed(self) -> str:
-        lo = "[" if self.minimum_inclusive else "("
-        hi = "]" if self.maximum_inclusive else ")"
-        text = f"a number in {lo}{self.minimum:g}, {self.maximum:g}{hi}"
-        return text + " or none (disabled)" if self.optional else text
-
-    def accepts(self, value: float) -> bool:
-        above = value >= self.minimum if self.minimum_inclusive else value > self.minimum
-        below = value <= self.maximum if self.maximum_inclusive else value < self.maximum
-        return math.isfinite(value) and above and below
-
-
-_RULES: dict[str, _FieldRule] = {
-    "arm_threshold_n": _FieldRule(False, 0.0, False, 1e6, True),
-    "drop_fraction": _FieldRule(True, 0.0, False, 1.0, False),
-    "min_drop_n": _FieldRule(False, 0.0, True, 1e6, True),
-    "slope_n_per_s": _FieldRule(True, 0.0, False, 1e9, True),
-    "slope_window_s": _FieldRule(False, 0.0, False, 10.0, True),
-    "cusum_threshold_n": _FieldRule(True, 0.0, False, 1e6, True),
-    "cusum_drift_n": _FieldRule(False, 0.0, True, 1e6, True),
-    "rearm_below_n": _FieldRule(True, 0.0, False, 1e6, True),
-    "noise_k": _FieldRule(True, 0.0, False, 1e3, True),
-    "noise_floor_n": _FieldRule(False, 0.0, False, 1e6, True),
-    "noise_window_s": _FieldRule(False, 0.0, False, 100.0, True),
-    "trend_window_s": _FieldRule(False, 0.0, False, 100.0, True),
-    "peak_leak_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
-    "creep_k": _FieldRule(True, 0.0, False, 1e3, True),
-    "creep_drift_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
-    "creep_min_s": _FieldRule(False, 0.0, True, 100.0, True),
-    "spike_samples": _FieldRule(False, 1.0, True, 2.0, True),
-    "train_k": _FieldRule(True, 0.0, False, 1e3, True),
-    "drop_leak_n_per_s": _FieldRule(False, 0.0, True, 1e9, True),
-}
 
 # Every field the detector had before the noise and creep triggers. A mapping naming exactly these
 # is the logged parameter set of an older run: `from_mapping` keeps that run's detector (no noise or
@@ -158,30 +118,45 @@ class DetectorParams:
             changes no event, only how the runner classifies the trial.
     """
 
-    arm_threshold_n: float = 1.0
-    drop_fraction: float | None = 0.15
-    min_drop_n: float = 0.2
-    slope_n_per_s: float | None = None
-    slope_window_s: float = 0.02
-    cusum_threshold_n: float | None = None
-    cusum_drift_n: float = 0.05
-    rearm_below_n: float | None = None
-    noise_k: float | None = 10.0
-    noise_floor_n: float = 0.002
-    noise_window_s: float = 0.5
-    trend_window_s: float = 0.2
-    peak_leak_n_per_s: float = 1.0
-    creep_k: float | None = 10.0
-    creep_drift_n_per_s: float = 0.2
-    creep_min_s: float = 0.05
-    spike_samples: float = 2.0
-    train_k: float | None = 10.0
-    drop_leak_n_per_s: float = 1.0
+    arm_threshold_n: float = field(default=1.0, metadata=number(0.0, 1e6, lo_open=True, unit="N"))
+    drop_fraction: float | None = field(
+        default=0.15, metadata=number(0.0, 1.0, lo_open=True, hi_open=True, optional=True)
+    )
+    min_drop_n: float = field(default=0.2, metadata=number(0.0, 1e6, unit="N"))
+    slope_n_per_s: float | None = field(
+        default=None, metadata=number(0.0, 1e9, lo_open=True, unit="N/s", optional=True)
+    )
+    slope_window_s: float = field(default=0.02, metadata=number(0.0, 10.0, lo_open=True, unit="s"))
+    cusum_threshold_n: float | None = field(
+        default=None, metadata=number(0.0, 1e6, lo_open=True, unit="N", optional=True)
+    )
+    cusum_drift_n: float = field(default=0.05, metadata=number(0.0, 1e6, unit="N"))
+    rearm_below_n: float | None = field(
+        default=None,
+        metadata=number(0.0, 1e6, lo_open=True, unit="N", optional=True, default_doc="none (= arm/2)"),
+    )
+    noise_k: float | None = field(default=10.0, metadata=number(0.0, 1e3, lo_open=True, optional=True))
+    noise_floor_n: float = field(default=0.002, metadata=number(0.0, 1e6, lo_open=True, unit="N"))
+    noise_window_s: float = field(default=0.5, metadata=number(0.0, 100.0, lo_open=True, unit="s"))
+    trend_window_s: float = field(default=0.2, metadata=number(0.0, 100.0, lo_open=True, unit="s"))
+    peak_leak_n_per_s: float = field(default=1.0, metadata=number(0.0, 1e9, unit="N/s"))
+    creep_k: float | None = field(default=10.0, metadata=number(0.0, 1e3, lo_open=True, optional=True))
+    creep_drift_n_per_s: float = field(default=0.2, metadata=number(0.0, 1e9, unit="N/s"))
+    creep_min_s: float = field(default=0.05, metadata=number(0.0, 100.0, unit="s"))
+    spike_samples: float = field(
+        default=2.0,
+        metadata=number(
+            1.0, 2.0, allowed_doc="1 or 2 (1: the percentage drop on single samples, as before 2026-11-23)"
+        ),
+    )
+    train_k: float | None = field(default=10.0, metadata=number(0.0, 1e3, lo_open=True, optional=True))
+    drop_leak_n_per_s: float = field(default=1.0, metadata=number(0.0, 1e9, unit="N/s"))
 
     def __post_init__(self) -> None:
         """Validate every field (a direct construction is checked like `from_mapping`)."""
-        for name, rule in _RULES.items():
-            object.__setattr__(self, name, _checked(name, getattr(self, name), rule, "detector"))
+        for declared in _FIELDS:
+            value = _checked(declared, getattr(self, declared.name), "detector")
+            object.__setattr__(self, declared.name, value)
         if self.spike_samples not in (1.0, 2.0):
             raise ValueError(f"detector: spike_samples = {self.spike_samples!r}; allowed: 1 or 2")
         triggers = [self.drop_fraction, self.slope_n_per_s, self.cusum_threshold_n, self.noise_k]
@@ -208,11 +183,12 @@ class DetectorParams:
         values: dict[str, Any] = {}
         for key, raw in mapping.items():
             name = str(key)
-            if name not in _RULES:
+            declared = _BY_NAME.get(name)
+            if declared is None:
                 raise ValueError(
                     f"{source}: unknown field {name!r}{_suggestion(name)}; allowed: {_field_list()}"
                 )
-            values[name] = _checked(name, raw, _RULES[name], source)
+            values[name] = _checked(declared, raw, source)
         for names, defaults in _VINTAGES:
             if set(values) == names:
                 values.update(defaults)
@@ -237,29 +213,40 @@ class DetectorParams:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+# The fields and their bounds, as declared above (`model.field_spec`).
+_FIELDS = declared_fields(DetectorParams)
+_BY_NAME = {declared.name: declared for declared in _FIELDS}
+
+
 def _field_list() -> str:
-    return ", ".join(_RULES)
+    return ", ".join(_BY_NAME)
 
 
 def _suggestion(name: str) -> str:
-    close = difflib.get_close_matches(name, list(_RULES), n=1)
+    close = difflib.get_close_matches(name, list(_BY_NAME), n=1)
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
-def _checked(name: str, raw: Any, rule: _FieldRule, source: str) -> float | None:
+def _allowed(spec: FieldSpec) -> str:
+    text = f"a number in {spec.bounds.interval()}"
+    return text + " or none (disabled)" if spec.optional else text
+
+
+def _checked(declared: Declared, raw: Any, source: str) -> float | None:
     """`raw` as a validated float (or None for a disabled optional field); ValueError otherwise."""
+    name, spec = declared.name, declared.spec
     if raw is None or (isinstance(raw, str) and raw.strip().lower() in _NONE_WORDS):
-        if rule.optional:
+        if spec.optional:
             return None
-        raise ValueError(f"{source}: {name} is required; allowed: {rule.allowed()}")
+        raise ValueError(f"{source}: {name} is required; allowed: {_allowed(spec)}")
     if isinstance(raw, bool):
-        raise ValueError(f"{source}: {name} = {raw!r}; allowed: {rule.allowed()}")
+        raise ValueError(f"{source}: {name} = {raw!r}; allowed: {_allowed(spec)}")
     try:
         value = float(raw)
     except (TypeError, ValueError):
-        raise ValueError(f"{source}: {name} = {raw!r} is not a number; allowed: {rule.allowed()}") from None
-    if not rule.accepts(value):
-        raise ValueError(f"{source}: {name} = {raw!r}; allowed: {rule.allowed()}")
+        raise ValueError(f"{source}: {name} = {raw!r} is not a number; allowed: {_allowed(spec)}") from None
+    if not spec.bounds.accepts(value):
+        raise ValueError(f"{source}: {name} = {raw!r}; allowed: {_allowed(spec)}")
     return value
 
 

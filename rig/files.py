@@ -258,6 +258,31 @@ def load_json_file(
     return parse_json(read_text_file(path, what=what), str(Path(path)), allow_nan=allow_nan)
 
 
+def check_out_dir(out: Path, *, must_exist: bool = False) -> None:
+    """`--out` is a directory we may write in, or one we could make; InputError (one line) if not.
+
+    The one `--out` rule of every command: an existing `out` must be a writable directory; a
+    missing one needs its nearest existing ancestor to be a writable directory (and is refused
+    when `must_exist`, as a resume's is). Nothing is made here.
+    """
+    allowed = "allowed: a directory for the run's files"
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing == out:
+        if not out.is_dir():
+            raise InputError(f"--out {out}: not a directory; {allowed}")
+        if not os.access(out, os.W_OK | os.X_OK):
+            raise InputError(f"--out {out}: not writable")
+        return
+    if must_exist:
+        raise InputError(f"--out {out}: no such directory; nothing to resume there")
+    if not existing.is_dir():
+        raise InputError(f"--out {out}: {existing} is not a directory; {allowed}")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out}: {existing} is not writable, so it cannot be made there; {allowed}")
+
+
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write `text` to `path` so that readers see the old or the new file, never a partial one."""
     p = Path(path)

@@ -15,7 +15,7 @@ import math
 import random
 import re
 import string
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, assert_never
 
@@ -26,27 +26,16 @@ from model.design import (
     DesignSettings,
 )
 from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
+from model.field_spec import choice, custom, flag, integer, keys_within, number, numbers, section, top_keys
+from model.field_spec import text as text_field
+from model.slip_detector import DetectorParams
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
-from rig.validate import Section
+from rig.validate import Section, read_field, read_fields, reject_undeclared
 from rig.vocabulary import StepKind, TrialKind
 
 PROTOCOL_FORMAT = "rig-protocol/1"
 DESIGNS = ("fixed", "adaptive")
-# The keys of each joint-estimation design (docs/formats.md §1): the other design's are refused by name.
-FIXED_KEYS = ("distances_m", "repeats", "shuffle")
-ADAPTIVE_KEYS = (
-    "distance_range_m",
-    "distance_count",
-    "target_half_width_rel",
-    "max_trials",
-    "min_trials",
-    "startup_trials",
-    "min_spread_fraction",
-    "max_force_fraction",
-    "stop_scale_confidence",
-    "estimator",
-)
 DEFAULT_MAX_FORCE_FRACTION = 0.8
 DEFAULT_STEPS: dict[TrialKind, tuple[StepKind, ...]] = {
     TrialKind.JOINT_ESTIMATION: (
@@ -79,16 +68,164 @@ DEFAULT_PROMPTS = {
 }
 
 
-@dataclass(frozen=True)
+# The fields of a block of each kind (docs/formats.md §1), declared for reading and the docs table;
+# `_joint_estimation_block`, `_adaptive_block` and `_link_validation_block` make the trials.
+_JOINT = custom(default_doc="1", allowed_doc="1..J (J from the rig config, at most 100)")
+_STEPS = custom(
+    default_doc="see below",
+    allowed_doc=f"1-{MAX_STEPS} step names or one-key mappings `{{name: {{options}}}}`",
+)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FixedBlockFields:
+    """A joint-estimation block with `design: fixed` (the default): distances x repeats."""
+
+    kind: str = field(metadata=choice(tuple(TrialKind)))
+    design: str = field(
+        default="fixed",
+        metadata=choice(
+            DESIGNS,
+            doc="`fixed`: `distances_m` × `repeats`; `adaptive`: the planner chooses every distance "
+            "([protocols/README.md](../protocols/README.md#adaptive-design-design-adaptive)); the keys of "
+            "kind `fixed` are refused in an `adaptive` block and those of kind `adaptive` in a `fixed` one",
+        ),
+    )
+    joint: int = field(default=1, metadata=_JOINT)
+    distances_m: tuple[float, ...] = field(metadata=numbers(0.001, 2.0, max_length=MAX_ITEMS, unit="m"))
+    repeats: int = field(default=1, metadata=integer(1, 100))
+    shuffle: bool = field(default=False, metadata=flag(doc="shuffled with `rig run --seed`"))
+    steps: tuple[str, ...] = field(default=(), metadata=_STEPS)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AdaptiveBlockFields:
+    """A joint-estimation block with `design: adaptive`: the planner chooses every distance."""
+
+    kind: str = field(metadata=choice(tuple(TrialKind)))
+    design: str = field(metadata=choice(DESIGNS))
+    joint: int = field(default=1, metadata=_JOINT)
+    distance_range_m: tuple[float, float] = field(
+        metadata=numbers(0.001, 2.0, length=2, unit="m", doc="[shortest, longest], shortest < longest")
+    )
+    distance_count: int = field(
+        default=8, metadata=integer(2, 100, doc="candidate distances, evenly over the range")
+    )
+    target_half_width_rel: float = field(
+        default=0.02,
+        metadata=number(
+            0.001,
+            0.5,
+            doc="stop when the 99 % bound's half-width (with the scatter's scale at its upper "
+            "`stop_scale_confidence` limit, if set) is at most this share of k",
+        ),
+    )
+    max_trials: int = field(
+        default=24, metadata=integer(2, MAX_ITEMS, doc="the block owns this many trial ids")
+    )
+    min_trials: int = field(
+        default=10, metadata=custom(default_doc="10 (at most `max_trials`)", allowed_doc="2..`max_trials`")
+    )
+    startup_trials: int = field(
+        default=DEFAULT_STARTUP_TRIALS,
+        metadata=custom(
+            default_doc=f"{DEFAULT_STARTUP_TRIALS} (at most `max_trials`)", allowed_doc="2..`max_trials`"
+        ),
+    )
+    min_spread_fraction: float = field(default=DEFAULT_MIN_SPREAD_FRACTION, metadata=number(0.0, 0.5))
+    max_force_fraction: float = field(
+        default=DEFAULT_MAX_FORCE_FRACTION,
+        metadata=number(0.1, 0.95, doc="a share of `ramp.max_force_n` (and the ceiling)"),
+    )
+    stop_scale_confidence: float = field(
+        default=DEFAULT_STOP_SCALE_CONFIDENCE,
+        metadata=number(
+            0.0,
+            0.99,
+            doc="the stop tests the bound with the scatter's scale at this upper confidence limit "
+            "(0: the bound as estimated)",
+        ),
+    )
+    estimator: str = field(
+        default=DEFAULT_ESTIMATOR, metadata=choice(ESTIMATOR_NAMES, default_doc="the protocol's `estimator`")
+    )
+    steps: tuple[str, ...] = field(default=(), metadata=_STEPS)
+
+
+@dataclass(frozen=True, kw_only=True)
+class LinkValidationBlockFields:
+    """A link-validation block: configurations x repeats, each trial predicted before it runs."""
+
+    kind: str = field(metadata=choice(tuple(TrialKind)))
+    configurations_deg: tuple[tuple[float, ...], ...] = field(
+        metadata=custom(allowed_doc=f"1-{MAX_ITEMS} lists of J joint angles about y, each in [−90, 90]°")
+    )
+    repeats: int = field(default=1, metadata=integer(1, 100))
+    estimates_from: str = field(
+        default="run",
+        metadata=text_field(
+            allowed_doc="`run` (needs an earlier joint_estimation block) or a §5 file, relative to the "
+            "protocol; the same in every link_validation block"
+        ),
+    )
+    steps: tuple[str, ...] = field(default=(), metadata=_STEPS)
+
+
+# The keys of each joint-estimation design: the other design's are refused by name.
+FIXED_KEYS = tuple(k for k in top_keys(FixedBlockFields) if k not in top_keys(AdaptiveBlockFields))
+ADAPTIVE_KEYS = tuple(k for k in top_keys(AdaptiveBlockFields) if k not in top_keys(FixedBlockFields))
+
+
+@dataclass(frozen=True, kw_only=True)
 class RampSettings:
     """How the winch loads the line: fast to a fraction of the predicted slip load, then slow."""
 
-    fast_speed_rad_s: float
-    slow_speed_rad_s: float
-    fast_until_fraction: float
-    max_force_n: float
-    unload_speed_rad_s: float
-    hold_after_slip_s: float
+    fast_speed_rad_s: float = field(default=1.0, metadata=number(0.001, 20.0, unit="rad/s"))
+    slow_speed_rad_s: float = field(
+        default=0.1, metadata=number(0.001, 20.0, unit="rad/s", doc="≤ `fast_speed_rad_s`")
+    )
+    fast_until_fraction: float = field(
+        default=0.7, metadata=number(0.0, 0.95, doc="a share of the predicted slip load")
+    )
+    max_force_n: float = field(
+        default=40.0, metadata=number(0.1, 500.0, unit="N", doc="below `limits.force_ceiling_n`")
+    )
+    unload_speed_rad_s: float = field(default=2.0, metadata=number(0.001, 20.0, unit="rad/s"))
+    hold_after_slip_s: float = field(default=0.2, metadata=number(0.0, 10.0, unit="s"))
+
+
+# The options of the steps that have any (`steps: [{pause: {duration_s: 1}}]`); the others take none.
+@dataclass(frozen=True)
+class PromptOptions:
+    """`prompt` step options."""
+
+    text: str = field(metadata=custom(doc="the operator prompt"))
+
+
+@dataclass(frozen=True)
+class TareOptions:
+    """`tare` step options."""
+
+    settle_s: float = field(default=0.5, metadata=number(0.05, 60.0, unit="s"))
+
+
+@dataclass(frozen=True)
+class PauseOptions:
+    """`pause` step options."""
+
+    duration_s: float = field(default=0.5, metadata=number(0.0, 3600.0, unit="s"))
+
+
+@dataclass(frozen=True)
+class NoOptions:
+    """The options of a step that takes none."""
+
+
+STEP_OPTIONS: dict[StepKind, type] = {
+    StepKind.PROMPT: PromptOptions,
+    StepKind.TARE: TareOptions,
+    StepKind.PAUSE: PauseOptions,
+}
 
 
 @dataclass(frozen=True)
@@ -162,26 +299,57 @@ class AdaptiveBlock:
         )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Protocol:
     """A validated protocol and its expanded trial plan (fixed trials; adaptive blocks apart)."""
 
     source: Path
     text: str
-    name: str
-    description: str
-    detector: dict[str, float | None]
-    ramp: RampSettings
-    force_ceiling_n: float | None
-    step_timeout_margin_s: float
-    control_period_s: float
-    estimates_from: str | None  # "run" (earlier block of this protocol) or a file path
-    trials: tuple[TrialPlan, ...]  # the fixed blocks' trials
+    format: str = field(metadata=custom(allowed_doc=f"`{PROTOCOL_FORMAT}`"))
+    name: str = field(
+        metadata=custom(
+            default_doc="the file name without extension",
+            allowed_doc="1-64 letters, digits, `.`, `_`, `-` (it becomes part of the run id)",
+        )
+    )
+    description: str = field(default="", metadata=text_field())
+    # Of k, for the run's estimate (docs/model.md §4.2).
+    estimator: EstimatorName = field(
+        default=DEFAULT_ESTIMATOR,
+        metadata=choice(
+            ESTIMATOR_NAMES,
+            doc="how the run estimates k ([model.md §4.2](model.md#42-estimators-and-scatter-models)); "
+            "the paper's fit is always computed beside it",
+        ),
+    )
+    detector: DetectorParams = field(
+        default=DetectorParams(),
+        metadata=section(
+            default_doc="the detector's defaults",
+            doc="the fields of [model.md §7](model.md#7-slip-detection)",
+            expand_doc=False,
+        ),
+    )
+    ramp: RampSettings = field(default=RampSettings(), metadata=section())
+    force_ceiling_n: float | None = field(
+        default=None,
+        metadata=number(0.1, 500.0, unit="N", within="limits", default_doc="none (the rig's applies)"),
+    )
+    step_timeout_margin_s: float = field(default=5.0, metadata=number(0.1, 600.0, unit="s", within="limits"))
+    control_period_s: float = field(
+        default=0.02,
+        metadata=number(0.001, 0.1, unit="s", doc="every load-cell sample is processed whatever the period"),
+    )
+    trials: tuple[TrialPlan, ...] = field(  # the fixed blocks' trials
+        metadata=custom(
+            key="blocks", allowed_doc=f"a list of 1-{MAX_BLOCKS} blocks, at most {MAX_TRIALS} trials in all"
+        )
+    )
     adaptive: tuple[AdaptiveBlock, ...] = ()
-    estimator: EstimatorName = DEFAULT_ESTIMATOR  # of k, for the run's estimate (docs/model.md §4.2)
+    estimates_from: str | None = None  # "run" (earlier block of this protocol) or a file path
 
     @property
-    def kinds(self) -> set[TrialKind]:
+    def kinds(self) -> set[str]:
         """The trial kinds the plan contains."""
         return {t.kind for t in self.trials} | {b.kind for b in self.adaptive}
 
@@ -207,7 +375,7 @@ class Protocol:
             "format": PROTOCOL_FORMAT,
             "trials": str(len(self.planned_trial_ids)),
             "kinds": ",".join(sorted(self.kinds)),
-            "detector": ",".join(f"{k}={v!r}" for k, v in self.detector.items()),
+            "detector": ",".join(f"{k}={v!r}" for k, v in self.detector.to_mapping().items()),
             "control_period_s": repr(self.control_period_s),
             "estimator": self.estimator,
         }
@@ -238,28 +406,16 @@ def parse_protocol(
 ) -> Protocol:
     """Validate a parsed protocol mapping and expand its blocks into trials."""
     top = Section(data, source)
-    top.reject_unknown(
-        [
-            "format",
-            "name",
-            "description",
-            "estimator",
-            "detector",
-            "ramp",
-            "limits",
-            "control_period_s",
-            "blocks",
-        ]
-    )
-    estimator = check_estimator(top.string("estimator", default=DEFAULT_ESTIMATOR, choices=ESTIMATOR_NAMES))
+    reject_undeclared(top, Protocol)
+    estimator = check_estimator(read_field(top, Protocol, "estimator"))
     fmt = top.string("format")
     if fmt != PROTOCOL_FORMAT:
         raise top.error("format", f"'{fmt}' is not supported; allowed: {PROTOCOL_FORMAT}")
     detector = _detector(top.section("detector", default={}))
     ramp = _ramp(top.section("ramp", default={}))
     limits = top.section("limits", default={})
-    limits.reject_unknown(["force_ceiling_n", "step_timeout_margin_s"])
-    ceiling = limits.number("force_ceiling_n", default=None, min_value=0.1, max_value=500.0)
+    limits.reject_unknown(keys_within(Protocol, "limits"))
+    ceiling = read_field(limits, Protocol, "force_ceiling_n")
     if ceiling is not None and ramp.max_force_n >= ceiling:
         raise top.error(
             "ramp.max_force_n", f"{ramp.max_force_n} must be below limits.force_ceiling_n ({ceiling})"
@@ -309,7 +465,7 @@ def parse_protocol(
         trials += new
         used += len(new)
         if kind == TrialKind.LINK_VALIDATION:
-            source_of_estimates = block.string("estimates_from", default="run")
+            source_of_estimates = read_field(block, LinkValidationBlockFields, "estimates_from")
             if source_of_estimates == "run":
                 if not adaptive and not any(t.kind == TrialKind.JOINT_ESTIMATION for t in trials):
                     raise block.error(
@@ -327,29 +483,23 @@ def parse_protocol(
             if estimates_from not in (None, source_of_estimates):
                 raise block.error("estimates_from", "all link_validation blocks must use the same estimates")
             estimates_from = source_of_estimates
-    return Protocol(
-        source=Path(source),
-        text=text,
-        name=name,
-        description=top.string("description", default=""),
-        detector=detector,
-        ramp=ramp,
-        force_ceiling_n=ceiling,
-        step_timeout_margin_s=limits.number(
-            "step_timeout_margin_s", default=5.0, min_value=0.1, max_value=600
-        ),
-        control_period_s=top.number("control_period_s", default=0.02, min_value=0.001, max_value=0.1),
-        estimates_from=estimates_from,
-        trials=tuple(trials),
-        adaptive=tuple(adaptive),
-        estimator=estimator,
-    )
+    given = {
+        "source": Path(source),
+        "text": text,
+        "format": fmt,
+        "name": name,
+        "estimator": estimator,
+        "detector": detector,
+        "ramp": ramp,
+        "trials": tuple(trials),
+        "adaptive": tuple(adaptive),
+        "estimates_from": estimates_from,
+    }
+    return Protocol(**read_fields(top, Protocol, given=given))
 
 
-def _detector(sec: Section) -> dict[str, float | None]:
+def _detector(sec: Section) -> DetectorParams:
     """Detector settings, validated by the model's own parameter type."""
-    from model.slip_detector import DetectorParams
-
     for key, value in sec.data.items():
         if isinstance(value, int) and abs(value) > 1e300:  # beyond the float range
             digits = int(value.bit_length() * math.log10(2)) + 1
@@ -357,35 +507,19 @@ def _detector(sec: Section) -> dict[str, float | None]:
                 str(key), f"an integer of {digits} digits is out of range; allowed: docs/model.md §7"
             )
     try:
-        params = DetectorParams.from_mapping(dict(sec.data), source=f"{sec.source}: detector")
+        return DetectorParams.from_mapping(dict(sec.data), source=f"{sec.source}: detector")
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    return dict(params.to_mapping())
 
 
 def _ramp(sec: Section) -> RampSettings:
-    sec.reject_unknown(
-        [
-            "fast_speed_rad_s",
-            "slow_speed_rad_s",
-            "fast_until_fraction",
-            "max_force_n",
-            "unload_speed_rad_s",
-            "hold_after_slip_s",
-        ]
-    )
-    fast = sec.number("fast_speed_rad_s", default=1.0, min_value=0.001, max_value=20.0)
-    slow = sec.number("slow_speed_rad_s", default=0.1, min_value=0.001, max_value=20.0)
+    reject_undeclared(sec, RampSettings)
+    fast = read_field(sec, RampSettings, "fast_speed_rad_s")
+    slow = read_field(sec, RampSettings, "slow_speed_rad_s")
     if slow > fast:
         raise sec.error("slow_speed_rad_s", f"{slow} must not exceed fast_speed_rad_s ({fast})")
-    return RampSettings(
-        fast_speed_rad_s=fast,
-        slow_speed_rad_s=slow,
-        fast_until_fraction=sec.number("fast_until_fraction", default=0.7, min_value=0.0, max_value=0.95),
-        max_force_n=sec.number("max_force_n", default=40.0, min_value=0.1, max_value=500.0),
-        unload_speed_rad_s=sec.number("unload_speed_rad_s", default=2.0, min_value=0.001, max_value=20.0),
-        hold_after_slip_s=sec.number("hold_after_slip_s", default=0.2, min_value=0.0, max_value=10.0),
-    )
+    values = read_fields(sec, RampSettings, given={"fast_speed_rad_s": fast, "slow_speed_rad_s": slow})
+    return RampSettings(**values)
 
 
 def _steps(block: Section, kind: TrialKind) -> tuple[StepSpec, ...]:
@@ -399,13 +533,15 @@ def _steps(block: Section, kind: TrialKind) -> tuple[StepSpec, ...]:
             options = {} if options is None else options
         else:
             raise block.error(f"steps[{i}]", "expected a step name or a one-key mapping {name: options}")
-        field = f"steps[{i}]"
+        where = f"steps[{i}]"
         if name not in tuple(StepKind):
-            raise block.error(field, f"unknown step '{name}'; allowed: {', '.join(StepKind)}")
+            raise block.error(where, f"unknown step '{name}'; allowed: {', '.join(StepKind)}")
         step = StepKind(name)
         if step in LINK_ONLY_STEPS and kind != TrialKind.LINK_VALIDATION:
-            raise block.error(field, f"step '{name}' needs kind: link_validation")
-        steps.append(_step(step, Section(options, block.source, block.field(field)), kind))
+            raise block.error(where, f"step '{name}' needs kind: link_validation")
+        opts = Section(options, block.source, block.field(where))
+        reject_undeclared(opts, STEP_OPTIONS.get(step, NoOptions))
+        steps.append(_step(step, opts, kind))
     names = [s.kind for s in steps]
     if names.count(StepKind.RAMP_UNTIL_SLIP) != 1:
         raise block.error("steps", "exactly one 'ramp_until_slip' step is required per trial")
@@ -417,23 +553,15 @@ def _steps(block: Section, kind: TrialKind) -> tuple[StepSpec, ...]:
 
 
 def _step(step: StepKind, opts: Section, kind: TrialKind) -> StepSpec:
-    """One step of a template with its options (each kind allows its own, the others none)."""
+    """One step of a template with its options (each kind reads its own; the others have none)."""
     match step:
         case StepKind.PROMPT:
-            opts.reject_unknown(["text"])
             return StepSpec(step, text=_prompt_text(opts, DEFAULT_PROMPTS[kind]))
         case StepKind.PAUSE:
-            opts.reject_unknown(["duration_s"])
-            return StepSpec(
-                step, duration_s=opts.number("duration_s", default=0.5, min_value=0.0, max_value=3600.0)
-            )
+            return StepSpec(step, duration_s=read_field(opts, PauseOptions, "duration_s"))
         case StepKind.TARE:
-            opts.reject_unknown(["settle_s"])
-            return StepSpec(
-                step, duration_s=opts.number("settle_s", default=0.5, min_value=0.05, max_value=60.0)
-            )
+            return StepSpec(step, duration_s=read_field(opts, TareOptions, "settle_s"))
         case StepKind.BEND | StepKind.MEASURE | StepKind.RAMP_UNTIL_SLIP | StepKind.UNLOAD | StepKind.RESET:
-            opts.reject_unknown([])
             return StepSpec(step)
         case _:
             assert_never(step)
@@ -448,13 +576,13 @@ def _joint_estimation_block(
             raise block.error(
                 key, f"{where}only with design: adaptive; allowed here: distances_m, repeats, shuffle"
             )
-    block.reject_unknown(["kind", "design", "joint", *FIXED_KEYS, "steps"])
+    reject_undeclared(block, FixedBlockFields)
     joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
-    distances = block.numbers("distances_m", max_length=MAX_ITEMS, min_value=0.001, max_value=2.0)
-    repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
+    distances = read_field(block, FixedBlockFields, "distances_m")
+    repeats = read_field(block, FixedBlockFields, "repeats")
     steps = _steps(block, TrialKind.JOINT_ESTIMATION)
     order = [(d, r) for r in range(1, repeats + 1) for d in distances]
-    if block.boolean("shuffle", default=False):
+    if read_field(block, FixedBlockFields, "shuffle"):
         rng.shuffle(order)
     return [
         TrialPlan(
@@ -485,40 +613,36 @@ def _adaptive_block(
                 key,
                 "not with design: adaptive (the planner chooses the distances); allowed: distance_range_m",
             )
-    block.reject_unknown(["kind", "design", "joint", *ADAPTIVE_KEYS, "steps"])
+    reject_undeclared(block, AdaptiveBlockFields)
     joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
-    lo, hi = block.numbers("distance_range_m", length=2, min_value=0.001, max_value=2.0)
+    lo, hi = read_field(block, AdaptiveBlockFields, "distance_range_m")
     if not lo < hi:
         raise block.error(
             "distance_range_m", f"[{lo}, {hi}]; allowed: [shortest, longest] with shortest < longest"
         )
-    max_trials = block.integer("max_trials", default=24, min_value=2, max_value=MAX_ITEMS)
+    max_trials = read_field(block, AdaptiveBlockFields, "max_trials")
     min_trials = block.integer("min_trials", default=min(10, max_trials), min_value=2, max_value=max_trials)
     startup = block.integer(
         "startup_trials", default=min(DEFAULT_STARTUP_TRIALS, max_trials), min_value=2, max_value=max_trials
     )
-    estimator = block.string("estimator", default=protocol_estimator, choices=ESTIMATOR_NAMES)
+    estimator = read_field(block, AdaptiveBlockFields, "estimator", default=protocol_estimator)
+
+    def declared(name: str) -> Any:
+        return read_field(block, AdaptiveBlockFields, name)
+
     design = DesignSettings(
         distance_min_m=lo,
         distance_max_m=hi,
-        distance_count=block.integer("distance_count", default=8, min_value=2, max_value=100),
-        target_half_width_rel=block.number(
-            "target_half_width_rel", default=0.02, min_value=0.001, max_value=0.5
-        ),
+        distance_count=declared("distance_count"),
+        target_half_width_rel=declared("target_half_width_rel"),
         max_trials=max_trials,
         min_trials=min_trials,
         startup_trials=startup,
-        min_spread_fraction=block.number(
-            "min_spread_fraction", default=DEFAULT_MIN_SPREAD_FRACTION, min_value=0.0, max_value=0.5
-        ),
+        min_spread_fraction=declared("min_spread_fraction"),
         estimator=check_estimator(estimator),
-        stop_scale_confidence=block.number(
-            "stop_scale_confidence", default=DEFAULT_STOP_SCALE_CONFIDENCE, min_value=0.0, max_value=0.99
-        ),
+        stop_scale_confidence=declared("stop_scale_confidence"),
     )
-    fraction = block.number(
-        "max_force_fraction", default=DEFAULT_MAX_FORCE_FRACTION, min_value=0.1, max_value=0.95
-    )
+    fraction = declared("max_force_fraction")
     return AdaptiveBlock(
         block=b,
         first_trial_id=offset + 1,
@@ -530,8 +654,8 @@ def _adaptive_block(
 
 
 def _link_validation_block(block: Section, b: int, offset: int, joint_count: int | None) -> list[TrialPlan]:
-    block.reject_unknown(["kind", "configurations_deg", "repeats", "estimates_from", "steps"])
-    repeats = block.integer("repeats", default=1, min_value=1, max_value=100)
+    reject_undeclared(block, LinkValidationBlockFields)
+    repeats = read_field(block, LinkValidationBlockFields, "repeats")
     steps = _steps(block, TrialKind.LINK_VALIDATION)
     configs = block.sequence("configurations_deg", min_length=1, max_length=MAX_ITEMS)
     angles: list[tuple[float, ...]] = []
@@ -578,11 +702,9 @@ def _prompt_text(opts: Section, default: str) -> str:
         fields = [(f, spec, conv) for _, f, spec, conv in string.Formatter().parse(text) if f is not None]
     except ValueError as exc:
         raise opts.error("text", f"{exc}; allowed: {allowed}") from None
-    for field, spec, conversion in fields:
-        if field not in PROMPT_FIELDS or conversion is not None or not _PROMPT_SPEC.fullmatch(spec or ""):
-            shown = (
-                "{" + field + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
-            )
+    for name, spec, conversion in fields:
+        if name not in PROMPT_FIELDS or conversion is not None or not _PROMPT_SPEC.fullmatch(spec or ""):
+            shown = "{" + name + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
             raise opts.error("text", f"placeholder {shown!r:.60} is not allowed; allowed: {allowed}")
     return text
 

@@ -1,16 +1,27 @@
 """Validation of YAML-sourced mappings with errors that name the file, the field path and what is allowed.
 
 Rig configs and protocol files are validated through `Section` before anything moves, so every
-message has the same shape: `<file>: <field.path>: <problem>; allowed: <what>`.
+message has the same shape: `<file>: <field.path>: <problem>; allowed: <what>`. A settings dataclass
+whose fields are declared (`model.field_spec`) is read by `read_fields`: the declarations give each
+field's type, bounds and default, and the keys a section may hold.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, cast
 
+from model.field_spec import (
+    Declared,
+    FieldType,
+    declared_fields,
+    keys_within,
+    section_type,
+    top_keys,
+)
 from rig.errors import ConfigError
 
 _MISSING: Any = object()
@@ -151,6 +162,96 @@ class Section:
             raise self.error(key, f"{len(value)} numbers; allowed: at most {max_length}")
         item = Section({}, self.source, self.field(key))
         return [check_number(item, i, v, min_value, max_value, min_exclusive) for i, v in enumerate(value)]
+
+
+def reject_undeclared(sec: Section, cls: type, extra_keys: Iterable[str] = ()) -> None:
+    """Fail on keys of `sec` that no declared field of `cls` (nor `extra_keys`) names."""
+    sec.reject_unknown([*top_keys(cls), *extra_keys])
+
+
+def read_fields(
+    sec: Section, cls: type, *, given: Mapping[str, Any] | None = None, extra_keys: Iterable[str] = ()
+) -> dict[str, Any]:
+    """Every declared field of `cls` read from `sec` by attribute name, after refusing undeclared keys.
+
+    Fields in `given` (attribute names) are the caller's: read with its own code, or not from the
+    file. A custom field must be given. A field declared `within` a sub-mapping is read from it, and
+    that sub-mapping's undeclared keys are refused too; it may be absent if all its fields have defaults.
+    """
+    reject_undeclared(sec, cls, extra_keys)
+    values: dict[str, Any] = dict(given or {})
+    subsections: dict[str, Section] = {}
+    for declared in declared_fields(cls):
+        if declared.name in values:
+            continue
+        where = sec
+        within = declared.spec.within
+        if within:
+            if within not in subsections:
+                inner = [d for d in declared_fields(cls) if d.spec.within == within]
+                optional = all(not d.required for d in inner)
+                subsections[within] = sec.section(within, default={} if optional else _MISSING)
+                subsections[within].reject_unknown(keys_within(cls, within))
+            where = subsections[within]
+        values[declared.name] = read_value(where, cls, declared)
+    return values
+
+
+def read_field(sec: Section, cls: type, name: str, *, default: Any = _MISSING, required: bool = False) -> Any:
+    """One declared field of `cls` (attribute `name`) from `sec`, with another `default`, or `required`."""
+    for declared in declared_fields(cls):
+        if declared.name == name:
+            if required:
+                default = dataclasses.MISSING
+            elif default is _MISSING:
+                default = declared.default
+            return read_value(sec, cls, dataclasses.replace(declared, default=default))
+    raise KeyError(f"{cls.__name__} declares no field {name!r}")
+
+
+def read_value(sec: Section, cls: type, declared: Declared) -> Any:
+    """One declared field's value from `sec` (its key there), checked as declared."""
+    spec, key = declared.spec, declared.key
+    default = _MISSING if declared.required else declared.default
+    lo, hi = spec.bounds.lo, spec.bounds.hi
+    if spec.bounds.hi_open:
+        raise TypeError(f"{cls.__name__}.{declared.name}: a file's field cannot have an open upper bound")
+    match spec.type:
+        case FieldType.NUMBER:
+            return sec.number(
+                key, default=default, min_value=lo, max_value=hi, min_exclusive=spec.bounds.lo_open
+            )
+        case FieldType.INTEGER:
+            return sec.integer(
+                key,
+                default=default,
+                min_value=None if lo is None else int(lo),
+                max_value=None if hi is None else int(hi),
+            )
+        case FieldType.TEXT:
+            return sec.string(key, default=default)
+        case FieldType.CHOICE:
+            name = sec.string(key, default=default, choices=spec.choices)
+            return name if spec.choice_type is None or name is None else spec.choice_type(name)
+        case FieldType.FLAG:
+            return sec.boolean(key, default=default)
+        case FieldType.NUMBERS:
+            values = sec.numbers(
+                key,
+                length=spec.length,
+                min_length=spec.min_length,
+                max_length=spec.max_length,
+                min_value=lo,
+                max_value=hi,
+                default=default if default is _MISSING else list(default),
+            )
+            return tuple(values)
+        case FieldType.SECTION:
+            inner = section_type(cls, declared.name)
+            nested = sec.section(key, default=_MISSING if declared.required else {})
+            return inner(**read_fields(nested, inner))
+        case FieldType.CUSTOM:
+            raise TypeError(f"{cls.__name__}.{declared.name}: a custom field is read by its owner's code")
 
 
 def check_number(

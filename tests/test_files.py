@@ -111,3 +111,21 @@ def test_json_bounds(text, message):
 def test_json_may_allow_nan():
     value = parse_json("[NaN, 1]", "j", allow_nan=True)
     assert value[0] != value[0] and value[1] == 1
+
+
+def test_one_out_dir_rule(tmp_path):
+    from rig.files import check_out_dir
+
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    check_out_dir(tmp_path)  # an existing writable directory
+    check_out_dir(tmp_path / "new" / "deeper")  # one that can be made
+    for out, message in [
+        (blocker, f"--out {blocker}: not a directory; allowed"),
+        (blocker / "sub", f"--out {blocker / 'sub'}: {blocker} is not a directory; allowed"),
+    ]:
+        with pytest.raises(InputError) as excinfo:
+            check_out_dir(out)
+        assert str(excinfo.value).startswith(message)
+    with pytest.raises(InputError, match="no such directory; nothing to resume there"):
+        check_out_dir(tmp_path / "missing", must_exist=True)

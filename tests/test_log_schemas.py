@@ -39,6 +39,7 @@ EXPECTED = {
     "/rig/slip": "rig.SlipEvent",
     "/rig/trial/result": "rig.TrialResult",
     "/rig/estimate": "rig.Estimate",
+    "/rig/trial/links": "rig.TrialLinkStats",
     "/rig/log": "foxglove.Log",
 }
 

@@ -197,8 +197,8 @@ def test_redetection_parameters_move_the_peaks_the_expected_way(logs):
     assert patient.detector.drop_fraction == 0.19 and patient.detector.arm_threshold_n == 1.0
     # The refit uses the re-detected peaks.
     eager_result = replay(logs["link"].log, HAIR_TRIGGER)
-    assert eager_result.redetected_estimate["k"] < eager_result.estimate["k"]
-    assert eager_result.redetection_summary()["source"] == "command line"
+    assert eager_result.redetected_estimate.fit.k < eager_result.estimate.fit.k
+    assert eager_result.redetection_summary().source == "command line"
 
 
 @pytest.mark.parametrize(

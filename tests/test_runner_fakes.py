@@ -330,7 +330,7 @@ def test_further_drops_after_a_slip_make_it_a_stick_slip_and_replay_counts_them(
     assert report.trials[1].peak_force_n == pytest.approx(SLIP_FORCES_N[1], abs=0.05)
     # Replay finds the same events and counts the same further drops from the logged samples.
     replayed = replay(tmp_path / "out")
-    assert replayed.redetection_summary()["by_status"] == {"match": 3}
+    assert replayed.redetection_summary().by_status == {"match": 3}
     assert [r.train_drops for r in replayed.redetections] == [0, 2, 0]
     assert list(replayed.table["outcome"]) == ["slip", "stick_slip", "slip"]
 

@@ -10,10 +10,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rig.rig_config import CapacityScatter, SlipKindMix
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld, SlipKind, TrialKind
+from rig.sim_config import CapacityScatter, SlipKindMix
 from tests.helpers import ScriptedShaft
 
 MS = 1_000_000

@@ -10,7 +10,7 @@ import pytest
 
 from rig.errors import ConfigError
 from rig.log.records import TrialOutcome
-from rig.rig_config import FaultConfig, load_rig_config
+from rig.rig_config import load_rig_config
 from rig.rigs import open_session
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
@@ -21,6 +21,7 @@ from rig.sim.object_devices import ObjectLoadCell
 from rig.sim.object_rig import object_simulated_rig
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.simulated_rig import simulated_rig
+from rig.sim_config import FaultConfig
 
 REPO = Path(__file__).resolve().parents[1]
 JOINT_ESTIMATION = REPO / "protocols" / "joint_estimation.yaml"

@@ -1,10 +1,12 @@
 """`rig replay` without the CLI: read a run's logs, rebuild its trials, re-detect, refit, compare.
 
 `replay(paths, detector_overrides)` returns a `ReplayResult` holding the trial table, the three
-estimates (offline refit of the logged results, the last online estimate, the refit of re-detected
-peaks), the re-detection outcome per trial, and for link-validation runs the Table IV and Table V
-statistics. Its warnings name, among others, the trials that lost load-cell samples (`gaps`).
-`ReplayResult.as_json()` is the `rig replay --json` object.
+estimates (offline refit of the logged results and refit of re-detected peaks as the runner's
+`EstimateSummary`, the last online estimate as the `Estimate` record the runner logged), their
+agreement, the re-detection outcome per trial, and for link-validation runs the Table IV and
+Table V statistics: typed records, turned into JSON only by `as_json()`. Its warnings name, among
+others, the trials that lost load-cell samples (`gaps`). `ReplayResult.as_json()` is the
+`rig replay --json` object.
 """
 
 from __future__ import annotations
@@ -13,15 +15,19 @@ import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import pandas as pd
 
+from model.estimate_summary import EstimateSummary
 from model.estimators import ESTIMATOR_NAMES, EstimatorName
 from model.slip_detector import DetectorParams
 from rig.analysis import redetect as rd
 from rig.analysis.gaps import sample_gap_warnings
 from rig.analysis.refit import (
+    BaseMoments,
+    EstimateAgreement,
+    PayloadErrors,
     base_moments,
     compare_estimates,
     joint_estimation_points,
@@ -39,8 +45,41 @@ from rig.analysis.runlog import (
 from rig.analysis.trials import TrialRecord, records_json, trial_records, trial_table
 from rig.log import schemas
 from rig.log.frames import frame_payloads
-from rig.log.records import Estimate
+from rig.log.records import Estimate, TrialLinkStats
 from rig.vocabulary import TrialKind
+
+
+@dataclass(frozen=True)
+class RedetectionSummary:
+    """How re-detection compares with the logged events: matches, and the trials that differ."""
+
+    detector: DetectorParams  # the parameters re-detection used
+    source: str  # where they came from: "command line", "protocol metadata", ...
+    overrides: tuple[str, ...]  # `--detector key=value` assignments
+    trials: int
+    matches: int
+    mismatches: tuple[rd.Redetection, ...]
+    by_status: dict[str, int]
+
+    @property
+    def exact(self) -> bool:
+        """Whether re-detection used the logged parameters (so every trial should match)."""
+        return not self.overrides
+
+    def as_json(self) -> dict[str, Any]:
+        """The `redetection` object of `rig replay --json`."""
+        return {
+            "detector": self.detector.to_mapping(),
+            "source": self.source,
+            "overrides": list(self.overrides),
+            "trials": self.trials,
+            "matches": self.matches,
+            "mismatches": [
+                {"trial_id": r.trial_id, "status": r.status, "detail": r.detail} for r in self.mismatches
+            ],
+            "by_status": self.by_status,
+            "exact": self.exact,
+        }
 
 
 @dataclass
@@ -52,16 +91,17 @@ class ReplayResult:
     records: list[TrialRecord]
     table: pd.DataFrame
     estimates: list[Estimate]  # the logged /rig/estimate messages, in run order
-    estimate: dict[str, Any] | None
-    online_estimate: dict[str, Any] | None
-    redetected_estimate: dict[str, Any] | None
-    agreement: dict[str, Any]
+    estimate: EstimateSummary | None  # the offline refit of the logged peaks
+    online_estimate: Estimate | None  # the last logged estimate, if it has a fit
+    redetected_estimate: EstimateSummary | None  # the refit of the re-detected peaks
+    agreement: EstimateAgreement  # of `estimate` and `online_estimate`
     detector: DetectorParams
     detector_overrides: list[str]
     redetections: list[rd.Redetection]
-    percentage_errors: dict[str, Any] | None
-    base_moments: dict[str, Any] | None
+    percentage_errors: PayloadErrors | None
+    base_moments: BaseMoments | None
     warnings: list[str] = field(default_factory=list)
+    links: list[TrialLinkStats] = field(default_factory=list)  # per trial; logs before 2026-11-27 have none
 
     @property
     def files(self) -> list[Path]:
@@ -78,25 +118,20 @@ class ReplayResult:
         """Whether the run has link-validation trials."""
         return bool((self.table["kind"] == TrialKind.LINK_VALIDATION).any())
 
-    def redetection_summary(self) -> dict[str, Any]:
+    def redetection_summary(self) -> RedetectionSummary:
         """Matches and mismatches of re-detection against the logged events."""
         by_status: dict[str, int] = {}
         for r in self.redetections:
             by_status[r.status] = by_status.get(r.status, 0) + 1
-        return {
-            "detector": self.detector.to_mapping(),
-            "source": "command line" if self.detector_overrides else self.settings.detector_source,
-            "overrides": list(self.detector_overrides),
-            "trials": len(self.redetections),
-            "matches": by_status.get(rd.MATCH, 0),
-            "mismatches": [
-                {"trial_id": r.trial_id, "status": r.status, "detail": r.detail}
-                for r in self.redetections
-                if r.status != rd.MATCH
-            ],
-            "by_status": by_status,
-            "exact": not self.detector_overrides,
-        }
+        return RedetectionSummary(
+            detector=self.detector,
+            source="command line" if self.detector_overrides else self.settings.detector_source,
+            overrides=tuple(self.detector_overrides),
+            trials=len(self.redetections),
+            matches=by_status.get(rd.MATCH, 0),
+            mismatches=tuple(r for r in self.redetections if r.status != rd.MATCH),
+            by_status=by_status,
+        )
 
     def as_json(self) -> dict[str, Any]:
         """The `rig replay --json` object."""
@@ -107,15 +142,17 @@ class ReplayResult:
             "run_id": self.settings.run_id,
             "protocol": self.settings.protocol_name,
             "trials": records_json(self.table),
-            "estimate": self.estimate,
-            "online_estimate": self.online_estimate,
-            "online_agreement": self.agreement,
-            "redetected_estimate": self.redetected_estimate,
-            "redetection": self.redetection_summary(),
+            "estimate": _json_or_none(self.estimate),
+            "online_estimate": online_estimate_json(self.online_estimate),
+            "online_agreement": self.agreement.as_json(),
+            "redetected_estimate": _json_or_none(self.redetected_estimate),
+            "redetection": self.redetection_summary().as_json(),
         }
+        if self.links:
+            out["links"] = [links.to_payload() for links in self.links]
         if self.has_link_validation:
-            out["percentage_errors"] = self.percentage_errors
-            out["base_moments"] = self.base_moments
+            out["percentage_errors"] = _json_or_none(self.percentage_errors)
+            out["base_moments"] = _json_or_none(self.base_moments)
             joints = self.final_joint_estimates()
             out["joints"] = joints
         if self.settings.truth is not None:
@@ -153,9 +190,10 @@ def replay(
     warnings.extend(sample_gap_warnings(records))
     estimates = _logged_estimates(parts)
     online = _online_estimate(estimates)
-    level = online["level"] if online and online.get("level") else settings.level
-    constant = online["constant"] if online and online.get("constant") else settings.constant
-    radius = online["radius_m"] if online and online.get("radius_m") else settings.radius_m
+    online_fit = online.fit if online is not None else None
+    level = online_fit.level if online_fit and online_fit.level else settings.level
+    constant = online_fit.constant if online_fit and online_fit.constant else settings.constant
+    radius = online_fit.radius_m if online_fit and online_fit.radius_m else settings.radius_m
     if settings.radius_m is None and radius is None:
         warnings.append("joint radius unknown (no rig metadata): no fit")
 
@@ -199,12 +237,12 @@ def replay(
         g=settings.g,
         estimator=estimator,
     )
-    agreement = compare_estimates(estimate, online)
-    if agreement["compared"] and not agreement["agree"]:
+    agreement = compare_estimates(_json_or_none(estimate), online_estimate_json(online))
+    if agreement.compared and not agreement.agree:
         warnings.append(
             "the offline refit differs from the last online estimate in "
-            f"{', '.join(agreement['differing'])} (max relative difference "
-            f"{agreement['max_relative_difference']:.3g})"
+            f"{', '.join(agreement.differing)} (max relative difference "
+            f"{agreement.max_relative_difference:.3g})"
         )
 
     all_warnings = [w for part in parts for w in part.log.warnings] + warnings
@@ -224,6 +262,7 @@ def replay(
         percentage_errors=payload_errors(table),
         base_moments=base_moments(table),
         warnings=list(dict.fromkeys(all_warnings)),
+        links=_trial_links(parts),
     )
 
 
@@ -233,6 +272,16 @@ def _logged_estimates(parts: Sequence[LogPart]) -> list[Estimate]:
         Estimate.from_payload(payload)
         for part in parts
         for _, payload in frame_payloads(part.log.topic(schemas.ESTIMATE))
+    ]
+
+
+def _trial_links(parts: Sequence[LogPart]) -> list[TrialLinkStats]:
+    """Every `/rig/trial/links` message of the run (the servo bus's and load cell's counts per trial)."""
+    return [
+        TrialLinkStats.from_payload(payload)
+        for part in parts
+        if part.log.message_counts.get(schemas.TRIAL_LINKS)
+        for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_LINKS))
     ]
 
 
@@ -246,13 +295,26 @@ def _run_estimator(estimates: list[Estimate], warnings: list[str]) -> EstimatorN
     return "paper"
 
 
-def _online_estimate(estimates: list[Estimate]) -> dict[str, Any] | None:
-    """The last logged online estimate with a fit, as `rig fit --json` keys (None if none has one).
+def _online_estimate(estimates: list[Estimate]) -> Estimate | None:
+    """The last logged online estimate, if it has a fit."""
+    last = estimates[-1] if estimates else None
+    return None if last is None or last.fit is None else last
+
+
+class _AsJson(Protocol):
+    def as_json(self) -> dict[str, Any]: ...
+
+
+def _json_or_none(record: _AsJson | None) -> dict[str, Any] | None:
+    return None if record is None else record.as_json()
+
+
+def online_estimate_json(last: Estimate | None) -> dict[str, Any] | None:
+    """A logged online estimate as `rig fit --json` keys (None without one or without a fit).
 
     With `estimator`, and the paper's fit under `paper` (the keys the log carries) when the run's
     estimator was another one.
     """
-    last = estimates[-1] if estimates else None
     if last is None or last.fit is None:
         return None
     out = {**last.fit.as_json(), "estimator": last.estimator}

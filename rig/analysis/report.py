@@ -128,9 +128,10 @@ def _joint_data(result: ReplayResult, column: str) -> tuple[np.ndarray, np.ndarr
 
 
 def _fit_figure(result: ReplayResult) -> tuple[Figure, str] | str:
-    est = result.estimate
-    if not est:
+    summary = result.estimate
+    if summary is None:
         return "fewer than 2 joint-estimation slips (or no joint radius): no fit"
+    est, chosen = summary.fit, summary.estimate
     distances, masses = _joint_data(result, "slip_mass_kg")
     fig = Figure(figsize=(7.5, 5.0), layout="constrained")
     ax = fig.add_subplot()
@@ -138,53 +139,52 @@ def _fit_figure(result: ReplayResult) -> tuple[Figure, str] | str:
     grid = np.linspace(
         max(distances.min() - 0.08 * span, 0.4 * distances.min()), distances.max() + 0.08 * span, 300
     )
-    k, (k_lo, k_hi) = est["k"], est["k_ci"]
-    level_pct = f"{100 * est['level']:g} %"
-    t = t_quantile(est["level"], est["dfe"])
+    k, (k_lo, k_hi) = est.k, est.k_ci
+    level_pct = f"{100 * est.level:g} %"
+    t = t_quantile(est.level, est.dfe)
     x = 1.0 / grid
-    scatter_sd = est["rmse"]
-    if est.get("estimator") not in (None, "paper") and est.get("scatter_a_kg") is not None:
+    scatter_sd: float | np.ndarray = est.rmse
+    if chosen.estimator != "paper" and chosen.scatter_a_kg is not None:
         # The estimator's own scatter model: sd(m)² = a² + (b·m)².
-        scatter_sd = np.hypot(est["scatter_a_kg"], est["scatter_b"] * k * x)
-    half_prediction = t * np.sqrt(scatter_sd**2 + (est["se"] * x) ** 2)
+        scatter_sd = np.hypot(chosen.scatter_a_kg, chosen.scatter_b * k * x)
+    half_prediction = t * np.sqrt(scatter_sd**2 + (est.se * x) ** 2)
     ax.fill_between(
         grid, k_lo * x, k_hi * x, color=BAND_COLOR, alpha=0.18, label=f"{level_pct} bounds on k/l"
     )
     ax.plot(grid, k * x - half_prediction, "--", color="0.45", lw=1)
     ax.plot(grid, k * x + half_prediction, "--", color="0.45", lw=1, label=f"{level_pct} prediction bounds")
-    name = est.get("estimator", "paper")
-    fit_label = f"fit m = k/l ({name}), k = {k:.4f} kg·m (n = {est['n']})"
+    fit_label = f"fit m = k/l ({chosen.estimator}), k = {k:.4f} kg·m (n = {est.n})"
     ax.plot(grid, k * x, color=BAND_COLOR, lw=2, label=fit_label)
-    paper = est.get("paper")
-    if est.get("estimator") not in (None, "paper") and paper:
+    paper = summary.paper
+    if chosen.estimator != "paper" and paper is not None:
         ax.plot(
             grid,
-            paper["k"] * x,
+            paper.k * x,
             "-.",
             color="0.25",
             lw=1.2,
-            label=f"paper's fit, k = {paper['k']:.4f} kg·m [{paper['k_ci'][0]:.4f}, {paper['k_ci'][1]:.4f}]",
+            label=f"paper's fit, k = {paper.k:.4f} kg·m [{paper.k_ci[0]:.4f}, {paper.k_ci[1]:.4f}]",
         )
     ax.plot(distances, masses, "o", color="black", ms=5, label="slip mass (logged peaks)")
     re_est = result.redetected_estimate
-    if result.detector_overrides and re_est:
+    if result.detector_overrides and re_est is not None:
         re_d, re_m = _joint_data(result, "redetected_slip_mass_kg")
         ax.plot(re_d, re_m, "s", mfc="none", color=REDETECTED_COLOR, ms=7, label="slip mass (re-detected)")
         ax.plot(
             grid,
-            re_est["k"] * x,
+            re_est.fit.k * x,
             ":",
             color=REDETECTED_COLOR,
             lw=2,
-            label=f"refit, k = {re_est['k']:.4f} kg·m",
+            label=f"refit, k = {re_est.fit.k:.4f} kg·m",
         )
     ax.set_ylim(0, masses.max() * 1.35)
     ax.set_xlim(grid[0], grid[-1])
     ax.set_xlabel("distance l from the joint centre [m]")
     ax.set_ylabel("slip mass m_s [kg]")
     ax.set_title(
-        f"Joint estimation (cf. paper Fig. 7): capacity {est['capacity_nm']:.3f} N·m "
-        f"[{est['capacity_ci_nm'][0]:.3f}, {est['capacity_ci_nm'][1]:.3f}]",
+        f"Joint estimation (cf. paper Fig. 7): capacity {est.capacity_nm:.3f} N·m "
+        f"[{est.capacity_ci_nm[0]:.3f}, {est.capacity_ci_nm[1]:.3f}]",
         fontsize=10,
     )
     ax.grid(alpha=0.3)
@@ -193,25 +193,23 @@ def _fit_figure(result: ReplayResult) -> tuple[Figure, str] | str:
 
 
 def _residuals_figure(result: ReplayResult) -> tuple[Figure, str] | str:
-    est = result.estimate
-    if not est:
+    if result.estimate is None:
         return "no fit, so no residuals"
+    est = result.estimate.fit
     distances, masses = _joint_data(result, "slip_mass_kg")
-    residuals = masses - est["k"] / distances
+    residuals = masses - est.k / distances
     fig = Figure(figsize=(7.5, 4.0), layout="constrained")
     ax = fig.add_subplot()
     ax.axhline(0, color="black", lw=1)
-    ax.axhline(est["rmse"], color="0.5", ls="--", lw=1, label=f"± RMSE = {est['rmse']:.4f} kg")
-    ax.axhline(-est["rmse"], color="0.5", ls="--", lw=1)
+    ax.axhline(est.rmse, color="0.5", ls="--", lw=1, label=f"± RMSE = {est.rmse:.4f} kg")
+    ax.axhline(-est.rmse, color="0.5", ls="--", lw=1)
     ax.vlines(distances, 0, residuals, color=MEASURED_COLOR, lw=1)
     ax.plot(distances, residuals, "o", color=MEASURED_COLOR, ms=5, label="residual m_s − k/l")
-    limit = max(np.abs(residuals).max(), est["rmse"]) * 1.3
+    limit = max(np.abs(residuals).max(), est.rmse) * 1.3
     ax.set_ylim(-limit, limit)
     ax.set_xlabel("distance l from the joint centre [m]")
     ax.set_ylabel("residual [kg]")
-    ax.set_title(
-        f"Residuals of the fit (cf. paper Fig. 8): SSE {est['sse']:.4g} kg², n = {est['n']}", fontsize=10
-    )
+    ax.set_title(f"Residuals of the fit (cf. paper Fig. 8): SSE {est.sse:.4g} kg², n = {est.n}", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     return fig, "Residuals of the joint-estimation fit against distance (paper Fig. 8)."
@@ -249,30 +247,29 @@ def _payload_figure(result: ReplayResult) -> tuple[Figure, str] | str:
 
 
 def _errors_figure(result: ReplayResult) -> tuple[Figure, str] | str:
-    pe = result.percentage_errors
-    if not pe:
+    if result.percentage_errors is None:
         return "no link-validation slips with a prediction"
-    errors = np.asarray(pe["percentage_errors"], float)
+    pe = result.percentage_errors.stats
+    errors = np.asarray(pe.percentage_errors, float)
     fig = Figure(figsize=(7.5, 4.0), layout="constrained")
     ax = fig.add_subplot()
     top = max(20.0, 2.5 * math.ceil(errors.max() / 2.5 + 1))
     ax.hist(errors, bins=list(np.arange(0, top + 2.5, 2.5)), color=MEASURED_COLOR, edgecolor="white")
-    for threshold, share in pe["share_below_pct"].items():
-        value = float(threshold)
+    for threshold, share in pe.share_below_pct:
         ax.axvline(
-            value,
+            threshold,
             color=PREDICTED_COLOR,
             ls="--",
             lw=1.5,
-            label=f"{100 * share:.1f} % of trials below {threshold} %",
+            label=f"{100 * share:.1f} % of trials below {threshold:g} %",
         )
     ax.set_xlabel("percentage error |predicted − measured| / measured [%]")
     ax.set_ylabel("trials")
     ax.yaxis.set_major_locator(MaxNLocator(integer=True))
-    std = pe["std_pct"]
+    std = pe.std_pct
     std_text = f"{std:.2f}" if std is not None and not math.isnan(std) else "n/a"
     ax.set_title(
-        f"Percentage errors (cf. paper Fig. 12): mean {pe['mean_pct']:.2f} % ± {std_text} %, n = {pe['n']}",
+        f"Percentage errors (cf. paper Fig. 12): mean {pe.mean_pct:.2f} % ± {std_text} %, n = {pe.n}",
         fontsize=10,
     )
     ax.grid(alpha=0.3, axis="y")
@@ -423,27 +420,37 @@ def _markdown(result: ReplayResult, figures: dict[str, str], skipped: dict[str, 
         lines += ["## Warnings", ""] + [f"* {w}" for w in result.warnings] + [""]
     lines += ["## Estimates", "", summary.markdown_table(summary.estimates_table(result)), ""]
     agreement = result.agreement
-    if agreement["compared"]:
-        verdict = "agree" if agreement["agree"] else f"differ in {', '.join(agreement['differing'])}"
+    if agreement.compared:
+        verdict = "agree" if agreement.agree else f"differ in {', '.join(agreement.differing)}"
         lines += [
             f"Offline refit and last online estimate {verdict} "
-            f"(largest relative difference {agreement['max_relative_difference']:.3g}).",
+            f"(largest relative difference {agreement.max_relative_difference:.3g}).",
             "",
         ]
     red = result.redetection_summary()
-    params = ", ".join(f"{k}={v}" for k, v in red["detector"].items())
+    params = ", ".join(f"{k}={v}" for k, v in red.detector.to_mapping().items())
     lines += [
         "## Re-detection",
         "",
-        f"Detector ({red['source']}): {params}.",
+        f"Detector ({red.source}): {params}.",
         "",
-        f"{red['matches']} of {red['trials']} trials reproduce the logged slip event exactly."
-        if red["exact"]
-        else f"{red['matches']} of {red['trials']} trials give the logged event; the others changed.",
+        f"{red.matches} of {red.trials} trials reproduce the logged slip event exactly."
+        if red.exact
+        else f"{red.matches} of {red.trials} trials give the logged event; the others changed.",
         "",
     ]
-    if red["mismatches"]:
-        lines += [f"* trial {m['trial_id']} ({m['status']}): {m['detail']}" for m in red["mismatches"]] + [""]
+    if red.mismatches:
+        lines += [f"* trial {m.trial_id} ({m.status}): {m.detail}" for m in red.mismatches] + [""]
+    links = summary.links_table(result)
+    if links is not None:
+        lines += [
+            "## Device links per trial",
+            "",
+            "What the servo bus's exchanges and the load cell's serial line delivered and lost.",
+            "",
+            summary.markdown_table(links),
+            "",
+        ]
     table_iv = summary.payload_errors_table(result)
     if table_iv is not None:
         lines += [

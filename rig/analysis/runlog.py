@@ -160,7 +160,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
             settings.plans = {t.trial_id: t for t in protocol.trials}
             settings.hold_after_slip_s = protocol.ramp.hold_after_slip_s
             if settings.detector is None:
-                settings.detector = dict(protocol.detector)
+                settings.detector = protocol.detector.to_mapping()
                 settings.detector_source = "protocol attachment"
         except (RigError, ValueError, yaml.YAMLError) as exc:
             warnings.append(

@@ -34,7 +34,8 @@ trial table as trials.csv and trials.parquet. DIR must be new or empty; it appea
 at all.
 
 JSON (--json): files, complete, warnings, trials, estimate (offline refit, `rig fit --json` keys),
-online_estimate, online_agreement, redetected_estimate, redetection; for link-validation runs also
+online_estimate, online_agreement, redetected_estimate, redetection, links (per trial: the servo
+bus's and load-cell line's counts; logs from before 2026-11-27 have none); for link-validation runs also
 percentage_errors, base_moments and joints; under simulation truth.
 Exit codes: 0 done (also for damaged files, with warnings); 2 invalid input (missing or non-MCAP
 file, no rig message readable, bad --detector value, unusable --report directory).
@@ -141,7 +142,13 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _text(result: ReplayResult) -> str:
-    from rig.analysis.summary import base_moments_table, estimates_table, payload_errors_table, trials_table
+    from rig.analysis.summary import (
+        base_moments_table,
+        estimates_table,
+        links_table,
+        payload_errors_table,
+        trials_table,
+    )
 
     s = result.settings
     lines = [
@@ -151,18 +158,17 @@ def _text(result: ReplayResult) -> str:
     lines += [f"warning: {w}" for w in result.warnings]
     lines += ["", format_table(*trials_table(result)), "", format_table(*estimates_table(result))]
     agreement = result.agreement
-    if agreement["compared"]:
-        verdict = "agree" if agreement["agree"] else "DIFFER in " + ", ".join(agreement["differing"])
+    if agreement.compared:
+        verdict = "agree" if agreement.agree else "DIFFER in " + ", ".join(agreement.differing)
         lines.append(
             f"offline refit and last online estimate {verdict} "
-            f"(max relative difference {agreement['max_relative_difference']:.3g})"
+            f"(max relative difference {agreement.max_relative_difference:.3g})"
         )
     red = result.redetection_summary()
-    lines.append(
-        f"re-detection ({red['source']}): {red['matches']} of {red['trials']} trials give the logged event"
-    )
-    lines += [f"  trial {m['trial_id']} {m['status']}: {m['detail']}" for m in red["mismatches"]]
+    lines.append(f"re-detection ({red.source}): {red.matches} of {red.trials} trials give the logged event")
+    lines += [f"  trial {m.trial_id} {m.status}: {m.detail}" for m in red.mismatches]
     for title, table in (
+        ("device links per trial (servo bus exchanges, load-cell lines)", links_table(result)),
         ("payload errors (Table IV)", payload_errors_table(result)),
         ("base moment at slip (Table V)", base_moments_table(result)),
     ):

@@ -4,20 +4,21 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
+from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
-from rig.rig_config import DEFAULT_RIG_CONFIG
+from rig.files import check_out_dir
 from rig.vocabulary import DeviceLevel
 
 if TYPE_CHECKING:
     from model.estimate_summary import EstimateSummary
     from model.fit import FitSummary
+    from model.payload_errors import PayloadErrorStats
     from rig.log.live import LivePublisher
     from rig.runner.run import RunReport, RunRequest
 
@@ -58,14 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("protocol", type=Path, metavar="PROTOCOL", help="protocol YAML (see protocols/README.md)")
-    p.add_argument(
-        "--rig",
-        type=Path,
-        default=None,
-        metavar="CONFIG",
-        help=f"rig config YAML (default: the built-in simulated rig, {DEFAULT_RIG_CONFIG})",
-    )
+    add_protocol_and_rig(p)
     p.add_argument(
         "--out", type=Path, default=Path("logs"), metavar="DIR", help="where logs go (default: logs/)"
     )
@@ -119,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
     if args.resume is not None and args.run_id is not None:
         raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
-    _check_out_dir(args.out)
+    check_out_dir(args.out)
     if args.dry_run:
         return _dry_run(args)
     # Everything is validated before anything is written (the --out directory, the lock, the journal):
@@ -176,51 +170,33 @@ def _dry_run(args: argparse.Namespace) -> int:
     check_session_inputs(prepared.config)
     plan = plan_summary(prepared.protocol, prepared.config)
     if args.json:
-        emit_json(plan)
+        emit_json(plan.as_json())
         return 0
     rows = []
-    for t in plan["trials"]:
-        where = (
-            f"{t['distance_m']:.3f} m"
-            if t["distance_m"] is not None
-            else f"config {t['configuration_index']}"
-        )
-        rows.append([t["trial_id"], t["kind"], where, t["repeat"], " ".join(t["steps"])])
-    adaptive = plan.get("adaptive", [])
-    count = f"{len(rows)} trials" if not adaptive else f"{len(rows)} trials planned ahead"
-    print(f"protocol {plan['protocol']} on rig {plan['rig']} ({plan['rig_kind']}): {count}\n")
+    for t in plan.trials:
+        where = f"{t.distance_m:.3f} m" if t.distance_m is not None else f"config {t.configuration_index}"
+        rows.append([t.trial_id, t.kind, where, t.repeat, " ".join(t.steps)])
+    count = f"{len(rows)} trials" if not plan.adaptive else f"{len(rows)} trials planned ahead"
+    print(f"protocol {plan.protocol} on rig {plan.rig} ({plan.rig_kind}): {count}\n")
     print(format_table(["trial", "kind", "distance / config", "repeat", "steps"], rows))
-    for block in adaptive:
-        startup = ", ".join(str(block["first_trial_id"] + i) for i in range(block["startup_trials"]))
+    for block in plan.adaptive:
+        startup = ", ".join(str(block.first_trial_id + i) for i in range(block.startup_trials))
         print(
-            f"\nblock {block['block']} (adaptive, joint {block['joint']}): trials {startup} are its start-up "
+            f"\nblock {block.block} (adaptive, joint {block.joint}): trials {startup} are its start-up "
             f"(a distance whose predicted slip force is too high is replaced by the shortest safe one); "
-            f"{block['text']}"
+            f"{block.text}"
         )
     print("\nlimit checks:")
     print(
         format_table(
             ["check", "value", "limit", "ok"],
-            [[c["check"], c["value"], c["limit"], "yes" if c["ok"] else "NO"] for c in plan["limit_checks"]],
+            [[c.name, c.value, c.limit, "yes" if c.ok else "NO"] for c in plan.limit_checks],
         )
     )
-    minutes = plan["estimated_duration_s"] / 60
-    print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan['duration_assumption']})")
+    minutes = plan.estimated_duration_s / 60
+    print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan.duration_assumption})")
     print("dry run: nothing was moved")
     return 0
-
-
-def _check_out_dir(out: Path) -> None:
-    """The --out directory exists and is writable, or can be made (the run writes its log there)."""
-    existing = out
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise InputError(
-            f"--out {out}: {existing} is not a directory; allowed: a directory for the run's files"
-        )
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise InputError(f"--out {out}: {existing} is not writable; allowed: a directory for the run's files")
 
 
 def _request(args: argparse.Namespace) -> RunRequest:
@@ -284,7 +260,7 @@ def _summary(report: RunReport) -> str:
         )
     pe = report.percentage_errors
     if pe is not None:
-        lines.append(_percentage_text(pe.to_dict()))
+        lines.append(_percentage_text(pe))
     if report.truth is not None:
         lines.append(_truth_text(report.truth, est))
     return "\n\n".join(lines)
@@ -326,11 +302,11 @@ def _estimator_text(detail: EstimateSummary) -> str:
     return text
 
 
-def _percentage_text(pe: dict[str, Any]) -> str:
-    parts = [f"link validation: {len(pe['percentage_errors'])} predictions"]
-    parts.append(f"percentage error mean {pe['mean_pct']:.2f} % ± {pe['std_pct']:.2f} %")
-    for threshold, share in pe.get("share_below_pct", {}).items():
-        parts.append(f"{share * 100:.1f} % of errors below {threshold} %")
+def _percentage_text(pe: PayloadErrorStats) -> str:
+    parts = [f"link validation: {len(pe.percentage_errors)} predictions"]
+    parts.append(f"percentage error mean {pe.mean_pct:.2f} % ± {pe.std_pct:.2f} %")
+    for threshold, share in pe.share_below_pct:
+        parts.append(f"{share * 100:.1f} % of errors below {threshold:g} %")
     return "; ".join(parts)
 
 

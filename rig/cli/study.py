@@ -8,7 +8,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rig.cli.output import emit_json, format_table
+from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import ExitCode, InputError
+from rig.files import check_out_dir
 from rig.vocabulary import DeviceLevel, RigKind, TrialKind
 
 if TYPE_CHECKING:
@@ -67,14 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("protocol", type=Path, metavar="PROTOCOL", help="protocol YAML (see protocols/README.md)")
-    p.add_argument(
-        "--rig",
-        type=Path,
-        default=None,
-        metavar="CONFIG",
-        help="simulated rig config YAML (default: the built-in simulated rig)",
-    )
+    add_protocol_and_rig(p, simulated_only=True)
     p.add_argument(
         "--seeds",
         required=True,
@@ -122,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     seeds = parse_seeds(args.seeds)
     jobs = _jobs(args.jobs)
     if args.out is not None:
-        _check_out_dir(args.out)
+        check_out_dir(args.out)
     spec = _checked_spec(args)
     if args.scheduler is not None:
         require_dask()  # a missing extra is an input error before anything runs
@@ -147,16 +142,6 @@ def _jobs(jobs: int | None) -> int:
     if not 1 <= jobs <= 256:
         raise InputError(f"--jobs {jobs}: allowed: 1 to 256")
     return int(jobs)
-
-
-def _check_out_dir(out: Path) -> None:
-    existing = out
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
-        raise InputError(
-            f"--out {out}: {existing} is not a writable directory; allowed: a directory to write to"
-        )
 
 
 def _checked_spec(args: argparse.Namespace) -> StudySpec:

@@ -10,9 +10,12 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
-from typing import NamedTuple, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from rig.hw.dxl.transport import BusStats  # the driver's counters (it imports this module)
 
 
 class OperatingMode(IntEnum):
@@ -208,6 +211,16 @@ class LineStatsSource(Protocol):
 
     def line_stats(self) -> LoadCellLineStats:
         """The counts since the port was last opened (a snapshot; safe from any thread)."""
+        ...
+
+
+@runtime_checkable
+class BusStatsSource(Protocol):
+    """A servo bus that counts its exchanges (optional beside `ServoBus`: check with isinstance)."""
+
+    @property
+    def stats(self) -> BusStats:
+        """A copy of the counters since the driver was made (retries, timeouts, corrupt replies, ...)."""
         ...
 
 

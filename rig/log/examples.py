@@ -6,6 +6,8 @@ from typing import Any
 
 from model.fit import FitSummary
 from model.slip_detector import SlipEvent
+from rig.hw.dxl.transport import BusStats
+from rig.hw.seams import LoadCellLineStats
 from rig.log import schemas as S
 from rig.log.records import (
     Estimate,
@@ -16,6 +18,7 @@ from rig.log.records import (
     ServoCommandName,
     SlipMessage,
     TrialKind,
+    TrialLinkStats,
     TrialOutcome,
     TrialPhase,
     TrialResult,
@@ -93,5 +96,10 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
             tare_n=0.01,
         ).to_payload(),
         S.ESTIMATE: Estimate(3, fit, (JointCapacity(1, 1.6, 1.4, 1.8),)).to_payload(),
+        S.TRIAL_LINKS: TrialLinkStats(
+            3,
+            BusStats(operations=220, attempts=223, retries=3, timeouts=1, corrupt=2, recovered=3),
+            LoadCellLineStats(4100, 1, 0, 3, 2, 0),
+        ).to_payload(),
         S.LOG: LogMessage(time_ns, LogLevel.WARNING, "tension high", line=12).to_payload(),
     }

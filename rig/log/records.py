@@ -25,6 +25,8 @@ from typing import Any
 
 from model.fit import SUMMARY_KEYS, FitSummary
 from model.slip_detector import SlipEvent, SlipEventKind
+from rig.hw.dxl.transport import BusStats
+from rig.hw.seams import LoadCellLineStats
 from rig.vocabulary import SLIP_LIKE, TrialKind, TrialOutcome
 
 NS_PER_S = 1_000_000_000
@@ -626,3 +628,43 @@ __all__ = [
     "stamp",
     "time_ns_from_payload",
 ]
+
+
+@dataclass(frozen=True, slots=True)
+class TrialLinkStats:
+    """What the device links delivered and lost during one trial (`/rig/trial/links`).
+
+    `bus`: the servo bus's exchanges (retries, timeouts, corrupt replies, reboots, ...);
+    `loadcell`: the load cell's serial lines. A device that keeps no counts (the object-level
+    simulation) leaves its part out of the payload: absent, never null.
+    """
+
+    trial_id: int
+    bus: BusStats | None = None
+    loadcell: LoadCellLineStats | None = None
+
+    def to_payload(self) -> dict[str, Any]:
+        """The `/rig/trial/links` payload."""
+        out: dict[str, Any] = {"trial_id": integer(self.trial_id, "trial_id")}
+        for name, counts in (("bus", self.bus), ("loadcell", self.loadcell)):
+            if counts is not None:
+                out[name] = {
+                    f.name: integer(getattr(counts, f.name), f"{name}.{f.name}") for f in fields(counts)
+                }
+        return out
+
+    @classmethod
+    def from_payload(cls, payload: Mapping[str, Any]) -> TrialLinkStats:
+        """Decode a `/rig/trial/links` payload (a part read back from a table as all-missing is absent)."""
+
+        def counts(name: str, kind: type[Any]) -> Any:
+            part = payload.get(name)
+            if not isinstance(part, Mapping) or all(v is None for v in part.values()):
+                return None
+            return kind(**{f.name: integer(part[f.name], f"{name}.{f.name}") for f in fields(kind)})
+
+        return cls(
+            trial_id=integer(payload["trial_id"], "trial_id"),
+            bus=counts("bus", BusStats),
+            loadcell=counts("loadcell", LoadCellLineStats),
+        )

@@ -29,13 +29,15 @@ from typing import Any
 
 from model.fit import FitSummary
 from model.slip_detector import SlipEvent
-from rig.hw.seams import LoadCellSample, ServoState
+from rig.hw.dxl.transport import BusStats
+from rig.hw.seams import LoadCellLineStats, LoadCellSample, ServoState
 from rig.log.records import (
     Estimate,
     JointCapacity,
     LogLevel,
     ServoCommand,
     SlipMessage,
+    TrialLinkStats,
     TrialResult,
     TrialState,
     finite_number,
@@ -56,6 +58,7 @@ TRIAL_STATE = "/rig/trial/state"
 SLIP = "/rig/slip"
 TRIAL_RESULT = "/rig/trial/result"
 ESTIMATE = "/rig/estimate"
+TRIAL_LINKS = "/rig/trial/links"
 LOG = "/rig/log"
 
 # ---------------------------------------------------------------------------------------------
@@ -198,6 +201,33 @@ def _estimate_fields() -> Fields:
     )
 
 
+def _trial_links() -> dict[str, Any]:
+    """`/rig/trial/links`: the trial id, and each device's counts as an object when it keeps them."""
+
+    def counts(record: type, what: str) -> dict[str, Any]:
+        fields_ = _field_schemas(record)
+        return {
+            "type": "object",
+            "description": what,
+            "properties": fields_.properties,
+            "required": [name for name in fields_.properties if name not in fields_.optional],
+            "additionalProperties": False,
+        }
+
+    return _rig_object(
+        "rig.TrialLinkStats",
+        "What the device links delivered and lost during one trial; a device that keeps no counts is absent.",
+        _field_schemas(TrialLinkStats, exclude=("bus", "loadcell"))
+        + Fields(
+            {
+                "bus": counts(BusStats, "the servo bus's exchanges during the trial"),
+                "loadcell": counts(LoadCellLineStats, "the load cell's serial lines during the trial"),
+            },
+            frozenset({"bus", "loadcell"}),
+        ),
+    )
+
+
 def _foxglove_log() -> dict[str, Any]:
     # The exact well-known schema (name and fields) that Foxglove's Log panel recognizes.
     return {
@@ -272,6 +302,7 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             _estimate_fields(),
         ),
     ),
+    TRIAL_LINKS: ("rig.TrialLinkStats", _trial_links()),
     LOG: ("foxglove.Log", _foxglove_log()),
 }
 

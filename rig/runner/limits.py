@@ -147,7 +147,115 @@ def startup_trials(block: AdaptiveBlock) -> list[TrialPlan]:
     ]
 
 
-def plan_summary(protocol: Protocol, config: RigConfig) -> dict[str, Any]:
+@dataclass(frozen=True)
+class PlannedTrial:
+    """One trial as the dry run shows it."""
+
+    trial_id: int
+    kind: str
+    repeat: int
+    joint: int | None
+    distance_m: float | None
+    configuration_index: int | None
+    joint_angles_deg: tuple[float, ...] | None  # rounded to 0.001°
+    steps: tuple[str, ...]
+
+    @classmethod
+    def of(cls, trial: TrialPlan) -> PlannedTrial:
+        """The dry run's view of a planned trial."""
+        angles = trial.joint_angles_rad
+        return cls(
+            trial_id=trial.trial_id,
+            kind=trial.kind,
+            repeat=trial.repeat,
+            joint=trial.joint,
+            distance_m=trial.distance_m,
+            configuration_index=trial.configuration_index,
+            joint_angles_deg=tuple(round(math.degrees(a), 3) for a in angles) if angles else None,
+            steps=tuple(s.kind for s in trial.steps),
+        )
+
+    def as_json(self) -> dict[str, Any]:
+        """The `rig run --dry-run --json` entry of `trials`."""
+        return {
+            "trial_id": self.trial_id,
+            "kind": self.kind,
+            "repeat": self.repeat,
+            "joint": self.joint,
+            "distance_m": self.distance_m,
+            "configuration_index": self.configuration_index,
+            "joint_angles_deg": None if self.joint_angles_deg is None else list(self.joint_angles_deg),
+            "steps": list(self.steps),
+        }
+
+
+@dataclass(frozen=True)
+class AdaptivePlan:
+    """What a dry run can say of an adaptive block before any trial."""
+
+    block: int
+    joint: int
+    first_trial_id: int
+    startup_trials: int
+    min_trials: int
+    max_trials: int
+    distance_range_m: tuple[float, float]
+    candidate_distances_m: tuple[float, ...]
+    target_half_width_rel: float
+    estimator: str
+    max_slip_force_n: float
+    text: str  # how the block goes on after its start-up trials, for the operator
+
+    def as_json(self) -> dict[str, Any]:
+        """The `rig run --dry-run --json` entry of `adaptive`."""
+        return {
+            "block": self.block,
+            "joint": self.joint,
+            "first_trial_id": self.first_trial_id,
+            "startup_trials": self.startup_trials,
+            "min_trials": self.min_trials,
+            "max_trials": self.max_trials,
+            "distance_range_m": list(self.distance_range_m),
+            "candidate_distances_m": list(self.candidate_distances_m),
+            "target_half_width_rel": self.target_half_width_rel,
+            "estimator": self.estimator,
+            "max_slip_force_n": self.max_slip_force_n,
+            "text": self.text,
+        }
+
+
+@dataclass(frozen=True)
+class PlanSummary:
+    """The dry run's description of a run: trials, limit checks, estimated duration."""
+
+    protocol: str
+    rig: str
+    rig_kind: str
+    trials: tuple[PlannedTrial, ...]  # an adaptive block's start-up trials among them
+    limit_checks: tuple[LimitCheck, ...]
+    estimated_duration_s: float
+    duration_assumption: str
+    adaptive: tuple[AdaptivePlan, ...] = ()
+
+    def as_json(self) -> dict[str, Any]:
+        """The `rig run --dry-run --json` object (`adaptive` only when the protocol has such blocks)."""
+        out: dict[str, Any] = {
+            "protocol": self.protocol,
+            "rig": self.rig,
+            "rig_kind": self.rig_kind,
+            "trials": [t.as_json() for t in self.trials],
+            "limit_checks": [
+                {"check": c.name, "value": c.value, "limit": c.limit, "ok": c.ok} for c in self.limit_checks
+            ],
+            "estimated_duration_s": self.estimated_duration_s,
+            "duration_assumption": self.duration_assumption,
+        }
+        if self.adaptive:
+            out["adaptive"] = [a.as_json() for a in self.adaptive]
+        return out
+
+
+def plan_summary(protocol: Protocol, config: RigConfig) -> PlanSummary:
     """The dry-run description: trials, checks and estimated duration.
 
     For an adaptive block the trials listed are its start-up trials, and `adaptive` says how it goes
@@ -162,58 +270,43 @@ def plan_summary(protocol: Protocol, config: RigConfig) -> dict[str, Any]:
     for block in protocol.adaptive:
         sample = block.trial(block.first_trial_id, block.design.distance_max_m, 1)
         durations.append(block.design.max_trials * estimated_trial_s(sample, protocol, config, typical))
-    summary: dict[str, Any] = {
-        "protocol": protocol.name,
-        "rig": config.name,
-        "rig_kind": config.kind,
-        "trials": [
-            {
-                "trial_id": t.trial_id,
-                "kind": t.kind,
-                "repeat": t.repeat,
-                "joint": t.joint,
-                "distance_m": t.distance_m,
-                "configuration_index": t.configuration_index,
-                "joint_angles_deg": [round(math.degrees(a), 3) for a in t.joint_angles_rad]
-                if t.joint_angles_rad
-                else None,
-                "steps": [s.kind for s in t.steps],
-            }
-            for t in shown
-        ],
-        "limit_checks": [{"check": c.name, "value": c.value, "limit": c.limit, "ok": c.ok} for c in checks],
-        "estimated_duration_s": sum(durations),
-        "duration_assumption": (
+    return PlanSummary(
+        protocol=protocol.name,
+        rig=config.name,
+        rig_kind=config.kind,
+        trials=tuple(PlannedTrial.of(t) for t in shown),
+        limit_checks=tuple(checks),
+        estimated_duration_s=sum(durations),
+        duration_assumption=(
             f"slip at {typical:.1f} N in every trial, nominal line stiffness "
             f"{config.line_stiffness_n_per_m:g} N/m, no operator time"
             + (", every adaptive block's whole budget" if protocol.adaptive else "")
         ),
-    }
-    if protocol.adaptive:
-        summary["adaptive"] = [adaptive_plan(block, protocol, config) for block in protocol.adaptive]
-    return summary
+        adaptive=tuple(adaptive_plan(block, protocol, config) for block in protocol.adaptive),
+    )
 
 
-def adaptive_plan(block: AdaptiveBlock, protocol: Protocol, config: RigConfig) -> dict[str, Any]:
+def adaptive_plan(block: AdaptiveBlock, protocol: Protocol, config: RigConfig) -> AdaptivePlan:
     """What a dry run can say of an adaptive block before any trial."""
     design = block.design
-    return {
-        "block": block.block,
-        "joint": block.joint,
-        "first_trial_id": block.first_trial_id,
-        "startup_trials": design.startup_trials,
-        "min_trials": design.min_trials,
-        "max_trials": design.max_trials,
-        "distance_range_m": [design.distance_min_m, design.distance_max_m],
-        "candidate_distances_m": list(design.candidates_m),
-        "target_half_width_rel": design.target_half_width_rel,
-        "estimator": design.estimator,
-        "max_slip_force_n": max_slip_force_n(block, protocol, config),
-        "text": (
+    limit_n = max_slip_force_n(block, protocol, config)
+    return AdaptivePlan(
+        block=block.block,
+        joint=block.joint,
+        first_trial_id=block.first_trial_id,
+        startup_trials=design.startup_trials,
+        min_trials=design.min_trials,
+        max_trials=design.max_trials,
+        distance_range_m=(design.distance_min_m, design.distance_max_m),
+        candidate_distances_m=tuple(design.candidates_m),
+        target_half_width_rel=design.target_half_width_rel,
+        estimator=design.estimator,
+        max_slip_force_n=limit_n,
+        text=(
             f"then adaptive up to {design.max_trials} trials in all: the distance that most narrows the "
             f"bound on k ({design.estimator}) among {design.distance_count} from {design.distance_min_m:g} "
             f"to {design.distance_max_m:g} m whose predicted slip force stays below "
-            f"{max_slip_force_n(block, protocol, config):.1f} N; stops once the half-width is at most "
+            f"{limit_n:.1f} N; stops once the half-width is at most "
             f"{100 * design.target_half_width_rel:g} % of k (after at least {design.min_trials} trials)"
         ),
-    }
+    )

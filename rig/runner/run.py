@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import platform
 import re
 import socket
@@ -29,7 +28,7 @@ from model.estimate_summary import EstimateSummary
 from model.fit import FitSummary
 from model.payload_errors import PayloadErrorStats
 from rig.errors import ExitCode, InputError
-from rig.files import atomic_write_text
+from rig.files import atomic_write_text, check_out_dir
 from rig.hw.session import RigSession
 from rig.log import schemas
 from rig.log.live import LivePublisher
@@ -147,7 +146,7 @@ def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
     config = load_rig_config(request.rig_path)
     if request.resume is not None:
         run_id = _check_run_id(request.resume, "--resume")
-        _check_out_dir(request.out_dir, create=False, must_exist=True)
+        check_out_dir(request.out_dir, must_exist=True)
         lock = None if dry_run else _lock_run(request.out_dir, run_id)
         with _released_on_error(lock):
             protocol, journal = _resumed_journal(request, config, run_id)
@@ -157,7 +156,9 @@ def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
     run_id = (
         _check_run_id(request.run_id, "--run-id") if request.run_id is not None else _new_run_id(protocol)
     )
-    _check_out_dir(request.out_dir, create=not dry_run)
+    check_out_dir(request.out_dir)
+    if not dry_run:
+        _make_out_dir(request.out_dir)
     lock = None if dry_run else _lock_run(request.out_dir, run_id)
     with _released_on_error(lock):
         path = _in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id))
@@ -410,23 +411,13 @@ def _new_run_id(protocol: Protocol) -> str:
     return f"{stamp}-{name}"
 
 
-def _check_out_dir(out_dir: Path, *, create: bool, must_exist: bool = False) -> None:
-    """`--out` is (or, for a new run, can be made) a directory we may write in; InputError if not.
-
-    Without `create` nothing is made (a resume, a dry run); `must_exist` is a resume's.
-    """
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"--out {out_dir}: not a directory")
-    if must_exist and not out_dir.is_dir():
-        raise InputError(f"--out {out_dir}: no such directory; nothing to resume there")
-    if not create and not out_dir.is_dir():
-        return
+def _make_out_dir(out_dir: Path) -> None:
+    """Make the (checked) `--out` directory of a new run."""
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"--out {out_dir}: cannot create the directory ({exc.strerror or exc})") from None
-    if not os.access(out_dir, os.W_OK | os.X_OK):
-        raise InputError(f"--out {out_dir}: not writable")
+    check_out_dir(out_dir)  # made by another process since, as something else
 
 
 def _lock_run(out_dir: Path, run_id: str) -> RunLock:

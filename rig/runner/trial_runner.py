@@ -20,7 +20,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import assert_never
 
-from model.slip_detector import DetectorParams
 from rig.errors import (
     CommunicationError,
     ExitCode,
@@ -32,10 +31,10 @@ from rig.errors import (
     StaleDataError,
     StepTimeoutError,
 )
-from rig.hw.seams import LineStatsSource, LoadCellLineStats, OperatingMode
+from rig.hw.seams import OperatingMode
 from rig.hw.session import RigSession
 from rig.log import schemas
-from rig.log.records import LogLevel, ServoCommandName, TrialOutcome, TrialResult
+from rig.log.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOutcome, TrialResult
 from rig.log.writer import RunLogger
 from rig.protocol import Protocol, TrialPlan
 from rig.rig_config import RigConfig
@@ -44,6 +43,7 @@ from rig.runner.control_loop import ControlLoop
 from rig.runner.estimation import RunEstimator
 from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.journal import RunJournal
+from rig.runner.link_counts import TrialLinkCounter
 from rig.runner.phases import Phase
 from rig.runner.progress import ProgressReporter
 from rig.runner.recorder import RunRecorder
@@ -114,7 +114,7 @@ class TrialRunner:
             loop=self.loop,
             recorder=self.recorder,
             estimator=estimator,
-            detector_params=DetectorParams.from_mapping(protocol.detector, source=str(protocol.source)),
+            detector_params=protocol.detector,
             line_stiffness_n_per_m=line_stiffness_n_per_m,
         )
         self.trial: TrialPlan | None = None
@@ -245,13 +245,13 @@ class TrialRunner:
         start_ns = self.clock.time_ns()
         self.progress.trial_started(trial.trial_id, _describe(trial))
         found = TrialMeasurements(joint_angles_rad=trial.joint_angles_rad)
-        lines_before = self._line_stats()
+        links = TrialLinkCounter(self.session)
         try:
             for step in trial.steps:
                 STEPS[step.kind](self.ctx, step, trial, found)
         except StepTimeoutError as exc:
             self._abort_trial(trial, found, exc)
-        self._note_line_losses(trial, lines_before)
+        self._log_links(links.finish(trial.trial_id))
         result = trial_result(
             trial,
             found,
@@ -282,19 +282,13 @@ class TrialRunner:
         found.reason = str(exc)
         self.recorder.note(LogLevel.WARNING, f"trial {trial.trial_id}: aborted ({exc}); the run goes on")
 
-    def _line_stats(self) -> LoadCellLineStats | None:
-        """The load cell's line counts, when it keeps them."""
-        cell = self.session.load_cell
-        return cell.line_stats() if isinstance(cell, LineStatsSource) else None
-
-    def _note_line_losses(self, trial: TrialPlan, before: LoadCellLineStats | None) -> None:
-        """Log what the load cell lost during the trial (garbled, bad checksums, missing samples)."""
-        after = self._line_stats()
-        if before is None or after is None:
-            return
-        lines = after.since(before)
-        level = LogLevel.INFO if lines.lossless else LogLevel.WARNING
-        self.recorder.note(level, f"trial {trial.trial_id}: load cell {lines.describe()}")
+    def _log_links(self, links: TrialLinkStats) -> None:
+        """Log the trial's link counts, and what the load cell lost as a note (a warning if anything)."""
+        self.recorder.write(schemas.TRIAL_LINKS, links.to_payload())
+        lines = links.loadcell
+        if lines is not None:
+            level = LogLevel.INFO if lines.lossless else LogLevel.WARNING
+            self.recorder.note(level, f"trial {links.trial_id}: load cell {lines.describe()}")
 
     # ------------------------------------------------------------------ safety
 

@@ -20,10 +20,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from rig.rig_config import FaultConfig, RigConfig
+from rig.rig_config import RigConfig
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator
+from rig.sim_config import FaultConfig
 
 OVERLOAD_BIT = 0x20
 _FOREVER_S = 1e9

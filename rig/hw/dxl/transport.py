@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import Any, TypeVar
 
 import serial
@@ -73,6 +73,25 @@ class BusStats:
     fast_sync_reads: int = 0
     sync_reads: int = 0
     sync_writes: int = 0
+
+    def since(self, earlier: BusStats) -> BusStats:
+        """The counts after `earlier` (e.g. one trial's); all of these if the driver was made since."""
+        pairs = [(getattr(self, f.name), getattr(earlier, f.name)) for f in fields(self)]
+        if any(now < then for now, then in pairs):
+            return replace(self)
+        return BusStats(*(now - then for now, then in pairs))
+
+    @property
+    def clean(self) -> bool:
+        """No retry, timeout, corrupt reply, failed operation or reboot."""
+        return not (self.retries or self.timeouts or self.corrupt or self.failures or self.reboots)
+
+    def describe(self) -> str:
+        """One line for an operator."""
+        return (
+            f"{self.operations} operations; {self.retries} retries, {self.timeouts} timeouts, "
+            f"{self.corrupt} corrupt replies, {self.failures} failures, {self.reboots} reboots"
+        )
 
 
 class _AttemptFailed(Exception):

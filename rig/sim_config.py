@@ -1,0 +1,344 @@
+"""The simulation section of a rig config (only for `kind: simulated`; users' docs in protocols/README.md).
+
+The simulated world's preset, its slip kinds, capacity scatter, load-cell artefacts and injected faults.
+
+Each settings field is declared once on its dataclass (`model.field_spec`): its bounds, default and
+doc drive `parse_simulation`, the refusal of unknown keys, the dataclasses' own checks and the docs
+table (`rig.config_docs`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from model.field_spec import (
+    FieldType,
+    choice,
+    custom,
+    declared_fields,
+    integer,
+    number,
+    numbers,
+    section,
+)
+from rig.validate import Section, read_field, read_fields, reject_undeclared
+from rig.vocabulary import SlipKind
+
+SIM_PRESETS = ("link1", "link2")
+
+# Which faults each simulated device can be given (`simulation.faults:`, docs in protocols/README.md).
+SERVO_FAULT_KINDS = ("drop", "corrupt", "delay", "silent", "disconnect", "overload")
+FAULT_KINDS: dict[str, tuple[str, ...]] = {
+    "servos": SERVO_FAULT_KINDS,
+    "winch": SERVO_FAULT_KINDS,
+    "bender": SERVO_FAULT_KINDS,
+    "loadcell": ("garble", "checksum", "gap", "silent", "disconnect"),
+    "logger": ("write_error",),
+}
+# Kinds that happen per reply or per line with a probability (`rate`); the others happen at a time.
+RATE_FAULT_KINDS = frozenset({"drop", "corrupt", "delay", "garble", "checksum"})
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """One fault to inject into the simulated rig: a rate (per reply or line) or an event at `at_s`.
+
+    `at_s` counts from the start of the invocation's virtual clock; `duration_s` None means to the
+    end of the run. A `logger` `write_error` fails the log's writes once it holds `after_bytes`.
+    Which fields an entry needs depends on its kind (`parse_fault`).
+    """
+
+    device: str = field(metadata=choice(FAULT_KINDS))
+    kind: str = field(metadata=custom(doc="one of the device's fault kinds"))
+    rate: float | None = field(default=None, metadata=number(0.0, 1.0))
+    at_s: float | None = field(default=None, metadata=number(0.0, 1e6, unit="s"))
+    duration_s: float | None = field(default=None, metadata=number(0.0, 1e6, lo_open=True, unit="s"))
+    delay_ms: float | None = field(default=None, metadata=number(0.0, 10_000.0, unit="ms"))
+    after_bytes: int | None = field(default=None, metadata=integer(1, 2**40))
+
+
+@dataclass(frozen=True)
+class SlipKindMix:
+    """Which kinds of slip the simulated joints make, with what probability, and their parameters.
+
+    `probabilities` follows `SlipKind`'s order and sums to 1; each trial draws one kind. The ranges
+    (lowest, highest) are drawn uniformly per trial (`stick_slip_drops` as an integer):
+
+    * sudden: the joint turns until its moment is `kinetic_ratio` x static (the preset's 0.8).
+    * small_drop: the same with a drop of `small_drop_fraction` of the peak (3-15 % by default).
+    * creep: at the static load the joint yields slowly: over `creep_duration_s` it turns just
+      enough to keep the tension on a line falling from the peak by `creep_drop_fraction`.
+    * stick_slip: `stick_slip_drops` drops, each `stick_slip_drop_fraction` of the tension at its
+      onset, separated by a dwell of `stick_slip_dwell_s` (or less, if the winch re-tensions the
+      line to the first peak sooner).
+    * other_joint (joint estimation only; a link-validation trial makes it sudden): a neighbouring
+      joint of the fixture slips first, at `other_joint_load_fraction` of the specimen's slip load,
+      dropping the tension by `other_joint_drop_fraction`; the configuration source names that
+      joint with `other_joint_report_probability`.
+    * no_slip: the trial's capacities are `no_slip_capacity_factor` x their draw, so the ramp
+      reaches its force limit first.
+    """
+
+    probabilities: tuple[float, ...] = field(
+        default=(1.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        metadata=custom(key="mix", doc="probability of each slip kind, summing to 1"),
+    )
+    small_drop_fraction: tuple[float, float] = field(
+        default=(0.03, 0.15), metadata=numbers(0.005, 0.5, length=2)
+    )
+    creep_duration_s: tuple[float, float] = field(default=(0.05, 2.0), metadata=numbers(0.01, 10.0, length=2))
+    creep_drop_fraction: tuple[float, float] = field(
+        default=(0.02, 0.10), metadata=numbers(0.001, 0.5, length=2)
+    )
+    stick_slip_drops: tuple[float, float] = field(default=(2, 5), metadata=numbers(2, 20, length=2))
+    stick_slip_drop_fraction: tuple[float, float] = field(
+        default=(0.03, 0.10), metadata=numbers(0.005, 0.5, length=2)
+    )
+    stick_slip_dwell_s: tuple[float, float] = field(
+        default=(0.01, 0.04), metadata=numbers(0.002, 1.0, length=2)
+    )
+    other_joint_load_fraction: tuple[float, float] = field(
+        default=(0.5, 0.9), metadata=numbers(0.05, 0.99, length=2)
+    )
+    other_joint_drop_fraction: tuple[float, float] = field(
+        default=(0.05, 0.20), metadata=numbers(0.005, 0.9, length=2)
+    )
+    other_joint_report_probability: float = field(default=1.0, metadata=number(0.0, 1.0))
+    # Slip loads beyond any force ceiling a rig config allows (500 N).
+    no_slip_capacity_factor: float = field(default=100.0, metadata=number(1.0, 1000.0, lo_open=True))
+
+    def __post_init__(self) -> None:
+        """Check ranges; a `ValueError` names the field and what is allowed."""
+        p = self.probabilities
+        if len(p) != len(SlipKind) or min(p) < 0 or abs(sum(p) - 1.0) > 1e-9:
+            raise ValueError(f"slip kind probabilities {p}; allowed: {len(SlipKind)} numbers >= 0, sum 1")
+        for name, lo, hi in slip_ranges():
+            first, last = getattr(self, name)
+            if not lo <= first <= last <= hi:
+                raise ValueError(
+                    f"{name} = [{first}, {last}]; allowed: {lo:g} <= lowest <= highest <= {hi:g}"
+                )
+        if not 0 <= self.other_joint_report_probability <= 1:
+            raise ValueError("other_joint_report_probability; allowed: 0-1")
+        if not 1 < self.no_slip_capacity_factor <= 1000:
+            raise ValueError("no_slip_capacity_factor; allowed: > 1 and <= 1000")
+
+    def probability(self, kind: SlipKind) -> float:
+        """The probability of one kind."""
+        return self.probabilities[list(SlipKind).index(kind)]
+
+
+def slip_ranges() -> list[tuple[str, float, float]]:
+    """The slip-kind parameters drawn from a [lowest, highest] range, with their declared bounds."""
+    return [
+        (d.name, float(d.spec.bounds.lo or 0.0), float(d.spec.bounds.hi or 0.0))
+        for d in declared_fields(SlipKindMix)
+        if d.spec.type == FieldType.NUMBERS
+    ]
+
+
+# Shapes of the trial-to-trial scatter of a joint's capacity, stated for the slip mass m it gives:
+# sd(m)^2 = a^2 + (b m)^2 with a = 0 (multiplicative), b = 0 (additive) or both (mixed).
+SCATTER_SHAPES = ("multiplicative", "additive", "mixed")
+MAX_SCATTER_A_KG = 10.0
+MAX_SCATTER_B = 0.5
+
+
+@dataclass(frozen=True)
+class CapacityScatter:
+    """The scatter shape (`simulation.scatter:`); `b` None keeps the preset's relative sd."""
+
+    shape: str = field(default="multiplicative", metadata=choice(SCATTER_SHAPES))
+    # additive sd of the slip mass [kg]; required by (and only for) shapes additive and mixed
+    a_kg: float = field(default=0.0, metadata=number(0.0, MAX_SCATTER_A_KG, lo_open=True, unit="kg"))
+    # relative sd of the slip mass (shapes multiplicative and mixed)
+    b: float | None = field(default=None, metadata=number(0.0, MAX_SCATTER_B))
+
+    def __post_init__(self) -> None:
+        """Check the shape and that it has the parameters it needs; `ValueError` otherwise."""
+        if self.shape not in SCATTER_SHAPES:
+            raise ValueError(f"scatter shape {self.shape!r}; allowed: {', '.join(SCATTER_SHAPES)}")
+        if not 0 <= self.a_kg <= MAX_SCATTER_A_KG:
+            raise ValueError(f"scatter a_kg = {self.a_kg}; allowed: 0-{MAX_SCATTER_A_KG:g}")
+        if self.b is not None and not 0 <= self.b <= MAX_SCATTER_B:
+            raise ValueError(f"scatter b = {self.b}; allowed: 0-{MAX_SCATTER_B:g}")
+        if self.shape == "multiplicative" and self.a_kg != 0:
+            raise ValueError("scatter a_kg is for shape additive or mixed; multiplicative has a = 0")
+        if self.shape == "additive" and self.b is not None:
+            raise ValueError("scatter b is for shape multiplicative or mixed; additive has b = 0")
+        if self.shape != "multiplicative" and self.a_kg == 0:
+            raise ValueError(f"scatter shape {self.shape} needs a_kg > 0")
+
+
+@dataclass(frozen=True)
+class LoadCellArtefacts:
+    """What a real load cell adds to the tension besides white noise; all off by default.
+
+    The cell reports, before its ADC noise and quantisation,
+        tension * (1 + gain_creep_fraction * (1 - exp(-t / gain_creep_time_constant_s)))
+        + drift_n_per_s * t + W(t) + hum_n * sin(2 pi hum_hz t + phase) + spikes
+    with t the time since power-on, W a random walk of wander_n_per_sqrt_s per sqrt(second) (the
+    zero wandering), and single-sample spikes at `spike_rate_per_s` on average, each of either
+    sign and of a size uniform in [spike_n / 2, spike_n]. `noise_scale` multiplies the cell's
+    white noise. The phase and every random draw come from the seed's own artefact stream.
+    """
+
+    noise_scale: float = field(default=1.0, metadata=number(0.0, 100.0))
+    drift_n_per_s: float = field(default=0.0, metadata=number(-10.0, 10.0, unit="N/s"))
+    wander_n_per_sqrt_s: float = field(default=0.0, metadata=number(0.0, 10.0, unit="N/√s"))
+    spike_rate_per_s: float = field(default=0.0, metadata=number(0.0, 100.0, unit="1/s"))
+    spike_n: float = field(default=0.0, metadata=number(0.0, 100.0, unit="N"))
+    hum_n: float = field(default=0.0, metadata=number(0.0, 10.0, unit="N"))
+    hum_hz: float = field(default=50.0, metadata=number(1.0, 500.0, unit="Hz"))
+    gain_creep_fraction: float = field(default=0.0, metadata=number(-0.2, 0.2))
+    gain_creep_time_constant_s: float = field(default=60.0, metadata=number(0.1, 1e5, unit="s"))
+
+    def __post_init__(self) -> None:
+        """Check ranges (the declared ones); a `ValueError` names the field and what is allowed."""
+        for declared in declared_fields(LoadCellArtefacts):
+            value = getattr(self, declared.name)
+            if not declared.spec.bounds.accepts(value):
+                lo, hi = declared.spec.bounds.lo, declared.spec.bounds.hi
+                raise ValueError(f"{declared.name} = {value}; allowed: {lo:g}-{hi:g}")
+
+    @property
+    def active(self) -> bool:
+        """Whether any artefact (besides the noise level) is on."""
+        return bool(
+            self.drift_n_per_s
+            or self.wander_n_per_sqrt_s
+            or (self.spike_rate_per_s and self.spike_n)
+            or self.hum_n
+            or self.gain_creep_fraction
+        )
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Simulated-world settings (only for `kind: simulated`)."""
+
+    preset: str = field(default="link1", metadata=choice(SIM_PRESETS, doc="simulated only"))
+    loadcell_rate_hz: float = field(default=1000.0, metadata=number(10.0, 2000.0, unit="Hz"))
+    noise_scale: float = field(
+        default=1.0, metadata=number(0.0, 10.0, doc="multiplies every noise level of the preset")
+    )
+    torsion_weak_joint: int | None = field(
+        default=None,
+        metadata=custom(
+            allowed_doc="a joint 1..J whose torsion capacity is below its bending capacity", optional=True
+        ),
+    )
+    faults: tuple[FaultConfig, ...] = field(
+        default=(),
+        metadata=custom(
+            allowed_doc='faults to inject; protocols/README.md "Injected faults"', default_doc="none"
+        ),
+    )
+    slips: SlipKindMix = field(
+        default=SlipKindMix(),
+        metadata=section(
+            default_doc="`{mix: {sudden: 1}}`",
+            doc='slip kinds and their probabilities and parameters; protocols/README.md "Scenario rigs"',
+            expand_doc=False,
+        ),
+    )
+    scatter: CapacityScatter = field(
+        default=CapacityScatter(),
+        metadata=section(
+            default_doc="`{shape: multiplicative}`",
+            doc="capacity scatter: `multiplicative` (b), `additive` (a_kg), `mixed` (both); same section",
+            expand_doc=False,
+        ),
+    )
+    loadcell: LoadCellArtefacts = field(
+        default=LoadCellArtefacts(),
+        metadata=section(
+            default_doc="all off",
+            doc="load-cell artefacts: noise scale, drift, wander, spikes, hum, gain creep; same section",
+            expand_doc=False,
+        ),
+    )
+
+
+def parse_simulation(sec: Section, joint_count: int) -> SimulationConfig:
+    """`simulation:` of a simulated rig config (`joint_count` J bounds `torsion_weak_joint`)."""
+    reject_undeclared(sec, SimulationConfig)
+    weak = sec.raw("torsion_weak_joint", default=None)
+    if weak is not None:
+        weak = sec.integer("torsion_weak_joint", min_value=1, max_value=joint_count)
+    faults = tuple(
+        parse_fault(Section(item, sec.source, sec.field("faults") + f"[{i}]"))
+        for i, item in enumerate(sec.sequence("faults", default=[]))
+    )
+    values = read_fields(
+        sec,
+        SimulationConfig,
+        given={
+            "torsion_weak_joint": weak,
+            "faults": faults,
+            "slips": parse_slips(sec.section("slips", default={})),
+            "scatter": parse_scatter(sec.section("scatter", default={})),
+        },
+    )
+    return SimulationConfig(**values)
+
+
+def parse_slips(sec: Section) -> SlipKindMix:
+    """`simulation.slips`: the mix of slip kinds (probabilities summing to 1) and their ranges."""
+    defaults = SlipKindMix()
+    reject_undeclared(sec, SlipKindMix)
+    probabilities = defaults.probabilities
+    if sec.has("mix"):
+        mix = sec.section("mix")
+        mix.reject_unknown(tuple(SlipKind))
+        probabilities = tuple(
+            mix.number(kind, default=0.0, min_value=0.0, max_value=1.0) for kind in SlipKind
+        )
+        if abs(sum(probabilities) - 1.0) > 1e-6:
+            raise sec.error("mix", f"the probabilities sum to {sum(probabilities):g}; allowed: they sum to 1")
+        probabilities = tuple(p / sum(probabilities) for p in probabilities)
+    values = read_fields(sec, SlipKindMix, given={"probabilities": probabilities})
+    for name, lo, hi in slip_ranges():
+        first, last = values[name]
+        if first > last:
+            raise sec.error(name, f"[{first:g}, {last:g}]; allowed: [lowest, highest] within {lo:g}-{hi:g}")
+        if name == "stick_slip_drops" and any(x != int(x) for x in (first, last)):
+            raise sec.error(name, f"[{first:g}, {last:g}]; allowed: whole numbers within {lo:g}-{hi:g}")
+    return SlipKindMix(**values)
+
+
+def parse_scatter(sec: Section) -> CapacityScatter:
+    """`simulation.scatter`: shape multiplicative (b), additive (a_kg) or mixed (both)."""
+    reject_undeclared(sec, CapacityScatter)
+    shape = read_field(sec, CapacityScatter, "shape")
+    if shape == "multiplicative" and sec.has("a_kg"):
+        raise sec.error("a_kg", "only for shape additive or mixed; allowed: remove it, or change the shape")
+    if shape == "additive" and sec.has("b"):
+        raise sec.error(
+            "b", "only for shape multiplicative or mixed; allowed: remove it, or change the shape"
+        )
+    a_kg = 0.0
+    if shape != "multiplicative":
+        a_kg = read_field(sec, CapacityScatter, "a_kg", required=True)
+    b = read_field(sec, CapacityScatter, "b")
+    return CapacityScatter(shape=shape, a_kg=a_kg, b=b)
+
+
+def parse_fault(sec: Section) -> FaultConfig:
+    """One entry of `simulation.faults`: which fields it needs depends on its kind."""
+    reject_undeclared(sec, FaultConfig)
+    device = read_field(sec, FaultConfig, "device")
+    kind = sec.string("kind", choices=FAULT_KINDS[device])
+    if device == "logger":
+        return FaultConfig(
+            device, kind, after_bytes=read_field(sec, FaultConfig, "after_bytes", required=True)
+        )
+    if kind in RATE_FAULT_KINDS:
+        rate = read_field(sec, FaultConfig, "rate", required=True)
+        delay = None
+        if kind == "delay":
+            delay = read_field(sec, FaultConfig, "delay_ms", default=50.0)
+        return FaultConfig(device, kind, rate=rate, delay_ms=delay)
+    at_s = read_field(sec, FaultConfig, "at_s", required=True)
+    duration = read_field(sec, FaultConfig, "duration_s")
+    return FaultConfig(device, kind, at_s=at_s, duration_s=duration)
