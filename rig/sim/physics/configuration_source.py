@@ -30,7 +30,8 @@ from model.chain import planar_transforms
 from rig.hw.seams import Clock, ConfigurationReading
 from rig.sim.physics.article import rotation_about_axis
 from rig.sim.physics.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
-from rig.sim.physics.world import SimWorld, SlipKind
+from rig.sim.physics.slips import SlipKind
+from rig.sim.physics.world import SimWorld
 
 
 class SimConfigurationSource:
