@@ -167,17 +167,19 @@ class RunLogger:
         self._check_loggable(topic)
         publish_ns = self._now_ns()
         strict = self._strict
-        fields = schemas.ROW_FIELDS.get(topic)
+        row_type = schemas.ROW_TYPES.get(topic)
         batch = self._batch
         count = len(batch)
         for log_time_ns, payload in messages:
             if type(log_time_ns) is not int:
                 log_time_ns = operator.index(log_time_ns)  # numpy ints are fine, floats are not
-            if type(payload) is tuple:
-                if fields is None or len(payload) != len(fields):
-                    raise TypeError(f"{topic}: a row payload needs the fields {fields}; got {payload!r}")
-                if strict:
-                    schemas.check_payload(topic, dict(zip(fields, payload, strict=True)))
+            if type(payload) is row_type:
+                if strict:  # each named field against the schema
+                    schemas.check_payload(topic, payload._asdict())
+                payload = payload[:]  # a plain tuple: pickled to the writer at a fifth of the cost
+            elif isinstance(payload, tuple):
+                want = "no rows" if row_type is None else f"a {row_type.__name__} {row_type._fields}"
+                raise TypeError(f"{topic}: a row payload must be {want}; got {payload!r}")
             elif strict:
                 schemas.check_payload(topic, payload)
             if not batch:

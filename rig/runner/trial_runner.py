@@ -273,11 +273,12 @@ class TrialRunner:
             return
         try:
             if samples:
-                # Rows in schemas.ROW_FIELDS order (seq, raw, force_n, device_time_us): no dict per sample.
+                # Rows (`schemas.LoadCellRow`, built by tuple.__new__ in its field order): no dict per sample.
+                row, make = schemas.LoadCellRow, tuple.__new__
                 self.log.log_many(
                     schemas.LOADCELL,
                     [
-                        (t_ns, (s.seq, s.raw, force, s.device_time_us))
+                        (t_ns, make(row, (s.seq, s.raw, force, s.device_time_us)))
                         for s, (t_ns, force) in zip(samples, self.tick_samples, strict=True)
                     ],
                 )
