@@ -363,3 +363,23 @@ def test_strict_mode_checks_each_named_field_of_a_row(tmp_path):
             log.log_many(S.LOADCELL, [(T0_NS + MS, swapped)])
         with pytest.raises(TypeError, match="LoadCellRow"):  # the positional tuple is refused outright
             log.log_many(S.LOADCELL, [(T0_NS + MS, (sample["raw"], sample["seq"], 1.5, None))])
+
+
+def test_log_columns_writes_what_log_many_writes_and_checks_the_names(tmp_path):
+    """The runner's path: one column per LoadCellRow field, by name; the same messages as rows."""
+    samples = [S.loadcell_sample(raw=i - 2, force_n=i / 8, seq=i, device_time_us=1000 * i) for i in range(6)]
+    times = [T0_NS + i * MS for i in range(6)]
+    with RunLogger(tmp_path / "rows.mcap", strict=True) as log:
+        log.log_many(S.LOADCELL, [(t, S.LoadCellRow(**p)) for t, p in zip(times, samples, strict=True)])
+    with RunLogger(tmp_path / "columns.mcap", strict=True) as log:
+        columns = {name: [p[name] for p in samples] for name in S.ROW_FIELDS[S.LOADCELL]}
+        log.log_columns(S.LOADCELL, iter(times), **{k: iter(v) for k, v in reversed(columns.items())})
+        with pytest.raises(TypeError, match="exactly the fields"):
+            log.log_columns(S.LOADCELL, times, seq=[1], raw=[2], force_n=[0.5])  # one missing
+        with pytest.raises(TypeError, match="exactly the fields"):
+            log.log_columns(S.SERVO_STATE, times, seq=[1])
+        with pytest.raises(ValueError, match="raw"):  # strict: each row field by field
+            log.log_columns(S.LOADCELL, [T0_NS], seq=[7], raw=[None], force_n=[0.5], device_time_us=[None])
+    rows = [(m[2], m[4]) for m in mcap_messages(tmp_path / "rows.mcap")]
+    assert rows == [(m[2], m[4]) for m in mcap_messages(tmp_path / "columns.mcap")]
+    assert [p for _, p in rows] == samples

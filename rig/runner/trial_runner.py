@@ -17,6 +17,7 @@ import math
 import traceback
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from operator import attrgetter, itemgetter
 
 from model.slip_detector import (
     DetectorParams,
@@ -63,6 +64,9 @@ from rig.runner.results import TrialMeasurements, slip_outcome, trial_result
 from rig.runner.safe_state import enter_safe_state, move_timeout_s
 from rig.runner.safety import interrupts_held
 
+# The load-cell log columns, taken without a Python-level call per sample.
+_FIRST, _SECOND = itemgetter(0), itemgetter(1)
+_SEQ, _RAW, _DEVICE_TIME_US = attrgetter("seq"), attrgetter("raw"), attrgetter("device_time_us")
 _POSITION_TOLERANCE_RAD = 0.02
 _RELEASED_TENSION_N = 0.5
 _BENDER_SPEED_RAD_S = 2.0
@@ -273,14 +277,15 @@ class TrialRunner:
             return
         try:
             if samples:
-                # Rows (`schemas.LoadCellRow`, built by tuple.__new__ in its field order): no dict per sample.
-                row, make = schemas.LoadCellRow, tuple.__new__
-                self.log.log_many(
+                # One column per `schemas.LoadCellRow` field, by name: no dict or object per sample.
+                ticks = self.tick_samples
+                self.log.log_columns(
                     schemas.LOADCELL,
-                    [
-                        (t_ns, make(row, (s.seq, s.raw, force, s.device_time_us)))
-                        for s, (t_ns, force) in zip(samples, self.tick_samples, strict=True)
-                    ],
+                    map(_FIRST, ticks),
+                    seq=map(_SEQ, samples),
+                    raw=map(_RAW, samples),
+                    force_n=map(_SECOND, ticks),
+                    device_time_us=map(_DEVICE_TIME_US, samples),
                 )
             roles = self.session.roles
             for state in self.states.values():

@@ -116,6 +116,9 @@ class _DiscardingLogger:
     def log_many(self, topic: str, messages: Iterable[tuple[int, Any]]) -> None:
         self.messages_logged += sum(1 for _ in messages)
 
+    def log_columns(self, topic: str, times_ns: Iterable[int], **columns: Iterable[Any]) -> None:
+        self.messages_logged += sum(1 for _ in times_ns)
+
     def flush(self, *, wait: bool = True, fsync: bool = False, timeout_s: float = 30.0) -> None:
         return None
 
