@@ -70,7 +70,7 @@ def run_logger(path: Path, messages: list[tuple[int, dict]]) -> dict[str, float]
 
 def run_logger_rows(path: Path, messages: list[tuple[int, dict]], per_call: int = 20) -> dict[str, float]:
     fields = S.ROW_FIELDS[S.LOADCELL]
-    rows = [(t, tuple(payload[f] for f in fields)) for t, payload in messages]
+    rows = [(t, S.LoadCellRow(*(payload[f] for f in fields))) for t, payload in messages]
     start = time.perf_counter()
     logger = RunLogger(path)
     for i in range(0, len(rows), per_call):

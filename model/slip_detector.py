@@ -338,6 +338,40 @@ _TRAIN_STEADY_FLOOR = 0.15
 _MEAN_ABS_DIFF_PER_SIGMA = 2.0 / math.sqrt(math.pi)
 
 
+class QuietUse(StrEnum):
+    """How the fast path `_quiet_stretch` treats a `DetectorParams` field."""
+
+    MIRRORED = "mirrored"  # read on every quiet sample, as `_estimates` and `detector_step` read it
+    GATE = "gate"  # anything but None sends every sample to the plain `detector_step`
+    PLAIN_ONLY = "plain only"  # read only where the fast path stops (arming, firing, the latch)
+
+
+# Every field of `DetectorParams` and how the fast path handles it. A new field fails
+# tests/test_slip_detector_fast_path.py until it is entered here (and, if mirrored, handled).
+QUIET_STRETCH_FIELDS: dict[str, QuietUse] = {
+    "arm_threshold_n": QuietUse.MIRRORED,
+    "drop_fraction": QuietUse.MIRRORED,
+    "min_drop_n": QuietUse.MIRRORED,
+    "slope_n_per_s": QuietUse.GATE,  # the slope window is kept per sample: no fast path
+    "slope_window_s": QuietUse.PLAIN_ONLY,  # read only with the slope trigger on
+    "cusum_threshold_n": QuietUse.MIRRORED,
+    "cusum_drift_n": QuietUse.MIRRORED,
+    "rearm_below_n": QuietUse.PLAIN_ONLY,  # latched
+    "noise_k": QuietUse.MIRRORED,
+    "noise_floor_n": QuietUse.MIRRORED,
+    "noise_window_s": QuietUse.MIRRORED,
+    "trend_window_s": QuietUse.MIRRORED,
+    "peak_leak_n_per_s": QuietUse.MIRRORED,
+    "creep_k": QuietUse.MIRRORED,
+    "creep_drift_n_per_s": QuietUse.MIRRORED,
+    "creep_min_s": QuietUse.PLAIN_ONLY,  # the kind of an event that fired
+    "spike_samples": QuietUse.MIRRORED,
+    "train_k": QuietUse.PLAIN_ONLY,  # latched
+    "drop_leak_n_per_s": QuietUse.MIRRORED,
+}
+_QUIET_GATES = tuple(name for name, use in QUIET_STRETCH_FIELDS.items() if use is QuietUse.GATE)
+
+
 def detector_init(params: DetectorParams) -> DetectorState:
     """The state before the first sample (idle, nothing seen)."""
     if not isinstance(params, DetectorParams):
@@ -592,7 +626,8 @@ def detector_run(
     sample by sample: the runner's ramp feeds its 1 kHz samples through this.
 
     Fast path: the quiet stretches (idle below the arm threshold, or armed with no trigger
-    condition met, past the warm-up, without the slope window) are stepped by `_quiet_stretch`, the
+    condition met, past the warm-up, with every `QuietUse.GATE` field of `QUIET_STRETCH_FIELDS`
+    None: without the slope window) are stepped by `_quiet_stretch`, the
     same arithmetic on local variables without a state per sample; every other sample (arming,
     a trigger, the latch, the warm-up, bad input) goes through the plain `detector_step`.
     tests/test_slip_detector_fast_path.py holds both equal on simulated recordings.
@@ -600,7 +635,7 @@ def detector_run(
     count = len(times_ns)
     if len(forces_n) != count:
         raise ValueError(f"{count} times but {len(forces_n)} forces; allowed: one force per time")
-    quiet_ok = params.slope_n_per_s is None
+    quiet_ok = all(getattr(params, name) is None for name in _QUIET_GATES)
     i = start
     while i < count:
         if (

@@ -39,12 +39,13 @@ def main() -> None:
             report = execute_run(prepared, sim.session, SilentProgress())
             replayed = replay(report.logs)
             lost = len({t.trial_id for t in report.trials} - {r.trial_id for r in replayed.records})
-            truth = report.truth or {}
+            truth = report.truth
+            tension_n = truth.final_tension_n if truth is not None else float("nan")
             print(
                 f"| {config.stem} | {int(report.exit_code)} | {report.completed}/{report.planned} "
                 f"| {'verified' if report.safe_state_verified else 'NOT verified'} "
-                f"| {truth.get('final_tension_n', float('nan')):.2f} N "
-                f"| {'off' if truth.get('torque_off') else 'ON'} "
+                f"| {tension_n:.2f} N "
+                f"| {'off' if truth is not None and truth.torque_off else 'ON'} "
                 f"| {len(prepared.journal.retried_trials)} | {lost} |"
             )
 

@@ -54,7 +54,7 @@ def joint_estimation_accuracy(seeds: int, out: Path) -> None:
     fits: dict[str, list] = {}
     for seed in range(seeds):
         report = run("joint_estimation.yaml", seed, out)
-        detail, k_true = report.estimate_detail, report.truth["k"]
+        detail, k_true = report.estimate_detail, report.truth.k_kg_m
         chosen = f"{detail.estimate.estimator} (the run's)"
         for name, est in ((chosen, detail.fit), ("paper's fit", detail.paper)):
             fits.setdefault(name, []).append((est, k_true))

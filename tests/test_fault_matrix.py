@@ -73,8 +73,8 @@ def test_fault_scenario_ends_as_stated(scenario, tmp_path):
     assert report.safe_state_verified == expected.verified, report.reason
     truth = report.truth
     assert truth is not None
-    assert (truth["final_tension_n"] < SLACK_N) == expected.slack, truth["final_tension_n"]
-    assert truth["torque_off"] == expected.torque_off
+    assert (truth.final_tension_n < SLACK_N) == expected.slack, truth.final_tension_n
+    assert truth.torque_off == expected.torque_off
     journal = prepared.journal
     assert len(journal.retried_trials) == expected.retries
     fired = sim.devices.faults.fired

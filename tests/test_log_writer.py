@@ -334,14 +334,17 @@ def test_log_many_takes_rows_for_the_load_cell_and_writes_the_same_json(tmp_path
     with RunLogger(path, strict=False) as log:  # strict would stop the NaN row in the caller
         log.log_many(
             S.LOADCELL,
-            [(T0_NS + i * MS, (i, i, i / 4, None)) for i in range(5)],
+            [(T0_NS + i * MS, S.LoadCellRow(i, i, i / 4, None)) for i in range(5)],
         )
         log.log(S.LOADCELL, T0_NS + 5 * MS, S.loadcell_sample(raw=5, force_n=1.25, seq=5))
         with pytest.raises(TypeError, match="row"):
             log.log_many(S.SERVO_STATE, [(T0_NS, (1, 2, 3))])
         with pytest.raises(TypeError, match="row"):
             log.log_many(S.LOADCELL, [(T0_NS, (1, 2, 3))])
-        log.log_many(S.LOADCELL, [(T0_NS + 6 * MS, (6, 6, float("nan"), None))])  # reported at the next call
+        with pytest.raises(TypeError, match="LoadCellRow"):
+            log.log_many(S.LOADCELL, [(T0_NS, (7, 1, 1.0, None))])  # a plain tuple: whose order?
+        nan_row = S.LoadCellRow(6, 6, float("nan"), None)
+        log.log_many(S.LOADCELL, [(T0_NS + 6 * MS, nan_row)])  # reported at the next call
         with pytest.raises(LogWriteError, match="not written: Out of range float"):
             log.flush()  # waits for the writer process, which reports the NaN row
         log.log(S.LOADCELL, T0_NS + 7 * MS, S.loadcell_sample(raw=7, force_n=1.75, seq=7))
@@ -352,4 +355,36 @@ def test_log_many_takes_rows_for_the_load_cell_and_writes_the_same_json(tmp_path
 
 def test_strict_mode_checks_rows_against_the_schema(tmp_path):
     with RunLogger(tmp_path / "a.mcap", strict=True) as log, pytest.raises(ValueError, match="raw"):
-        log.log_many(S.LOADCELL, [(T0_NS, (1, "x", 1.0, None))])
+        log.log_many(S.LOADCELL, [(T0_NS, S.LoadCellRow(1, "x", 1.0, None))])  # type: ignore[arg-type]
+
+
+def test_strict_mode_checks_each_named_field_of_a_row(tmp_path):
+    """seq and raw swapped by a producer: the named row puts a None raw where the schema wants an int."""
+    sample = S.loadcell_sample(raw=123456, force_n=1.5, seq=None)
+    with RunLogger(tmp_path / "a.mcap", strict=True) as log:
+        log.log_many(S.LOADCELL, [(T0_NS, S.LoadCellRow(sample.get("seq"), sample["raw"], 1.5, None))])
+        with pytest.raises(ValueError, match="raw"):
+            swapped = S.LoadCellRow(seq=sample["raw"], raw=sample.get("seq"), force_n=1.5, device_time_us=None)
+            log.log_many(S.LOADCELL, [(T0_NS + MS, swapped)])
+        with pytest.raises(TypeError, match="LoadCellRow"):  # the positional tuple is refused outright
+            log.log_many(S.LOADCELL, [(T0_NS + MS, (sample["raw"], sample.get("seq"), 1.5, None))])
+
+
+def test_log_columns_writes_what_log_many_writes_and_checks_the_names(tmp_path):
+    """The runner's path: one column per LoadCellRow field, by name; the same messages as rows."""
+    samples = [S.loadcell_sample(raw=i - 2, force_n=i / 8, seq=i, device_time_us=1000 * i) for i in range(6)]
+    times = [T0_NS + i * MS for i in range(6)]
+    with RunLogger(tmp_path / "rows.mcap", strict=True) as log:
+        log.log_many(S.LOADCELL, [(t, S.LoadCellRow(**p)) for t, p in zip(times, samples, strict=True)])
+    with RunLogger(tmp_path / "columns.mcap", strict=True) as log:
+        columns = {name: [p[name] for p in samples] for name in S.ROW_FIELDS[S.LOADCELL]}
+        log.log_columns(S.LOADCELL, iter(times), **{k: iter(v) for k, v in reversed(columns.items())})
+        with pytest.raises(TypeError, match="exactly the fields"):
+            log.log_columns(S.LOADCELL, times, seq=[1], raw=[2], force_n=[0.5])  # one missing
+        with pytest.raises(TypeError, match="exactly the fields"):
+            log.log_columns(S.SERVO_STATE, times, seq=[1])
+        with pytest.raises(ValueError, match="raw"):  # strict: each row field by field
+            log.log_columns(S.LOADCELL, [T0_NS], seq=[7], raw=[None], force_n=[0.5], device_time_us=[None])
+    rows = [(m[2], m[4]) for m in mcap_messages(tmp_path / "rows.mcap")]
+    assert rows == [(m[2], m[4]) for m in mcap_messages(tmp_path / "columns.mcap")]
+    assert [p for _, p in rows] == samples

@@ -19,7 +19,7 @@ from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
 from rig.runner.runlock import RunInProgressError
-from rig.sim.fakes import FakeRig, fake_rig
+from rig.testing.fakes import FakeRig, fake_rig
 from tests.helpers import QUICK_PROTOCOL
 from tests.test_runner_fakes import SLIP_FORCES_N, assert_released_then_torque_off
 

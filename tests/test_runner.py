@@ -43,9 +43,9 @@ def test_joint_estimation_recovers_the_true_capacity(sim_run, protocol_file, ass
     assert report.exit_code == 0 and report.completed == 3
     truth = report.truth
     # Three slips with the preset's trial-to-trial scatter (sd 8.5 %): within 15 % of the hidden k.
-    assert report.estimate.k == pytest.approx(truth["k"], rel=0.15)
+    assert report.estimate.k == pytest.approx(truth.k_kg_m, rel=0.15)
     lo, hi = report.estimate.k_ci
-    assert lo < truth["k"] < hi
+    assert lo < truth.k_kg_m < hi
     assert_safe(sim)
     # The third trial was planned from the fit of the first two: a prediction within 3 scatter sd.
     third = report.trials[2]

@@ -1,4 +1,4 @@
-"""Adaptive joint-estimation blocks in the runner, on the object-level fakes (rig/sim/fakes.py).
+"""Adaptive joint-estimation blocks in the runner, on the object-level fakes (rig/testing/fakes.py).
 
 The fake link slips at capacity / distance times a factor fixed per trial id, so the planner's
 choices can be followed and a resumed run compared with an uninterrupted one.
@@ -15,7 +15,7 @@ from rig.log import schemas
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.sim.fakes import FakeRig, fake_rig
+from rig.testing.fakes import FakeRig, fake_rig
 
 G = 9.8
 CAPACITY_NM = 1.2  # slips at 40 N at 0.03 m

@@ -1,4 +1,4 @@
-"""The runner on object-level fakes (rig/sim/fakes.py): what it commands, in what order, and how it ends.
+"""The runner on object-level fakes (rig/testing/fakes.py): what it commands, in what order, and how it ends.
 
 Through the public API `prepare_run` / `execute_run`, with a session built from the fakes: no
 bytes, no emulators. The byte-level simulated rig (tests/test_runner.py) stays the end-to-end path.
@@ -15,7 +15,7 @@ from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
 from rig.runner.ramp import RAMP_GOAL_LEAD_S
 from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.sim.fakes import FakeRig, fake_rig
+from rig.testing.fakes import FakeRig, fake_rig
 from tests.helpers import QUICK_PROTOCOL
 
 G = 9.8

@@ -1,4 +1,4 @@
-"""The object-level fakes of the seams (rig/sim/fakes.py) do what the runner tests rely on."""
+"""The object-level fakes of the seams (rig/testing/fakes.py) do what the runner tests rely on."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from rig.errors import CommunicationError, HardwareFault, NotConnectedError, StaleDataError
 from rig.hw.seams import LineStatsSource, LoadCell, LoadCellLineStats, OperatingMode, ServoBus
 from rig.sim.clock import VirtualClock
-from rig.sim.fakes import FakeLine, FakeLoadCell, FakeServoBus, fake_rig
+from rig.testing.fakes import FakeLine, FakeLoadCell, FakeServoBus, fake_rig
 
 MS = 1_000_000
 

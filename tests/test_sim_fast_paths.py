@@ -7,12 +7,14 @@ import random
 
 import pytest
 
-from rig.hw.seams import LoadCellSample
+from rig.hw.seams import LoadCellSample, load_cell_samples
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.loadcell.emulator import SignalModel
 from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus, gauss_draws
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.world import SimWorld
+from rig.sim_config import SlipKindMix
+from rig.vocabulary import SlipKind
 
 
 def _ramping_world() -> SimWorld:
@@ -91,6 +93,63 @@ def test_skipping_still_stretches_changes_nothing() -> None:
         )
 
 
+def _slip_kind_world(plain: bool, mix: SlipKindMix, seed: int) -> tuple[SimWorld, ObjectServoBus]:
+    """Joint-estimation and bent-link trials of `mix` on object-level servos; `plain`: every substep plain."""
+    clock = VirtualClock()
+    bus = ObjectServoBus(clock, [(1, "XM430-W350"), (2, "XM430-W350")])
+    world = SimWorld(
+        make_preset("link1", seed, slip_mix=mix),
+        bus.servo(1),
+        bender=bus.servo(2),
+        step_devices=bus.advance_to,
+        devices_at_rest=bus.at_rest,
+        seed=seed,
+    )
+    world.plain_substeps = plain
+    clock.on_advance(world.advance_to)
+    bus.set_torque([1, 2], True)
+    for trial in range(6):
+        if trial % 3 == 2:
+            goal = world.request_bend([0.15, -0.1, 0.2, 0.0, 0.1, 0.0, -0.1, 0.05])
+            bus.write_goal_positions({2: goal})
+            clock.sleep(1.5)  # the fixture moves and holds the link
+            world.begin_trial("link_validation")
+        else:
+            world.begin_trial("joint_estimation", distance_m=0.06 + 0.04 * trial, joint=1 + trial % 8)
+        goal = bus.servo(1).present_position_rad
+        for _ in range(200):  # a slow reel past the slip load (creep and trains take their time)
+            goal += 0.012
+            bus.write_goal_positions({1: goal})
+            clock.sleep(0.0173)
+        clock.sleep(0.4)  # hold
+        bus.write_goal_positions({1: goal - 4.0})  # release
+        clock.sleep(0.6)
+    return world, bus
+
+
+MIXES = {
+    kind: SlipKindMix(probabilities=tuple(1.0 if k == kind else 0.0 for k in SlipKind))
+    for kind in SlipKind
+    if kind != "no_slip"
+} | {"mixed": SlipKindMix(probabilities=(0.3, 0.15, 0.15, 0.15, 0.15, 0.1))}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mix", list(MIXES), ids=list(MIXES))
+def test_the_inlined_substep_equals_the_plain_substep(mix: str) -> None:
+    """`SimWorld.advance_to`'s inlined substep (and still-stretch skip) integrates as `_substep` does."""
+    plain, plain_bus = _slip_kind_world(True, MIXES[mix], 5)
+    fast, fast_bus = _slip_kind_world(False, MIXES[mix], 5)
+    kinds = {s.kind for s in plain.slips}
+    assert mix in kinds or (mix == "mixed" and len(kinds) >= 2), kinds  # the kind under test happened
+    assert fast._times_ns == plain._times_ns
+    assert fast._tensions_n == plain._tensions_n
+    assert fast.truth() == plain.truth()
+    assert fast.link.planar_joint_angles() == plain.link.planar_joint_angles()
+    for a, b in zip(plain_bus.servos, fast_bus.servos, strict=True):
+        assert (a.state, a._now_ns, a.hardware_error) == (b.state, b._now_ns, b.hardware_error)
+
+
 def test_batch_tension_lookup_equals_the_per_time_lookup() -> None:
     world = _ramping_world()
     times = world._times_ns
@@ -160,3 +219,15 @@ def test_gauss_draws_equal_random_gauss() -> None:
         expected = [plain.gauss(0.0, 1.0) for _ in range(size)]
         assert gauss_draws(fast, size) == expected
         assert fast.getstate() == plain.getstate() and fast.gauss_next == plain.gauss_next
+
+
+def test_load_cell_samples_equal_the_named_constructor() -> None:
+    """The batch constructor builds the very samples `LoadCellSample(*fields)` builds, of that type."""
+    fields = [
+        (10**18 + k, k - 3, 0.25 * k, None if k % 2 else k, None if k % 3 else 1000 * k) for k in range(7)
+    ]
+    samples = load_cell_samples(iter(fields))
+    assert samples == [LoadCellSample(*f) for f in fields]
+    assert all(type(s) is LoadCellSample for s in samples)
+    assert [s.seq for s in samples] == [f[3] for f in fields]
+    assert load_cell_samples([]) == []

@@ -12,8 +12,9 @@ import pytest
 
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
-from rig.sim.physics.world import SimWorld, SlipKind, TrialKind
+from rig.sim.physics.world import SimWorld
 from rig.sim_config import CapacityScatter, SlipKindMix
+from rig.vocabulary import SlipKind, TrialKind
 from tests.helpers import ScriptedShaft
 
 MS = 1_000_000
@@ -109,7 +110,7 @@ def test_stick_slip_is_a_train_of_drops_with_dwells() -> None:
         assert after.peak_tension_n == pytest.approx(before.tension_after_n, abs=1e-9)
     for drop in drops:
         assert drop.tension_after_n == pytest.approx(drop.peak_tension_n * (1 - fraction), abs=1e-3)
-    truth = world.truth()["trials"][-1]
+    truth = world.truth().to_json()["trials"][-1]
     assert [e["kind"] for e in truth["slip_events"]] == ["stick_slip"] * 4
 
 
@@ -174,7 +175,7 @@ def test_truth_records_every_event_on_the_run_clock_and_is_json() -> None:
         world.advance_to(world.now_ns + MS)
         ramp(world, shaft, 1.5, rate_rad_s=1.0)
         assert trial.slip.kind in tuple(SlipKind)
-    truth = json.loads(json.dumps(world.truth(), allow_nan=False))
+    truth = json.loads(json.dumps(world.truth().to_json(), allow_nan=False))
     assert truth["scatter"]["shape"] == "multiplicative"
     events = [e for t in truth["trials"] for e in t["slip_events"]]
     assert len(events) == len(world.slips) >= 6
@@ -211,7 +212,7 @@ def test_scatter_shapes_give_slip_masses_with_sd_squared_a2_plus_bm2(
         assert masses.mean() == pytest.approx(m0, abs=3 * expected_sd / math.sqrt(len(masses)) + 1e-9)
         # Clipping at ±3 sd takes 1.3 % off the sd of a normal draw.
         assert masses.std() == pytest.approx(0.987 * expected_sd, rel=0.06)
-    truth = world.truth()
+    truth = world.truth().to_json()
     assert truth["scatter"] == {"shape": scatter.shape, "a_kg": a_kg, "b": b, "sd_m": "sqrt(a^2 + (b m)^2)"}
 
 

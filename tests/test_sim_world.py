@@ -13,8 +13,10 @@ from hypothesis import strategies as st
 
 from model.chain import planar_transforms, predict_slip
 from model.joint import PAPER_CONSTANT
+from rig.hw.truth import WorldTruth
 from rig.sim.physics.article_presets import PRESET_NAMES, SimPreset, make_preset
-from rig.sim.physics.world import SimWorld, TrialKind, WorldBendingFixture
+from rig.sim.physics.world import SimWorld, TrialKind
+from rig.sim.simulated_rig import SimBendingFixture
 from tests.helpers import ScriptedShaft
 
 MS = 1_000_000
@@ -235,7 +237,7 @@ def test_torsion_weak_joint_changes_which_joint_slips_under_an_out_of_plane_load
     assert record.joint == 2
     assert record.threshold_n == pytest.approx(trial.slip_force_n)
     assert weak.article.planar_joint_angles() is None  # it twisted out of the plane
-    assert weak.truth()["torsion"]["joint"] == 2
+    assert weak.truth().torsion_weak_joint == 2
 
     # An in-plane load puts no torsion on any joint: the weak joint makes no difference.
     in_plane_iso, _ = torsion_world(None, direction=(-1.0, 0.0, 0.0))
@@ -252,7 +254,7 @@ def test_truth_is_json_serialisable_and_consistent() -> None:
     world.begin_trial("joint_estimation", distance_m=0.1)
     ramp_until_first_slip(world, shaft, 2.0)
     world.advance_to(world.now_ns + 300 * MS)
-    truth = json.loads(json.dumps(world.truth(), allow_nan=False))
+    truth = json.loads(json.dumps(world.truth().to_json(), allow_nan=False))
     assert truth["seed"] == 99 and truth["article_seed"] == 21 and truth["preset"] == "link2"
     assert len(truth["joints"]) == 10
     joint = truth["joints"][3]
@@ -293,7 +295,7 @@ def test_tension_at_interpolates_linearly_within_the_history() -> None:
     assert other.tension_at(1_000_000_000) == pytest.approx(world.tension_at(1_000_000_000), rel=1e-9)
 
 
-def run_protocol(seed: int) -> dict:
+def run_protocol(seed: int) -> WorldTruth:
     preset = make_preset("link1", seed=seed)
     winch, bender = ScriptedShaft(), ScriptedShaft()
     world = SimWorld(preset, winch, bender=bender, seed=seed)
@@ -313,15 +315,15 @@ def run_protocol(seed: int) -> dict:
 def test_same_seed_same_world_and_different_seed_different_world() -> None:
     a, b, c = run_protocol(4), run_protocol(4), run_protocol(5)
     assert a == b
-    assert a["joints"] != c["joints"]
-    assert a["trials"][0]["capacity_factors"] != c["trials"][0]["capacity_factors"]
+    assert a.joints != c.joints
+    assert a.trials[0].capacity_factors != c.trials[0].capacity_factors
 
 
 def test_bending_fixture_holds_then_sets_the_configuration_with_placement_error() -> None:
     preset = replace(make_preset("link1", seed=1), sigma_bend_rad=0.02)
     winch, bender = ScriptedShaft(), ScriptedShaft(position_rad=0.3)
     world = SimWorld(preset, winch, bender=bender, seed=1)
-    fixture = WorldBendingFixture(world, bender_id=2)
+    fixture = SimBendingFixture(world, bender_id=2)
     target = np.array([0.1, -0.2, 0.3, 0.0, 0.1, 0.0, -0.1, 0.2])
     goals = fixture.bend_goals(tuple(target))
     assert goals == {2: pytest.approx(0.3 + preset.bender_travel_per_bend * np.abs(target).sum())}

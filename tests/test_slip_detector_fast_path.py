@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
+from collections.abc import Callable
 
 import pytest
 
 from model.slip_detector import (
+    QUIET_STRETCH_FIELDS,
     DetectorParams,
     DetectorState,
     SlipEvent,
@@ -160,3 +163,61 @@ def test_the_fast_path_takes_the_quiet_stretches(monkeypatch: pytest.MonkeyPatch
     got, _ = _fast(params, times, forces, [])
     assert got == _plain(params, times, forces)
     assert 0 < len(calls) < 0.2 * len(times)
+
+
+def test_the_fast_path_knows_every_detector_field() -> None:
+    """A new `DetectorParams` field fails here until `QUIET_STRETCH_FIELDS` says how the fast path uses it."""
+    names = [f.name for f in dataclasses.fields(DetectorParams)]
+    assert sorted(QUIET_STRETCH_FIELDS) == sorted(names)
+    assert sorted(SAMPLERS) == sorted(names)  # and the randomised test below draws it
+
+
+def _maybe(rng: random.Random, low: float, high: float, none_share: float = 0.3) -> float | None:
+    return None if rng.random() < none_share else rng.uniform(low, high)
+
+
+# One sampler per field, over values a protocol might use (each field varies in the test below).
+SAMPLERS: dict[str, Callable[[random.Random], float | None]] = {
+    "arm_threshold_n": lambda r: r.uniform(0.2, 5.0),
+    "drop_fraction": lambda r: _maybe(r, 0.02, 0.4),
+    "min_drop_n": lambda r: r.uniform(0.0, 1.0),
+    "slope_n_per_s": lambda r: _maybe(r, 5.0, 200.0, none_share=0.85),
+    "slope_window_s": lambda r: r.uniform(0.005, 0.05),
+    "cusum_threshold_n": lambda r: _maybe(r, 0.1, 2.0, none_share=0.5),
+    "cusum_drift_n": lambda r: r.uniform(0.0, 0.2),
+    "rearm_below_n": lambda r: _maybe(r, 0.1, 3.0, none_share=0.5),
+    "noise_k": lambda r: _maybe(r, 3.0, 20.0),
+    "noise_floor_n": lambda r: r.uniform(0.0001, 0.05),
+    "noise_window_s": lambda r: r.uniform(0.05, 2.0),
+    "trend_window_s": lambda r: r.uniform(0.02, 1.0),
+    "peak_leak_n_per_s": lambda r: r.uniform(0.0, 5.0),
+    "creep_k": lambda r: _maybe(r, 3.0, 20.0),
+    "creep_drift_n_per_s": lambda r: r.uniform(0.0, 1.0),
+    "creep_min_s": lambda r: r.uniform(0.0, 0.3),
+    "spike_samples": lambda r: r.choice([1.0, 2.0]),
+    "train_k": lambda r: _maybe(r, 3.0, 20.0),
+    "drop_leak_n_per_s": lambda r: r.uniform(0.0, 5.0),
+}
+
+
+def _random_params(rng: random.Random) -> DetectorParams:
+    while True:
+        values = {name: draw(rng) for name, draw in SAMPLERS.items()}
+        try:
+            return DetectorParams(**values)  # type: ignore[arg-type]
+        except ValueError:  # no trigger on: draw again
+            continue
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_detector_run_equals_detector_step_for_random_parameters(seed: int) -> None:
+    """The fast path steps as the plain step over parameter sets drawn across every field."""
+    rng = random.Random(1000 + seed)
+    params = _random_params(rng)
+    times, forces = _recording(seed % 4)
+    cut = len(times) // 3  # a third of a recording: six ramps would cost seconds per set
+    times, forces = times[:cut], forces[:cut]
+    expected = _plain(params, times, forces)
+    cuts = sorted(rng.sample(range(1, len(times)), 10))
+    got, _ = _fast(params, times, forces, cuts)
+    assert got == expected

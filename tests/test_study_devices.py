@@ -59,7 +59,7 @@ def test_same_seed_same_trials_at_both_device_levels(tmp_path: Path) -> None:
     rms = math.sqrt(sum(d * d for d in diffs) / len(diffs))
     assert rms <= 1.5 * math.sqrt(2) * noise_kg
     assert byte.truth is not None and obj.truth is not None
-    assert byte.truth["k"] == obj.truth["k"]
+    assert byte.truth.k_kg_m == obj.truth.k_kg_m
     assert byte.estimate is not None and obj.estimate is not None
     assert obj.estimate.k == pytest.approx(byte.estimate.k, rel=1e-3)
 

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from model.estimate_summary import EstimateSummary
     from model.fit import FitSummary
     from model.payload_errors import PayloadErrorStats
+    from rig.hw.truth import RunTruth
     from rig.log.live import LivePublisher
     from rig.runner.run import RunReport, RunRequest
 
@@ -310,20 +311,13 @@ def _percentage_text(pe: PayloadErrorStats) -> str:
     return "; ".join(parts)
 
 
-def _truth_text(truth: dict[str, Any], est: FitSummary | None) -> str:
-    k = truth.get("k")
-    text = "simulator truth:"
-    if k is not None:
-        text += f" k = {k:.5g} kg·m"
-        if est is not None:
-            lo, hi = est.k_ci
-            off = f"estimate off by {(est.k - k) / k * 100:+.2f} %"
-            if math.isfinite(lo) and math.isfinite(hi):  # an estimates file may give no bounds on k
-                off = f"{'inside' if lo <= k <= hi else 'OUTSIDE'} the bounds; {off}"
-            text += f" ({off})"
-    caps = truth.get("capacity_nm")
-    if isinstance(caps, list):
-        text += " joint capacities " + ", ".join(f"{c:.3f}" for c in caps) + " N·m"
-    elif caps is not None and not math.isnan(caps):
-        text += f", capacity {caps:.4f} N·m"
-    return text
+def _truth_text(truth: RunTruth, est: FitSummary | None) -> str:
+    k = truth.k_kg_m
+    text = f"simulator truth: k = {k:.5g} kg·m"
+    if est is not None:
+        lo, hi = est.k_ci
+        off = f"estimate off by {(est.k - k) / k * 100:+.2f} %"
+        if math.isfinite(lo) and math.isfinite(hi):  # an estimates file may give no bounds on k
+            off = f"{'inside' if lo <= k <= hi else 'OUTSIDE'} the bounds; {off}"
+        text += f" ({off})"
+    return text + f", capacity {truth.capacity_nm:.4f} N·m"

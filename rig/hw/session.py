@@ -10,9 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 from rig.hw.seams import Clock, ConfigurationSource, LoadCell, ServoBus
+from rig.hw.truth import RunTruth
 from rig.protocol import TrialPlan
 from rig.vocabulary import RigKind, ServoRole
 
@@ -20,12 +21,8 @@ from rig.vocabulary import RigKind, ServoRole
 class GroundTruth(Protocol):
     """What a simulated rig knows and a real one cannot: the hidden truth the estimates should find."""
 
-    def summary(self) -> dict[str, Any]:
-        """The true values `rig run --json` reports under `truth` (k, capacities, world settings)."""
-        ...
-
-    def detail(self) -> dict[str, Any]:
-        """The summary plus every trial's hidden draws and slips, for the log's `sim_truth` record."""
+    def snapshot(self) -> RunTruth:
+        """The truth now: the world's (with every trial's hidden draws and slips) and the rig's state."""
         ...
 
 

@@ -25,7 +25,7 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, is_dataclass
 from enum import Enum
-from typing import Any
+from typing import Any, NamedTuple
 
 from model.fit import FitSummary
 from model.slip_detector import SlipEvent
@@ -413,10 +413,20 @@ def loadcell_sample(
     )
 
 
-# Topics whose payload may also be given as a row: a tuple of the values in this order (no dict to
-# build and pickle per message at 1 kHz). `RunLogger.log_many` accepts rows; the file holds the
-# same JSON object either way.
-ROW_FIELDS: dict[str, tuple[str, ...]] = {LOADCELL: ("seq", "raw", "force_n", "device_time_us")}
+class LoadCellRow(NamedTuple):
+    """A `/rig/loadcell` payload as a row: the fields of `loadcell_sample`, without a dict per sample."""
+
+    seq: int | None
+    raw: int
+    force_n: float
+    device_time_us: int | None
+
+
+# Topics whose payload may also be given as a row of this type (no dict to build and pickle per
+# message at 1 kHz). `RunLogger.log_many` accepts rows (checked by type, and field by field in
+# strict mode) and sends them on as plain tuples; the file holds the same JSON object either way.
+ROW_TYPES: dict[str, type[LoadCellRow]] = {LOADCELL: LoadCellRow}
+ROW_FIELDS: dict[str, tuple[str, ...]] = {topic: row._fields for topic, row in ROW_TYPES.items()}
 
 
 def row_payload(topic: str, row: tuple[Any, ...]) -> dict[str, Any]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator, Mapping
+from operator import attrgetter, itemgetter
 
 from rig.hw.seams import Clock, LoadCellSample, ServoState
 from rig.log import schemas
@@ -17,6 +18,10 @@ from rig.log.writer import LogWriteError, RunLogger
 from rig.runner.phases import Phase, PhaseMachine
 from rig.runner.progress import ProgressReporter
 from rig.vocabulary import ServoRole
+
+# The load-cell log columns, taken without a Python-level call per sample.
+_FIRST, _SECOND = itemgetter(0), itemgetter(1)
+_SEQ, _RAW, _DEVICE_TIME_US = attrgetter("seq"), attrgetter("raw"), attrgetter("device_time_us")
 
 
 class RunRecorder:
@@ -61,13 +66,14 @@ class RunRecorder:
             return
         try:
             if samples:
-                # Rows in schemas.ROW_FIELDS order (seq, raw, force_n, device_time_us): no dict per sample.
-                self.log.log_many(
+                # One column per `schemas.LoadCellRow` field, by name: no dict or object per sample.
+                self.log.log_columns(
                     schemas.LOADCELL,
-                    [
-                        (t_ns, (s.seq, s.raw, force, s.device_time_us))
-                        for s, (t_ns, force) in zip(samples, tick_samples, strict=True)
-                    ],
+                    map(_FIRST, tick_samples),
+                    seq=map(_SEQ, samples),
+                    raw=map(_RAW, samples),
+                    force_n=map(_SECOND, tick_samples),
+                    device_time_us=map(_DEVICE_TIME_US, samples),
                 )
             roles = self.roles
             for state in states.values():

@@ -30,6 +30,7 @@ from model.payload_errors import PayloadErrorStats
 from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text, check_out_dir
 from rig.hw.session import RigSession
+from rig.hw.truth import RunTruth
 from rig.log import schemas
 from rig.log.live import LivePublisher
 from rig.log.records import JointCapacity, LogLevel, LogMessage, TrialResult
@@ -86,7 +87,7 @@ class RunReport:
     estimate: FitSummary | None
     percentage_errors: PayloadErrorStats | None
     joints: tuple[JointCapacity, ...] = ()
-    truth: dict[str, Any] | None = None
+    truth: RunTruth | None = None  # simulation only
     safe_state_verified: bool = True
     design: tuple[AdaptiveSummary, ...] = ()  # adaptive blocks: where each stands, why it stopped
     # The protocol's estimator's fit with the paper's beside it (None before 2 slips).
@@ -112,7 +113,7 @@ class RunReport:
         if self.percentage_errors is not None:
             out["percentage_errors"] = self.percentage_errors.to_dict()
         if self.truth is not None:
-            out["truth"] = self.truth
+            out["truth"] = self.truth.to_json(with_trials=False)
         return out
 
 
@@ -319,7 +320,8 @@ def _finish_log(logger: RunLogger, session: RigSession | None) -> LogWriteError 
             level = LogLevel.WARNING if stats.dropped or stats.slow_client_events else LogLevel.INFO
             logger.log(schemas.LOG, now, LogMessage(now, level, stats.text()).to_payload())
         if session is not None and session.truth is not None:
-            logger.add_metadata("sim_truth", {"json": json.dumps(session.truth.detail(), allow_nan=False)})
+            truth_json = json.dumps(session.truth.snapshot().to_json(), allow_nan=False)
+            logger.add_metadata("sim_truth", {"json": truth_json})
         logger.finish()
     except LogWriteError as exc:
         with contextlib.suppress(LogWriteError):
@@ -343,7 +345,7 @@ def _finish(
         "joints": [j.to_json() for j in joints],
     }
     atomic_write_text(estimates_path, json.dumps(estimates, indent=1) + "\n")
-    truth = session.truth.summary() if session.truth is not None else None
+    truth = session.truth.snapshot() if session.truth is not None else None
     return RunReport(
         run_id=journal.run_id,
         log=str(log_path),

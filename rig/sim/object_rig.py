@@ -11,7 +11,6 @@ samples it. Timed faults (`simulation.faults`) act on the emulators' bytes and a
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, cast
 
 from rig.errors import ConfigError
 from rig.hw.session import RigSession
@@ -20,8 +19,8 @@ from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
 from rig.sim.simulated_rig import (
+    SimGroundTruth,
     SimOperator,
-    WorldTruth,
     bending_fixture,
     calibration_json,
     config_preset,
@@ -80,8 +79,7 @@ def object_simulated_rig(
         winch_id=config.servos.winch.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
         begin_trial=trial_starter(world),
-        # WorldTruth reads only `bus.servos[*].torque_enabled`, which the object bus has too.
-        truth=WorldTruth(world, cast(Any, bus)),
+        truth=SimGroundTruth(world, bus),
         attachments=[("loadcell-calibration.json", "application/json", calibration_json(load_cell))],
     )
     return ObjectSimulatedRig(session, world, bus, load_cell)

@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, assert_never
 
 from rig.errors import ConfigError
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.session import RigSession
+from rig.hw.truth import RunTruth
 from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, require_simulated
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
@@ -101,37 +102,32 @@ class SimulatedRig:
     devices: SimulatedDevices
 
 
-class WorldTruth:
+class _TorqueServo(Protocol):
+    @property
+    def torque_enabled(self) -> bool: ...
+
+
+class _ServoSet(Protocol):
+    """A bus of emulated or object-level servos, for whether any still has torque on."""
+
+    @property
+    def servos(self) -> Sequence[_TorqueServo]: ...
+
+
+class SimGroundTruth:
     """The world's hidden truth as the run reports it (`rig.hw.session.GroundTruth`)."""
 
-    def __init__(self, world: SimWorld, bus: EmulatedBus) -> None:
+    def __init__(self, world: SimWorld, bus: _ServoSet) -> None:
         self.world = world
         self.bus = bus
 
-    def summary(self) -> dict[str, Any]:
-        """True k, capacities, world settings and the rig's state now (the line's tension, torque).
-
-        The per-trial draws and slips go to the log only.
-        """
-        full = self.world.truth()
-        return self._with_headline({k: v for k, v in full.items() if k not in ("trials", "slips")})
-
-    def detail(self) -> dict[str, Any]:
-        """The summary with every trial's hidden draws and slip records."""
-        return self._with_headline(self.world.truth())
-
-    def _with_headline(self, world: dict[str, Any]) -> dict[str, Any]:
-        estimated = world["joints"][0]
-        return {
-            "final_tension_n": float(self.world.tension_n),
-            "torque_off": not any(servo.torque_enabled for servo in self.bus.servos),
-            "k": estimated["k_kg_m"],
-            "capacity_nm": estimated["capacity_nm"],
-            "mu_delta0_pa": estimated["mu_delta0_pa"],
-            "estimated_joint": 1,
-            "joint_capacities_nm": [j["capacity_nm"] for j in world["joints"]],
-            "world": world,
-        }
+    def snapshot(self) -> RunTruth:
+        """The world's truth with the rig's state now (the line's tension, whether torque is off)."""
+        return RunTruth(
+            final_tension_n=float(self.world.tension_n),
+            torque_off=not any(servo.torque_enabled for servo in self.bus.servos),
+            world=self.world.truth(),
+        )
 
 
 def simulated_session(
@@ -188,7 +184,7 @@ def simulated_rig(
         winch_id=winch_spec.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
         begin_trial=trial_starter(world),
-        truth=WorldTruth(world, bus),
+        truth=SimGroundTruth(world, bus),
         attachments=[("loadcell-calibration.json", "application/json", calibration_json(load_cell))],
         log_limit_bytes=log_limit_bytes(sim.faults),
     )

@@ -21,6 +21,7 @@ from typing import Any, cast
 from model.estimators import ESTIMATOR_NAMES, check_estimator, crlb_k, estimate_k
 from model.fit import DEFAULT_LEVEL
 from rig.errors import ExitCode
+from rig.hw.truth import WorldTruth
 from rig.log.records import TrialKind, TrialOutcome, TrialResult
 from rig.log.writer import RunLogger
 from rig.rigs import open_session
@@ -116,6 +117,9 @@ class _DiscardingLogger:
     def log_many(self, topic: str, messages: Iterable[tuple[int, Any]]) -> None:
         self.messages_logged += sum(1 for _ in messages)
 
+    def log_columns(self, topic: str, times_ns: Iterable[int], **columns: Iterable[Any]) -> None:
+        self.messages_logged += sum(1 for _ in times_ns)
+
     def flush(self, *, wait: bool = True, fsync: bool = False, timeout_s: float = 30.0) -> None:
         return None
 
@@ -167,7 +171,7 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
                 prepared.release()
             if session.truth is None:
                 raise RuntimeError("the rig reports no truth (a study needs the simulated rig)")
-            world = session.truth.detail()["world"]
+            world = session.truth.snapshot().world
     except Exception as exc:  # a broken run is counted, never the end of the study
         return RunRecord(seed, "aborted", f"{type(exc).__name__}: {exc}", planned, 0, _since(start), ())
     if outcome.exit_code == ExitCode.INTERRUPTED:
@@ -190,23 +194,9 @@ def _since(start: float) -> float:
     return time.perf_counter() - start
 
 
-def true_scatter(world: Mapping[str, Any]) -> tuple[float, float]:
-    """(additive sd [kg], relative sd) of one slip mass in the world's truth (`SimWorld.truth()`).
-
-    The world reports its scatter as `scatter` {shape, a_kg, b}: sd(m)² = a² + (b·m)². Truths from
-    before scatter shapes existed were purely multiplicative, by `noise.per_trial_capacity_sd`.
-    """
-    scatter = world.get("scatter")
-    if isinstance(scatter, Mapping):
-        return float(scatter.get("a_kg", 0.0)), float(scatter.get("b", 0.0))
-    return 0.0, float(world.get("noise", {}).get("per_trial_capacity_sd", 0.0))
-
-
-def score_joints(
-    results: Sequence[TrialResult], world: Mapping[str, Any], level: float
-) -> tuple[JointResult, ...]:
+def score_joints(results: Sequence[TrialResult], world: WorldTruth, level: float) -> tuple[JointResult, ...]:
     """Every estimator's k per joint from the joint-estimation trials of `results`, with the truth."""
-    a_kg, b = true_scatter(world)
+    a_kg, b = float(world.scatter.a_kg), float(world.scatter.b)  # sd(m)² = a² + (b·m)² of one slip mass
     by_joint: dict[int, list[TrialResult]] = {}
     for r in results:
         if r.kind == TrialKind.JOINT_ESTIMATION:
@@ -227,7 +217,7 @@ def score_joints(
         censored = [not r.slipped for r in usable]  # no slip before the force limit: a lower bound
         joint_result = score_joint(
             joint,
-            float(world["joints"][joint - 1]["k_kg_m"]),
+            world.joints[joint - 1].k_kg_m,
             (a_kg, b),
             distances,
             masses,
@@ -249,7 +239,7 @@ def score_joint(
 ) -> JointResult:
     """Every estimator's k from one joint's (distance, mass, censored) trials, scored with the truth.
 
-    `true_scatter` is (a [kg], b) of `true_scatter`. A run scores its trials with it, and a study's
+    `true_scatter` is (a [kg], b) of the world's scatter. A run scores its trials with it, and a study's
     table can be refitted with it later (its rows keep the data); trials left out are not counted.
     """
     distances, masses, flags = (

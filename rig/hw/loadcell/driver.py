@@ -25,7 +25,6 @@ import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from itertools import repeat
 from typing import Any, Literal
 
 import serial
@@ -35,7 +34,7 @@ from rig.hw.clock import SystemClock
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.device_time import DeviceClockMapper
 from rig.hw.loadcell.formats import InfoLine, LineDecoder, get_codec
-from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample
+from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample, load_cell_samples
 from rig.vocabulary import LoadCellFormatName
 
 DEFAULT_BAUD = 921600
@@ -279,11 +278,9 @@ class SerialLoadCell:
             else:
                 factor, offset = cal.factor_n_per_count, cal.offset_counts
                 forces = [(raw - offset) * factor for raw in raws]
-            # `LoadCellSample(*fields)` for each sample, without a Python-level call per sample (a
-            # NamedTuple's __new__ is `tuple.__new__(cls, fields)`): part of the fast path that
-            # benchmarks/bench_loadcell.py (simulated chain) demanded, with `feed_columns`.
-            fields = zip(times_ns, raws, forces, seqs, device_times_us, strict=True)
-            samples = list(map(tuple.__new__, repeat(LoadCellSample), fields))
+            # One batch constructor: part of the fast path that benchmarks/bench_loadcell.py
+            # (simulated chain) demanded, with `feed_columns`.
+            samples = load_cell_samples(zip(times_ns, raws, forces, seqs, device_times_us, strict=True))
             queue = self._queue
             overflow = len(queue) + len(samples) - self._queue_samples
             if overflow > 0:

@@ -1,4 +1,9 @@
-"""Object-level fakes of the hardware seams: no bytes, no emulators, fast (for runner tests).
+"""Object-level fakes of the hardware seams for tests: no bytes, no emulators, no world, fast.
+
+Test doubles only (`rig.testing` is imported by no rig module; pyproject.toml's import contract).
+The simulated rig's own object-level devices are `rig.sim.object_devices` (the same world as the
+byte-level rig); these fakes are simpler and scriptable (recorded calls, injected errors, a line
+with given slip forces) for the runner's tests.
 
 In the spirit of ophyd-async's mock backends, these implement the `rig.hw.seams` Protocols
 directly, on a shared `Clock` (a `VirtualClock` in tests):
