@@ -19,6 +19,7 @@ from model.field_spec import text as text_field
 from model.gravity import PAPER_G_M_S2
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
+from rig.servo_ratings import STALL_TENSION_CEILING_RATIO, current_for_tension_a, stall_tension_n
 
 # SLIP_KINDS is re-exported for rig/sim/physics/world.py, which imports it from here.
 from rig.sim_config import SLIP_KINDS as SLIP_KINDS
@@ -119,7 +120,12 @@ class RigLimits:
     force_ceiling_n: float = field(metadata=number(0.1, 500.0, unit="N", doc="tension interlock"))
     winch_current_limit_a: float = field(
         metadata=number(
-            0.01, 3.2, unit="A", doc="written to the winch's Current Limit and used as its Goal Current"
+            0.01,
+            3.2,
+            unit="A",
+            doc="written to the winch's Current Limit and used as its Goal Current; its stall tension "
+            f"(torque constant × current / spool radius) at most {STALL_TENSION_CEILING_RATIO:g} × "
+            "`force_ceiling_n`",
         )
     )
     stale_timeout_s: float = field(
@@ -175,6 +181,12 @@ class RigConfig:
     article: ArticleConfig = field(metadata=section())
     limits: RigLimits = field(metadata=section())
     simulation: SimulationConfig | None = field(default=None, metadata=section(default_doc="none"))
+
+    @property
+    def winch_stall_tension_n(self) -> float:
+        """The line tension at which the winch stalls at its current limit: its hardware tension cap."""
+        limits = self.limits
+        return stall_tension_n(self.servos.winch.model, limits.winch_current_limit_a, self.spool_radius_m)
 
     def as_metadata(self) -> dict[str, str]:
         """A flat str->str summary for the MCAP `rig` metadata record."""
@@ -257,7 +269,32 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             "simulation": simulation,
         },
     )
-    return RigConfig(**values)
+    config = RigConfig(**values)
+    _check_tension_cap(config, top.section("limits"))
+    return config
+
+
+def _check_tension_cap(config: RigConfig, limits: Section) -> None:
+    """Refuse a winch current limit whose stall tension exceeds the ceiling by more than the allowed ratio.
+
+    The order is: software ceiling < the winch's stall tension (its hardware cap) <= 1.25 x the
+    ceiling < the line's and the load cell's ratings; `rig run` checks separately that the stall
+    tension is at least the ramp's `max_force_n`.
+    """
+    ceiling_n = config.limits.force_ceiling_n
+    highest_n = STALL_TENSION_CEILING_RATIO * ceiling_n
+    stall_n = config.winch_stall_tension_n
+    if stall_n > highest_n:
+        model = config.servos.winch.model
+        # Rounded down to the mA, so that the advice itself passes.
+        advice_a = math.floor(current_for_tension_a(model, highest_n, config.spool_radius_m) * 1000) / 1000
+        raise limits.error(
+            "winch_current_limit_a",
+            f"{config.limits.winch_current_limit_a:g} A lets the winch ({model}, spool radius "
+            f"{config.spool_radius_m:g} m) pull {stall_n:.1f} N at stall, above "
+            f"{STALL_TENSION_CEILING_RATIO:g} x limits.force_ceiling_n {ceiling_n:g} N = {highest_n:.1f} N; "
+            f"set winch_current_limit_a to at most {advice_a:.3f} A",
+        )
 
 
 def _servo_bus(sec: Section) -> ServoBusConfig:
