@@ -132,6 +132,16 @@ class RigLimits:
         default=0.2, metadata=number(0.005, 10.0, unit="s", doc="without a valid load-cell sample")
     )
     max_winch_travel_rev: float = field(default=20.0, metadata=number(0.1, 255.0, unit="rev"))
+    zero_tolerance_n: float = field(
+        default=2.0,
+        metadata=number(
+            0.01,
+            50.0,
+            unit="N",
+            doc="the load cell's reading at connect and each trial's tare must be within this of its "
+            "calibrated zero (else exit 1: the line may be loaded)",
+        ),
+    )
 
 
 @dataclass(frozen=True, kw_only=True)

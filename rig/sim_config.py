@@ -226,6 +226,16 @@ class SimulationConfig:
     noise_scale: float = field(
         default=1.0, metadata=number(0.0, 10.0, doc="multiplies every noise level of the preset")
     )
+    initial_tension_n: float = field(
+        default=0.0,
+        metadata=number(
+            0.0,
+            500.0,
+            unit="N",
+            doc="the line's tension when the world starts, as after a stop that could not release it "
+            "(0: slack, the preset's reel-in before taut)",
+        ),
+    )
     torsion_weak_joint: int | None = field(
         default=None,
         metadata=custom(

@@ -35,6 +35,7 @@ from rig.errors import (
     RigTimeoutError,
     StaleDataError,
     StepTimeoutError,
+    ZeroNotVerified,
 )
 from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
 from rig.hw.session import RigSession
@@ -67,6 +68,9 @@ from rig.runner.safety import interrupts_held
 _POSITION_TOLERANCE_RAD = 0.02
 _RELEASED_TENSION_N = 0.5
 _BENDER_SPEED_RAD_S = 2.0
+# A line loaded at connect is paid out by this multiple of the travel that would release the reading
+# at the nominal line stiffness (a real line is often softer than its nominal stiffness).
+_ZERO_PAYOUT_FACTOR = 3.0
 # The safe state waits this long beyond the winch's travel time: interlocks are off by then, and
 # the load cell may be what failed, so arrival at the zero-tension angle is all it waits for.
 _SAFE_STATE_MARGIN_S = 2.0
@@ -233,18 +237,51 @@ class TrialRunner:
             self._command(sid, ServoCommandName.TORQUE, 1.0, "")
         self.session.load_cell.open()
         self._next_tick_ns = self.clock.monotonic_ns()
-        self._tick()
+        self._tick(interlocks=False)
+        while not self.tick_samples:  # a slow cell: the driver raises StaleDataError if none come
+            self._tick(interlocks=False)
         self.winch_zero_rad = self.states[winch].position_rad
+        self._verify_zero()
+        self._check_interlocks()
         self._phase(Phase.IDLE, None)
         self._note(
             LogLevel.INFO,
             f"connected: servos {sorted(self.session.roles)}; winch zero {self.winch_zero_rad:.4f} rad",
         )
 
+    def _verify_zero(self) -> None:
+        """Refuse to take a loaded line as zero: the cell must read within the tolerance of its zero.
+
+        Called at connect, after the first samples and before anything has moved (the winch holds
+        where it stands). Beyond the tolerance the line may be loaded (a stop that could not release
+        it) or the calibration's zero is off; either way the run stops (exit 1) with the reading. The
+        winch's zero-tension angle is moved out by the travel that would release that reading
+        (`_ZERO_PAYOUT_FACTOR` x, at the nominal stiffness, within the travel limit), so the safe
+        state pays line out, never in, and then turns torque off.
+        """
+        samples = [f for _, f in self.tick_samples]
+        reading_n = sum(samples) / len(samples)
+        tolerance_n = self.config.limits.zero_tolerance_n
+        if abs(reading_n) <= tolerance_n:
+            return
+        assert self.winch_zero_rad is not None
+        k_angular = self.stiffness_n_per_m * self.config.spool_radius_m  # N per rad of winch
+        payout_rad = min(
+            _ZERO_PAYOUT_FACTOR * abs(reading_n) / k_angular,
+            self.config.limits.max_winch_travel_rev * 2 * math.pi,
+        )
+        self.winch_zero_rad -= payout_rad  # reeling in is the positive direction
+        raise ZeroNotVerified(
+            f"the load cell reads {reading_n:+.2f} N at connect, beyond limits.zero_tolerance_n "
+            f"({tolerance_n:g} N) of its calibrated zero, so the line may be loaded; nothing was reeled in, "
+            f"the winch pays out {payout_rad:.2f} rad and its torque goes off: slacken the line by hand "
+            "(or, if it is slack, recalibrate the load cell with `rig calibrate`) and start the run again"
+        )
+
     # ------------------------------------------------------------------ ticks
 
-    def _tick(self) -> None:
-        """One control period: wait, read everything, log it, check the interlocks."""
+    def _tick(self, *, interlocks: bool = True) -> None:
+        """One control period: wait, read everything, log it, check the interlocks (unless told not to)."""
         if self._log_failed is not None:
             raise self._log_failed  # a run whose log cannot be written stops (a fault)
         self._next_tick_ns += self.period_ns
@@ -256,6 +293,11 @@ class TrialRunner:
         self.states = self.session.servos.read_states()
         samples = self.session.load_cell.poll()
         self._ingest(samples)
+        if interlocks:
+            self._check_interlocks()
+
+    def _check_interlocks(self) -> None:
+        """Raise InterlockTripped if this tick's samples or servo states trip an interlock."""
         now_ns = self.clock.monotonic_ns()
         reason = (
             self.ceiling.check(max((f for _, f in self.tick_samples), default=self.force_n))
@@ -455,7 +497,15 @@ class TrialRunner:
             raw_forces += [f for _, f in self.tick_samples]
         if not raw_forces:
             raise StaleDataError(f"no load-cell samples during the {settle_s:.2f} s tare window")
-        self.tare_n = sum(raw_forces) / len(raw_forces)
+        tare_n = sum(raw_forces) / len(raw_forces)
+        tolerance_n = self.config.limits.zero_tolerance_n
+        if abs(tare_n) > tolerance_n:  # an interlock, not a correction: the line is not slack at zero
+            raise InterlockTripped(
+                f"trial {trial.trial_id}: tare {tare_n:+.2f} N beyond limits.zero_tolerance_n "
+                f"({tolerance_n:g} N): the line is not slack at the winch's zero, or the load cell's zero "
+                "moved; slacken the line, check the cell, then resume the run"
+            )
+        self.tare_n = tare_n
         self._note(
             LogLevel.INFO, f"trial {trial.trial_id}: tare {self.tare_n:+.4f} N over {len(raw_forces)} samples"
         )

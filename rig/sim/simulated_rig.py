@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 from rig.errors import ConfigError
@@ -226,7 +226,7 @@ def config_preset(config: RigConfig, seed: int) -> SimPreset:
     sim = require_simulated(config)
     article = config.article
     try:
-        return make_preset(
+        preset = make_preset(
             sim.preset,
             seed,
             noise_scale=sim.noise_scale,
@@ -241,6 +241,10 @@ def config_preset(config: RigConfig, seed: int) -> SimPreset:
             scatter=sim.scatter,
             loadcell_artefacts=sim.loadcell,
         )
+        if sim.initial_tension_n > 0:  # the line starts stretched by the drum travel that loads it so
+            stretch_m = sim.initial_tension_n / preset.effective_line_stiffness_n_per_m
+            preset = replace(preset, winch_slack_rad=-stretch_m / preset.drum_radius_m)
+        return preset
     except ValueError as exc:
         raise ConfigError(f"{config.source}: simulation/article: {exc}") from None
 
