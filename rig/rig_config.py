@@ -183,6 +183,14 @@ class RigConfig:
     spool_radius_m: float = field(
         metadata=number(0.001, 0.2, unit="m", doc="tension = winch torque / radius")
     )
+    reel_direction: int = field(
+        default=1,
+        metadata=custom(
+            allowed_doc="1 or -1",
+            doc="the sign of the winch's position change that reels line in (-1: a drum wound the "
+            "other way); every winch goal is computed with it",
+        ),
+    )
     line_stiffness_n_per_m: float = field(
         default=2000.0, metadata=number(1.0, 1e7, unit="N/m", doc="nominal; used for plans and timeouts")
     )
@@ -210,6 +218,7 @@ class RigConfig:
             "loadcell_port": self.loadcell.port,
             "loadcell_format": self.loadcell.format,
             "spool_radius_m": repr(self.spool_radius_m),
+            "reel_direction": str(self.reel_direction),
             "joint_radius_m": repr(self.article.joint_radius_m),
             "joints": str(self.article.joint_count),
             "force_ceiling_n": repr(self.limits.force_ceiling_n),
@@ -272,6 +281,7 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             "source": Path(source),
             "text": text,
             "name": top.string("name", default=Path(source).stem),
+            "reel_direction": _reel_direction(top),
             "kind": kind,
             "servos": _servo_bus(top.section("servos")),
             "loadcell": _loadcell(top.section("loadcell"), base_dir or Path(".")),
@@ -305,6 +315,13 @@ def _check_tension_cap(config: RigConfig, limits: Section) -> None:
             f"{STALL_TENSION_CEILING_RATIO:g} x limits.force_ceiling_n {ceiling_n:g} N = {highest_n:.1f} N; "
             f"set winch_current_limit_a to at most {advice_a:.3f} A",
         )
+
+
+def _reel_direction(top: Section) -> int:
+    direction = top.integer("reel_direction", default=1, min_value=-1, max_value=1)
+    if direction == 0:
+        raise top.error("reel_direction", "0; allowed: 1 or -1")
+    return direction
 
 
 def _servo_bus(sec: Section) -> ServoBusConfig:

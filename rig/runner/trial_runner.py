@@ -270,7 +270,7 @@ class TrialRunner:
             _ZERO_PAYOUT_FACTOR * abs(reading_n) / k_angular,
             self.config.limits.max_winch_travel_rev * 2 * math.pi,
         )
-        self.winch_zero_rad -= payout_rad  # reeling in is the positive direction
+        self.winch_zero_rad -= self.config.reel_direction * payout_rad  # pay out, never in
         raise ZeroNotVerified(
             f"the load cell reads {reading_n:+.2f} N at connect, beyond limits.zero_tolerance_n "
             f"({tolerance_n:g} N) of its calibrated zero, so the line may be loaded; nothing was reeled in, "
@@ -584,7 +584,8 @@ class TrialRunner:
             switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
         zero = self.winch_zero_rad
         assert zero is not None
-        target = zero + self.config.limits.max_winch_travel_rev * 2 * math.pi
+        reel = self.config.reel_direction  # +1: reeling in increases the winch's position
+        target = zero + reel * self.config.limits.max_winch_travel_rev * 2 * math.pi
         radius = self.config.spool_radius_m
         # Timeout from the motion: the slow ramp to the protocol's maximum force, with the
         # nominal line stiffness, three times over, plus the margin.
@@ -646,7 +647,7 @@ class TrialRunner:
                     LogLevel.WARNING, f"trial {trial.trial_id}: no slip up to {ramp.max_force_n:.1f} N"
                 )
                 break
-            if self.states[winch].position_rad >= target - _POSITION_TOLERANCE_RAD:
+            if reel * self.states[winch].position_rad >= reel * target - _POSITION_TOLERANCE_RAD:
                 found.outcome = TrialOutcome.NO_SLIP
                 self._note(LogLevel.WARNING, f"trial {trial.trial_id}: winch travel exhausted without a slip")
                 break
@@ -699,11 +700,14 @@ class TrialRunner:
         lead instead of reeling on to `limit_rad`. A goal of None sets the first one.
         """
         winch = self.session.winch_id
-        position = self.states[winch].position_rad
+        reel = self.config.reel_direction  # reel-in coordinates: the sign times the position
+        position = reel * self.states[winch].position_rad
         lead = speed_rad_s * RAMP_GOAL_LEAD_S
-        if goal_rad is not None and (goal_rad >= limit_rad or goal_rad - position > lead / 2):
+        if goal_rad is not None and (
+            reel * goal_rad >= reel * limit_rad or reel * goal_rad - position > lead / 2
+        ):
             return goal_rad
-        goal = min(limit_rad, position + lead)
+        goal = reel * min(reel * limit_rad, position + lead)
         self.session.servos.write_goal_positions({winch: goal})
         self._command(winch, ServoCommandName.GOAL_POSITION, goal, "rad")
         return goal
@@ -721,7 +725,7 @@ class TrialRunner:
         winch = self.states.get(self.session.winch_id)
         if winch is None or winch.hardware_error:
             return False
-        confirmed = winch.velocity_rad_s > -0.05
+        confirmed = self.config.reel_direction * winch.velocity_rad_s > -0.05
         if not confirmed:
             self._note(LogLevel.WARNING, f"drop at {event.peak_force_n:.2f} N ignored: winch was backing off")
         return confirmed

@@ -249,6 +249,27 @@ def config_preset(config: RigConfig, seed: int) -> SimPreset:
         raise ConfigError(f"{config.source}: simulation/article: {exc}") from None
 
 
+class MirroredShaft:
+    """The winch's shaft as a line wound onto the drum the other way sees it: angle and torque negated."""
+
+    def __init__(self, shaft: ShaftLike) -> None:
+        self._shaft = shaft
+
+    @property
+    def present_position_rad(self) -> float:
+        """The shaft's angle, negated."""
+        return -self._shaft.present_position_rad
+
+    @property
+    def external_torque_nm(self) -> float:
+        """The line's torque on the shaft, in the mirrored direction."""
+        return -self._shaft.external_torque_nm
+
+    @external_torque_nm.setter
+    def external_torque_nm(self, value: float) -> None:
+        self._shaft.external_torque_nm = -value
+
+
 def run_clock(realtime: bool, invocation: int) -> VirtualClock:
     """The virtual clock of a run; `invocation` (1: a new run, 2: its first resume, ...) sets its start."""
     epoch_ns = DEFAULT_EPOCH_NS + (invocation - 1) * VIRTUAL_DAY_NS
@@ -260,9 +281,12 @@ def new_world(
 ) -> SimWorld:
     """The world on the bus's winch and bender shafts, integrating on every advance of the clock."""
     benders = config.servos.benders
+    winch: ShaftLike = bus.servo(config.servos.winch.servo_id)
+    if require_simulated(config).winch_reversed:
+        winch = MirroredShaft(winch)
     world = SimWorld(
         preset,
-        bus.servo(config.servos.winch.servo_id),
+        winch,
         bender=bus.servo(benders[0].servo_id) if benders else None,
         step_devices=bus.advance_to,
         seed=seed,
