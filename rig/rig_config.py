@@ -229,7 +229,9 @@ def load_rig_config(path: str | Path | None = None) -> RigConfig:
     """Load and validate a rig config; the built-in simulated rig when `path` is None."""
     p = Path(path) if path is not None else DEFAULT_RIG_CONFIG
     text = read_text_file(p, what="a rig config YAML file")
-    return parse_rig_config(parse_yaml(text, str(p)), source=str(p), text=text, base_dir=p.parent)
+    config = parse_rig_config(parse_yaml(text, str(p)), source=str(p), text=text, base_dir=p.parent)
+    check_tension_cap(config)
+    return config
 
 
 # `extends: simulated` starts a config from the built-in simulated rig; the file's own fields are
@@ -289,17 +291,18 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             "simulation": simulation,
         },
     )
-    config = RigConfig(**values)
-    _check_tension_cap(config, top.section("limits"))
-    return config
+    return RigConfig(**values)
 
 
-def _check_tension_cap(config: RigConfig, limits: Section) -> None:
+def check_tension_cap(config: RigConfig) -> None:
     """Refuse a winch current limit whose stall tension exceeds the ceiling by more than the allowed ratio.
 
-    The order is: software ceiling < the winch's stall tension (its hardware cap) <= 1.25 x the
-    ceiling < the line's and the load cell's ratings; `rig run` checks separately that the stall
-    tension is at least the ramp's `max_force_n`.
+    Checked for every config a command loads to drive a rig (`load_rig_config`), not for a config
+    read back from a log: that describes a run already made (logs from before this check carry
+    1.2 A on an 80 N ceiling), and replay must still read its geometry. The order is: software
+    ceiling < the winch's stall tension (its hardware cap) <= 1.25 x the ceiling < the line's and
+    the load cell's ratings; `rig run` checks separately that the stall tension is at least the
+    ramp's `max_force_n`.
     """
     ceiling_n = config.limits.force_ceiling_n
     highest_n = STALL_TENSION_CEILING_RATIO * ceiling_n
@@ -308,12 +311,12 @@ def _check_tension_cap(config: RigConfig, limits: Section) -> None:
         model = config.servos.winch.model
         # Rounded down to the mA, so that the advice itself passes.
         advice_a = math.floor(current_for_tension_a(model, highest_n, config.spool_radius_m) * 1000) / 1000
-        raise limits.error(
-            "winch_current_limit_a",
-            f"{config.limits.winch_current_limit_a:g} A lets the winch ({model}, spool radius "
-            f"{config.spool_radius_m:g} m) pull {stall_n:.1f} N at stall, above "
+        current_a = config.limits.winch_current_limit_a
+        raise ConfigError(
+            f"{config.source}: limits.winch_current_limit_a: {current_a:g} A lets the winch ({model}, "
+            f"spool radius {config.spool_radius_m:g} m) pull {stall_n:.1f} N at stall, above "
             f"{STALL_TENSION_CEILING_RATIO:g} x limits.force_ceiling_n {ceiling_n:g} N = {highest_n:.1f} N; "
-            f"set winch_current_limit_a to at most {advice_a:.3f} A",
+            f"set winch_current_limit_a to at most {advice_a:.3f} A"
         )
 
 

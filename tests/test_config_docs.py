@@ -55,8 +55,6 @@ def test_each_declared_bound_is_what_the_parser_enforces(where, declared):
     base = yaml.safe_load(DEFAULT_RIG_CONFIG.read_text())
     if where[:2] == ("simulation", "scatter"):  # the shape that takes both a_kg and b
         base = _with(_with(base, (*where[:2], "shape"), "mixed"), (*where[:2], "a_kg"), 0.1)
-    if where == ("limits", "winch_current_limit_a"):  # a ceiling under which its highest value is a fair cap
-        base = _with(base, ("limits", "force_ceiling_n"), 500.0)
     bounds = declared.spec.bounds
     assert bounds.hi is not None and bounds.lo is not None and not bounds.hi_open
     parse_rig_config(_with(base, where, bounds.hi), source="r.yaml")  # the bound itself is allowed

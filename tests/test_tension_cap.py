@@ -14,10 +14,11 @@ import re
 from pathlib import Path
 
 import pytest
+import yaml
 
 from rig.cli import main
 from rig.errors import ConfigError
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config, parse_rig_config
 from rig.servo_ratings import MOTOR_RATINGS, STALL_TENSION_CEILING_RATIO, stall_tension_n
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -100,3 +101,15 @@ def test_every_shipped_protocol_fits_the_hardware_template(tmp_path, capsys, pro
     assert main(args) == 0, capsys.readouterr().err
     checks = json.loads(capsys.readouterr().out)["limit_checks"]
     assert checks and all(c["ok"] for c in checks)
+
+
+def test_a_logged_config_is_read_without_the_cap_check(tmp_path):
+    # Logs from before the check carry 1.2 A on an 80 N ceiling; replay reads their geometry from the
+    # attached config (parse_rig_config), while a config loaded to drive the rig is refused.
+    text = DEFAULT_RIG_CONFIG.read_text(encoding="utf-8").replace(
+        "winch_current_limit_a: 0.56", "winch_current_limit_a: 1.2"
+    )
+    logged = parse_rig_config(yaml.safe_load(text), source="rig100.yaml", text=text)
+    assert logged.winch_stall_tension_n == pytest.approx(213.9, abs=0.05)
+    with pytest.raises(ConfigError, match=r"213\.9 N at stall"):
+        load_rig_config(_write(tmp_path, text))
