@@ -56,6 +56,10 @@ class InterlockTripped(RigError):
     """A safety interlock stopped the run; the hardware has been (or is being) made safe."""
 
 
+class ZeroNotVerified(RigError):
+    """At connect the load cell read beyond its zero tolerance: the line may be loaded; nothing was reeled."""
+
+
 class LimitError(RigError, ValueError):
     """A requested motion or load is outside configured limits; checked before anything moves."""
 

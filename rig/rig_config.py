@@ -19,6 +19,7 @@ from model.field_spec import text as text_field
 from model.gravity import PAPER_G_M_S2
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
+from rig.servo_ratings import STALL_TENSION_CEILING_RATIO, current_for_tension_a, stall_tension_n
 from rig.sim_config import SimulationConfig, parse_simulation
 from rig.validate import Section, read_field, read_fields, reject_undeclared
 from rig.vocabulary import SERVO_BAUDS, LoadCellFormatName, RigKind, ServoModel, ServoRole
@@ -109,13 +110,28 @@ class RigLimits:
     force_ceiling_n: float = field(metadata=number(0.1, 500.0, unit="N", doc="tension interlock"))
     winch_current_limit_a: float = field(
         metadata=number(
-            0.01, 3.2, unit="A", doc="written to the winch's Current Limit and used as its Goal Current"
+            0.01,
+            3.2,
+            unit="A",
+            doc="written to the winch's Current Limit and used as its Goal Current; its stall tension "
+            f"(torque constant × current / spool radius) at most {STALL_TENSION_CEILING_RATIO:g} × "
+            "`force_ceiling_n`",
         )
     )
     stale_timeout_s: float = field(
         default=0.2, metadata=number(0.005, 10.0, unit="s", doc="without a valid load-cell sample")
     )
     max_winch_travel_rev: float = field(default=20.0, metadata=number(0.1, 255.0, unit="rev"))
+    zero_tolerance_n: float = field(
+        default=2.0,
+        metadata=number(
+            0.01,
+            50.0,
+            unit="N",
+            doc="the load cell's reading at connect and each trial's tare must be within this of its "
+            "calibrated zero (else exit 1: the line may be loaded)",
+        ),
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -157,6 +173,14 @@ class RigConfig:
     spool_radius_m: float = field(
         metadata=number(0.001, 0.2, unit="m", doc="tension = winch torque / radius")
     )
+    reel_direction: int = field(
+        default=1,
+        metadata=custom(
+            allowed_doc="1 or -1",
+            doc="the sign of the winch's position change that reels line in (-1: a drum wound the "
+            "other way); every winch goal is computed with it",
+        ),
+    )
     line_stiffness_n_per_m: float = field(
         default=2000.0, metadata=number(1.0, 1e7, unit="N/m", doc="nominal; used for plans and timeouts")
     )
@@ -165,6 +189,12 @@ class RigConfig:
     article: ArticleConfig = field(metadata=section())
     limits: RigLimits = field(metadata=section())
     simulation: SimulationConfig | None = field(default=None, metadata=section(default_doc="none"))
+
+    @property
+    def winch_stall_tension_n(self) -> float:
+        """The line tension at which the winch stalls at its current limit: its hardware tension cap."""
+        limits = self.limits
+        return stall_tension_n(self.servos.winch.model, limits.winch_current_limit_a, self.spool_radius_m)
 
     def as_metadata(self) -> dict[str, str]:
         """A flat str->str summary for the MCAP `rig` metadata record."""
@@ -178,6 +208,7 @@ class RigConfig:
             "loadcell_port": self.loadcell.port,
             "loadcell_format": self.loadcell.format,
             "spool_radius_m": repr(self.spool_radius_m),
+            "reel_direction": str(self.reel_direction),
             "joint_radius_m": repr(self.article.joint_radius_m),
             "joints": str(self.article.joint_count),
             "force_ceiling_n": repr(self.limits.force_ceiling_n),
@@ -188,7 +219,9 @@ def load_rig_config(path: str | Path | None = None) -> RigConfig:
     """Load and validate a rig config; the built-in simulated rig when `path` is None."""
     p = Path(path) if path is not None else DEFAULT_RIG_CONFIG
     text = read_text_file(p, what="a rig config YAML file")
-    return parse_rig_config(parse_yaml(text, str(p)), source=str(p), text=text, base_dir=p.parent)
+    config = parse_rig_config(parse_yaml(text, str(p)), source=str(p), text=text, base_dir=p.parent)
+    check_tension_cap(config)
+    return config
 
 
 # `extends: simulated` starts a config from the built-in simulated rig; the file's own fields are
@@ -240,6 +273,7 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             "source": Path(source),
             "text": text,
             "name": top.string("name", default=Path(source).stem),
+            "reel_direction": _reel_direction(top),
             "kind": kind,
             "servos": _servo_bus(top.section("servos")),
             "loadcell": _loadcell(top.section("loadcell"), base_dir or Path(".")),
@@ -248,6 +282,39 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
         },
     )
     return RigConfig(**values)
+
+
+def check_tension_cap(config: RigConfig) -> None:
+    """Refuse a winch current limit whose stall tension exceeds the ceiling by more than the allowed ratio.
+
+    Checked for every config a command loads to drive a rig (`load_rig_config`), not for a config
+    read back from a log: that describes a run already made (logs from before this check carry
+    1.2 A on an 80 N ceiling), and replay must still read its geometry. The order is: software
+    ceiling < the winch's stall tension (its hardware cap) <= 1.25 x the ceiling < the line's and
+    the load cell's ratings; `rig run` checks separately that the stall tension is at least the
+    ramp's `max_force_n`.
+    """
+    ceiling_n = config.limits.force_ceiling_n
+    highest_n = STALL_TENSION_CEILING_RATIO * ceiling_n
+    stall_n = config.winch_stall_tension_n
+    if stall_n > highest_n:
+        model = config.servos.winch.model
+        # Rounded down to the mA, so that the advice itself passes.
+        advice_a = math.floor(current_for_tension_a(model, highest_n, config.spool_radius_m) * 1000) / 1000
+        current_a = config.limits.winch_current_limit_a
+        raise ConfigError(
+            f"{config.source}: limits.winch_current_limit_a: {current_a:g} A lets the winch ({model}, "
+            f"spool radius {config.spool_radius_m:g} m) pull {stall_n:.1f} N at stall, above "
+            f"{STALL_TENSION_CEILING_RATIO:g} x limits.force_ceiling_n {ceiling_n:g} N = {highest_n:.1f} N; "
+            f"set winch_current_limit_a to at most {advice_a:.3f} A"
+        )
+
+
+def _reel_direction(top: Section) -> int:
+    direction = top.integer("reel_direction", default=1, min_value=-1, max_value=1)
+    if direction == 0:
+        raise top.error("reel_direction", "0; allowed: 1 or -1")
+    return direction
 
 
 def _servo_bus(sec: Section) -> ServoBusConfig:

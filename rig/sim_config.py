@@ -16,6 +16,7 @@ from model.field_spec import (
     choice,
     custom,
     declared_fields,
+    flag,
     integer,
     number,
     numbers,
@@ -221,6 +222,23 @@ class SimulationConfig:
     loadcell_rate_hz: float = field(default=1000.0, metadata=number(10.0, 2000.0, unit="Hz"))
     noise_scale: float = field(
         default=1.0, metadata=number(0.0, 10.0, doc="multiplies every noise level of the preset")
+    )
+    winch_reversed: bool = field(
+        default=False,
+        metadata=flag(
+            doc="the line is wound onto the drum the other way: reeling in lowers the winch's position "
+            "(a rig config for it needs `reel_direction: -1`)"
+        ),
+    )
+    initial_tension_n: float = field(
+        default=0.0,
+        metadata=number(
+            0.0,
+            500.0,
+            unit="N",
+            doc="the line's tension when the world starts, as after a stop that could not release it "
+            "(0: slack, the preset's reel-in before taut)",
+        ),
     )
     torsion_weak_joint: int | None = field(
         default=None,

@@ -45,6 +45,10 @@ MATRIX = {
         1, 0, slack=False, torque_off=False, verified=False, reason="LINE MAY BE LOADED"
     ),
     "disk-full": Expected(1, None, slack=True, torque_off=True, verified=True, reason="LogWriteError"),
+    "loaded-at-connect": Expected(
+        1, 0, slack=True, torque_off=True, verified=True, reason="ZeroNotVerified: the load cell reads"
+    ),
+    "drifting-zero": Expected(1, 1, slack=True, torque_off=True, verified=True, reason="trial 2: tare"),
 }
 
 

@@ -71,7 +71,7 @@ article:
   joint_radius_m: 0.01
   segment_lengths_m: [0.03, 0.03]
   load: {{point_m: [0, 0, 0.03], direction: [0, -1, 0]}}
-limits: {{force_ceiling_n: 50, winch_current_limit_a: 1.2, stale_timeout_s: 0.2, max_winch_travel_rev: 20}}
+limits: {{force_ceiling_n: 50, winch_current_limit_a: 0.35, stale_timeout_s: 0.2, max_winch_travel_rev: 20}}
 """
     )
     return rig

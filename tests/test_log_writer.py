@@ -364,7 +364,9 @@ def test_strict_mode_checks_each_named_field_of_a_row(tmp_path):
     with RunLogger(tmp_path / "a.mcap", strict=True) as log:
         log.log_many(S.LOADCELL, [(T0_NS, S.LoadCellRow(sample.get("seq"), sample["raw"], 1.5, None))])
         with pytest.raises(ValueError, match="raw"):
-            swapped = S.LoadCellRow(seq=sample["raw"], raw=sample.get("seq"), force_n=1.5, device_time_us=None)
+            swapped = S.LoadCellRow(
+                seq=sample["raw"], raw=sample.get("seq"), force_n=1.5, device_time_us=None
+            )
             log.log_many(S.LOADCELL, [(T0_NS + MS, swapped)])
         with pytest.raises(TypeError, match="LoadCellRow"):  # the positional tuple is refused outright
             log.log_many(S.LOADCELL, [(T0_NS + MS, (sample["raw"], sample.get("seq"), 1.5, None))])

@@ -12,7 +12,7 @@ from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.progress import SilentProgress
 from rig.runner.recorder import RunRecorder
 from rig.runner.release import LineRelease
-from rig.sim.fakes import fake_rig
+from rig.testing.fakes import fake_rig
 
 RAMP = RampSettings(
     fast_speed_rad_s=2.0,
@@ -33,6 +33,9 @@ class _Log:
 
     def log_many(self, topic: str, rows: Any) -> None:
         self.messages.append((topic, 0, list(rows)))
+
+    def log_columns(self, topic: str, times_ns: Any, **columns: Any) -> None:
+        self.messages.append((topic, 0, [list(times_ns), {k: list(v) for k, v in columns.items()}]))
 
 
 def _loop_on_a_fake_rig() -> tuple[Any, ControlLoop, RunRecorder]:

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from typing import Any, assert_never
 
 from rig.errors import InputError
-from rig.hw.dxl.control_table import table_for_model
 from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
 from rig.rig_config import RigConfig
 from rig.vocabulary import StepKind
@@ -52,8 +51,7 @@ def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
             ramp.max_force_n < ceiling,
         )
     )
-    torque_per_a = table_for_model(config.servos.winch.model).torque_constant_nm_per_a
-    stall_force = torque_per_a * limits.winch_current_limit_a / config.spool_radius_m
+    stall_force = config.winch_stall_tension_n
     checks.append(
         LimitCheck(
             "winch stall tension (current limit) >= ramp max force",

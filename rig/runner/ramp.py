@@ -41,6 +41,7 @@ class WinchDrive:
     """Reels the winch in towards `limit_rad`, the goal never more than a short lead ahead of it."""
 
     def __init__(self, ctx: StepContext, limit_rad: float) -> None:
+        self.reel = ctx.config.reel_direction  # +1: reeling in increases the winch's position
         self.loop = ctx.loop
         self.recorder = ctx.recorder
         self.servos = ctx.session.servos
@@ -63,18 +64,22 @@ class WinchDrive:
         halfway there. If the host stops talking (crash, lost link), the winch stops within that
         lead instead of reeling on to `limit_rad`.
         """
-        position = self.loop.states[self.winch].position_rad
+        reel = self.reel  # in reel-in coordinates (the sign times the position) the goal only grows
+        position = reel * self.loop.states[self.winch].position_rad
         lead = self.speed_rad_s * RAMP_GOAL_LEAD_S
         goal = self.goal_rad
-        if goal is not None and (goal >= self.limit_rad or goal - position > lead / 2):
+        if goal is not None and (reel * goal >= reel * self.limit_rad or reel * goal - position > lead / 2):
             return
-        self.goal_rad = min(self.limit_rad, position + lead)
+        self.goal_rad = reel * min(reel * self.limit_rad, position + lead)
         self.servos.write_goal_positions({self.winch: self.goal_rad})
         self.recorder.command(self.winch, ServoCommandName.GOAL_POSITION, self.goal_rad, "rad")
 
     def travel_exhausted(self) -> bool:
         """The winch has reached the end of its allowed travel."""
-        return self.loop.states[self.winch].position_rad >= self.limit_rad - POSITION_TOLERANCE_RAD
+        reel = self.reel
+        return (
+            reel * self.loop.states[self.winch].position_rad >= reel * self.limit_rad - POSITION_TOLERANCE_RAD
+        )
 
     def hold(self) -> None:
         """Stop reeling: the goal is where the winch is now."""
@@ -182,7 +187,8 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
     zero = ctx.winch_zero_rad
     assert zero is not None
-    drive = WinchDrive(ctx, zero + ctx.config.limits.max_winch_travel_rev * 2 * math.pi)
+    reel = ctx.config.reel_direction
+    drive = WinchDrive(ctx, zero + reel * ctx.config.limits.max_winch_travel_rev * 2 * math.pi)
     # Timeout from the motion: the slow ramp to the protocol's maximum force, with the nominal line
     # stiffness, three times over, plus the margin.
     slow_s = ramp.max_force_n / (
@@ -252,7 +258,7 @@ def _confirmed_by_winch(ctx: StepContext, event: SlipEvent) -> bool:
     winch = ctx.loop.states.get(ctx.session.winch_id)
     if winch is None or winch.hardware_error:
         return False
-    confirmed = winch.velocity_rad_s > _BACKING_OFF_RAD_S
+    confirmed = ctx.config.reel_direction * winch.velocity_rad_s > _BACKING_OFF_RAD_S
     if not confirmed:
         ctx.recorder.note(
             LogLevel.WARNING, f"drop at {event.peak_force_n:.2f} N ignored: winch was backing off"

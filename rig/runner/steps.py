@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import assert_never
 
-from rig.errors import StaleDataError
+from rig.errors import InterlockTripped, StaleDataError
 from rig.log.records import LogLevel, ServoCommandName
 from rig.protocol import StepSpec, TrialPlan
 from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
@@ -47,7 +47,15 @@ def tare(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
         raw_forces += [f for _, f in loop.tick_samples]
     if not raw_forces:
         raise StaleDataError(f"no load-cell samples during the {settle_s:.2f} s tare window")
-    loop.tare_n = sum(raw_forces) / len(raw_forces)
+    tare_n = sum(raw_forces) / len(raw_forces)
+    tolerance_n = ctx.config.limits.zero_tolerance_n
+    if abs(tare_n) > tolerance_n:  # an interlock, not a correction: the line is not slack at zero
+        raise InterlockTripped(
+            f"trial {trial.trial_id}: tare {tare_n:+.2f} N beyond limits.zero_tolerance_n "
+            f"({tolerance_n:g} N): the line is not slack at the winch's zero, or the load cell's zero "
+            "moved; slacken the line, check the cell, then resume the run"
+        )
+    loop.tare_n = tare_n
     ctx.recorder.note(
         LogLevel.INFO, f"trial {trial.trial_id}: tare {loop.tare_n:+.4f} N over {len(raw_forces)} samples"
     )

@@ -15,6 +15,7 @@ interrupt, then the log is finished and the journal saved. The stages of the saf
 
 from __future__ import annotations
 
+import math
 import traceback
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -30,6 +31,7 @@ from rig.errors import (
     RigTimeoutError,
     StaleDataError,
     StepTimeoutError,
+    ZeroNotVerified,
 )
 from rig.hw.seams import OperatingMode
 from rig.hw.session import RigSession
@@ -55,6 +57,9 @@ from rig.runner.safety import interrupts_held
 from rig.runner.steps import STEPS
 from rig.vocabulary import ServoRole, TrialKind
 
+# A line loaded at connect is paid out by this multiple of the travel that would release the reading
+# at the nominal line stiffness (a real line is often softer than its nominal stiffness).
+_ZERO_PAYOUT_FACTOR = 3.0
 LINE_MAY_BE_LOADED = (
     "THE LINE MAY BE LOADED: switch off the servos' power before touching the link, then release the "
     "winch by hand"
@@ -198,12 +203,45 @@ class TrialRunner:
             recorder.command(sid, ServoCommandName.TORQUE, 1.0, "")
         self.session.load_cell.open()
         self.loop.restart_pacing()
-        self.loop.tick()
+        self.loop.tick(interlocks=False)
+        while not self.loop.tick_samples:  # a slow cell: the driver raises StaleDataError if none come
+            self.loop.tick(interlocks=False)
         self.ctx.winch_zero_rad = self.loop.states[winch].position_rad
+        self._verify_zero()
+        self.loop.check_interlocks()
         recorder.phase(Phase.IDLE, None)
         recorder.note(
             LogLevel.INFO,
             f"connected: servos {sorted(self.session.roles)}; winch zero {self.ctx.winch_zero_rad:.4f} rad",
+        )
+
+    def _verify_zero(self) -> None:
+        """Refuse to take a loaded line as zero: the cell must read within the tolerance of its zero.
+
+        Called at connect, after the first samples and before anything has moved (the winch holds
+        where it stands). Beyond the tolerance the line may be loaded (a stop that could not release
+        it) or the calibration's zero is off; either way the run stops (exit 1) with the reading. The
+        winch's zero-tension angle is moved out by the travel that would release that reading
+        (`_ZERO_PAYOUT_FACTOR` x, at the nominal stiffness, within the travel limit), so the safe
+        state pays line out, never in, and then turns torque off.
+        """
+        samples = [f for _, f in self.loop.tick_samples]
+        reading_n = sum(samples) / len(samples)
+        limits = self.config.limits
+        if abs(reading_n) <= limits.zero_tolerance_n:
+            return
+        assert self.ctx.winch_zero_rad is not None
+        n_per_rad = self.ctx.line_stiffness_n_per_m * self.config.spool_radius_m
+        payout_rad = min(
+            _ZERO_PAYOUT_FACTOR * abs(reading_n) / n_per_rad, limits.max_winch_travel_rev * 2 * math.pi
+        )
+        self.ctx.winch_zero_rad -= self.config.reel_direction * payout_rad  # pay out, never in
+        raise ZeroNotVerified(
+            f"the load cell reads {reading_n:+.2f} N at connect, beyond limits.zero_tolerance_n "
+            f"({limits.zero_tolerance_n:g} N) of its calibrated zero, so the line may be loaded; nothing was "
+            f"reeled in, the winch pays out {payout_rad:.2f} rad and its torque goes off: slacken the line "
+            "by hand (or, if it is slack, recalibrate the load cell with `rig calibrate`) and start the run "
+            "again"
         )
 
     # ------------------------------------------------------------------ trial

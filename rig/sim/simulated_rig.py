@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol, assert_never
 
 from rig.errors import ConfigError
@@ -223,7 +223,7 @@ def config_preset(config: RigConfig, seed: int) -> SimPreset:
     sim = require_simulated(config)
     article = config.article
     try:
-        return make_preset(
+        preset = make_preset(
             sim.preset,
             seed,
             noise_scale=sim.noise_scale,
@@ -238,8 +238,33 @@ def config_preset(config: RigConfig, seed: int) -> SimPreset:
             scatter=sim.scatter,
             loadcell_artefacts=sim.loadcell,
         )
+        if sim.initial_tension_n > 0:  # the line starts stretched by the drum travel that loads it so
+            stretch_m = sim.initial_tension_n / preset.effective_line_stiffness_n_per_m
+            preset = replace(preset, winch_slack_rad=-stretch_m / preset.drum_radius_m)
+        return preset
     except ValueError as exc:
         raise ConfigError(f"{config.source}: simulation/article: {exc}") from None
+
+
+class MirroredShaft:
+    """The winch's shaft as a line wound onto the drum the other way sees it: angle and torque negated."""
+
+    def __init__(self, shaft: ShaftLike) -> None:
+        self._shaft = shaft
+
+    @property
+    def present_position_rad(self) -> float:
+        """The shaft's angle, negated."""
+        return -self._shaft.present_position_rad
+
+    @property
+    def external_torque_nm(self) -> float:
+        """The line's torque on the shaft, in the mirrored direction."""
+        return -self._shaft.external_torque_nm
+
+    @external_torque_nm.setter
+    def external_torque_nm(self, value: float) -> None:
+        self._shaft.external_torque_nm = -value
 
 
 def run_clock(realtime: bool, invocation: int) -> VirtualClock:
@@ -253,9 +278,12 @@ def new_world(
 ) -> SimWorld:
     """The world on the bus's winch and bender shafts, integrating on every advance of the clock."""
     benders = config.servos.benders
+    winch: ShaftLike = bus.servo(config.servos.winch.servo_id)
+    if require_simulated(config).winch_reversed:
+        winch = MirroredShaft(winch)
     world = SimWorld(
         preset,
-        bus.servo(config.servos.winch.servo_id),
+        winch,
         bender=bus.servo(benders[0].servo_id) if benders else None,
         step_devices=bus.advance_to,
         seed=seed,

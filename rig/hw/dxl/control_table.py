@@ -12,8 +12,9 @@ reports Present Load (0.1 % of stall torque) at 126 instead of Present Current, 
 operating modes 1, 3, 4 and 16 only.
 
 The motor constants (`stall_torque_nm`, `stall_current_a`, `no_load_speed_rad_s`) are the
-datasheet values at 12 V; `torque_constant_nm_per_a = stall_torque_nm / stall_current_a` is the
-output-shaft torque per ampere the emulator uses (XM430-W350: 4.1 N·m / 2.3 A ≈ 1.78 N·m/A).
+datasheet values at 12 V, from `rig.servo_ratings`; `torque_constant_nm_per_a = stall_torque_nm /
+stall_current_a` is the output-shaft torque per ampere the emulator uses (XM430-W350: 4.1 N·m /
+2.3 A ≈ 1.78 N·m/A).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from types import MappingProxyType
 from typing import Literal, assert_never
 
 from rig.errors import InputError
+from rig.servo_ratings import MOTOR_RATINGS
 from rig.vocabulary import SERVO_BAUDS, ServoModel
 
 # Conversion constants for raw control-table units.
@@ -375,9 +377,9 @@ XM430_W350 = ControlTable(
         modes=frozenset({0, 1, 3, 4, 5, 16}),
     ),
     operating_modes=frozenset({0, 1, 3, 4, 5, 16}),
-    stall_torque_nm=4.1,
-    stall_current_a=2.3,
-    no_load_speed_rad_s=46.0 * 2.0 * math.pi / 60.0,
+    stall_torque_nm=MOTOR_RATINGS["XM430-W350"].stall_torque_nm,
+    stall_current_a=MOTOR_RATINGS["XM430-W350"].stall_current_a,
+    no_load_speed_rad_s=MOTOR_RATINGS["XM430-W350"].no_load_speed_rad_s,
 )
 
 XL430_W250 = ControlTable(
@@ -394,9 +396,9 @@ XL430_W250 = ControlTable(
         modes=frozenset({1, 3, 4, 16}),
     ),
     operating_modes=frozenset({1, 3, 4, 16}),
-    stall_torque_nm=1.5,
-    stall_current_a=1.4,
-    no_load_speed_rad_s=61.0 * 2.0 * math.pi / 60.0,
+    stall_torque_nm=MOTOR_RATINGS["XL430-W250"].stall_torque_nm,
+    stall_current_a=MOTOR_RATINGS["XL430-W250"].stall_current_a,
+    no_load_speed_rad_s=MOTOR_RATINGS["XL430-W250"].no_load_speed_rad_s,
 )
 
 

@@ -107,7 +107,9 @@ class SimPreset:
     drum_radius_m: float = 0.01
     line_stiffness_n_per_m: float = 5000.0
     spring_stiffness_n_per_m: float | None = None  # None: no spring in the line
-    winch_slack_rad: float = 0.5  # reel-in from the winch's starting angle before the line is taut
+    # Reel-in from the winch's starting angle before the line is taut; negative: the line starts
+    # stretched by that much drum travel (loaded, `simulation.initial_tension_n`).
+    winch_slack_rad: float = 0.5
     # Bending fixture.
     bender_travel_per_bend: float = 2.0  # bender shaft rad per rad of total requested |bend|
     bender_arrival_tolerance_rad: float = 0.02
@@ -154,9 +156,11 @@ class SimPreset:
             raise ValueError(
                 f"preset {self.name}: per_trial_capacity_sd = {self.per_trial_capacity_sd}; allowed: [0, 1)"
             )
-        for name in ("sigma_bend_rad", "sigma_meas_rad", "loadcell_noise_n", "winch_slack_rad"):
+        for name in ("sigma_bend_rad", "sigma_meas_rad", "loadcell_noise_n"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"preset {self.name}: {name} must be >= 0")
+        if not math.isfinite(self.winch_slack_rad):
+            raise ValueError(f"preset {self.name}: winch_slack_rad must be finite")
         if not 0 <= self.slipped_joint_report_probability <= 1:
             raise ValueError(f"preset {self.name}: slipped_joint_report_probability allowed: [0, 1]")
         if self.torsion_weak_joint is not None and not 1 <= self.torsion_weak_joint <= joints:

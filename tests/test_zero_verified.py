@@ -1,0 +1,102 @@
+"""Zero verified: a run never takes a loaded line as zero, and a tare beyond the tolerance is an interlock.
+
+At connect the load cell must read within `limits.zero_tolerance_n` of its calibrated zero before
+anything moves; otherwise the run stops (exit 1) with the reading and what to do, the winch pays line
+out (never in) and torque goes off. A trial's tare beyond the same tolerance stops the run as an
+interlock rather than being subtracted. Every case reads the simulated world at the end: the line
+slack and every servo's torque off.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from rig.errors import ConfigError
+from rig.rig_config import load_rig_config
+from rig.rigs import open_simulated_rig
+from rig.runner.progress import SilentProgress
+from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
+from rig.sim.simulated_rig import SimulatedRig, config_preset
+
+ROOT = Path(__file__).resolve().parent.parent
+SMOKE = ROOT / "protocols" / "smoke.yaml"
+SLACK_N = 0.5
+
+
+def _rig(tmp_path: Path, simulation: str, limits: str = "") -> Path:
+    path = tmp_path / "rig.yaml"
+    path.write_text(
+        f"extends: simulated\nname: zero-test\nsimulation:\n{simulation}"
+        + (f"limits:\n{limits}" if limits else ""),
+        encoding="utf-8",
+    )
+    return path
+
+
+def _run(rig: Path, out: Path) -> tuple[RunReport, SimulatedRig, float]:
+    prepared = prepare_run(RunRequest(SMOKE, rig, out, seed=0, run_id="zero"))
+    sim = open_simulated_rig(prepared)
+    start_rad = sim.devices.bus.servo(1).present_position_rad
+    report = execute_run(prepared, sim.session, SilentProgress())
+    return report, sim, start_rad
+
+
+def _assert_slack_and_off(sim: SimulatedRig) -> None:
+    world, bus = sim.devices.world, sim.devices.bus
+    assert world.tension_n < SLACK_N, world.tension_n
+    assert not any(servo.torque_enabled for servo in bus.servos)
+
+
+def test_the_simulated_line_can_start_loaded(tmp_path):
+    config = load_rig_config(_rig(tmp_path, "  initial_tension_n: 30\n"))
+    assert config.simulation is not None and config.simulation.initial_tension_n == 30.0
+    preset = config_preset(config, 0)
+    # Stretched by 30 N / 5000 N/m = 6 mm of line, 0.6 rad of a 10 mm drum.
+    assert preset.winch_slack_rad == pytest.approx(-0.6)
+    with pytest.raises(ConfigError, match=r"simulation\.initial_tension_n"):
+        load_rig_config(_rig(tmp_path, "  initial_tension_n: -1\n"))
+
+
+@pytest.mark.parametrize("tension_n", [30.0, 150.0])
+def test_a_line_loaded_at_connect_is_refused_and_left_slack(tmp_path, tension_n):
+    report, sim, start_rad = _run(_rig(tmp_path, f"  initial_tension_n: {tension_n}\n"), tmp_path / "out")
+    assert report.exit_code == 1 and report.completed == 0
+    reason = report.reason or ""
+    assert reason.startswith("ZeroNotVerified: the load cell reads +") and "at connect" in reason
+    assert "slacken the line" in reason and "limits.zero_tolerance_n (2 N)" in reason
+    assert report.safe_state_verified
+    _assert_slack_and_off(sim)
+    # It only paid line out (reeling in is positive): the winch ends below where it started.
+    assert sim.devices.bus.servo(1).present_position_rad < start_rad
+    assert sim.devices.world.trials == []  # no trial began
+
+
+def test_a_loaded_line_within_a_wider_tolerance_is_taken(tmp_path):
+    # The control: the same start passes when the tolerance covers the reading (so the refusal above
+    # is the tolerance's doing, not something else about a loaded start).
+    report, _sim, _ = _run(
+        _rig(tmp_path, "  initial_tension_n: 30\n", "  zero_tolerance_n: 50\n"), tmp_path / "out"
+    )
+    assert "ZeroNotVerified" not in (report.reason or "")
+
+
+def test_a_tare_beyond_the_tolerance_is_an_interlock(tmp_path):
+    # A load cell whose zero drifts 0.5 N/s: trial 1's tare (about 1 s in) is within 2 N, trial 2's is not.
+    report, sim, _ = _run(_rig(tmp_path, "  loadcell: {drift_n_per_s: 0.5}\n"), tmp_path / "out")
+    assert report.exit_code == 1 and report.completed == 1, report.reason
+    reason = report.reason or ""
+    assert (
+        reason.startswith("InterlockTripped: trial 2: tare +") and "limits.zero_tolerance_n (2 N)" in reason
+    )
+    assert report.safe_state_verified
+    _assert_slack_and_off(sim)
+
+
+def test_the_default_tolerance_lets_every_shipped_tare_through(tmp_path):
+    # Without drift the same rig completes: the interlock above is the drift's doing.
+    report, sim, _ = _run(_rig(tmp_path, "  loadcell: {drift_n_per_s: 0.0}\n"), tmp_path / "out")
+    assert report.exit_code == 0, report.reason
+    assert all(abs(t.tare_n) <= 2.0 for t in report.trials)
+    _assert_slack_and_off(sim)
