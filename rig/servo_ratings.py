@@ -17,6 +17,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 
+from rig.vocabulary import ServoModel
+
 
 @dataclass(frozen=True)
 class MotorRating:
@@ -32,10 +34,10 @@ class MotorRating:
         return self.stall_torque_nm / self.stall_current_a
 
 
-MOTOR_RATINGS: Mapping[str, MotorRating] = MappingProxyType(
+MOTOR_RATINGS: Mapping[ServoModel, MotorRating] = MappingProxyType(
     {
-        "XM430-W350": MotorRating(4.1, 2.3, 46.0 * 2.0 * math.pi / 60.0),
-        "XL430-W250": MotorRating(1.5, 1.4, 61.0 * 2.0 * math.pi / 60.0),
+        ServoModel.XM430_W350: MotorRating(4.1, 2.3, 46.0 * 2.0 * math.pi / 60.0),
+        ServoModel.XL430_W250: MotorRating(1.5, 1.4, 61.0 * 2.0 * math.pi / 60.0),
     }
 )
 
@@ -43,11 +45,11 @@ MOTOR_RATINGS: Mapping[str, MotorRating] = MappingProxyType(
 STALL_TENSION_CEILING_RATIO = 1.25
 
 
-def stall_tension_n(model: str, current_limit_a: float, spool_radius_m: float) -> float:
+def stall_tension_n(model: ServoModel, current_limit_a: float, spool_radius_m: float) -> float:
     """The line tension at which a winch of `model` stalls at `current_limit_a` on its drum."""
     return MOTOR_RATINGS[model].torque_constant_nm_per_a * current_limit_a / spool_radius_m
 
 
-def current_for_tension_a(model: str, tension_n: float, spool_radius_m: float) -> float:
+def current_for_tension_a(model: ServoModel, tension_n: float, spool_radius_m: float) -> float:
     """The current limit at which a winch of `model` stalls at `tension_n` (inverse of stall_tension_n)."""
     return tension_n * spool_radius_m / MOTOR_RATINGS[model].torque_constant_nm_per_a

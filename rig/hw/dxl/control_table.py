@@ -377,9 +377,9 @@ XM430_W350 = ControlTable(
         modes=frozenset({0, 1, 3, 4, 5, 16}),
     ),
     operating_modes=frozenset({0, 1, 3, 4, 5, 16}),
-    stall_torque_nm=MOTOR_RATINGS["XM430-W350"].stall_torque_nm,
-    stall_current_a=MOTOR_RATINGS["XM430-W350"].stall_current_a,
-    no_load_speed_rad_s=MOTOR_RATINGS["XM430-W350"].no_load_speed_rad_s,
+    stall_torque_nm=MOTOR_RATINGS[ServoModel.XM430_W350].stall_torque_nm,
+    stall_current_a=MOTOR_RATINGS[ServoModel.XM430_W350].stall_current_a,
+    no_load_speed_rad_s=MOTOR_RATINGS[ServoModel.XM430_W350].no_load_speed_rad_s,
 )
 
 XL430_W250 = ControlTable(
@@ -396,9 +396,9 @@ XL430_W250 = ControlTable(
         modes=frozenset({1, 3, 4, 16}),
     ),
     operating_modes=frozenset({1, 3, 4, 16}),
-    stall_torque_nm=MOTOR_RATINGS["XL430-W250"].stall_torque_nm,
-    stall_current_a=MOTOR_RATINGS["XL430-W250"].stall_current_a,
-    no_load_speed_rad_s=MOTOR_RATINGS["XL430-W250"].no_load_speed_rad_s,
+    stall_torque_nm=MOTOR_RATINGS[ServoModel.XL430_W250].stall_torque_nm,
+    stall_current_a=MOTOR_RATINGS[ServoModel.XL430_W250].stall_current_a,
+    no_load_speed_rad_s=MOTOR_RATINGS[ServoModel.XL430_W250].no_load_speed_rad_s,
 )
 
 
