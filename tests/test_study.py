@@ -28,7 +28,17 @@ from rig.study.worker import EstimatorResult, JointResult, RunRecord, StudySpec
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "protocols" / "smoke.yaml"
 JSON_KEYS = {"protocol", "seeds", "runs", "aborted", "estimators"}
-ESTIMATOR_KEYS = {"coverage", "coverage_ci", "bias_rel", "rmse_rel", "mse_over_crlb", "mean_trials"}
+ESTIMATOR_KEYS = {
+    "coverage",
+    "coverage_ci",
+    "bias_rel",
+    "rmse_rel",
+    "mse_over_crlb",
+    "mean_trials",
+    "median_trials",
+    "p90_trials",
+    "coverage_by_stop",
+}
 
 
 # ----- seeds -------------------------------------------------------------------------------------
@@ -174,6 +184,8 @@ def test_summary_scores_completed_runs_and_counts_aborted_ones() -> None:
     assert e.rmse_rel == pytest.approx(math.sqrt((0.05**2 + 0.15**2) / 3))
     assert e.mse_over_crlb == pytest.approx((0.01**2 + 0.03**2 + 0.0) / 3 / 1e-4)
     assert e.mean_trials == pytest.approx((24 + 24 + 12) / 3)
+    assert (e.median_trials, e.p90_trials) == (24, 24)
+    assert e.coverage_by_stop == ()  # no adaptive block
     assert set(summary.as_json()) == JSON_KEYS
     assert set(summary.as_json()["estimators"]["paper"]) == ESTIMATOR_KEYS
 
@@ -307,6 +319,7 @@ def test_cli_link_validation_only_is_not_supported(
     err = capsys.readouterr().err
     assert code == 2, err
     assert "not supported" in err
+    assert "blocks: link_validation x 1;" in err  # names the kinds it found
 
 
 def test_cli_scheduler_without_dask_names_the_extra(
