@@ -19,7 +19,7 @@ from model.estimators import ESTIMATOR_NAMES, crlb_k, estimate_k
 from rig.cli import main
 from rig.errors import InputError
 from rig.study import table as table_module
-from rig.study.executor import run_local
+from rig.study.executor import run_local, seed_chunks
 from rig.study.seeds import parse_seeds
 from rig.study.summary import clopper_pearson, summarise
 from rig.study.table import TABLE_NAME, write_table
@@ -407,3 +407,47 @@ def test_workers_fork_only_from_a_single_threaded_process() -> None:
     finally:
         release.set()
         other.join()
+
+
+# ----- the Dask path's chunks ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("n", "threads"), [(1, 1), (5, 2), (64, 2), (200, 16), (3, 64)])
+def test_seed_chunks_cover_every_seed_once_largest_first(n: int, threads: int) -> None:
+    seeds = list(range(100, 100 + n))
+    chunks = seed_chunks(seeds, threads)
+    assert [s for chunk in chunks for s in chunk] == seeds
+    sizes = [len(c) for c in chunks]
+    assert sizes == sorted(sizes, reverse=True) and sizes[-1] == 1
+    assert sizes[0] == math.ceil(n / (4 * threads))  # a quarter of a worker thread's share at first
+    assert len(chunks) <= n
+
+
+@pytest.mark.slow
+def test_a_failed_dask_chunk_aborts_its_seeds_and_the_study_goes_on(monkeypatch: pytest.MonkeyPatch) -> None:
+    distributed = pytest.importorskip("distributed")
+    from rig.study import executor
+
+    real = executor.run_seed
+
+    def crashing(spec: StudySpec, seed: int) -> RunRecord:
+        if seed == 0:
+            raise RuntimeError("worker lost")  # run_seed itself never raises: as if the worker died
+        return real(spec, seed)
+
+    monkeypatch.setattr(executor, "run_seed", crashing)
+    seen: list[int] = []
+    with distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=1) as cluster:
+        records = executor.run_dask(
+            StudySpec(str(SMOKE), None, "object"),
+            [0, 1, 2, 3, 4],
+            cluster.scheduler_address,
+            lambda r: seen.append(r.seed),
+        )
+    assert sorted(seen) == [0, 1, 2, 3, 4]
+    first_chunk = executor.seed_chunks([0, 1, 2, 3, 4], 1)[0]
+    assert first_chunk == [0, 1]
+    by_seed = {r.seed: r for r in records}
+    for seed in first_chunk:
+        assert by_seed[seed].status == "aborted" and by_seed[seed].reason == "dask: RuntimeError: worker lost"
+    assert all(by_seed[s].status == "completed" for s in (2, 3, 4))
