@@ -18,9 +18,20 @@ then the cProfile of a second run (cumulative, the top 30 entries).
 `--baseline-tree DIR` adds, in every repetition, the object-level study of another checkout (the
 same protocol file, that tree's code), so an improvement is measured side by side too.
 
+`--dask N` instead compares the Dask path with the local pool at N workers: a local Dask cluster
+of N single-threaded worker processes is started first (outside the timing, with one warm-up
+study on it, as a lab's cluster would be up before a study), then every repetition times, in an
+order alternated per repetition, `rig study PROTOCOL --seeds ... --jobs N` and `rig study PROTOCOL
+--seeds ... --scheduler ADDRESS` (object-level devices, whole commands). Prints each repetition's
+runs/s, the ratio of the Dask throughput to the local pool's and the load average, then the median
+ratio (target >= 0.95). With `--baseline-tree` the other tree's `--scheduler` study is timed too
+(its client, so its way of sending the seeds, on the same workers). The default N of seeds is 64
+in this mode.
+
     .venv/bin/python benchmarks/bench_study.py [--seeds N] [--repeats R] [--protocol PATH]
         [--baseline-tree DIR]
     .venv/bin/python benchmarks/bench_study.py --profile 3
+    .venv/bin/python benchmarks/bench_study.py --dask 2 [--seeds 64] [--repeats 5] [--baseline-tree DIR]
 """
 
 from __future__ import annotations
@@ -60,9 +71,52 @@ def sequential_runs(protocol: Path, seeds: int) -> float:
     return total
 
 
-def study(protocol: Path, seeds: int, devices: str, tree: Path = ROOT) -> float:
+def study(protocol: Path, seeds: int, devices: str, tree: Path = ROOT, where: tuple[str, ...] = ()) -> float:
+    """Wall time of one `rig study` command; `where` is how it runs the seeds (default --jobs 2)."""
     command = [sys.executable, "-m", "rig.cli", "study", str(protocol), "--seeds", f"0-{seeds - 1}"]
-    return timed([*command, "--jobs", "2", "--devices", devices, "--json"], tree)
+    return timed([*command, *(where or ("--jobs", "2")), "--devices", devices, "--json"], tree)
+
+
+def dask_against_pool(protocol: Path, seeds: int, workers: int, repeats: int, baseline: Path | None) -> None:
+    """`--dask N`: see the module docstring."""
+    from distributed import LocalCluster
+
+    with LocalCluster(
+        n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        scheduler = ("--scheduler", cluster.scheduler_address)
+        measures = {
+            "pool": lambda: study(protocol, seeds, "object", where=("--jobs", str(workers))),
+            "dask": lambda: study(protocol, seeds, "object", where=scheduler),
+        }
+        if baseline is not None:
+            measures["dask_baseline"] = lambda: study(protocol, seeds, "object", baseline, scheduler)
+        study(protocol, workers, "object", where=scheduler)  # warm-up: the workers import the rig
+        names = list(measures)
+        ratios: dict[str, list[float]] = {name: [] for name in names if name != "pool"}
+        print(
+            f"{seeds} seeds of {protocol.name}: --jobs {workers} against a local Dask cluster of {workers} "
+            f"single-threaded workers, {repeats} repetitions, cpus={os.cpu_count()}"
+        )
+        for rep in range(repeats):
+            order = names[rep % len(names) :] + names[: rep % len(names)]
+            load_before = os.getloadavg()[0]
+            wall = {name: measures[name]() for name in order}
+            for name in ratios:
+                ratios[name].append(wall["pool"] / wall[name])  # throughput ratio: runs/s over runs/s
+            print(
+                f"rep {rep + 1} ({' then '.join(order)}): "
+                + ", ".join(f"{name} {wall[name]:.1f} s ({seeds / wall[name]:.2f} runs/s)" for name in names)
+                + "; "
+                + ", ".join(f"{name}/pool {ratios[name][-1]:.3f}x" for name in ratios)
+                + f"; load average {load_before:.1f} -> {os.getloadavg()[0]:.1f}",
+                flush=True,
+            )
+        print(
+            "median throughput ratio: "
+            + ", ".join(f"{name}/pool {statistics.median(ratios[name]):.3f}x" for name in ratios)
+            + " (target >= 0.95 for dask/pool)"
+        )
 
 
 def profile_seed(protocol: Path, seed: int) -> None:
@@ -90,7 +144,9 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--protocol", type=Path, default=ROOT / "protocols" / "joint_estimation.yaml")
-    parser.add_argument("--seeds", type=int, default=24, help="seeds per measurement (default 24)")
+    parser.add_argument(
+        "--seeds", type=int, default=None, help="seeds per measurement (default 24; 64 with --dask)"
+    )
     parser.add_argument("--repeats", type=int, default=3, help="repetitions (default 3)")
     parser.add_argument("--profile", type=int, metavar="SEED", help="profile one object-level run instead")
     parser.add_argument(
@@ -98,10 +154,21 @@ def main() -> None:
         type=Path,
         help="also time the object-level study of another checkout (e.g. ../main) in every repetition",
     )
+    parser.add_argument(
+        "--dask",
+        type=int,
+        metavar="N",
+        help="compare --scheduler on a local cluster of N workers with --jobs N",
+    )
     args = parser.parse_args()
     if args.profile is not None:
         profile_seed(args.protocol, args.profile)
         return
+    if args.dask is not None:
+        baseline = None if args.baseline_tree is None else args.baseline_tree.resolve()
+        dask_against_pool(args.protocol, args.seeds or 64, args.dask, args.repeats, baseline)
+        return
+    args.seeds = args.seeds or 24
     measures = {
         "runs": lambda: sequential_runs(args.protocol, args.seeds),
         "study_byte": lambda: study(args.protocol, args.seeds, "byte"),

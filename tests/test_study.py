@@ -19,7 +19,7 @@ from model.estimators import ESTIMATOR_NAMES, crlb_k, estimate_k
 from rig.cli import main
 from rig.errors import InputError
 from rig.study import table as table_module
-from rig.study.executor import run_local
+from rig.study.executor import run_local, seed_chunks
 from rig.study.seeds import parse_seeds
 from rig.study.summary import clopper_pearson, summarise
 from rig.study.table import TABLE_NAME, write_table
@@ -28,7 +28,17 @@ from rig.study.worker import EstimatorResult, JointResult, RunRecord, StudySpec
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "protocols" / "smoke.yaml"
 JSON_KEYS = {"protocol", "seeds", "runs", "aborted", "estimators"}
-ESTIMATOR_KEYS = {"coverage", "coverage_ci", "bias_rel", "rmse_rel", "mse_over_crlb", "mean_trials"}
+ESTIMATOR_KEYS = {
+    "coverage",
+    "coverage_ci",
+    "bias_rel",
+    "rmse_rel",
+    "mse_over_crlb",
+    "mean_trials",
+    "median_trials",
+    "p90_trials",
+    "coverage_by_stop",
+}
 
 
 # ----- seeds -------------------------------------------------------------------------------------
@@ -174,6 +184,8 @@ def test_summary_scores_completed_runs_and_counts_aborted_ones() -> None:
     assert e.rmse_rel == pytest.approx(math.sqrt((0.05**2 + 0.15**2) / 3))
     assert e.mse_over_crlb == pytest.approx((0.01**2 + 0.03**2 + 0.0) / 3 / 1e-4)
     assert e.mean_trials == pytest.approx((24 + 24 + 12) / 3)
+    assert (e.median_trials, e.p90_trials) == (24, 24)
+    assert e.coverage_by_stop == ()  # no adaptive block
     assert set(summary.as_json()) == JSON_KEYS
     assert set(summary.as_json()["estimators"]["paper"]) == ESTIMATOR_KEYS
 
@@ -307,6 +319,7 @@ def test_cli_link_validation_only_is_not_supported(
     err = capsys.readouterr().err
     assert code == 2, err
     assert "not supported" in err
+    assert "blocks: link_validation x 1;" in err  # names the kinds it found
 
 
 def test_cli_scheduler_without_dask_names_the_extra(
@@ -394,3 +407,47 @@ def test_workers_fork_only_from_a_single_threaded_process() -> None:
     finally:
         release.set()
         other.join()
+
+
+# ----- the Dask path's chunks ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("n", "threads"), [(1, 1), (5, 2), (64, 2), (200, 16), (3, 64)])
+def test_seed_chunks_cover_every_seed_once_largest_first(n: int, threads: int) -> None:
+    seeds = list(range(100, 100 + n))
+    chunks = seed_chunks(seeds, threads)
+    assert [s for chunk in chunks for s in chunk] == seeds
+    sizes = [len(c) for c in chunks]
+    assert sizes == sorted(sizes, reverse=True) and sizes[-1] == 1
+    assert sizes[0] == math.ceil(n / (4 * threads))  # a quarter of a worker thread's share at first
+    assert len(chunks) <= n
+
+
+@pytest.mark.slow
+def test_a_failed_dask_chunk_aborts_its_seeds_and_the_study_goes_on(monkeypatch: pytest.MonkeyPatch) -> None:
+    distributed = pytest.importorskip("distributed")
+    from rig.study import executor
+
+    real = executor.run_seed
+
+    def crashing(spec: StudySpec, seed: int) -> RunRecord:
+        if seed == 0:
+            raise RuntimeError("worker lost")  # run_seed itself never raises: as if the worker died
+        return real(spec, seed)
+
+    monkeypatch.setattr(executor, "run_seed", crashing)
+    seen: list[int] = []
+    with distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=1) as cluster:
+        records = executor.run_dask(
+            StudySpec(str(SMOKE), None, "object"),
+            [0, 1, 2, 3, 4],
+            cluster.scheduler_address,
+            lambda r: seen.append(r.seed),
+        )
+    assert sorted(seen) == [0, 1, 2, 3, 4]
+    first_chunk = executor.seed_chunks([0, 1, 2, 3, 4], 1)[0]
+    assert first_chunk == [0, 1]
+    by_seed = {r.seed: r for r in records}
+    for seed in first_chunk:
+        assert by_seed[seed].status == "aborted" and by_seed[seed].reason == "dask: RuntimeError: worker lost"
+    assert all(by_seed[s].status == "completed" for s in (2, 3, 4))

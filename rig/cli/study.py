@@ -14,6 +14,7 @@ from rig.files import check_out_dir
 from rig.vocabulary import DeviceLevel, RigKind, TrialKind
 
 if TYPE_CHECKING:
+    from rig.protocol import Protocol
     from rig.study.summary import StudySummary
     from rig.study.worker import RunRecord, StudySpec
 
@@ -29,16 +30,22 @@ Per estimator it reports:
   rmse_rel        root mean square relative error of k
   mse_over_crlb   mean squared error over the Cramér-Rao bound for the run's own distances and
                   the true scatter (1.0 is the best any unbiased estimator can do)
-  mean_trials     trials a run used
+  trials          trials a run used: mean, median and 90th percentile (an adaptive design
+                  stops when its bound is narrow enough, so this is its cost)
+  coverage at the stop (adaptive blocks): the coverage split by how each series stopped,
+                  target reached or budget used up (or no safe distance), with 95 % intervals
 and how many runs were aborted (with their reasons). Slips enter the fit as measured slip loads,
 no-slip trials (nothing slipped up to the force limit) as lower bounds.
 
 Change the protocol (distances, repeats) or the rig config (the simulation: section) and compare:
 that is how to choose the number of trials, the distances and the estimator.
 
-Protocols: the joint_estimation blocks are scored (one case per run and joint). A protocol with
-only link_validation blocks is not supported (exit 2): its per-joint capacities come from a prior
-estimate, not from its own trials.
+Protocols: the joint_estimation blocks are scored, fixed (`distances_m` x `repeats`) and adaptive
+(`design: adaptive`, whose planner chooses the distances and when to stop) alike, alone or mixed.
+A case is one run's fixed trials on one joint, or one adaptive block's own trials (the data its
+stopping rule saw). A protocol without a joint_estimation block is not supported (exit 2, naming
+the blocks found): a link_validation block's capacities come from a prior estimate, not from its
+own trials.
 
 The runs use object-level simulated devices by default: the same world, motion model and load-cell
 signal model as the byte-level rig, without the packets and lines (a test holds a seed at both
@@ -55,6 +62,7 @@ EXAMPLES = """\
 examples:
   rig study protocols/joint_estimation.yaml --seeds 0-199 --jobs 2
   rig study protocols/joint_estimation.yaml --seeds 0-49 --json
+  rig study protocols/joint_estimation_adaptive.yaml --seeds 0-199 --jobs 2
   rig study my_design.yaml --rig protocols/rigs/my-sim.yaml --seeds 0,3,7,100-119 --out studies/out
   rig study protocols/joint_estimation.yaml --seeds 0-999 --scheduler tcp://10.0.0.5:8786
 """
@@ -164,18 +172,27 @@ def _checked_spec(args: argparse.Namespace) -> StudySpec:
             f"{config.source}: simulation/faults: timed faults act on the emulators' bytes; "
             "allowed: --devices byte for a config with faults"
         )
-    kinds = {t.kind for t in prepared.protocol.trials}
-    if TrialKind.JOINT_ESTIMATION not in kinds:
+    if TrialKind.JOINT_ESTIMATION not in prepared.protocol.kinds:
         raise InputError(
-            f"{args.protocol}: only {', '.join(sorted(kinds))} blocks; not supported by rig study, which "
-            "scores joint_estimation blocks (a link_validation protocol's capacities come from a prior "
-            "estimate, not its own trials); allowed: a protocol with a joint_estimation block"
+            f"{args.protocol}: blocks: {_block_kinds(prepared.protocol)}; not supported by rig study, which "
+            "scores joint_estimation blocks, fixed or adaptive (a link_validation block's capacities come "
+            "from a prior estimate, not its own trials); allowed: a protocol with a joint_estimation block"
         )
     return StudySpec(
         protocol_path=str(args.protocol),
         rig_path=None if args.rig is None else str(args.rig),
         devices=DeviceLevel(args.devices),
     )
+
+
+def _block_kinds(protocol: Protocol) -> str:
+    """The kinds of the protocol's blocks with how many of each, e.g. `link_validation x 2`."""
+    blocks: dict[int, str] = {t.block: t.kind.value for t in protocol.trials}
+    blocks.update({b.block: f"{b.kind.value} (adaptive)" for b in protocol.adaptive})
+    counts: dict[str, int] = {}
+    for kind in blocks.values():
+        counts[kind] = counts.get(kind, 0) + 1
+    return ", ".join(f"{kind} x {n}" for kind, n in sorted(counts.items()))
 
 
 class _progress:
@@ -243,16 +260,42 @@ def _text(summary: StudySummary, spec: StudySpec, table: Path | None) -> str:
                 f"{e.bias_rel * 100:+.2f} %",
                 f"{e.rmse_rel * 100:.2f} %",
                 f"{e.mse_over_crlb:.2f}",
-                f"{e.mean_trials:.1f}",
+                f"{e.mean_trials:.1f} / {e.median_trials:g} / {e.p90_trials:g}",
                 e.failures,
             ]
         )
     lines.append(
         format_table(
-            ["estimator", "cases", "coverage", "95 % CI", "bias", "RMSE", "MSE/CRLB", "trials", "failed"],
+            [
+                "estimator",
+                "cases",
+                "coverage",
+                "95 % CI",
+                "bias",
+                "RMSE",
+                "MSE/CRLB",
+                "trials: mean / median / p90",
+                "failed",
+            ],
             rows,
         )
     )
+    stop_rows = [
+        [
+            name,
+            c.stop_reason.value,
+            c.cases,
+            f"{c.coverage:.3f}",
+            f"[{c.coverage_ci[0]:.3f}, {c.coverage_ci[1]:.3f}]",
+        ]
+        for name, e in summary.estimators.items()
+        for c in e.coverage_by_stop
+    ]
+    if stop_rows:
+        lines.append(
+            "coverage at the stop of the adaptive blocks, by how they stopped:\n"
+            + format_table(["estimator", "stopped", "cases", "coverage", "95 % CI"], stop_rows)
+        )
     if completed == 0:
         lines.append("no run completed: nothing to score")
     for seed, reason in summary.aborted_reasons[:10]:

@@ -9,12 +9,19 @@ worker takes over. Workers ignore SIGINT: Ctrl-C reaches the parent, which stops
 (SIGTERM, then SIGKILL for any that does not stop within a second) and raises `KeyboardInterrupt`
 with nothing written.
 
-Dask: `run_seed` mapped over the seeds on the scheduler at ADDRESS (`dask[distributed]`, the
-`study` extra); the workers need this package installed.
+Dask: the seeds go to the scheduler at ADDRESS (`dask[distributed]`, the `study` extra; the
+workers need this package installed) in chunks sized to the cluster's worker threads, largest
+first and shrinking to single seeds (guided self-scheduling: few tasks, so little per-task
+overhead, and small ones at the end, so no worker idles while another finishes a long chunk).
+A worker plugin imports the rig on every worker once, before the first chunk arrives (and on
+workers that join later). Each chunk's records come back as soon as the chunk is done, in the
+order the chunks finish. A chunk whose worker failed (lost, killed) costs its seeds: each is
+recorded as aborted with the reason.
 """
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import queue
 import signal
@@ -154,6 +161,26 @@ def run_local(spec: StudySpec, seeds: Sequence[int], jobs: int, on_record: OnRec
     return records
 
 
+# Chunks per worker thread in the first round of `seed_chunks`: each chunk is this share of what is left.
+_CHUNKS_PER_THREAD = 4
+
+
+def seed_chunks(seeds: Sequence[int], threads: int) -> list[list[int]]:
+    """`seeds` in order, in chunks of ceil(remaining / (4 x threads)): largest first, then single seeds."""
+    chunks: list[list[int]] = []
+    start = 0
+    while start < len(seeds):
+        size = math.ceil((len(seeds) - start) / (_CHUNKS_PER_THREAD * max(1, threads)))
+        chunks.append(list(seeds[start : start + size]))
+        start += size
+    return chunks
+
+
+def run_chunk(spec: StudySpec, seeds: Sequence[int]) -> list[RunRecord]:
+    """A Dask task: the records of `seeds`, run one after the other in this worker."""
+    return [run_seed(spec, seed) for seed in seeds]
+
+
 def require_dask() -> None:
     """`InputError` naming the extra to install when Dask's distributed scheduler is not importable."""
     try:
@@ -170,6 +197,8 @@ def run_dask(spec: StudySpec, seeds: Sequence[int], address: str, on_record: OnR
     require_dask()
     from distributed import Client, as_completed
 
+    from rig.study.dask_plugin import PRELOAD_PLUGIN, PreloadRig
+
     try:
         client = Client(address, timeout="10s")
     except (OSError, TimeoutError, ValueError) as exc:
@@ -179,15 +208,20 @@ def run_dask(spec: StudySpec, seeds: Sequence[int], address: str, on_record: OnR
     records: list[RunRecord] = []
     futures = []
     try:
-        futures = client.map(run_seed, [spec] * len(seeds), list(seeds), pure=False)
+        client.register_plugin(PreloadRig(), name=PRELOAD_PLUGIN)
+        threads = sum(client.nthreads().values())
+        chunks = seed_chunks(seeds, threads)
+        futures = client.map(run_chunk, [spec] * len(chunks), chunks, pure=False)
+        chunk_of = {future.key: chunk for future, chunk in zip(futures, chunks, strict=True)}
         for future in as_completed(futures):
             try:
-                record = future.result()
-            except Exception as exc:  # the worker itself failed (lost, killed): the seed is aborted
-                seed = seeds[futures.index(future)]
-                record = RunRecord(seed, "aborted", f"dask: {type(exc).__name__}: {exc}", 0, 0, 0.0, ())
-            records.append(record)
-            on_record(record)
+                done: list[RunRecord] = future.result()
+            except Exception as exc:  # the worker itself failed (lost, killed): the chunk's seeds are aborted
+                reason = f"dask: {type(exc).__name__}: {exc}"
+                done = [RunRecord(seed, "aborted", reason, 0, 0, 0.0, ()) for seed in chunk_of[future.key]]
+            for record in done:
+                records.append(record)
+                on_record(record)
     finally:
         client.cancel(futures)
         client.close()

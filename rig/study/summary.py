@@ -8,7 +8,12 @@ it gave an estimate:
 * bias_rel: mean of (k_hat - k) / k; rmse_rel: root mean square of the same;
 * mse_over_crlb: mean of (k_hat - k)^2 / CRLB, the bound for the case's own design and true
   scatter (`rig.study.crlb`); 1 is the best an unbiased estimator can do;
-* mean_trials: the mean number of trials the completed runs used.
+* mean_trials, median_trials, p90_trials: the mean, median and 90th percentile (linear
+  interpolation) of the number of trials the completed runs used (an adaptive design's cost);
+* coverage_by_stop: for the cases of adaptive blocks, the coverage at the stop split by why the
+  series stopped (target reached, budget used up, no safe distance), each with its 95 % interval:
+  a series that stops on the target stops on a bound computed from the data that said stop, so
+  its coverage is the one to watch (studies/README.md, adaptive_design.py).
 
 Aborted runs are counted, not scored: a run that stopped early is not the design that was planned.
 """
@@ -23,9 +28,33 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from model.design import StopReason
 from rig.study.worker import RunRecord
 
 CI_LEVEL = 0.95  # of the binomial interval around the measured coverage
+
+
+@dataclass(frozen=True, slots=True)
+class StopCoverage:
+    """Coverage of one estimator over the adaptive series that stopped for one reason."""
+
+    stop_reason: StopReason
+    cases: int
+    covered: int
+    coverage_ci: tuple[float, float]
+
+    @property
+    def coverage(self) -> float:
+        """The share of these cases whose bounds contain the true k."""
+        return self.covered / self.cases if self.cases else math.nan
+
+    def as_json(self) -> dict[str, Any]:
+        """The entry of `coverage_by_stop` in `rig study --json`."""
+        return {
+            "cases": self.cases,
+            "coverage": _finite(self.coverage),
+            "coverage_ci": [_finite(self.coverage_ci[0]), _finite(self.coverage_ci[1])],
+        }
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,6 +69,9 @@ class EstimatorSummary:
     rmse_rel: float
     mse_over_crlb: float
     mean_trials: float
+    median_trials: float
+    p90_trials: float
+    coverage_by_stop: tuple[StopCoverage, ...] = ()  # adaptive cases only, in StopReason's order
 
     def as_json(self) -> dict[str, Any]:
         """The `rig study --json` entry of this estimator (JSON has no NaN: None instead)."""
@@ -50,6 +82,9 @@ class EstimatorSummary:
             "rmse_rel": _finite(self.rmse_rel),
             "mse_over_crlb": _finite(self.mse_over_crlb),
             "mean_trials": _finite(self.mean_trials),
+            "median_trials": _finite(self.median_trials),
+            "p90_trials": _finite(self.p90_trials),
+            "coverage_by_stop": {c.stop_reason.value: c.as_json() for c in self.coverage_by_stop},
         }
 
 
@@ -102,14 +137,19 @@ def summarise(
     level: float,
 ) -> StudySummary:
     """The study's statistics from its run records (see the module docstring)."""
-    completed = [r for r in records if r.status == "completed"]
+    # In seed order, whatever order the workers finished in: the sums come out the same to the last bit.
+    completed = sorted((r for r in records if r.status == "completed"), key=lambda r: r.seed)
     aborted = sorted((r.seed, r.reason or "unknown") for r in records if r.status != "completed")
-    mean_trials = float(np.mean([r.trials_completed for r in completed])) if completed else math.nan
+    trials = [r.trials_completed for r in completed]
+    mean_trials = float(np.mean(trials)) if trials else math.nan
+    median_trials = float(np.median(trials)) if trials else math.nan
+    p90_trials = float(np.percentile(trials, 90)) if trials else math.nan
     summaries = {}
     for name in estimator_names:
         covered: list[bool] = []
         rel: list[float] = []
         over_crlb: list[float] = []
+        by_stop: dict[StopReason, list[bool]] = {}
         failures = 0
         for run in completed:
             for joint in run.joints:
@@ -119,6 +159,8 @@ def summarise(
                     continue
                 truth = joint.k_true_kg_m
                 covered.append(est.k_low <= truth <= est.k_high)
+                if joint.stop_reason is not None:
+                    by_stop.setdefault(joint.stop_reason, []).append(covered[-1])
                 rel.append((est.k - truth) / truth)
                 if math.isfinite(joint.crlb_var) and joint.crlb_var > 0:
                     over_crlb.append((est.k - truth) ** 2 / joint.crlb_var)
@@ -133,6 +175,18 @@ def summarise(
             rmse_rel=float(np.sqrt(np.mean(np.square(rel)))) if rel else math.nan,
             mse_over_crlb=float(np.mean(over_crlb)) if over_crlb else math.nan,
             mean_trials=mean_trials,
+            median_trials=median_trials,
+            p90_trials=p90_trials,
+            coverage_by_stop=tuple(
+                StopCoverage(
+                    reason,
+                    len(by_stop[reason]),
+                    sum(by_stop[reason]),
+                    clopper_pearson(sum(by_stop[reason]), len(by_stop[reason])),
+                )
+                for reason in StopReason
+                if reason in by_stop
+            ),
         )
     return StudySummary(
         protocol=protocol,

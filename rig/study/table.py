@@ -1,8 +1,9 @@
-"""The study's Parquet table: one row per run x joint x estimator, written atomically.
+"""The study's Parquet table: one row per run x case x estimator, written atomically.
 
-An aborted run without results still gets one row per estimator (NaN estimates, its reason), so
-the table has every seed. The file appears whole or not at all: it is written to a temporary name
-in the same directory and renamed.
+A case is a joint's fixed trials or one adaptive block's trials (`rig.study.series`); an adaptive
+block's rows carry its number and why it stopped. An aborted run without results still gets one
+row per estimator (NaN estimates, its reason), so the table has every seed. The file appears
+whole or not at all: it is written to a temporary name in the same directory and renamed.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ SCHEMA = pa.schema(
         ("scatter_b", pa.float64()),
         ("estimator_error", pa.string()),
         ("covered", pa.bool_()),
+        ("block", pa.int32()),  # the adaptive block of this case (null: the joint's fixed trials)
+        ("stop_reason", pa.string()),  # why that block stopped: target_reached | budget | no_safe_distance
     ]
 )
 
@@ -87,6 +90,8 @@ def table_rows(records: Sequence[RunRecord], estimator_names: Sequence[str]) -> 
                 "masses_kg": list(joint.masses_kg),
                 "censored": list(joint.censored),
                 "crlb_var_kg2_m2": joint.crlb_var,
+                "block": joint.block,
+                "stop_reason": None if joint.stop_reason is None else joint.stop_reason.value,
             }
             for e in joint.estimates:
                 ok = e.error is None and math.isfinite(e.k)

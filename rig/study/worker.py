@@ -18,6 +18,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, cast
 
+from model.design import StopReason
 from model.estimators import ESTIMATOR_NAMES, check_estimator, crlb_k, estimate_k
 from model.fit import DEFAULT_LEVEL
 from rig.errors import ExitCode
@@ -30,6 +31,7 @@ from rig.runner.planning import TrialSchedule
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, prepare_run
 from rig.runner.trial_runner import TrialRunner
+from rig.study.series import score_series
 from rig.vocabulary import DeviceLevel
 
 # Outcomes whose slip mass is a measured slip load, and those whose mass is only a lower bound.
@@ -78,6 +80,8 @@ class JointResult:
     n_excluded: int  # trials without a usable mass (aborted or faulted trials)
     crlb_var: float  # Cramér-Rao bound on var(k_hat) for this design and the true scatter
     estimates: tuple[EstimatorResult, ...]
+    block: int | None = None  # the adaptive block these trials are (None: the joint's fixed trials)
+    stop_reason: StopReason | None = None  # why that block stopped (None for fixed trials)
 
 
 @dataclass(frozen=True, slots=True)
@@ -178,7 +182,10 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
         raise KeyboardInterrupt  # Ctrl-C in this process (--jobs 1) stops the study, not just this run
     results = outcome.new_results
     aborted = outcome.exit_code != ExitCode.OK
-    joints = score_joints(results, world, spec.level)
+    stops = {block: summary.step.stop for block, summary in schedule.summaries.items()}
+    joints = score_series(
+        results, prepared.protocol.adaptive, stops, lambda trials: score_joints(trials, world, spec.level)
+    )
     return RunRecord(
         seed=seed,
         status="aborted" if aborted else "completed",
