@@ -3,7 +3,7 @@
 Runs `rig run PROTOCOL [--rig CONFIG] --seed S --json` for the four shipped protocols on the default
 simulated rig, every scenario and every fault config, seeds 0 and 1, and `rig replay --json` of the
 two legacy logs in tests/data, and writes one normalised JSON file per run (run ids, log paths,
-wall times and temporary directories removed) plus its exit code and stderr tail. Two snapshots of
+wall times, the tree's own path and temporary directories removed) plus its exit code and stderr tail. Two snapshots of
 the same behaviour are byte-identical, so a refactoring that must not change behaviour is checked
 with `diff -r`:
 
@@ -35,7 +35,7 @@ def _scrub(value: Any) -> Any:
     if isinstance(value, list):
         return [_scrub(v) for v in value]
     if isinstance(value, str):
-        return _TEMP_PATH.sub("TMP", value)
+        return _TEMP_PATH.sub("TMP", value.replace(str(ROOT), "ROOT"))
     return value
 
 
@@ -43,7 +43,7 @@ def _normalised(stdout: str) -> str:
     try:
         data = json.loads(stdout)
     except json.JSONDecodeError:
-        return _TEMP_PATH.sub("TMP", stdout)
+        return _TEMP_PATH.sub("TMP", stdout.replace(str(ROOT), "ROOT"))
     return json.dumps(_scrub(data), indent=1, sort_keys=True) + "\n"
 
 
