@@ -3,9 +3,9 @@
 Runs `rig run PROTOCOL [--rig CONFIG] --seed S --json` for the four shipped protocols on the default
 simulated rig, every scenario and every fault config, seeds 0 and 1, and `rig replay --json` of the
 two legacy logs in tests/data, and writes one normalised JSON file per run (run ids, log paths,
-wall times, the tree's own path and temporary directories removed) plus its exit code and stderr tail. Two snapshots of
-the same behaviour are byte-identical, so a refactoring that must not change behaviour is checked
-with `diff -r`:
+wall times, the tree's own path and temporary directories removed) and its exit code. Two snapshots
+of the same behaviour are byte-identical, so a refactoring that must not change behaviour is
+checked with `diff -r`:
 
     python studies/behaviour_snapshot.py --out /tmp/snap-old   # in the old tree
     python studies/behaviour_snapshot.py --out /tmp/snap-new   # in the new tree
