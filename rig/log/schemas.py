@@ -46,6 +46,7 @@ from rig.log.records import (
     present,
     stamp_name,
 )
+from rig.log.scene_schemas import frame_transforms_schema, scene_update_schema
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
@@ -60,6 +61,8 @@ TRIAL_RESULT = "/rig/trial/result"
 ESTIMATE = "/rig/estimate"
 TRIAL_LINKS = "/rig/trial/links"
 LOG = "/rig/log"
+LINK_FRAMES = "/rig/link/frames"
+LINK_SCENE = "/rig/link/scene"
 
 # ---------------------------------------------------------------------------------------------
 # Deriving schemas from type hints
@@ -304,6 +307,8 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     TRIAL_LINKS: ("rig.TrialLinkStats", _trial_links()),
     LOG: ("foxglove.Log", _foxglove_log()),
+    LINK_FRAMES: ("foxglove.FrameTransforms", frame_transforms_schema()),
+    LINK_SCENE: ("foxglove.SceneUpdate", scene_update_schema()),
 }
 
 
