@@ -76,6 +76,21 @@ class Rendering:
     seed: int = 0
 
 
+def _rays(
+    camera: SyntheticCamera, supersample: int, x0: int, x1: int, y0: int, y1: int
+) -> NDArray[np.float32]:
+    """((y1−y0)·s, (x1−x0)·s, 2) normalised rays (x, y; z = 1) through the sample points of a pixel box."""
+    cv2 = require_cv2()
+    s = supersample
+    offsets = (np.arange(s) + 0.5) / s - 0.5
+    xs = (np.arange(x0, x1)[:, None] + offsets[None, :]).reshape(-1)
+    ys = (np.arange(y0, y1)[:, None] + offsets[None, :]).reshape(-1)
+    grid_x, grid_y = np.meshgrid(xs, ys)
+    pixels = np.stack([grid_x.reshape(-1), grid_y.reshape(-1)], axis=1)
+    normalised = cv2.undistortPoints(pixels.reshape(-1, 1, 2), camera.matrix, camera.dist)
+    return np.asarray(normalised.reshape(grid_x.shape[0], grid_x.shape[1], 2), np.float32)
+
+
 def _draw(
     canvas: NDArray[np.float32], target: PlaneTarget, camera: SyntheticCamera, supersample: int
 ) -> None:
@@ -100,29 +115,30 @@ def _draw(
     if x0 >= x1 or y0 >= y1:
         return
     s = supersample
-    offsets = (np.arange(s) + 0.5) / s - 0.5
-    xs = (np.arange(x0, x1)[:, None] + offsets[None, :]).reshape(-1)
-    ys = (np.arange(y0, y1)[:, None] + offsets[None, :]).reshape(-1)
-    grid_x, grid_y = np.meshgrid(xs, ys)
-    pixels = np.stack([grid_x.reshape(-1), grid_y.reshape(-1)], axis=1).astype(np.float64)
-    rays = cv2.undistortPoints(pixels.reshape(-1, 1, 2), camera.matrix, camera.dist).reshape(-1, 2)
-    rays = np.concatenate([rays, np.ones((rays.shape[0], 1))], axis=1)
-    depth = float(normal @ origin) / (rays @ normal)
-    local = (rays * depth[:, None] - origin) @ rotation
+    rays = _rays(camera, s, x0, x1, y0, y1)
+    ray_x, ray_y = rays[..., 0], rays[..., 1]  # z is 1
+    # Elementwise rather than matrix products: (N, 3) @ (3, 3) goes through BLAS threads, which crawl
+    # on a loaded machine.
+    n = normal.astype(np.float32)
+    depth = np.float32(normal @ origin) / (ray_x * n[0] + ray_y * n[1] + n[2])
+    px = ray_x * depth - np.float32(origin[0])
+    py = ray_y * depth - np.float32(origin[1])
+    pz = depth - np.float32(origin[2])
+    r = rotation.astype(np.float32)
+    local_x = px * r[0, 0] + py * r[1, 0] + pz * r[2, 0]
+    local_y = px * r[0, 1] + py * r[1, 1] + pz * r[2, 1]
     rows, cols = target.texture.shape
-    map_x = ((local[:, 0] + hw) / target.width_m * cols - 0.5).astype(np.float32)
-    map_y = ((hh - local[:, 1]) / target.height_m * rows - 0.5).astype(np.float32)
+    map_x = (local_x + np.float32(hw)) * np.float32(cols / target.width_m) - np.float32(0.5)
+    map_y = (np.float32(hh) - local_y) * np.float32(rows / target.height_m) - np.float32(0.5)
     sampled = cv2.remap(
         target.texture,
-        map_x.reshape(grid_x.shape),
-        map_y.reshape(grid_x.shape),
+        map_x,
+        map_y,
         cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_REPLICATE,
-    ).reshape(-1)
-    inside = (
-        (depth > 0) & (local[:, 0] >= -hw) & (local[:, 0] <= hw) & (local[:, 1] >= -hh) & (local[:, 1] <= hh)
     )
-    under = np.repeat(np.repeat(canvas[y0:y1, x0:x1], s, axis=0), s, axis=1).reshape(-1)
+    inside = (depth > 0) & (np.abs(local_x) <= hw) & (np.abs(local_y) <= hh)
+    under = np.repeat(np.repeat(canvas[y0:y1, x0:x1], s, axis=0), s, axis=1)
     mixed = np.where(inside, sampled, under).reshape(y1 - y0, s, x1 - x0, s)
     canvas[y0:y1, x0:x1] = mixed.mean(axis=(1, 3))
 
