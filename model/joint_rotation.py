@@ -24,6 +24,23 @@ def rotation_angle_rad(rotation: ArrayLike) -> float:
     return float(np.arctan2(0.5 * np.linalg.norm(skew), 0.5 * (np.trace(r) - 1.0)))
 
 
+def rotation_vector(rotation: ArrayLike) -> FloatArray:
+    """The rotation vector (axis × angle [rad]) of a rotation matrix; for angles below about 3 rad."""
+    r = np.asarray(rotation, dtype=float)
+    skew = 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    angle = rotation_angle_rad(r)
+    sine = float(np.linalg.norm(skew))
+    return skew if sine < 1e-12 else skew * (angle / sine)
+
+
+def out_of_plane_vector(rotation: ArrayLike) -> FloatArray:
+    """(x, z) components of the rotation vector of `Rot_y(φ)ᵀ R`: the tilt and the twist, in rad."""
+    r = np.asarray(rotation, dtype=float)
+    residual = rot_y(float(np.arctan2(r[0, 2], r[2, 2]))).T @ r
+    vector = rotation_vector(residual)
+    return np.array([vector[0], vector[2]])
+
+
 def joint_rotations(component_rotations: ArrayLike) -> FloatArray:
     """(J, 3, 3) rotations of {i} in {i−1} from (J+1, 3, 3) orientations of components 0..J."""
     w = np.asarray(component_rotations, dtype=float)

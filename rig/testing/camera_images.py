@@ -272,9 +272,9 @@ def calibration_views(
     count: int,
     *,
     seed: int = 0,
-    distance_m: tuple[float, float] = (0.35, 0.6),
+    distance_m: tuple[float, float] = (0.25, 0.5),
 ) -> list[NDArray[np.uint8]]:
-    """`count` images of `board` from random poses that keep it in view, tilted up to about 35°."""
+    """`count` images of `board` from random poses over the whole image, tilted up to about 35°, in view."""
     cv2 = require_cv2()
     rng = np.random.default_rng(seed)
     if board.kind == BoardKind.CHESSBOARD:
@@ -287,8 +287,8 @@ def calibration_views(
         rotation, _ = cv2.Rodrigues(rvec)
         depth = rng.uniform(*distance_m)
         # aim the board's centre at a random point of the image's inner part
-        u = rng.uniform(0.3, 0.7) * camera.width
-        v = rng.uniform(0.3, 0.7) * camera.height
+        u = rng.uniform(0.15, 0.85) * camera.width
+        v = rng.uniform(0.15, 0.85) * camera.height
         centre = np.array([(u - camera.cx_px) / camera.fx_px, (v - camera.cy_px) / camera.fy_px, 1.0]) * depth
         cam_from_board = np.eye(4)
         cam_from_board[:3, :3] = rotation

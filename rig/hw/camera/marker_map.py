@@ -37,7 +37,7 @@ SEGMENT_LENGTH_RANGE_M = (0.001, 1.0)
 POSITION_LIMIT_M = 1.0  # |each coordinate| of a marker's centre in its component's frame
 ANGLE_LIMIT_RAD = 10.0
 PLANAR_TOLERANCE_RANGE_RAD = (0.0, 0.5)
-DEFAULT_PLANAR_TOLERANCE_RAD = 0.1  # about 5.7°: above the tilt noise of 45 px markers (docs §9.3)
+DEFAULT_PLANAR_TOLERANCE_RAD = 0.05  # about 2.9°: smaller tilts are not told apart from a planar link
 MAX_JOINTS = 100
 _TOP_KEYS = (
     "dictionary",

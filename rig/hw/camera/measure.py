@@ -10,7 +10,8 @@ planar angles follow by `model.joint_rotation` (docs/formats.md §9.3 for the co
 
 Uncertainty: the corner noise σ [px] is estimated from the reprojection residuals of all markers in
 the image (2 degrees of freedom each: 8 corner coordinates, 6 pose parameters), floored at
-`MIN_CORNER_SIGMA_PX`; each marker's rotation covariance is σ²(JᵀJ)⁻¹ from the projection's
+`MIN_CORNER_SIGMA_PX`, and raised for a marker whose own residuals are larger (a partly occluded
+label bends its refined corners); each marker's rotation covariance is σ²(JᵀJ)⁻¹ from the projection's
 Jacobian, and is carried to each planar angle by its numerical gradient. The result is a
 first-order standard deviation: it does not cover a wrong marker map or a flipped solution.
 
@@ -26,7 +27,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from model.joint_rotation import joint_rotations, joint_transforms, planar_projection, rotation_angle_rad
+from model.joint_rotation import (
+    joint_rotations,
+    joint_transforms,
+    out_of_plane_vector,
+    planar_projection,
+    rotation_angle_rad,
+)
 from rig.errors import InputError, RigError
 from rig.hw.camera.calibration import CameraCalibration
 from rig.hw.camera.marker_map import ComponentMarker, CornerRefinement, MarkerMap
@@ -35,6 +42,7 @@ from rig.hw.seams import ConfigurationReading
 
 MIN_CORNER_SIGMA_PX = 0.1  # floor: the residuals of 4 corners under-report the noise of refined corners
 AMBIGUITY_MARGIN_PX = 1.0  # a second IPPE solution within this of the best is a candidate
+OUT_OF_PLANE_CHI2 = 23.03  # χ²(2) exceeded with probability 1e-5 (the tilt noise has heavier tails)
 REPROJECTION_PENALTY_RAD_PER_PX = 0.05  # chain choice: 1 px of extra error weighs like 2.9° of tilt
 
 FloatArray = NDArray[np.float64]
@@ -72,14 +80,22 @@ class CameraMeasurement:
     planar_angles_rad: FloatArray  # (J,) φ_i, the projection about y
     planar_angle_sd_rad: FloatArray  # (J,) first-order standard deviation of φ_i
     out_of_plane_rad: FloatArray  # (J,) angle of Rot_y(φ_i)ᵀ R_i
+    out_of_plane_statistic: FloatArray  # (J,) vᵀΣ⁻¹v of its tilt-and-twist vector: χ² with 2 dof if planar
     joint_gap_m: FloatArray  # (J,) distance between joint i's centre as placed by components i−1 and i
     corner_sigma_px: float  # the corner noise the uncertainty assumes
     planar_tolerance_rad: float
 
     @property
     def planar(self) -> bool:
-        """Every joint's out-of-plane angle is within the map's `planar_tolerance_rad`."""
-        return bool(np.all(self.out_of_plane_rad <= self.planar_tolerance_rad))
+        """No joint is out of plane both beyond the map's tolerance and beyond its measurement noise.
+
+        A joint counts as out of plane when its out-of-plane angle exceeds `planar_tolerance_rad` and
+        its test statistic exceeds `OUT_OF_PLANE_CHI2` (rarely, for a planar joint).
+        """
+        beyond = (self.out_of_plane_rad > self.planar_tolerance_rad) & (
+            self.out_of_plane_statistic > OUT_OF_PLANE_CHI2
+        )
+        return not bool(np.any(beyond))
 
     def reading(self) -> ConfigurationReading:
         """The seam's record: transforms always, planar angles only when the link lies in a plane."""
@@ -100,6 +116,7 @@ class CameraMeasurement:
             "joint_angles_deg": [math.degrees(a) for a in self.planar_angles_rad],
             "joint_angle_sd_rad": [float(s) for s in self.planar_angle_sd_rad],
             "out_of_plane_rad": [float(a) for a in self.out_of_plane_rad],
+            "out_of_plane_statistic": [float(a) for a in self.out_of_plane_statistic],
             "joint_gap_m": [float(g) for g in self.joint_gap_m],
             "transforms": self.transforms.tolist(),
             "markers": [
@@ -284,7 +301,11 @@ def measure_image(
                 side_px=float(sides.mean()),
                 candidates=len(options_k),
                 rvec=rvec,
-                rotation_covariance=detector.rotation_covariance(rvec, tvec, sigma),
+                # a marker that fits its own corners worse than the image's pooled noise gets its own
+                # (one marker's 4 corners leave 2 degrees of freedom: σ_k² = 4 e_k² / 2)
+                rotation_covariance=detector.rotation_covariance(
+                    rvec, tvec, max(sigma, math.sqrt(2.0) * error)
+                ),
             )
         )
     component_rotations = np.stack(
@@ -292,7 +313,7 @@ def measure_image(
     )
     rotations = joint_rotations(component_rotations)
     angles, tilt = planar_projection(rotations)
-    sd = _planar_angle_sd(cv2, markers, marker_map.components, angles)
+    sd, tilt_statistic = _joint_uncertainty(cv2, markers, marker_map.components)
     transforms = joint_transforms(rotations, marker_map.segment_lengths_m)
     gaps = _joint_gaps(markers, marker_map.components, transforms)
     return CameraMeasurement(
@@ -304,32 +325,51 @@ def measure_image(
         planar_angles_rad=angles,
         planar_angle_sd_rad=sd,
         out_of_plane_rad=tilt,
+        out_of_plane_statistic=tilt_statistic,
         joint_gap_m=gaps,
         corner_sigma_px=sigma,
         planar_tolerance_rad=marker_map.planar_tolerance_rad,
     )
 
 
-def _planar_angle_sd(
-    cv2: Any, markers: list[MarkerPose], components: tuple[ComponentMarker, ...], angles: FloatArray
-) -> FloatArray:
-    """First-order sd of each φ_i from the rotation covariances of markers i−1 and i."""
+def _joint_uncertainty(
+    cv2: Any, markers: list[MarkerPose], components: tuple[ComponentMarker, ...]
+) -> tuple[FloatArray, FloatArray]:
+    """Per joint: the sd of φ_i, and the out-of-plane test statistic vᵀΣ⁻¹v (v = `out_of_plane_vector`).
+
+    Both by first-order propagation of markers i−1 and i's rotation covariances through numerical
+    gradients.
+    """
     step = 1e-6
-    variances = np.zeros(len(angles))
+    joints = len(markers) - 1
+    sd = np.zeros(joints)
+    statistic = np.zeros(joints)
+
+    def values(rvec_before: FloatArray, rvec_after: FloatArray, i: int) -> FloatArray:
+        before = _component_rotation(cv2, rvec_before, components[i - 1])
+        after = _component_rotation(cv2, rvec_after, components[i])
+        relative = before.T @ after
+        return np.array([math.atan2(relative[0, 2], relative[2, 2]), *out_of_plane_vector(relative)])
+
     for i in range(1, len(markers)):
-        total = 0.0
+        centre = values(markers[i - 1].rvec, markers[i].rvec, i)
+        covariance = np.zeros((3, 3))
         for k in (i - 1, i):
-            gradient = np.zeros(3)
+            jacobian = np.zeros((3, 3))
             for axis in range(3):
                 rvec = markers[k].rvec.copy()
                 rvec[axis] += step
-                before = _component_rotation(cv2, markers[i - 1].rvec if k == i else rvec, components[i - 1])
-                after = _component_rotation(cv2, rvec if k == i else markers[i].rvec, components[i])
-                moved, _ = planar_projection((before.T @ after)[None])
-                gradient[axis] = math.remainder(float(moved[0]) - float(angles[i - 1]), math.tau) / step
-            total += float(gradient @ markers[k].rotation_covariance @ gradient)
-        variances[i - 1] = total
-    return np.sqrt(variances)
+                moved = (
+                    values(rvec, markers[i].rvec, i) if k == i - 1 else values(markers[i - 1].rvec, rvec, i)
+                )
+                change = moved - centre
+                change[0] = math.remainder(change[0], math.tau)
+                jacobian[:, axis] = change / step
+            covariance += jacobian @ markers[k].rotation_covariance @ jacobian.T
+        sd[i - 1] = math.sqrt(max(covariance[0, 0], 0.0))
+        tilt = centre[1:]
+        statistic[i - 1] = float(tilt @ np.linalg.pinv(covariance[1:, 1:]) @ tilt)
+    return sd, statistic
 
 
 def _joint_gaps(
