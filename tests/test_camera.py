@@ -24,7 +24,7 @@ if not hasattr(cv2, "aruco") or not hasattr(cv2.aruco, "ArucoDetector"):  # prag
 
 from model.chain import planar_transforms, pose_from_xyz_rpy  # noqa: E402
 from rig.cli import main  # noqa: E402
-from rig.errors import InputError  # noqa: E402
+from rig.errors import InputError, NotConnectedError  # noqa: E402
 from rig.hw.camera.calibration import (  # noqa: E402
     Board,
     BoardKind,
@@ -35,7 +35,7 @@ from rig.hw.camera.calibration import (  # noqa: E402
 )
 from rig.hw.camera.marker_map import DICTIONARY_SIZES, load_marker_map  # noqa: E402
 from rig.hw.camera.measure import MarkerDetector, MarkerNotSeenError, measure_image, rotation_error_rad  # noqa: E402
-from rig.hw.camera.source import CameraConfigurationSource, ImageFiles  # noqa: E402
+from rig.hw.camera.source import CameraConfigurationSource, CameraDevice, ImageFiles  # noqa: E402
 from rig.hw.seams import ConfigurationReading, ConfigurationSource  # noqa: E402
 from rig.testing.camera_images import (  # noqa: E402
     Rendering,
@@ -347,3 +347,22 @@ def test_camera_calibrate_writes_once_and_refuses_bad_input(tmp_path, capsys):
     assert "found in 1 of 2 images" in capsys.readouterr().err and not other.exists()
     wrong = [*few[:-2], "--columns", "8", "--out", str(other)]
     assert main(wrong) == 2 and not other.exists()
+
+
+def test_a_camera_device_index_out_of_range_or_absent_is_a_clear_error():
+    with pytest.raises(InputError, match="camera device index 64; allowed: 0 to 63"):
+        CameraDevice(64)
+    if Path("/dev/video63").exists():  # pragma: no cover
+        pytest.skip("a camera is at index 63 here")
+    with pytest.raises(NotConnectedError, match="camera 63: cannot be opened"):
+        CameraDevice(63)
+
+
+def test_an_unreadable_image_is_refused_naming_it(tmp_path, capsys, calibration_file):
+    fake = tmp_path / "fake.png"
+    fake.write_text("not an image")
+    code = main(
+        ["config", "measure", str(fake), "--camera", str(calibration_file), "--markers", str(LINK1_MARKERS)]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and f"{fake}: not an image OpenCV can decode" in err
