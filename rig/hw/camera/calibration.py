@@ -111,7 +111,11 @@ def write_calibration(
         raise InputError(f"--out {p}: exists; allowed: a new file (or --force to replace it)")
     if p.exists() and not p.is_file():
         raise InputError(f"--out {p}: not a regular file; allowed: a file path")
-    atomic_write_text(p, calibration.to_yaml())
+    text = calibration.to_yaml()
+    try:
+        atomic_write_text(p, text)
+    except OSError as exc:
+        raise InputError(f"--out {p}: cannot be written ({exc.strerror}); allowed: a writable path") from None
 
 
 def _node(fs: Any, source: str, name: str) -> Any:
