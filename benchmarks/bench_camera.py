@@ -1,7 +1,7 @@
 """Camera configuration source: joint-angle error against marker size in pixels, and time per frame.
 
 Run: .venv/bin/python benchmarks/bench_camera.py [--scenes 8] [--repeats 5] [--seed 0]
-     [--refinement subpix|contour|apriltag|none]
+     [--refinement subpix|contour|apriltag|none] [--choice chain|best] [--distances M ...]
 
 Needs the camera extra (pip install -e '.[camera]'). Link 1 with the shipped marker map
 (protocols/link1_markers.yaml: 18 mm markers) is rendered (rig/testing/camera_images.py) bent at
@@ -45,13 +45,23 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="timing runs per image (default 5)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--refinement", default="subpix", choices=[c.value for c in CornerRefinement])
+    parser.add_argument(
+        "--choice",
+        default="chain",
+        choices=["chain", "best"],
+        help="IPPE pose per marker: chosen along the chain (default) or each marker's best reprojection",
+    )
+    parser.add_argument("--distances", type=float, nargs="+", default=list(DISTANCES_M), metavar="M")
     args = parser.parse_args()
 
     marker_map = load_marker_map(ROOT / "protocols" / "link1_markers.yaml")
     marker_map = dataclasses.replace(marker_map, corner_refinement=CornerRefinement(args.refinement))
     camera = SyntheticCamera()
     detector = MarkerDetector(marker_map, exact_calibration(camera))
-    print(f"link 1, 18 mm markers, corner refinement {args.refinement}, {args.scenes} images per distance")
+    print(
+        f"link 1, 18 mm markers, corner refinement {args.refinement}, poses chosen by {args.choice}, "
+        f"{args.scenes} images per distance"
+    )
     header = (
         "distance m | side px | RMS deg | p95 deg | 3D RMS deg | RMS err/sd | not seen | non-planar | "
         "measure ms | detect ms | ratio"
@@ -59,7 +69,8 @@ def main() -> None:
     print(header)
     print("-" * len(header))
     all_ratios: list[float] = []
-    for distance in DISTANCES_M:
+    along_chain = args.choice == "chain"
+    for distance in args.distances:
         errors: list[float] = []
         errors_3d: list[float] = []
         z_scores: list[float] = []
@@ -70,7 +81,9 @@ def main() -> None:
         for index in range(args.scenes):
             scene = random_scene(marker_map, camera, distance, args.seed * 1000 + index)
             try:
-                measured = measure_image(detector, scene.image, source="bench", time_ns=0)
+                measured = measure_image(
+                    detector, scene.image, source="bench", time_ns=0, along_chain=along_chain
+                )
             except MarkerNotSeenError:
                 not_seen += 1
                 continue
@@ -86,7 +99,7 @@ def main() -> None:
             one_measure, one_detect = [], []
             for _ in range(args.repeats):  # interleaved, so that load changes hit both alike
                 t0 = time.perf_counter()
-                measure_image(detector, scene.image, source="bench", time_ns=0)
+                measure_image(detector, scene.image, source="bench", time_ns=0, along_chain=along_chain)
                 t1 = time.perf_counter()
                 detector.detector.detectMarkers(scene.image)
                 t2 = time.perf_counter()

@@ -366,3 +366,25 @@ def test_an_unreadable_image_is_refused_naming_it(tmp_path, capsys, calibration_
     )
     err = capsys.readouterr().err
     assert code == 2 and f"{fake}: not an image OpenCV can decode" in err
+
+
+@pytest.mark.slow
+def test_choosing_poses_along_the_chain_beats_each_markers_best_reprojection(marker_map, detector):
+    # 35 px markers: the two IPPE solutions of a marker often reproject within a fraction of a pixel
+    planar = {True: [], False: []}
+    rotation = {True: [], False: []}
+    for seed in range(6):
+        scene = random_scene(marker_map, CAMERA, 0.5, 100 + seed, occlude=False)
+        for along_chain in (True, False):
+            measured = measure_image(detector, scene.image, source="x", time_ns=0, along_chain=along_chain)
+            planar[along_chain].extend(measured.planar_angles_rad - scene.angles_rad)
+            rotation[along_chain].extend(
+                rotation_error_rad(m, t[:3, :3])
+                for m, t in zip(measured.joint_rotations, scene.transforms, strict=True)
+            )
+
+    def rms(values):
+        return float(np.sqrt(np.mean(np.square(values))))
+
+    assert rms(rotation[True]) < 0.7 * rms(rotation[False])
+    assert rms(planar[True]) <= rms(planar[False])

@@ -248,9 +248,18 @@ def _choose_along_chain(
 
 
 def measure_image(
-    detector: MarkerDetector, image: NDArray[np.uint8], *, source: str, time_ns: int
+    detector: MarkerDetector,
+    image: NDArray[np.uint8],
+    *,
+    source: str,
+    time_ns: int,
+    along_chain: bool = True,
 ) -> CameraMeasurement:
-    """Measure the link in one grey image; `MarkerNotSeenError` naming the first component not seen."""
+    """Measure the link in one grey image; `MarkerNotSeenError` naming every component not seen.
+
+    `along_chain=False` keeps each marker's best-reprojecting pose instead of choosing along the
+    chain (for comparison: benchmarks/bench_camera.py --choice best).
+    """
     cv2 = require_cv2()
     marker_map = detector.marker_map
     calibration = detector.calibration
@@ -278,7 +287,7 @@ def measure_image(
                 f"{source}: {component.name} (marker {component.marker_id}): no pose in front of the camera"
             )
         options.append(found)
-    choice = _choose_along_chain(cv2, marker_map.components, options)
+    choice = _choose_along_chain(cv2, marker_map.components, options) if along_chain else [0] * len(options)
     chosen = [opts[i] for opts, i in zip(options, choice, strict=True)]
 
     squared = sum(4 * c[2] ** 2 for c in chosen)  # sum of squared corner distances (4 corners each)
