@@ -28,6 +28,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "calibrate",
     "replay",
     "study",
+    "camera",
+    "config",
 )
 
 
