@@ -101,6 +101,17 @@ class LoadCellConfig:
             "cell keeps its nominal calibration",
         ),
     )
+    capacity_n: float | None = field(
+        default=None,
+        metadata=number(
+            0.1,
+            100_000.0,
+            unit="N",
+            optional=True,
+            doc="the cell's rated capacity; `rig check` checks that the force ceiling and the winch's "
+            "stall tension stay below it (none: not checked)",
+        ),
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
