@@ -69,6 +69,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--move", action="store_true", help="jog the winch: reel direction and line stiffness"
     )
     parser.add_argument(
+        "--jog-travel-rev",
+        type=float,
+        default=1.0,
+        metavar="REV",
+        help="with --move: the most the winch turns each way, 0.01-5 rev (default 1)",
+    )
+    parser.add_argument(
         "--write",
         action="store_true",
         help="with --move: write the measured reel direction and stiffness into CONFIG without asking",
@@ -99,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.write and not args.move:
         raise InputError("--write: only with --move (it writes what the jog measured)")
+    if not 0.01 <= args.jog_travel_rev <= 5:  # NaN fails too
+        raise InputError(f"--jog-travel-rev {args.jog_travel_rev}: allowed: 0.01 to 5")
     if not 0 <= args.seed < 2**63:
         raise InputError(f"--seed {args.seed}: allowed: 0 to 2^63-1")
     path = args.rig if args.rig is not None else DEFAULT_RIG_CONFIG
@@ -110,7 +119,12 @@ def run(args: argparse.Namespace) -> int:
     )
     ctx = CheckContext(
         config,
-        CheckOptions(move=args.move, sysfs_root=args.sysfs_root, protocols=protocols),
+        CheckOptions(
+            move=args.move,
+            sysfs_root=args.sysfs_root,
+            protocols=protocols,
+            jog_travel_rev=args.jog_travel_rev,
+        ),
         lambda: check_devices(config, seed=args.seed),
     )
     rows = run_sections(ctx, args.only or ())

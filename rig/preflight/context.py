@@ -30,6 +30,7 @@ class CheckOptions:
     sysfs_root: Path = DEFAULT_SYSFS_ROOT  # where the USB-serial latency timers are read
     protocols: tuple[Protocol, ...] = ()  # protocols whose ceilings are checked against the rig's
     loadcell_window_s: float = 1.0  # how long the load cell is listened to
+    jog_travel_rev: float = 1.0  # the most the jog turns the winch each way
 
 
 @dataclass(frozen=True)

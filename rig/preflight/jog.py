@@ -5,7 +5,8 @@ It finds which way the winch reels line in (the tension rises) and measures the 
 1. Only from a slack line (the load cell within `limits.zero_tolerance_n`), with the winch in
    current-based position mode at the rig's current limit, slowly (`JOG_SPEED_RAD_S`).
 2. The winch turns the configured reel-in way (`reel_direction`) until the tension has risen by
-   `jog_target_n` (5 N, or a tenth of the force ceiling if less), or until `JOG_TRAVEL_REV`; then back
+   `jog_target_n` (5 N, or a tenth of the force ceiling if less), or for `jog_travel_rev` (1 rev by
+   default, `rig check --jog-travel-rev`); then back
    to where it started. If the tension did not rise, the same the other way: a rise there means the
    drum is wound the other way (`reel_direction` must flip).
 3. The stiffness is the slope of tension against line reeled in (drum angle x spool radius) over the
@@ -28,8 +29,7 @@ from rig.preflight.context import CheckContext, JogFindings
 from rig.preflight.verdicts import CheckRow, Verdict
 
 SECTION = "move"
-JOG_SPEED_RAD_S = 0.2
-JOG_TRAVEL_REV = 2.0  # at most this far each way
+JOG_SPEED_RAD_S = 0.5
 JOG_TARGET_N = 5.0
 JOG_TICK_S = 0.02
 RETURN_TOLERANCE_RAD = 0.02
@@ -130,7 +130,7 @@ def _reel(
     """Turn `direction` until the tension has risen by `target_n` or the travel is spent."""
     clock = ctx.clock
     radius_m = ctx.config.spool_radius_m
-    travel_rad = JOG_TRAVEL_REV * 2 * math.pi
+    travel_rad = ctx.options.jog_travel_rev * 2 * math.pi
     goal_rad = zero_rad + direction * travel_rad
     bus.write_goal_positions({winch: goal_rad})
     deadline_ns = clock.monotonic_ns() + round((travel_rad / JOG_SPEED_RAD_S * 1.5 + 2.0) * 1e9)
@@ -209,7 +209,8 @@ def direction_row(
         fix = f"set reel_direction: {found} in {ctx.config.source} (`rig check --move --write` writes it)"
         return CheckRow(SECTION, check, Verdict.FAIL, measured, fix)
     rises = ", ".join(f"{t.direction:+d}: {t.rise_n:+.2f} N" for t in traces)
-    measured = f"the tension did not rise {target_n:g} N within {JOG_TRAVEL_REV:g} rev either way ({rises})"
+    travel = ctx.options.jog_travel_rev
+    measured = f"the tension did not rise {target_n:g} N within {travel:g} rev either way ({rises})"
     fix = "take up the slack by hand until the line is nearly taut, and check that the cell is in the line"
     return CheckRow(SECTION, check, Verdict.FAIL, measured, fix)
 
