@@ -325,3 +325,37 @@ def test_stiffness_fit() -> None:
     assert fitted_slope(points) == pytest.approx(200.0)
     assert fitted_slope(points[:2]) is None
     assert fitted_slope([(0.0, 1.0), (0.0, 2.0), (0.0, 3.0)]) is None
+
+
+def test_wrong_model_fails_the_handshake(write_file: Callable[[str, str], Path]) -> None:
+    config = _sim_config(
+        write_file,
+        "servos:\n  ids: [{id: 1, role: winch}, {id: 2, role: bender, model: XL430-W250}]\n",
+    )
+    (row,) = _check_sim(config, only=("servos",))
+    assert row.verdict is Verdict.FAIL and "wrong model" in row.measured and "XL430-W250" in row.measured
+
+
+def test_cell_rate_off_the_configured_one_warns() -> None:
+    from rig.hw.seams import LoadCellSample
+    from rig.preflight.loadcell_basic import loadcell_rows
+
+    config = load_rig_config()  # simulation.loadcell_rate_hz 1000
+    ctx = CheckContext(config, CheckOptions(), lambda: pytest.fail("no device is needed"))
+    ctx.cell_open = True
+    ctx.listened = [LoadCellSample(i * 2_000_000, 0, 0.0) for i in range(500)]  # 500 Hz
+    row = _one(loadcell_rows(ctx), "load cell rate")
+    assert row.verdict is Verdict.WARN and "500.0 Hz measured, 1000 Hz configured" in row.measured
+
+
+def test_nominal_stiffness_far_from_the_line_warns_and_is_written(
+    write_file: Callable[[str, str], Path], run_cli: Callable[..., Any]
+) -> None:
+    config = _sim_config(write_file, "line_stiffness_n_per_m: 50000\n")
+    result = run_cli("check", "--rig", config, "--move", "--only", "move", "--write", "--json")
+    assert result.code == 0  # a warning
+    (row,) = [r for r in result.data["rows"] if r["check"] == "line stiffness"]
+    assert row["verdict"] == "warn" and "line_stiffness_n_per_m" in row["fix"]
+    (written,) = result.data["written"]
+    assert written.startswith("line_stiffness_n_per_m: ")
+    assert load_rig_config(config).line_stiffness_n_per_m == pytest.approx(5000, rel=0.05)
