@@ -22,7 +22,7 @@ import math
 import statistics
 from dataclasses import dataclass
 
-from rig.errors import RigError
+from rig.errors import InterlockTripped, RigError
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import Clock, LoadCell, OperatingMode
 from rig.preflight.context import CheckContext, JogFindings
@@ -130,6 +130,7 @@ def _reel(
     """Turn `direction` until the tension has risen by `target_n` or the travel is spent."""
     clock = ctx.clock
     radius_m = ctx.config.spool_radius_m
+    ceiling_n = ctx.config.limits.force_ceiling_n
     travel_rad = ctx.options.jog_travel_rev * 2 * math.pi
     goal_rad = zero_rad + direction * travel_rad
     bus.write_goal_positions({winch: goal_rad})
@@ -138,10 +139,17 @@ def _reel(
     cell.poll()  # start from fresh samples
     while clock.monotonic_ns() < deadline_ns:
         clock.sleep(JOG_TICK_S)
-        position_rad = bus.read_states()[winch].position_rad
+        state = bus.read_states()[winch]
+        bus.raise_for_hardware_errors({winch: state})
+        position_rad = state.position_rad
         samples = cell.poll()
         if not samples:
             continue
+        if max(s.force_n for s in samples) > ceiling_n:  # a stiff line overshot the target: stop here
+            bus.write_goal_positions({winch: position_rad})
+            raise InterlockTripped(
+                f"the tension passed limits.force_ceiling_n ({ceiling_n:g} N) during the jog"
+            )
         rise_n = samples[-1].force_n - baseline_n
         points.append((direction * (position_rad - zero_rad) * radius_m, rise_n))
         if rise_n >= target_n:
