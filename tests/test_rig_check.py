@@ -359,3 +359,20 @@ def test_nominal_stiffness_far_from_the_line_warns_and_is_written(
     (written,) = result.data["written"]
     assert written.startswith("line_stiffness_n_per_m: ")
     assert load_rig_config(config).line_stiffness_n_per_m == pytest.approx(5000, rel=0.05)
+
+
+def test_simulation_keys_make_the_servo_checks_fail(
+    write_file: Callable[[str, str], Path], cli_json: Callable[..., Any], run_cli: Callable[..., Any]
+) -> None:
+    config = _sim_config(
+        write_file, "simulation: {servo_supply_v: 9.0, servo_temperature_c: 85, servo_firmware: 37}\n"
+    )
+    result = run_cli("check", "--rig", config, "--only", "servos", "--json")
+    assert result.code == 1
+    verdicts = {row["check"]: row["verdict"] for row in result.data["rows"]}
+    for servo in ("servo 1 (winch)", "servo 2 (bender)"):
+        assert verdicts[f"{servo} input voltage"] == "fail"
+        assert verdicts[f"{servo} temperature"] == "fail"
+        assert verdicts[f"{servo} firmware"] == "fail"
+    defaults = cli_json("check", "--only", "servos", "--json")
+    assert {row["verdict"] for row in defaults["rows"]} == {"pass"}
