@@ -7,11 +7,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rig.cli.output import emit_json, format_table
+from rig.cli.output import emit_json
 from rig.errors import ExitCode, InputError
 
 if TYPE_CHECKING:
     from rig.preflight.context import CheckContext
+    from rig.preflight.verdicts import CheckRow
 
 DESCRIPTION = """\
 Check a rig before a run: open every device its config names and move nothing (unless --move).
@@ -142,17 +143,27 @@ def run(args: argparse.Namespace) -> int:
             }
         )
         return code
-    table = format_table(
-        ["section", "check", "verdict", "measured", "fix"],
-        [[r.section, r.check, r.verdict.value.upper(), r.measured, r.fix] for r in rows],
-    )
-    print(table)
+    print(_text(rows))
     for line in written:
         print(f"wrote {line} into {path}")
     summary = ", ".join(f"{n} {name}" for name, n in counts.items())
     verdict = "ready" if code == ExitCode.OK else "NOT ready"
     print(f"\n{config.name} ({config.kind.value}): {summary}: {verdict}")
     return code
+
+
+def _text(rows: list[CheckRow]) -> str:
+    """The rows grouped by section, one line each, the fix indented under a warn or fail."""
+    lines: list[str] = []
+    section = None
+    for row in rows:
+        if row.section != section:
+            section = row.section
+            lines.append(f"{'' if not lines else chr(10)}[{section}]")
+        lines.append(f"  {row.verdict.value.upper():4}  {row.check}: {row.measured}")
+        if row.fix:
+            lines.append(f"        fix: {row.fix}")
+    return "\n".join(lines)
 
 
 def _offer_to_write(args: argparse.Namespace, ctx: CheckContext, built_in: bool) -> list[str]:
