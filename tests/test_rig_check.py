@@ -343,7 +343,8 @@ def test_cell_rate_off_the_configured_one_warns() -> None:
     config = load_rig_config()  # simulation.loadcell_rate_hz 1000
     ctx = CheckContext(config, CheckOptions(), lambda: pytest.fail("no device is needed"))
     ctx.cell_open = True
-    ctx.listened = [LoadCellSample(i * 2_000_000, 0, 0.0) for i in range(500)]  # 500 Hz
+    ctx.listened = [LoadCellSample(i * 2_000_000, 0, 0.0) for i in range(500)]  # 500 in 1 s
+    ctx.listened_s = 1.0
     row = _one(loadcell_rows(ctx), "load cell rate")
     assert row.verdict is Verdict.WARN and "500.0 Hz measured, 1000 Hz configured" in row.measured
 

@@ -66,6 +66,7 @@ class CheckContext:
     cell_failure: str | None = None
     jog_findings: JogFindings | None = None  # set by the move section
     listened: list[LoadCellSample] | None = None  # what the load cell sent in the listening window
+    listened_s: float = 0.0  # how long the window lasted, on the devices' clock
 
     def cell_samples(self) -> list[LoadCellSample] | None:
         """The load cell's samples over `options.loadcell_window_s` (listened to once), or None.
@@ -79,8 +80,10 @@ class CheckContext:
             return None
         clock = self.clock
         samples: list[LoadCellSample] = []
-        end_ns = clock.monotonic_ns() + round(self.options.loadcell_window_s * 1e9)
+        start_ns = clock.monotonic_ns()
+        end_ns = start_ns + round(self.options.loadcell_window_s * 1e9)
         try:
+            cell.poll()  # what arrived before the window does not count
             while clock.monotonic_ns() < end_ns:
                 clock.sleep(LISTEN_POLL_S)
                 samples += cell.poll()
@@ -88,6 +91,7 @@ class CheckContext:
             self.cell_failure = f"{type(exc).__name__}: {exc}"
             return None
         self.listened = samples
+        self.listened_s = (clock.monotonic_ns() - start_ns) / 1e9
         return samples
 
     def _devices(self) -> CheckDevices:

@@ -9,7 +9,6 @@ periods or a run stops on stale data between two healthy samples.
 
 from __future__ import annotations
 
-from rig.hw.seams import LoadCellSample
 from rig.preflight.context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
 
@@ -35,14 +34,14 @@ def loadcell_rows(ctx: CheckContext) -> list[CheckRow]:
             "for about 1.5 s"
         )
         return [CheckRow(SECTION, "load cell answers", Verdict.FAIL, f"{port}: {reason}", fix)]
-    rate_hz = measured_rate_hz(samples)
-    window_s = ctx.options.loadcell_window_s
+    window_s = ctx.listened_s
+    rate_hz = len(samples) / window_s
     rows = [
         CheckRow(
             SECTION,
             "load cell answers",
             Verdict.PASS,
-            f"{port}: {len(samples)} samples in {window_s:g} s ({config.loadcell.format})",
+            f"{port}: {len(samples)} samples in {window_s:.2f} s ({config.loadcell.format})",
         )
     ]
     expected_hz = config.simulation.loadcell_rate_hz if config.simulation is not None else None
@@ -73,9 +72,3 @@ def loadcell_rows(ctx: CheckContext) -> list[CheckRow]:
         )
     )
     return rows
-
-
-def measured_rate_hz(samples: list[LoadCellSample]) -> float:
-    """Samples per second over the window, from the samples' own times."""
-    span_s = (samples[-1].time_ns - samples[0].time_ns) / 1e9
-    return (len(samples) - 1) / span_s if span_s > 0 else float("inf")
