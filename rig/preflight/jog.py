@@ -102,8 +102,9 @@ def _jog_both_ways(
         goal_current_a=limit_a,
         profile_velocity_rad_s=JOG_SPEED_RAD_S,
     )
-    bus.set_torque([winch], True)
     zero_rad = bus.read_states()[winch].position_rad
+    bus.write_goal_positions({winch: zero_rad})  # no stale goal to jump to when the torque comes on
+    bus.set_torque([winch], True)
     traces: list[JogTrace] = []
     try:
         for direction in (config.reel_direction, -config.reel_direction):
