@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import os
 import select
 import statistics
 import subprocess
@@ -158,9 +159,14 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="ticking time per latency (default 20)")
     parser.add_argument("--latency-ms", type=float, nargs="+", default=[1.0, 16.0])
     args = parser.parse_args()
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         results = [measure(latency, args.seconds, Path(tmp)) for latency in args.latency_ms]
-    print(f"control period {PERIOD_S * 1e3:g} ms, {args.seconds:g} s per latency")
+    load_after = os.getloadavg()[0]
+    print(
+        f"control period {PERIOD_S * 1e3:g} ms, {args.seconds:g} s per latency; "
+        f"load average {load_before:.1f} -> {load_after:.1f} on {os.cpu_count()} cores"
+    )
     header = ["USB latency", "ticks", "period p50 ms", "p99 ms", "max ms", "p99 / nominal", "late ticks",
               "worst late ms", "reads failed after retries"]  # fmt: skip
     print("| " + " | ".join(header) + " |")
