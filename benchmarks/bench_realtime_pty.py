@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
-from rig.errors import RigTimeoutError
+from rig.errors import CommunicationError, RigTimeoutError
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.loadcell.calibration import Calibration
@@ -129,7 +129,7 @@ def measure(latency_ms: float, seconds: float, tmp: Path) -> Result:
             came = time.monotonic_ns()
             try:
                 loop.tick(interlocks=False)
-            except RigTimeoutError:  # a run would stop (and repeat the trial); here it is counted
+            except (RigTimeoutError, CommunicationError):  # a run would stop the trial; counted here
                 failed += 1
             lateness_ns.append(came - due)
     finally:
