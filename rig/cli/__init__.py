@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "scan",
     "ports",
     "calibrate",
+    "check",
     "replay",
     "study",
     "camera",
