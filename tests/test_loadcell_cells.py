@@ -192,3 +192,35 @@ def test_a_simulated_cell_needs_its_format_and_rate():
     gauge = "extends: simulated\nsimulation: {loadcell_cell: gauge-12, loadcell_rate_hz: 12}"
     with pytest.raises(ConfigError, match=r"loadcell\.format: rig-lc1; allowed: value-unit"):
         parse_rig_config(yaml.safe_load(gauge), source="r.yaml")
+
+
+def test_rig_calibrate_works_on_a_polled_gauge(tmp_path, capsys):
+    from rig.cli import main
+    from rig.hw.loadcell.calibration import Calibration
+
+    out = tmp_path / "cal.json"
+    args = ["calibrate", "--sim", "--format", "value-unit", "--rate", "12", "--baud", "9600"]
+    code = main([*args, "--reference-kg", "2", "--yes", "--settle-s", "0.5", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    calibration = Calibration.load(out)
+    assert calibration.format == "value-unit"
+    assert calibration.factor_n_per_count == pytest.approx(1e-6, rel=0.005)  # micronewtons, as sent
+
+
+def test_a_gauge_polled_over_the_pty_in_real_time(tmp_path):
+    import time
+
+    from rig.hw.loadcell.driver import SerialLoadCell
+    from tests.test_loadcell_pty import sim_loadcell
+
+    args = ("--cell", "gauge-12", "--baud", "9600", "--profile", "constant:-83.5376")
+    with sim_loadcell(tmp_path, *args) as (link, _):
+        driver = SerialLoadCell(str(link), baud=9600, format_name="value-unit", rate_hz=12)
+        samples = []
+        with driver:
+            end = time.monotonic() + 2.0
+            while time.monotonic() < end:
+                samples += driver.poll()
+                time.sleep(0.01)
+    assert 15 <= len(samples) <= 26 and driver.polls_sent >= len(samples)
+    assert {s.raw for s in samples} <= {round(-v * 4.4482216152605e6) for v in (18.77, 18.78, 18.79)}
