@@ -398,7 +398,7 @@ class LoadCellEmulator:
 
     @property
     def next_sample_ns(self) -> int:
-        """When the next line is due (a polled device with no poll waiting: a second from the last)."""
+        """When the next line is due (a polled device with no poll waiting: far in the future)."""
         if self.poll_command is not None:
             return self._polls_ns[0] if self._polls_ns else self._base_ns + (1 << 62)
         return self.sample_time_ns(self._k)
