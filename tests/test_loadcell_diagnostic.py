@@ -3,12 +3,12 @@ on made-up recordings for each failing row, over the pty emulator in real time, 
 under simavr."""
 
 import json
-import time
 from pathlib import Path
 
 import pytest
 
 from rig.cli import main
+from rig.hw.clock import SystemClock
 from rig.hw.loadcell.driver import LoadCellStats, SerialLoadCell
 from rig.hw.seams import LoadCellSample
 from rig.preflight.loadcell import CellListening, clock_skew_ppm, diagnose, listen
@@ -173,7 +173,7 @@ def test_over_the_pty_emulator_in_real_time(tmp_path):
     )
     with sim_loadcell(tmp_path, *args) as (link, _):
         driver = SerialLoadCell(str(link), baud=115200, rate_hz=80)
-        heard = listen(driver, _WallClock(), 6.0)
+        heard = listen(driver, SystemClock(), 6.0)
     rows = {r.check: r for r in diagnose(heard)}
     assert rows["load cell answers"].verdict is Verdict.PASS
     assert rows["rate"].verdict is Verdict.PASS  # 80/s by the device's own clock
@@ -182,19 +182,6 @@ def test_over_the_pty_emulator_in_real_time(tmp_path):
     skew = rows["clock skew"]
     assert skew.verdict is Verdict.WARN and "slow" in skew.measured
     assert 5000 <= int(skew.measured.split()[0]) <= 11_000  # 8000 ppm, measured over 6 s of real time
-
-
-class _WallClock:
-    """The host's clock, as the hardware rig uses it."""
-
-    def monotonic_ns(self):
-        return time.monotonic_ns()
-
-    def time_ns(self):
-        return time.time_ns()
-
-    def sleep(self, seconds):
-        time.sleep(seconds)
 
 
 def test_the_firmware_under_simavr(tmp_path):
@@ -214,7 +201,7 @@ def test_the_firmware_under_simavr(tmp_path):
     harness_args = ("--rate", "80", "--signal", "ramp:-5000:5000:7")
     with _harness_process(HARNESS, tmp_path, *harness_args) as (_, link):
         driver = SerialLoadCell(str(link), baud=115200, rate_hz=80)
-        heard = listen(driver, _WallClock(), 4.0)
+        heard = listen(driver, SystemClock(), 4.0)
     rows = {r.check: r for r in diagnose(heard)}
     assert rows["load cell answers"].verdict is Verdict.PASS, rows["load cell answers"]
     assert rows["banner"].verdict is Verdict.PASS and rows["banner"].measured.startswith(
