@@ -215,7 +215,9 @@ def test_a_gauge_polled_over_the_pty_in_real_time(tmp_path):
 
     args = ("--cell", "gauge-12", "--baud", "9600", "--profile", "constant:-83.5376")
     with sim_loadcell(tmp_path, *args) as (link, _):
-        driver = SerialLoadCell(str(link), baud=9600, format_name="value-unit", rate_hz=12)
+        driver = SerialLoadCell(
+            str(link), baud=9600, format_name="value-unit", rate_hz=12, stale_timeout_s=2.0
+        )
         samples = []
         with driver:
             end = time.monotonic() + 2.0

@@ -172,7 +172,7 @@ def test_over_the_pty_emulator_in_real_time(tmp_path):
         "truncate:0.01",
     )
     with sim_loadcell(tmp_path, *args) as (link, _):
-        driver = SerialLoadCell(str(link), baud=115200, rate_hz=80)
+        driver = SerialLoadCell(str(link), baud=115200, rate_hz=80, stale_timeout_s=2.0)
         heard = listen(driver, SystemClock(), 6.0)
     rows = {r.check: r for r in diagnose(heard)}
     assert rows["load cell answers"].verdict is Verdict.PASS
