@@ -9,7 +9,7 @@ serial ports (template: `protocols/rigs/hardware.example.yaml`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
@@ -22,7 +22,15 @@ from rig.files import parse_yaml, read_text_file
 from rig.servo_ratings import STALL_TENSION_CEILING_RATIO, current_for_tension_a, stall_tension_n
 from rig.sim_config import SimulationConfig, parse_simulation
 from rig.validate import Section, read_field, read_fields, reject_undeclared
-from rig.vocabulary import SERVO_BAUDS, LoadCellFormatName, RigKind, ServoModel, ServoRole
+from rig.vocabulary import (
+    LOADCELL_FORMAT_TRAITS,
+    SERVO_BAUDS,
+    UART_BITS_PER_BYTE,
+    LoadCellFormatName,
+    RigKind,
+    ServoModel,
+    ServoRole,
+)
 
 # The built-in simulated rig, shipped as package data. A package installed as a directory (a wheel or
 # an editable install) gives a real path, which the journal records for `--resume`.
@@ -88,7 +96,15 @@ class LoadCellConfig:
             "convention when simulated)"
         )
     )
-    baud: int = field(default=921_600, metadata=integer(1200, 4_000_000))
+    baud: int = field(
+        default=115_200,
+        metadata=integer(
+            1200,
+            4_000_000,
+            doc="must carry `rate_hz` lines of the format (8N1, the longest line): rig-lc1 at 115200 "
+            "carries up to 311/s, at 921600 up to 2490/s",
+        ),
+    )
     format: LoadCellFormatName = field(
         default=LoadCellFormatName.RIG_LC1, metadata=choice(LoadCellFormatName)
     )
@@ -112,6 +128,28 @@ class LoadCellConfig:
             "stall tension stay below it",
         ),
     )
+    # Appended fields (issue 21): the cell's rate and the boot grace after opening its port.
+    rate_hz: float | None = field(
+        default=None,
+        metadata=number(
+            0.1,
+            2000.0,
+            unit="1/s",
+            default_doc="none (simulated: `simulation.loadcell_rate_hz`)",
+            doc="samples per second the cell sends, or a polled format's poll rate (required for "
+            "one); sets the stale timeout's default and is checked against `baud`",
+        ),
+    )
+    boot_grace_s: float = field(
+        default=3.0,
+        metadata=number(
+            0.0,
+            30.0,
+            unit="s",
+            doc="after opening the port, how long the first valid sample may take (an Arduino "
+            "resets when its port opens and is silent 1-3 s); then `limits.stale_timeout_s` applies",
+        ),
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -130,7 +168,14 @@ class RigLimits:
         )
     )
     stale_timeout_s: float = field(
-        default=0.2, metadata=number(0.005, 10.0, unit="s", doc="without a valid load-cell sample")
+        default=0.2,
+        metadata=number(
+            0.005,
+            10.0,
+            unit="s",
+            default_doc="5 sample periods of the cell's rate, at least 0.2 (0.2 without a rate)",
+            doc="without a valid load-cell sample",
+        ),
     )
     max_winch_travel_rev: float = field(default=20.0, metadata=number(0.1, 255.0, unit="rev"))
     zero_tolerance_n: float = field(
@@ -284,6 +329,8 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
         simulation = parse_simulation(top.section("simulation", default={}), article.joint_count)
     elif top.has("simulation"):
         raise top.error("simulation", "only allowed with kind: simulated")
+    loadcell = _loadcell(top.section("loadcell"), base_dir or Path("."))
+    loadcell = _loadcell_rate(top, loadcell, simulation)
     values = read_fields(
         top,
         RigConfig,
@@ -294,12 +341,68 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             "reel_direction": _reel_direction(top),
             "kind": kind,
             "servos": _servo_bus(top.section("servos")),
-            "loadcell": _loadcell(top.section("loadcell"), base_dir or Path(".")),
+            "loadcell": loadcell,
             "article": article,
             "simulation": simulation,
         },
     )
+    if loadcell.rate_hz is not None and not top.section("limits").has("stale_timeout_s"):
+        values["limits"] = replace(
+            values["limits"], stale_timeout_s=default_stale_timeout_s(loadcell.rate_hz)
+        )
     return RigConfig(**values)
+
+
+# The stale timeout's default for a cell of known rate: 5 sample periods, at least 0.2 s (so the
+# 1000/s default is unchanged). The driver uses the same rule.
+MIN_STALE_TIMEOUT_S = 0.2
+STALE_SAMPLE_PERIODS = 5
+
+
+def default_stale_timeout_s(rate_hz: float) -> float:
+    """The stale timeout for a cell at `rate_hz`: five sample periods, but at least 0.2 s."""
+    return max(MIN_STALE_TIMEOUT_S, STALE_SAMPLE_PERIODS / rate_hz)
+
+
+def _loadcell_rate(
+    top: Section, loadcell: LoadCellConfig, simulation: SimulationConfig | None
+) -> LoadCellConfig:
+    """The cell's rate (a simulated cell's: its simulation's), checked against the baud rate and format."""
+    sec = top.section("loadcell")
+    traits = LOADCELL_FORMAT_TRAITS[loadcell.format]
+    rate_hz = loadcell.rate_hz
+    if simulation is not None:
+        if rate_hz is not None and rate_hz != simulation.loadcell_rate_hz:
+            raise sec.error(
+                "rate_hz",
+                f"{rate_hz:g}; allowed: the simulated cell's rate, simulation.loadcell_rate_hz "
+                f"{simulation.loadcell_rate_hz:g} (or leave it out)",
+            )
+        rate_hz = simulation.loadcell_rate_hz
+        cell = simulation.cell
+        if cell is not None and cell.format != loadcell.format:
+            raise sec.error(
+                "format",
+                f"{loadcell.format}; allowed: {cell.format}, the format of simulation.loadcell_cell "
+                f"{simulation.loadcell_cell}",
+            )
+    if rate_hz is None:
+        if traits.poll_command is not None:
+            raise sec.error(
+                "rate_hz", f"required for the polled format {loadcell.format}: its poll rate, 0.1-2000"
+            )
+        return loadcell
+    highest_hz = traits.max_rate_hz(loadcell.baud)
+    if rate_hz > highest_hz:
+        field_name = "rate_hz" if sec.has("rate_hz") else "baud"
+        raise sec.error(
+            field_name,
+            f"{rate_hz:g} lines/s of {loadcell.format} (up to {traits.max_line_bytes} bytes, 10 bits a byte) "
+            f"need {rate_hz * traits.max_line_bytes * UART_BITS_PER_BYTE:.0f} baud, more than baud "
+            f"{loadcell.baud} carries; allowed: rate_hz 0.1-{math.floor(highest_hz * 10) / 10:g} at this "
+            "baud, or a faster baud",
+        )
+    return replace(loadcell, rate_hz=rate_hz)
 
 
 def check_tension_cap(config: RigConfig) -> None:

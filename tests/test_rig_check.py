@@ -70,7 +70,9 @@ def test_built_in_rig_passes_every_check(cli_json: Callable[..., Any]) -> None:
     assert sections == {"ports", "servos", "loadcell", "line", "limits"}  # no move without --move
     assert out["counts"]["fail"] == 0
     failed = [row for row in out["rows"] if row["verdict"] != "pass"]
-    assert [row["check"] for row in failed] == ["load cell capacity"]  # the built-in rig names none
+    # The built-in rig names no cell capacity, and its emulated cell does not restart when opened
+    # (no DTR reset), so it sends no banner.
+    assert [row["check"] for row in failed] == ["banner", "load cell capacity"]
 
 
 def test_exit_codes(run_cli: Callable[..., Any], write_file: Callable[[str, str], Path]) -> None:
@@ -216,14 +218,15 @@ def test_silent_load_cell_fails(write_file: Callable[[str, str], Path]) -> None:
     config = _sim_config(write_file, "simulation: {faults: [{device: loadcell, kind: silent, at_s: 0}]}\n")
     rows = _check_sim(config, only=("loadcell", "line"))
     answers = _one(rows, "load cell answers")
-    assert answers.verdict is Verdict.FAIL and "StaleDataError" in answers.measured
+    assert answers.verdict is Verdict.FAIL and "no valid sample" in answers.measured
     assert _one(rows, "line slack").verdict is Verdict.FAIL
 
 
 def test_slow_cell_against_the_stale_timeout(write_file: Callable[[str, str], Path]) -> None:
-    config = _sim_config(write_file, "simulation: {loadcell_rate_hz: 10}\n")
+    # An explicit 0.2 s (left out, the timeout follows the rate and holds 5 periods).
+    config = _sim_config(write_file, "limits: {stale_timeout_s: 0.2}\nsimulation: {loadcell_rate_hz: 10}\n")
     rows = _check_sim(config, only=("loadcell",))
-    assert _one(rows, "load cell rate").verdict is Verdict.PASS
+    assert [r.verdict for r in rows if r.check == "rate"] == [Verdict.PASS]
     row = _one(rows, "stale timeout")
     assert row.verdict is Verdict.FAIL and "stale_timeout_s" in row.fix
 
@@ -334,19 +337,6 @@ def test_wrong_model_fails_the_handshake(write_file: Callable[[str, str], Path])
     )
     (row,) = _check_sim(config, only=("servos",))
     assert row.verdict is Verdict.FAIL and "wrong model" in row.measured and "XL430-W250" in row.measured
-
-
-def test_cell_rate_off_the_configured_one_warns() -> None:
-    from rig.hw.seams import LoadCellSample
-    from rig.preflight.loadcell_basic import loadcell_rows
-
-    config = load_rig_config()  # simulation.loadcell_rate_hz 1000
-    ctx = CheckContext(config, CheckOptions(), lambda: pytest.fail("no device is needed"))
-    ctx.cell_open = True
-    ctx.listened = [LoadCellSample(i * 2_000_000, 0, 0.0) for i in range(500)]  # 500 in 1 s
-    ctx.listened_s = 1.0
-    row = _one(loadcell_rows(ctx), "load cell rate")
-    assert row.verdict is Verdict.WARN and "500.0 Hz measured, 1000 Hz configured" in row.measured
 
 
 def test_nominal_stiffness_far_from_the_line_warns_and_is_written(

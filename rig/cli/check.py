@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,19 +19,25 @@ DESCRIPTION = """\
 Check a rig before a run: open every device its config names and move nothing (unless --move).
 
 Sections, in order: ports (present, permitted, the USB adapter's latency timer), servos (each
-configured ID found; model, firmware, input voltage, temperature, hardware error, the operating
-mode its role needs), loadcell (it answers, its rate), line (slack now: the cell within
-limits.zero_tolerance_n of its zero), limits (protocol ceilings, rig ceiling, winch stall tension,
-load-cell capacity), move (only with --move: a small supervised jog of the winch that checks the
-reel direction and measures the line stiffness; the winch ends where it started, torque off).
+configured ID found; model, firmware, input voltage, temperature, hardware error, the operating mode
+its role needs), loadcell (listened to for --window-s: banner, rate and jitter, noise in counts and
+newtons, unique values, saturation, gaps, clock skew, the stale timeout), line (slack now: the cell
+within limits.zero_tolerance_n of its zero), limits (protocol ceilings, rig ceiling, winch stall
+tension, load-cell capacity), move (only with --move: a small supervised jog of the winch that
+checks the reel direction and measures the line stiffness; the winch ends where it started, torque
+off).
 
 Without --rig the built-in simulated rig is checked.
 """
+
+WINDOW_DEFAULT_S = 5.0
+WINDOW_RANGE_S = (1.0, 600.0)
 
 EPILOG = """\
 examples:
   rig check --rig my-lab.yaml
   rig check --rig my-lab.yaml --only ports servos
+  rig check --rig my-lab.yaml --only loadcell --window-s 60   # the cell alone, a minute
   rig check --rig my-lab.yaml --move            # jog, then offer to write the findings
   rig check --rig my-lab.yaml --move --write    # and write them without asking
   rig check --rig my-lab.yaml --protocol protocols/joint_estimation.yaml --json
@@ -88,6 +95,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         metavar="DIR",
         help="where USB-serial latency timers are read (default /sys; `rig sim servos --sysfs-root`)",
     )
+    parser.add_argument(
+        "--window-s",
+        type=float,
+        default=WINDOW_DEFAULT_S,
+        metavar="S",
+        help=f"how long the load cell is listened to after its first sample, {WINDOW_RANGE_S[0]:g}-"
+        f"{WINDOW_RANGE_S[1]:g} s (default {WINDOW_DEFAULT_S:g}; longer measures the clock skew better)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="simulated rig: its seed (default 0)")
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
@@ -109,6 +124,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--write: only with --move (it writes what the jog measured)")
     if not 0.01 <= args.jog_travel_rev <= 5:  # NaN fails too
         raise InputError(f"--jog-travel-rev {args.jog_travel_rev}: allowed: 0.01 to 5")
+    lo, hi = WINDOW_RANGE_S
+    if not (math.isfinite(args.window_s) and lo <= args.window_s <= hi):
+        raise InputError(f"--window-s {args.window_s}: allowed: {lo:g} to {hi:g}")
     if not 0 <= args.seed < 2**63:
         raise InputError(f"--seed {args.seed}: allowed: 0 to 2^63-1")
     path = args.rig if args.rig is not None else DEFAULT_RIG_CONFIG
@@ -125,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
             sysfs_root=args.sysfs_root,
             protocols=protocols,
             jog_travel_rev=args.jog_travel_rev,
+            loadcell_window_s=args.window_s,
         ),
         lambda: check_devices(config, seed=args.seed),
     )

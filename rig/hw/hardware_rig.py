@@ -61,6 +61,8 @@ def hardware_session(config: RigConfig) -> RigSession:
         calibration=calibration,
         stale_timeout_s=config.limits.stale_timeout_s,
         clock=clock,
+        rate_hz=config.loadcell.rate_hz,
+        boot_grace_s=config.loadcell.boot_grace_s,
     )
     return RigSession(
         kind=RigKind.HARDWARE,

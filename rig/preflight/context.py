@@ -29,7 +29,7 @@ class CheckOptions:
     move: bool = False  # the jog (direction, stiffness) may move the winch
     sysfs_root: Path = DEFAULT_SYSFS_ROOT  # where the USB-serial latency timers are read
     protocols: tuple[Protocol, ...] = ()  # protocols whose ceilings are checked against the rig's
-    loadcell_window_s: float = 1.0  # how long the load cell is listened to
+    loadcell_window_s: float = 5.0  # how long the load cell is listened to (after its first sample)
     jog_travel_rev: float = 1.0  # the most the jog turns the winch each way
 
 
@@ -75,6 +75,8 @@ class CheckContext:
         """
         if self.listened is not None:
             return self.listened
+        if self.cell_failure is not None:
+            return None
         cell = self.load_cell()
         if cell is None:
             return None

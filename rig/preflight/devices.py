@@ -43,6 +43,8 @@ def check_devices(config: RigConfig, *, seed: int = 0) -> CheckDevices:
         calibration=calibration,
         stale_timeout_s=config.limits.stale_timeout_s,
         clock=clock,
+        rate_hz=config.loadcell.rate_hz,
+        boot_grace_s=config.loadcell.boot_grace_s,
     )
     return CheckDevices(
         servos, load_cell, clock, calibrated=calibration is not None, calibration_problem=problem

@@ -13,7 +13,7 @@ from rig.preflight.context import CheckContext
 from rig.preflight.jog import jog_rows
 from rig.preflight.limits import limit_rows
 from rig.preflight.line import slack_rows
-from rig.preflight.loadcell_basic import loadcell_rows
+from rig.preflight.loadcell import loadcell_rows
 from rig.preflight.ports import port_rows
 from rig.preflight.servos import servo_rows
 from rig.preflight.verdicts import CheckRow

@@ -53,6 +53,13 @@ def object_simulated_rig(
             f"{config.source}: simulation/faults: the object-level devices have no bytes to corrupt; "
             "allowed: no faults, or the byte-level devices (--devices byte)"
         )
+    if sim.cell is not None or sim.loadcell_clock_error_ppm or sim.loadcell_dtr_reset_s:
+        raise ConfigError(
+            f"{config.source}: simulation.loadcell_cell: {sim.loadcell_cell} (clock error "
+            f"{sim.loadcell_clock_error_ppm:g} ppm, DTR reset {sim.loadcell_dtr_reset_s:g} s): the "
+            "object-level load cell has no lines, settling, polls or device clock; allowed: the default "
+            "cell, or the byte-level devices (--devices byte)"
+        )
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
     bus = ObjectServoBus(clock, [(s.servo_id, config.servos.winch.model) for s in config.servos.servos])

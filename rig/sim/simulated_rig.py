@@ -166,6 +166,11 @@ def simulated_rig(
         seed=seed,
         stale_timeout_s=config.limits.stale_timeout_s,
         artefacts=loadcell_artefacts(preset, seed),
+        baud=config.loadcell.baud,
+        cell=sim.cell,
+        clock_error_ppm=sim.loadcell_clock_error_ppm,
+        dtr_reset_s=sim.loadcell_dtr_reset_s,
+        boot_grace_s=config.loadcell.boot_grace_s,
     )
     schedule = apply_faults(config, sim.faults, bus=bus, loadcell=loadcell_emulator, clock=clock, seed=seed)
     servos = DynamixelServoBus(
