@@ -9,8 +9,10 @@ single-joint specimen during joint estimation):
 * an out-of-plane configuration (after a slip under an out-of-plane load) is reported with
   `joint_angles_rad = None` and each joint rotation perturbed by a random rotation whose rotation
   vector is N(0, σ_meas² I₃);
-* `slipped_joint` names the link joint (1-based) of the most recent true slip since the previous
-  `measure()` (`SlipRecord.moved_joint`), but only with probability
+* on the link, `slipped_joint` is left None: the runner finds the joint that moved by comparing
+  this measurement with the one before the slip (`model.slipped_joint`), as with a camera;
+* on the joint-estimation specimen, `slipped_joint` names the link joint (1-based) of the most
+  recent true slip since the previous `measure()` (`SlipRecord.moved_joint`), but only with probability
   `slipped_joint_report_probability` (else None, as when a camera cannot tell which joint moved),
   so a consumer's "unknown joint" path is exercised. In joint estimation a slip of the specimen
   names the trial's joint (`TrialPlan.joint`; 1 for the nominal specimen) and a slip of a
@@ -69,7 +71,10 @@ class SimConfigurationSource:
         slipped: int | None = None
         new_slips = world.slips[self._slips_seen :]
         self._slips_seen = len(world.slips)
-        if new_slips:
+        # On the link the runner tells the moved joint from the configuration before and after (as
+        # with a camera); only the joint-estimation specimen, whose neighbours are not modelled as
+        # geometry, is named from the world's record.
+        if new_slips and world.setup == "specimen":
             last = new_slips[-1]
             probability = self.report_probability
             if last.kind == SlipKind.OTHER_JOINT:
@@ -78,5 +83,9 @@ class SimConfigurationSource:
                 slipped = last.moved_joint
         time_ns = self._clock.time_ns() if self._clock is not None else world.now_ns
         return ConfigurationReading(
-            transforms=transforms, time_ns=time_ns, joint_angles_rad=noisy_angles, slipped_joint=slipped
+            transforms=transforms,
+            time_ns=time_ns,
+            joint_angles_rad=noisy_angles,
+            slipped_joint=slipped,
+            uncertainty_rad=(sigma,) * article.joint_count,
         )
