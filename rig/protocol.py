@@ -170,7 +170,7 @@ class LinkValidationBlockFields:
     )
     steps: tuple[str, ...] = field(default=(), metadata=_STEPS)
     bend_tolerance_deg: float = field(
-        default=0.5,
+        default=1.0,
         metadata=number(
             0.01,
             10.0,
@@ -265,7 +265,7 @@ class TrialPlan:
     distance_m: float | None = None
     joint_angles_rad: tuple[float, ...] | None = None
     configuration_index: int | None = None
-    bend_tolerance_rad: float = math.radians(0.5)  # link validation: reached within this needs no correction
+    bend_tolerance_rad: float = math.radians(1.0)  # link validation: reached within this needs no correction
     bend_corrections: int = 2  # link validation: at most this many corrections
 
     def prompt_text(self, template: str) -> str:

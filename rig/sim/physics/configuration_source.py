@@ -9,8 +9,11 @@ single-joint specimen during joint estimation):
 * an out-of-plane configuration (after a slip under an out-of-plane load) is reported with
   `joint_angles_rad = None` and each joint rotation perturbed by a random rotation whose rotation
   vector is N(0, σ_meas² I₃);
-* on the link, `slipped_joint` is left None: the runner finds the joint that moved by comparing
-  this measurement with the one before the slip (`model.slipped_joint`), as with a camera;
+* on the link, `slipped_joint` is the joint whose true rotation changed since the previous
+  `measure()` when a slip happened in between (`model.slipped_joint.moved_joint` on the world's
+  true configurations: the simulator sees the link; a slip under the winch turns a joint by a
+  fraction of a degree, below a camera's noise, so the runner's own comparison of the noisy
+  readings, used for a camera, would rarely tell);
 * on the joint-estimation specimen, `slipped_joint` names the link joint (1-based) of the most
   recent true slip since the previous `measure()` (`SlipRecord.moved_joint`), but only with probability
   `slipped_joint_report_probability` (else None, as when a camera cannot tell which joint moved),
@@ -29,11 +32,14 @@ from __future__ import annotations
 import numpy as np
 
 from model.chain import planar_transforms
+from model.slipped_joint import moved_joint
 from rig.hw.seams import Clock, ConfigurationReading
 from rig.sim.physics.article import rotation_about_axis
 from rig.sim.physics.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
 from rig.sim.physics.world import SimWorld
 from rig.vocabulary import SlipKind
+
+SEEN_ROTATION_RAD = 1e-9  # the simulator sees any rotation of a joint between two measurements
 
 
 class SimConfigurationSource:
@@ -48,6 +54,7 @@ class SimConfigurationSource:
         self.sigma_meas_rad = world.preset.sigma_meas_rad
         self.report_probability = world.preset.slipped_joint_report_probability
         self._slips_seen = len(world.slips)
+        self._last_link_transforms: np.ndarray | None = None
 
     def measure(self) -> ConfigurationReading:
         """Measure the configuration with noise, and the joint that slipped since the last call if known."""
@@ -71,10 +78,14 @@ class SimConfigurationSource:
         slipped: int | None = None
         new_slips = world.slips[self._slips_seen :]
         self._slips_seen = len(world.slips)
-        # On the link the runner tells the moved joint from the configuration before and after (as
-        # with a camera); only the joint-estimation specimen, whose neighbours are not modelled as
-        # geometry, is named from the world's record.
-        if new_slips and world.setup == "specimen":
+        if world.setup == "link":
+            # The simulator sees the link's true configuration: the joint that moved since the
+            # previous measurement is the one whose rotation changed (model.slipped_joint).
+            true_now = article.transforms
+            previous, self._last_link_transforms = self._last_link_transforms, true_now
+            if new_slips and previous is not None:
+                slipped = moved_joint(previous, true_now, SEEN_ROTATION_RAD)
+        elif new_slips:
             last = new_slips[-1]
             probability = self.report_probability
             if last.kind == SlipKind.OTHER_JOINT:
