@@ -41,6 +41,7 @@ EXPECTED = {
     "/rig/estimate": "rig.Estimate",
     "/rig/trial/links": "rig.TrialLinkStats",
     "/rig/log": "foxglove.Log",
+    "/rig/configuration/measured": "rig.ConfigurationMeasurement",
 }
 
 
