@@ -179,7 +179,7 @@ class ArticleConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class ConfigurationConfig:
-    """Where the measured link configuration comes from (`configuration:`); docs/formats.md §11."""
+    """Where the measured link configuration comes from (`configuration:`; docs/formats.md)."""
 
     source: ConfigurationSourceKind | None = field(
         default=None,
@@ -193,8 +193,8 @@ class ConfigurationConfig:
         default=None,
         metadata=custom(
             default_doc="none",
-            allowed_doc="a CSV or YAML file of measured angles per configuration (§11), relative to "
-            "the config; required with `source: file`",
+            allowed_doc="a CSV or YAML file of measured angles per configuration (the format: "
+            '"Measured configurations" below), relative to the config; required with `source: file`',
         ),
     )
     camera: Path | None = field(

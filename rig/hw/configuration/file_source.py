@@ -1,4 +1,4 @@
-"""Measured configurations from a file: angles per configuration index, CSV or YAML (docs/formats.md §11).
+"""Measured configurations from a file: angles per configuration index, CSV or YAML (docs/formats.md).
 
 The file is read and checked once, when the source is made (every error names the file, the row or
 key, and what is allowed). Each `measure()` returns the angles of the configuration the runner
