@@ -29,10 +29,10 @@ SEEDS = range(5)
 
 
 def run(protocol: str, rig: Path, seed: int, out: Path) -> list[float]:
-    """The absolute percentage errors of one run."""
+    """The absolute percentage errors of one run (its logs in `out`, named by the seed)."""
     done = subprocess.run(
         [sys.executable, "-m", "rig.cli", "run", protocol, "--rig", str(rig), "--seed", str(seed),
-         "--devices", "object", "--out", str(out), "--json"],
+         "--devices", "object", "--out", str(out), "--run-id", f"seed{seed}", "--json"],
         cwd=ROOT, capture_output=True, text=True, check=False,
     )  # fmt: skip
     if done.returncode != 0:

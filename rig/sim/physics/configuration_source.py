@@ -9,8 +9,8 @@ single-joint specimen during joint estimation):
 * an out-of-plane configuration (after a slip under an out-of-plane load) is reported with
   `joint_angles_rad = None` and each joint rotation perturbed by a random rotation whose rotation
   vector is N(0, σ_meas² I₃);
-* on the link, `slipped_joint` is the joint whose true rotation changed since the previous
-  `measure()` when a slip happened in between (`model.slipped_joint.moved_joint` on the world's
+* on the link, `slipped_joint` is the joint whose true rotation changed between the onset of the
+  first slip since the previous `measure()` and now (`model.slipped_joint.moved_joint` on the world's
   true configurations: the simulator sees the link; a slip under the winch turns a joint by a
   fraction of a degree, below a camera's noise, so the runner's own comparison of the noisy
   readings, used for a camera, would rarely tell);
@@ -54,7 +54,6 @@ class SimConfigurationSource:
         self.sigma_meas_rad = world.preset.sigma_meas_rad
         self.report_probability = world.preset.slipped_joint_report_probability
         self._slips_seen = len(world.slips)
-        self._last_link_transforms: np.ndarray | None = None
 
     def measure(self) -> ConfigurationReading:
         """Measure the configuration with noise, and the joint that slipped since the last call if known."""
@@ -78,13 +77,12 @@ class SimConfigurationSource:
         slipped: int | None = None
         new_slips = world.slips[self._slips_seen :]
         self._slips_seen = len(world.slips)
+        before = [world.link_before_slip.pop(i) for i in sorted(world.link_before_slip)]
         if world.setup == "link":
             # The simulator sees the link's true configuration: the joint that moved since the
-            # previous measurement is the one whose rotation changed (model.slipped_joint).
-            true_now = article.transforms
-            previous, self._last_link_transforms = self._last_link_transforms, true_now
-            if new_slips and previous is not None:
-                slipped = moved_joint(previous, true_now, SEEN_ROTATION_RAD)
+            # first slip began is the one whose rotation changed (model.slipped_joint).
+            if new_slips and before:
+                slipped = moved_joint(before[0], article.transforms, SEEN_ROTATION_RAD)
         elif new_slips:
             last = new_slips[-1]
             probability = self.report_probability

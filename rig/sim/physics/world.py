@@ -171,6 +171,9 @@ class SimWorld:
 
         self.trials: list[TrialTruth] = []
         self.slips: list[SlipRecord] = []
+        # The link's true transforms at the onset of each of its slips not yet measured (slip index ->
+        # (J, 4, 4)); the configuration source takes them out as it measures.
+        self.link_before_slip: dict[int, np.ndarray] = {}
         self._slip: ActiveSlip | None = None  # the slip under way
         self._behaviour: SlipBehaviour = Sudden(SlipPlan(SlipKind.SUDDEN.value), preset.kinetic_ratio)
         self._clamp_take_up_m = 0.0  # what an other-joint slip let the line in by (this trial)
@@ -379,6 +382,8 @@ class SimWorld:
         moved_joint: int | None = None,
     ) -> SlipRecord:
         """Record the onset of a slip of `joint` (`moved_joint` None: the link joint the article's moves)."""
+        if self._article is self.link:
+            self.link_before_slip[len(self.slips)] = self.link.transforms  # as it was before it turns
         record = SlipRecord(
             trial_index=self.trials[-1].index if self.trials else None,
             setup=self.setup,
@@ -478,6 +483,7 @@ class SimWorld:
         """
         kind = TrialKind(kind)
         self._end_slip()
+        self.link_before_slip.clear()
         preset = self.preset
         if kind is TrialKind.JOINT_ESTIMATION:
             if distance_m is None or not (math.isfinite(distance_m) and distance_m > 0):
