@@ -46,8 +46,9 @@ DEFAULT_STEPS: dict[TrialKind, tuple[StepKind, ...]] = {
         StepKind.RESET, StepKind.PAUSE,
     ),
 }  # fmt: skip
-# Steps that move or read the bending fixture: only a link-validation trial has them.
-LINK_ONLY_STEPS = frozenset({StepKind.BEND, StepKind.RESET, StepKind.MEASURE})
+# Steps that move the bending fixture: only a link-validation trial has them. (`measure` may be in a
+# joint-estimation template too: with a camera, the configuration before the slip tells which joint moved.)
+LINK_ONLY_STEPS = frozenset({StepKind.BEND, StepKind.RESET})
 # Size limits (docs/formats.md §1): generous for any real protocol, small enough that a hostile
 # file cannot make the plan take minutes or gigabytes.
 MAX_BLOCKS = 100
