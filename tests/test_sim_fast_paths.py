@@ -49,7 +49,7 @@ def _scripted_world(skip_still: bool, steps: list[int]) -> tuple[SimWorld, Objec
     world = SimWorld(
         make_preset("link1", 2),
         bus.servo(1),
-        bender=bus.servo(2),
+        forks=[(1, bus.servo(2))],
         step_devices=step_devices,
         devices_at_rest=bus.at_rest if skip_still else None,
     )
