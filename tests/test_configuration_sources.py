@@ -219,18 +219,26 @@ def test_the_camera_source_is_imported_only_when_chosen_and_missing_it_is_a_clea
         configuration={"source": "camera", "camera": "cal.yaml", "markers": "map.yaml", "device": 3}
     )
     parsed = parse_rig_config(data, source=str(tmp_path / "r.yaml"), base_dir=tmp_path)
-    monkeypatch.setattr(factory, "CAMERA_MODULE", "rig_no_such_camera_module")
-    with pytest.raises(ConfigError, match=r"configuration.source: camera needs the camera extra"):
+    monkeypatch.setattr(factory, "CAMERA_PACKAGE", "rig_no_such_camera_package")
+    with pytest.raises(ConfigError, match=r"configuration\.source: camera needs the camera extra"):
         factory.hardware_configuration_source(parsed, VirtualClock())
-    made = {}
-    module = types.ModuleType("fake_camera_source")
-    module.camera_source = lambda *args: made.setdefault("args", args)  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "fake_camera_source", module)
-    monkeypatch.setattr(factory, "CAMERA_MODULE", "fake_camera_source")
-    factory.hardware_configuration_source(parsed, VirtualClock())
-    camera, markers, device, article, _clock = made["args"]
-    assert (camera, markers, device) == (tmp_path / "cal.yaml", tmp_path / "map.yaml", 3)
-    assert article.joint_count == 8
+    # With the extra (here a stand-in): device, calibration and marker map as the config names them.
+    source = types.ModuleType("fake_camera.source")
+    source.CameraDevice = lambda index: ("device", index)  # type: ignore[attr-defined]
+    source.CameraConfigurationSource = lambda *args: ("source", args)  # type: ignore[attr-defined]
+    calibration = types.ModuleType("fake_camera.calibration")
+    calibration.load_calibration = lambda path: ("calibration", path)  # type: ignore[attr-defined]
+    marker_map = types.ModuleType("fake_camera.marker_map")
+    marker_map.load_marker_map = lambda path: ("markers", path)  # type: ignore[attr-defined]
+    for module in (types.ModuleType("fake_camera"), source, calibration, marker_map):
+        monkeypatch.setitem(sys.modules, module.__name__, module)
+    monkeypatch.setattr(factory, "CAMERA_PACKAGE", "fake_camera")
+    clock = VirtualClock()
+    made = factory.hardware_configuration_source(parsed, clock)
+    assert made == (
+        "source",
+        (("device", 3), ("calibration", tmp_path / "cal.yaml"), ("markers", tmp_path / "map.yaml"), clock),
+    )
 
 
 # --- a run: every measurement on its topic, the prediction from the measurement ---------------------

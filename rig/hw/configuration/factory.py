@@ -18,10 +18,9 @@ from rig.hw.seams import Clock, ConfigurationSource
 from rig.rig_config import RigConfig, configuration_source_kind
 from rig.vocabulary import ConfigurationSourceKind
 
-# Where the camera source's factory lives (the `camera` extra): `camera_source(calibration_path,
-# markers_path, device, article, clock)` returning a `ConfigurationSource`.
-CAMERA_MODULE = "rig.camera.source"
-CAMERA_FACTORY = "camera_source"
+# The camera source (the `camera` extra, rig/hw/camera/): these modules are imported only when a
+# config selects `source: camera`, so OpenCV is never imported otherwise.
+CAMERA_PACKAGE = "rig.hw.camera"
 
 
 def sees_slips(kind: ConfigurationSourceKind) -> bool:
@@ -62,16 +61,25 @@ def hardware_configuration_source(config: RigConfig, clock: Clock) -> Configurat
 
 
 def camera_configuration_source(config: RigConfig, clock: Clock) -> ConfigurationSource:
-    """The camera source of the optional extra, imported now (a clear error when it is not installed)."""
+    """The camera source of the optional extra, imported now (a clear error when it is not installed).
+
+    Frames come from the device index `configuration.device`; the calibration and the marker map
+    are read and checked here, before anything moves.
+    """
     section = config.configuration
     try:
-        module = importlib.import_module(CAMERA_MODULE)
+        source = importlib.import_module(f"{CAMERA_PACKAGE}.source")
+        calibration = importlib.import_module(f"{CAMERA_PACKAGE}.calibration")
+        marker_map = importlib.import_module(f"{CAMERA_PACKAGE}.marker_map")
     except ImportError as exc:
         raise ConfigError(
             f"{config.source}: configuration.source: camera needs the camera extra "
             f"(pip install -e '.[camera]'): {exc}"
         ) from None
-    factory = getattr(module, CAMERA_FACTORY)
-    return cast(
-        ConfigurationSource, factory(section.camera, section.markers, section.device, config.article, clock)
+    made = source.CameraConfigurationSource(
+        source.CameraDevice(section.device),
+        calibration.load_calibration(section.camera),
+        marker_map.load_marker_map(section.markers),
+        clock,
     )
+    return cast(ConfigurationSource, made)
