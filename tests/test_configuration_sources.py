@@ -15,6 +15,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
+from rig.analysis.replay import replay
 from rig.errors import ConfigError, InputError
 from rig.hw.configuration import factory
 from rig.hw.configuration.file_source import FileConfigurationSource, MeasuredAnglesFile
@@ -296,6 +297,11 @@ def test_a_fork_run_logs_each_measurement_beside_the_commanded_angles_and_predic
         assert 0 < np.abs(angles - commanded).max() < math.radians(3)
         result = next(r for r in results if r["trial_id"] == trial)
         assert result["joint_angles_rad"] == pytest.approx(last["joint_angles_rad"])
+    # Replay reads the measurements: where each trial's angles came from and after how many corrections.
+    table = replay(tmp_path / "out").table
+    assert list(table["configuration_source"].fillna("none")) == ["none"] * 3 + ["simulator"] * 2
+    corrections = [int(m["attempt"]) for m in bent if m["trial_id"] == 5][-1]
+    assert table["bend_corrections"].iloc[4] == corrections
 
 
 @pytest.mark.slow
