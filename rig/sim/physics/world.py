@@ -1,17 +1,17 @@
-"""The simulated world: test article, winch line and bending fixture, integrated in virtual time.
+"""The simulated world: test article, winch line and the forks that bend it, integrated in virtual time.
 
 `SimWorld` couples the physics of the rig to the byte-level device emulators through two small,
 duck-typed hooks:
 
 * **Servo shafts** (`ShaftLike`): any object with `present_position_rad` (output shaft, multi-turn,
-  read each substep) and a settable `external_torque_nm`. The world reads the winch and, if there is
-  one, the bender, and writes the line's torque on the winch (−tension·r_drum, see `winch_line.py`).
+  read each substep) and a settable `external_torque_nm`. The world reads the winch and the
+  forks' benders, and writes the line's torque on the winch (−tension·r_drum, see `winch_line.py`).
 * **Device stepping**: `step_devices(t_ns)` (e.g. `EmulatedBus.advance_to`) lets the servos move
   up to `t_ns` under the torque written at the previous substep.
 
 `advance_to(now_ns)` (registered as a `VirtualClock.on_advance` listener) integrates in fixed
 substeps (1 ms by default; the last one may be shorter so that the world ends exactly at `now`).
-Per substep, explicitly: the devices move; the bending fixture (if moving) updates the link; the
+Per substep, explicitly: the devices move; a pushing fork (forks.py) moves the link; the
 line tension follows from the winch angle and the acting point's take-up; that tension is recorded
 (it is the tension *at* the substep's time); then friction acts: a joint whose criterion reaches its
 static capacity starts to slip and turns at `slip_rate_rad_s` until its moment falls to the
@@ -32,12 +32,12 @@ Trials: `begin_trial(kind, distance_m)` draws the capacities of this trial and, 
 estimation, sets up the **single-joint specimen**: one joint placed horizontally (its axis z along
 the base z, the line pulling across it along the preset's direction without its z part), the hook
 at distance l, so the lever arm is l. The specimen is re-levelled (straight) at the start of every
-such trial. Link-validation trials use the link in whatever configuration the fixture (or
+such trial. Link-validation trials use the link in whatever configuration the forks (or
 `set_configuration`) left it. `truth()` returns the ground truth as a typed record
 (`rig.hw.truth.WorldTruth`).
 
 **Fast path.** `advance_to` spells out the common substep (no slip under way, nothing pending,
-the fixture still) instead of calling `_substep`, and skips still stretches when the devices are at
+no fork pushing) instead of calling `_substep`, and skips still stretches when the devices are at
 rest; `plain_substeps = True` sends every substep through `_substep` (tests/test_sim_fast_paths.py
 holds the two histories equal).
 """
@@ -73,7 +73,7 @@ from rig.vocabulary import SlipKind, TrialKind
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0
-BEND_UPDATE_NS = 50_000_000  # how often a moving fixture re-poses the link (each re-pose costs ~0.2 ms)
+BEND_UPDATE_NS = 50_000_000  # how often a pushing fork re-poses the link (each re-pose costs ~0.2 ms)
 
 
 def specimen_direction(direction_w: Sequence[float]) -> tuple[float, float, float]:
