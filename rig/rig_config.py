@@ -111,9 +111,20 @@ class LoadCellConfig:
         default=None,
         metadata=custom(
             key="calibration",
-            allowed_doc="a §6 file, relative to the config; required on hardware; when given it must be "
-            "valid for a simulated rig too (`rig run`, also `--dry-run`, reads it), though the simulated "
-            "cell keeps its nominal calibration",
+            allowed_doc="a §6 file, relative to the config; required on hardware (`rig run --dry-run` only "
+            "notes one not made yet); when given it must be valid for a simulated rig too (`rig run`, also "
+            "`--dry-run`, reads it), though the simulated cell keeps its nominal calibration",
+        ),
+    )
+    capacity_n: float | None = field(
+        default=None,
+        metadata=number(
+            0.1,
+            100_000.0,
+            unit="N",
+            optional=True,
+            doc="the cell's rated capacity; `rig check` checks that the force ceiling and the winch's "
+            "stall tension stay below it",
         ),
     )
 
@@ -257,7 +268,14 @@ class RigConfig:
         ),
     )
     line_stiffness_n_per_m: float = field(
-        default=2000.0, metadata=number(1.0, 1e7, unit="N/m", doc="nominal; used for plans and timeouts")
+        default=200.0,
+        metadata=number(
+            1.0,
+            1e7,
+            unit="N/m",
+            doc="nominal; used for plans and timeouts (200: about a metre of thin nylon line); "
+            "`rig check --move` measures it",
+        ),
     )
     servos: ServoBusConfig = field(metadata=section())
     loadcell: LoadCellConfig = field(metadata=section())

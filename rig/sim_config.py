@@ -240,6 +240,23 @@ class SimulationConfig:
             "(0: slack, the preset's reel-in before taut)",
         ),
     )
+    servo_supply_v: float = field(
+        default=12.0,
+        metadata=number(
+            0.0, 30.0, unit="V", doc="every emulated servo's Present Input Voltage (`rig check` compares it)"
+        ),
+    )
+    servo_temperature_c: int = field(
+        default=30, metadata=integer(0, 120, unit="°C", doc="every emulated servo's Present Temperature")
+    )
+    servo_firmware: int = field(
+        default=48,
+        metadata=integer(
+            0,
+            255,
+            doc="every emulated servo's Firmware Version (< 38: no Bus Watchdog; < 45: no Fast Sync Read)",
+        ),
+    )
     torsion_weak_joint: int | None = field(
         default=None,
         metadata=custom(

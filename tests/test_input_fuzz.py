@@ -452,6 +452,9 @@ def test_rig_sim_servos_options(profile):
             "baud": st.sampled_from([57600, 1_000_000, 0, -1, 10**30]),
             "firmware": st.one_of(st.none(), st.integers(-5, 300)),
             "fault": st.lists(SPEC_TEXT, max_size=3),
+            "usb_latency_ms": st.floats(-5, 300) | st.sampled_from([float("nan"), float("inf")]),
+            "voltage_v": st.none() | st.floats(allow_nan=True, allow_infinity=True),
+            "temperature_c": st.none() | st.integers(-5, 300),
         }
     )
 

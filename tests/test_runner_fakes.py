@@ -365,11 +365,11 @@ class _CameraLike:
 
     def measure(self) -> ConfigurationReading:
         self.calls += 1
-        angles = np.zeros(4)
+        angles = np.zeros(8)  # the rig config's link: 8 joints
         if self.calls % 2 == 0 and self.moved is not None:  # the second reading of a trial: after the slip
             angles[self.moved - 1] = np.radians(2.0)
         transforms = planar_transforms(angles, 0.03)
-        return ConfigurationReading(transforms, 0, tuple(angles), None, (np.radians(0.1),) * 4)
+        return ConfigurationReading(transforms, 0, tuple(angles), None, (np.radians(0.1),) * 8)
 
 
 @pytest.mark.parametrize(("moved", "outcome"), [(2, "other_joint"), (1, "slip"), (None, "slip")])

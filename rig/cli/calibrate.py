@@ -35,9 +35,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="two-point load-cell calibration (tare + reference mass) written as JSON",
         description=(
             "Calibrate the line load cell: with no load, the mean raw count is the offset (tare); "
-            "with a reference mass hanging, factor = mass * g / (raw_ref - raw_zero). Prompts the "
-            "operator before each step, then writes --out atomically (Ctrl-C leaves no file). "
-            "--sim runs against the in-process simulated load cell, where the simulation hangs the mass."
+            "with a known tension in the line, factor = mass * g / (raw_ref - raw_zero). The cell sits "
+            "inline, so the reference is a tension through it: a mass hanging from the line (over the "
+            "pulley, the cell in the line as in a trial), or a pull read on a reference gauge given as "
+            "--reference-kg = newtons / g. Prompts the operator before each step, then writes --out "
+            "atomically (Ctrl-C leaves no file). --sim runs against the in-process simulated load cell, "
+            "where the simulation applies the load."
         ),
     )
     source = parser.add_mutually_exclusive_group(required=True)
@@ -54,7 +57,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--format", default="rig-lc1", choices=sorted(FORMATS), help="line format (default rig-lc1)"
     )
     parser.add_argument(
-        "--reference-kg", type=float, required=True, help="mass of the reference weight in kg"
+        "--reference-kg",
+        type=float,
+        required=True,
+        help="the reference tension as a mass in kg: the hanging mass, or a gauge's newtons / g",
     )
     parser.add_argument(
         "--out", default=None, help="calibration JSON file to write (required unless --rig names one)"

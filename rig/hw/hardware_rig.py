@@ -85,7 +85,10 @@ class ConsoleOperator:
     def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
         """Prompt, then keep the rig's control loop running until Enter; no terminal is an error."""
         if not sys.stdin or not sys.stdin.isatty():
-            raise InputError(f"operator step needs a person at a terminal: {text}")
+            raise InputError(
+                f"operator step needs a person at a terminal (stdin is not one; over ssh use `ssh -t`, "
+                f"best inside tmux or screen): {text}"
+            )
         print(f"\n>>> {text}  [Enter to continue, Ctrl-C to abort] ", end="", file=sys.stderr, flush=True)
         while not select.select([sys.stdin], [], [], 0)[0]:
             keep_alive()

@@ -9,6 +9,7 @@ from model.slip_detector import SlipEvent
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
 from rig.log import schemas as S
+from rig.log.link_scene import LinkGeometry, LinkScene
 from rig.log.records import (
     ConfigurationMeasurement,
     Estimate,
@@ -40,6 +41,15 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
         force_after_n=8.0,
         drop_fraction=0.36,
         trigger="drop",
+    )
+    scene = LinkScene(
+        LinkGeometry((0.03, 0.03, 0.03), 0.01, (0.0, 0.0, 0.03), (0.0, -1.0, 0.0)),
+        time_ns,
+        trial_id=3,
+        joint_angles_rad=(0.1, -0.2, 0.05),
+        tension_n=12.5,
+        slipped_joint=2,
+        slipped=True,
     )
     fit = FitSummary(
         n=4,
@@ -103,6 +113,8 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
             LoadCellLineStats(4100, 1, 0, 3, 2, 0),
         ).to_payload(),
         S.LOG: LogMessage(time_ns, LogLevel.WARNING, "tension high", line=12).to_payload(),
+        S.LINK_FRAMES: scene.frames_payload(),
+        S.LINK_SCENE: scene.scene_payload(),
         S.CONFIGURATION_MEASURED: ConfigurationMeasurement(
             trial_id=3,
             source=ConfigurationSourceKind.CAMERA,

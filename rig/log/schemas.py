@@ -47,6 +47,7 @@ from rig.log.records import (
     present,
     stamp_name,
 )
+from rig.log.scene_schemas import frame_transforms_schema, scene_update_schema
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
@@ -61,6 +62,8 @@ TRIAL_RESULT = "/rig/trial/result"
 ESTIMATE = "/rig/estimate"
 TRIAL_LINKS = "/rig/trial/links"
 LOG = "/rig/log"
+LINK_FRAMES = "/rig/link/frames"
+LINK_SCENE = "/rig/link/scene"
 CONFIGURATION_MEASURED = "/rig/configuration/measured"
 
 # ---------------------------------------------------------------------------------------------
@@ -306,6 +309,8 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     TRIAL_LINKS: ("rig.TrialLinkStats", _trial_links()),
     LOG: ("foxglove.Log", _foxglove_log()),
+    LINK_FRAMES: ("foxglove.FrameTransforms", frame_transforms_schema()),
+    LINK_SCENE: ("foxglove.SceneUpdate", scene_update_schema()),
     CONFIGURATION_MEASURED: (
         "rig.ConfigurationMeasurement",
         _rig_object(

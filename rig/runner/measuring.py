@@ -6,6 +6,7 @@ commanded angles beside it, so a log shows what was asked for and what the link 
 
 from __future__ import annotations
 
+from rig.errors import InputError
 from rig.hw.seams import ConfigurationReading, MeasurementRequest, RequestAwareSource
 from rig.log import schemas
 from rig.log.records import ConfigurationMeasurement
@@ -25,6 +26,12 @@ def measure_configuration(
             MeasurementRequest(trial.configuration_index, trial.joint_angles_rad, after_slip, ctx.loop.tick)
         )
     reading = source.measure()
+    joints = ctx.config.article.joint_count
+    if reading.joint_angles_rad is not None and len(reading.joint_angles_rad) != joints:
+        raise InputError(
+            f"configuration source ({ctx.session.configuration_kind}): {len(reading.joint_angles_rad)} "
+            f"joint angles measured; the rig config's article has {joints} joints"
+        )
     kind = ctx.session.configuration_kind or ConfigurationSourceKind.SIMULATOR
     record = ConfigurationMeasurement(
         trial_id=trial.trial_id,

@@ -209,10 +209,13 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP, start_ns
     )
     drive.set_speed(ramp.fast_speed_rad_s if fast else ramp.slow_speed_rad_s)
+    view = ctx.link_view
+    view.ramp_started(trial, found, loop.force_n, start_ns)
     while feed.event is None:
         loop.tick()
         event = feed.feed(loop.tick_samples)
         found.peak_observed_n = feed.peak_n
+        view.ramp_tick(trial, found, loop.force_n, loop.clock.time_ns())
         if event is not None:
             break
         if fast and loop.force_n >= switch_n:
@@ -251,6 +254,7 @@ def _record_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements, f
         trial.trial_id, event, feed.params.to_mapping(), found.slipped_joint, found.train_drops
     )
     ctx.recorder.write(schemas.SLIP, message.to_payload(), event.detection_time_ns)
+    ctx.link_view.show(trial, found, event.peak_force_n, event.detection_time_ns)
     if found.outcome != TrialOutcome.SLIP:
         ctx.recorder.note(LogLevel.INFO, f"trial {trial.trial_id}: {found.outcome} ({_why(found)})")
 

@@ -72,11 +72,7 @@ def bend(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
     stages = fixture.bend_stages(angles, straight, _positions(ctx))
     if not stages:
         degrees = ", ".join(f"{math.degrees(a):.1f}" for a in angles)
-        ctx.session.operator.confirm(
-            f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg",
-            trial,
-            ctx.loop.tick,
-        )
+        _by_hand(ctx, trial, f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg")
         ctx.session.hand_bend(tuple(angles))
         return
     _run_stages(ctx, stages)
@@ -185,7 +181,7 @@ def reset(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasur
     ctx.recorder.phase(Phase.RESETTING, trial.trial_id, StepKind.RESET)
     goals = ctx.session.fixture.home_goals()
     if not goals:
-        ctx.session.operator.confirm("Straighten the link (reset), then confirm.", trial, ctx.loop.tick)
+        _by_hand(ctx, trial, "Straighten the link (reset), then confirm.")
         ctx.session.hand_straighten()
         return
     _move_servos(ctx, goals, StepKind.RESET, speed_rad_s=BENDER_SPEED_RAD_S)
@@ -195,6 +191,29 @@ def pause(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasur
     """Wait `duration_s`, ticking."""
     ctx.recorder.phase(Phase.PAUSING, trial.trial_id, StepKind.PAUSE)
     ctx.loop.ticks_for(step.duration_s)
+
+
+def _by_hand(ctx: StepContext, trial: TrialPlan, text: str) -> None:
+    """The operator sets the link by hand: the benders' torque is off meanwhile, so that they give way.
+
+    Afterwards each bender holds where the operator left it (its goal set to its position before
+    its torque comes back on), so the configuration stays as bent.
+    """
+    benders = [sid for sid, role in ctx.session.roles.items() if role == ServoRole.BENDER]
+    servos = ctx.session.servos
+    if benders:
+        servos.set_torque(benders, False)
+        for sid in benders:
+            ctx.recorder.command(sid, ServoCommandName.TORQUE, 0.0, "")
+    ctx.session.operator.confirm(text, trial, ctx.loop.tick)
+    if benders:
+        ctx.loop.tick()
+        held = {sid: ctx.loop.states[sid].position_rad for sid in benders}
+        servos.write_goal_positions(held)
+        servos.set_torque(benders, True)
+        for sid in benders:
+            ctx.recorder.command(sid, ServoCommandName.GOAL_POSITION, held[sid], "rad")
+            ctx.recorder.command(sid, ServoCommandName.TORQUE, 1.0, "")
 
 
 def _move_servos(ctx: StepContext, goals: dict[int, float], what: str, speed_rad_s: float) -> None:

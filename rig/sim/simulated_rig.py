@@ -168,7 +168,12 @@ def simulated_rig(
     clock = run_clock(realtime, invocation)
     winch_spec = config.servos.winch
     ids = [s.servo_id for s in config.servos.servos]
-    bus = EmulatedBus.with_servos(clock, ids=ids, model=winch_spec.model, baud=config.servos.baud)
+    bus = EmulatedBus.with_servos(
+        clock, ids=ids, model=winch_spec.model, baud=config.servos.baud, firmware=sim.servo_firmware
+    )
+    for servo in bus.servos:
+        servo.supply_voltage_v = sim.servo_supply_v
+        servo.set_temperature_c(sim.servo_temperature_c)
     world = new_world(preset, config, bus, clock, seed)
     load_cell, loadcell_emulator = simulated_load_cell(
         world.tension_at,
