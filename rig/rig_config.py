@@ -26,6 +26,7 @@ from rig.vocabulary import (
     LOADCELL_FORMAT_TRAITS,
     SERVO_BAUDS,
     UART_BITS_PER_BYTE,
+    ConfigurationSourceKind,
     LoadCellFormatName,
     RigKind,
     ServoModel,
@@ -46,6 +47,14 @@ class ServoSpec:
     servo_id: int = field(metadata=integer(0, 252, key="id"))
     role: ServoRole = field(metadata=choice(ServoRole))
     model: ServoModel = field(default=ServoModel.XM430_W350, metadata=choice(ServoModel))
+    component: int | None = field(
+        default=None,
+        metadata=custom(
+            default_doc="none",
+            allowed_doc="1..J, each component at most once; benders only",
+            doc="the link component whose fork this bender drives (docs/bending.md)",
+        ),
+    )
 
 
 # The servos' Bus Watchdog unless a config says otherwise (0 turns it off): a servo that hears nothing
@@ -219,6 +228,66 @@ class ArticleConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class ConfigurationConfig:
+    """Where the measured link configuration comes from (`configuration:`; docs/formats.md)."""
+
+    source: ConfigurationSourceKind | None = field(
+        default=None,
+        metadata=choice(
+            ConfigurationSourceKind,
+            default_doc="`simulator` on a simulated rig, `command` on hardware",
+            doc="`command`: nothing is measured, the commanded angles stand in",
+        ),
+    )
+    file: Path | None = field(
+        default=None,
+        metadata=custom(
+            default_doc="none",
+            allowed_doc="a CSV or YAML file of measured angles per configuration (the format: "
+            '"Measured configurations" below), relative to the config; required with `source: file`',
+        ),
+    )
+    camera: Path | None = field(
+        default=None,
+        metadata=custom(
+            default_doc="none",
+            allowed_doc="the camera calibration (OpenCV FileStorage YAML), relative to the config; "
+            "required with `source: camera`",
+        ),
+    )
+    markers: Path | None = field(
+        default=None,
+        metadata=custom(
+            default_doc="none",
+            allowed_doc="the marker map, relative to the config; required with `source: camera`",
+        ),
+    )
+    device: int = field(default=0, metadata=integer(0, 63, doc="the camera's device index"))
+
+
+@dataclass(frozen=True, kw_only=True)
+class BendingConfig:
+    """The bending fixture's forks (`bending:`): how a bender's shaft turns into fork travel."""
+
+    pinion_radius_m: float = field(
+        default=0.01,
+        metadata=number(0.001, 0.1, unit="m", doc="fork travel per rad of bender shaft (rack and pinion)"),
+    )
+
+
+def configuration_source_kind(config: RigConfig) -> ConfigurationSourceKind:
+    """The configuration source a rig config selects (its default depends on the rig's kind)."""
+    chosen = config.configuration.source
+    if chosen is not None:
+        return chosen
+    return (
+        ConfigurationSourceKind.SIMULATOR
+        if config.kind == RigKind.SIMULATED
+        else ConfigurationSourceKind.COMMAND
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
 class RigConfig:
     """A validated rig config."""
 
@@ -252,6 +321,10 @@ class RigConfig:
     article: ArticleConfig = field(metadata=section())
     limits: RigLimits = field(metadata=section())
     simulation: SimulationConfig | None = field(default=None, metadata=section(default_doc="none"))
+    configuration: ConfigurationConfig = field(
+        default_factory=lambda: ConfigurationConfig(), metadata=section(default_doc="see the fields")
+    )
+    bending: BendingConfig = field(default_factory=lambda: BendingConfig(), metadata=section())
 
     @property
     def winch_stall_tension_n(self) -> float:
@@ -344,13 +417,17 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             "loadcell": loadcell,
             "article": article,
             "simulation": simulation,
+            "configuration": _configuration(top, kind, base_dir or Path(".")),
+            "bending": _bending(top),
         },
     )
     if loadcell.rate_hz is not None and not top.section("limits").has("stale_timeout_s"):
         values["limits"] = replace(
             values["limits"], stale_timeout_s=default_stale_timeout_s(loadcell.rate_hz)
         )
-    return RigConfig(**values)
+    config = RigConfig(**values)
+    _check_forks(top, config)
+    return config
 
 
 # The stale timeout's default for a cell of known rate: 5 sample periods, at least 0.2 s (so the
@@ -431,6 +508,49 @@ def check_tension_cap(config: RigConfig) -> None:
         )
 
 
+def _configuration(top: Section, kind: RigKind, base_dir: Path) -> ConfigurationConfig:
+    sec = top.section("configuration", default={})
+    reject_undeclared(sec, ConfigurationConfig)
+    given: dict[str, Any] = {}
+    for key in ("file", "camera", "markers"):
+        name = sec.string(key, default="")
+        given[key] = (base_dir / name) if name else None
+    config = ConfigurationConfig(**read_fields(sec, ConfigurationConfig, given=given))
+    source = config.source
+    if source == ConfigurationSourceKind.SIMULATOR and kind != RigKind.SIMULATED:
+        raise sec.error(
+            "source", "simulator needs kind: simulated; allowed on hardware: operator, file, camera, command"
+        )
+    needs = {ConfigurationSourceKind.FILE: ("file",), ConfigurationSourceKind.CAMERA: ("camera", "markers")}
+    for key in needs.get(source, ()) if source is not None else ():
+        if given[key] is None:
+            raise sec.error(key, f"required with source: {source}")
+    return config
+
+
+def _bending(top: Section) -> BendingConfig:
+    sec = top.section("bending", default={})
+    reject_undeclared(sec, BendingConfig)
+    return BendingConfig(**read_fields(sec, BendingConfig))
+
+
+def _check_forks(top: Section, config: RigConfig) -> None:
+    """Fork components: benders only, each in 1..J, none twice; all benders name one or none does."""
+    sec = top.section("servos")
+    joints = config.article.joint_count
+    benders = config.servos.benders
+    named = [s.component for s in benders if s.component is not None]
+    for s in config.servos.servos:
+        if s.component is not None and s.role != ServoRole.BENDER:
+            raise sec.error("ids", f"servo {s.servo_id}: component is for benders only (role {s.role})")
+        if s.component is not None and not 1 <= s.component <= joints:
+            raise sec.error("ids", f"servo {s.servo_id}: component {s.component}; allowed: 1..{joints}")
+    if named and len(named) != len(benders):
+        raise sec.error("ids", "either every bender names its component or none does")
+    if len(set(named)) != len(named):
+        raise sec.error("ids", f"components {sorted(named)}: each component takes at most one fork")
+
+
 def _reel_direction(top: Section) -> int:
     direction = top.integer("reel_direction", default=1, min_value=-1, max_value=1)
     if direction == 0:
@@ -446,7 +566,10 @@ def _servo_bus(sec: Section) -> ServoBusConfig:
     specs: list[ServoSpec] = []
     for i, item in enumerate(sec.sequence("ids", min_length=1, max_length=253)):
         entry = Section(item, sec.source, f"{sec.field('ids')}[{i}]")
-        specs.append(ServoSpec(**read_fields(entry, ServoSpec)))
+        component = (
+            entry.integer("component", min_value=1, max_value=MAX_JOINTS) if entry.has("component") else None
+        )
+        specs.append(ServoSpec(**read_fields(entry, ServoSpec, given={"component": component})))
     ids = [s.servo_id for s in specs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:

@@ -163,3 +163,20 @@ __all__ = [
     "TrialKind",
     "TrialOutcome",
 ]
+
+
+class ConfigurationSourceKind(StrEnum):
+    """Where a run's measured link configuration comes from (`configuration.source:` of a rig config)."""
+
+    SIMULATOR = "simulator"  # the simulated world, with the preset's measurement noise
+    OPERATOR = "operator"  # a person types the angles at a prompt
+    FILE = "file"  # measured angles per configuration index, from a CSV or YAML file
+    CAMERA = "camera"  # fiducial markers seen by a calibrated camera (optional extra)
+    COMMAND = "command"  # nothing is measured: the commanded angles stand in
+
+
+class MeasurementStage(StrEnum):
+    """When in a trial a configuration was measured (`/rig/configuration/measured`)."""
+
+    BENT = "bent"  # after bending (and after each correction)
+    AFTER_SLIP = "after_slip"  # after the slip, to tell which joint moved

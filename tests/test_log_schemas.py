@@ -43,6 +43,7 @@ EXPECTED = {
     "/rig/log": "foxglove.Log",
     "/rig/link/frames": "foxglove.FrameTransforms",
     "/rig/link/scene": "foxglove.SceneUpdate",
+    "/rig/configuration/measured": "rig.ConfigurationMeasurement",
 }
 
 

@@ -11,6 +11,7 @@ from rig.hw.seams import LoadCellLineStats
 from rig.log import schemas as S
 from rig.log.link_scene import LinkGeometry, LinkScene
 from rig.log.records import (
+    ConfigurationMeasurement,
     Estimate,
     JointCapacity,
     LogLevel,
@@ -25,7 +26,7 @@ from rig.log.records import (
     TrialResult,
     TrialState,
 )
-from rig.vocabulary import ServoRole
+from rig.vocabulary import ConfigurationSourceKind, MeasurementStage, ServoRole
 
 EXAMPLE_TIME_NS = 1_767_225_600_123_456_789  # 2026-01-01T00:00:00.123456789Z
 
@@ -114,4 +115,15 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
         S.LOG: LogMessage(time_ns, LogLevel.WARNING, "tension high", line=12).to_payload(),
         S.LINK_FRAMES: scene.frames_payload(),
         S.LINK_SCENE: scene.scene_payload(),
+        S.CONFIGURATION_MEASURED: ConfigurationMeasurement(
+            trial_id=3,
+            source=ConfigurationSourceKind.CAMERA,
+            stage=MeasurementStage.BENT,
+            measured_time_ns=time_ns,
+            attempt=1,
+            configuration_index=2,
+            joint_angles_rad=(0.01, -0.49),
+            uncertainty_rad=(0.007, 0.007),
+            commanded_angles_rad=(0.0, -0.5),
+        ).to_payload(),
     }

@@ -32,6 +32,7 @@ from model.slip_detector import SlipEvent
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats, LoadCellSample, ServoState
 from rig.log.records import (
+    ConfigurationMeasurement,
     Estimate,
     JointCapacity,
     LogLevel,
@@ -63,6 +64,7 @@ TRIAL_LINKS = "/rig/trial/links"
 LOG = "/rig/log"
 LINK_FRAMES = "/rig/link/frames"
 LINK_SCENE = "/rig/link/scene"
+CONFIGURATION_MEASURED = "/rig/configuration/measured"
 
 # ---------------------------------------------------------------------------------------------
 # Deriving schemas from type hints
@@ -309,6 +311,15 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     LOG: ("foxglove.Log", _foxglove_log()),
     LINK_FRAMES: ("foxglove.FrameTransforms", frame_transforms_schema()),
     LINK_SCENE: ("foxglove.SceneUpdate", scene_update_schema()),
+    CONFIGURATION_MEASURED: (
+        "rig.ConfigurationMeasurement",
+        _rig_object(
+            "rig.ConfigurationMeasurement",
+            "A measured link configuration (rad, joint 1 first; uncertainty: sd where known) beside the"
+            " commanded one; stage bent (attempt n after the n-th correction) or after_slip.",
+            _field_schemas(ConfigurationMeasurement),
+        ),
+    ),
 }
 
 
