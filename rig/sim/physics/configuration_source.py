@@ -60,7 +60,9 @@ class SimConfigurationSource:
         world = self._world
         article = world.article
         sigma = self.sigma_meas_rad
-        angles = article.planar_joint_angles()
+        # On the joint-estimation specimen there is no link configuration to report: only which
+        # joint moved (the specimen's own angle would not match the rig's article).
+        angles = article.planar_joint_angles() if world.setup == "link" else None
         if angles is not None:
             noisy = np.asarray(angles) + self._noise_rng.normal(0.0, sigma, article.joint_count)
             transforms = planar_transforms(noisy, np.asarray(article.transforms[:, 2, 3]))
