@@ -51,7 +51,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from enum import StrEnum
 from typing import Any, NamedTuple
 
@@ -211,6 +211,49 @@ class DetectorParams:
     def to_mapping(self) -> dict[str, float | None]:
         """Every field by name (None for disabled triggers): log it, re-apply it with `from_mapping`."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+# The rate the defaults above were tuned at (the simulated cell's, 1000 samples/s), and the fields
+# whose default follows the load cell's rate below it (`rate_defaults`).
+TUNED_RATE_HZ = 1000.0
+RATE_DEPENDENT_FIELDS = ("peak_leak_n_per_s", "drop_leak_n_per_s", "creep_min_s", "noise_window_s")
+# At any rate: a sudden drop is seen on the 2nd sample after its onset, so an event detected later
+# than this many sample periods after its onset is a creep (`creep_min_s`); ...
+CREEP_MIN_SAMPLES = 3
+# ... the noise σ is averaged over at least this many samples (`noise_window_s`).
+NOISE_WINDOW_SAMPLES = 100
+
+
+def rate_defaults(rate_hz: float) -> dict[str, float]:
+    """The defaults of `RATE_DEPENDENT_FIELDS` for a load cell streaming `rate_hz` samples/s.
+
+    At `TUNED_RATE_HZ` and above, the class defaults. Below it: the leaks of the peaks scale with
+    the rate (the same fall per sample: over the 2 samples a drop takes to be seen, a fixed N/s leak
+    would eat a 3 % drop at 10/s); `creep_min_s` is at least `CREEP_MIN_SAMPLES` periods (a slide
+    shorter than that is called a drop: the limit of what the rate resolves); the noise window
+    spans at least `NOISE_WINDOW_SAMPLES` samples (a σ from a few samples makes the 10σ triggers
+    fire on noise).
+    """
+    if not math.isfinite(rate_hz) or rate_hz <= 0.0:
+        raise ValueError(f"rate_hz = {rate_hz!r}; allowed: a positive number of samples per second")
+    base = DetectorParams()
+    share = min(1.0, rate_hz / TUNED_RATE_HZ)
+    return {
+        "peak_leak_n_per_s": base.peak_leak_n_per_s * share,
+        "drop_leak_n_per_s": base.drop_leak_n_per_s * share,
+        "creep_min_s": max(base.creep_min_s, CREEP_MIN_SAMPLES / rate_hz),
+        "noise_window_s": max(base.noise_window_s, NOISE_WINDOW_SAMPLES / rate_hz),
+    }
+
+
+def params_for_rate(params: DetectorParams, given: Iterable[str], rate_hz: float) -> DetectorParams:
+    """`params` with each rate-dependent field not in `given` at its default for `rate_hz`.
+
+    `given`: the fields the protocol set. Unchanged at `TUNED_RATE_HZ` and above.
+    """
+    chosen = set(given)
+    updates = {name: value for name, value in rate_defaults(rate_hz).items() if name not in chosen}
+    return replace(params, **updates) if updates else params
 
 
 # The fields and their bounds, as declared above (`model.field_spec`).

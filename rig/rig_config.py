@@ -101,6 +101,18 @@ class LoadCellConfig:
             "cell keeps its nominal calibration",
         ),
     )
+    rate_hz: float | None = field(
+        default=None,
+        metadata=number(
+            1.0,
+            10_000.0,
+            unit="Hz",
+            optional=True,
+            default_doc="none (a simulated rig's `simulation.loadcell_rate_hz`, else 1000 Hz)",
+            doc="the cell's nominal sample rate: the detector's and the ramp's rate-derived defaults "
+            "follow it, and a run warns when the measured rate is more than 20 % off",
+        ),
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -353,6 +365,22 @@ def _loadcell(sec: Section, base_dir: Path) -> LoadCellConfig:
     calibration = sec.string("calibration", default="")
     given = {"port": _port(sec), "calibration_path": (base_dir / calibration) if calibration else None}
     return LoadCellConfig(**read_fields(sec, LoadCellConfig, given=given))
+
+
+# The load-cell rate a rig config that names none is taken to stream at (the detector's tuning rate).
+DEFAULT_LOADCELL_RATE_HZ = 1000.0
+
+
+def nominal_loadcell_rate_hz(config: RigConfig) -> float:
+    """The sample rate the run expects of the load cell [Hz].
+
+    `loadcell.rate_hz`, else the simulated cell's rate, else `DEFAULT_LOADCELL_RATE_HZ`.
+    """
+    if config.loadcell.rate_hz is not None:
+        return config.loadcell.rate_hz
+    if config.simulation is not None:
+        return config.simulation.loadcell_rate_hz
+    return DEFAULT_LOADCELL_RATE_HZ
 
 
 def require_simulated(config: RigConfig) -> SimulationConfig:
