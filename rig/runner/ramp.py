@@ -53,6 +53,7 @@ class WinchDrive:
         self.servos = ctx.session.servos
         self.winch = ctx.session.winch_id
         self.limit_rad = limit_rad
+        self.period_s = ctx.protocol.control_period_s
         self.speed_rad_s = 0.0
         self.goal_rad: float | None = None
         self.stepped = False  # the goal is stepped on (a speed below one velocity unit)
@@ -65,12 +66,15 @@ class WinchDrive:
         Below one Profile Velocity unit the servo cannot be told the speed (0 would mean no limit):
         the profile is set to one unit and the goal is stepped on at `speed_rad_s`, count by count.
         """
+        # The position read is up to a control period old: the winch has gone on at the old speed
+        # since, and a stepped goal behind it would turn it back (a fall of tension, a false peak).
+        moved_rad = self.speed_rad_s * self.period_s
         self.speed_rad_s = speed_rad_s
         self.stepped = speed_rad_s < RAD_S_PER_VELOCITY_UNIT
         profile = RAD_S_PER_VELOCITY_UNIT if self.stepped else speed_rad_s
         self.servos.set_profile(self.winch, velocity_rad_s=profile)
         self.goal_rad = None
-        self.anchor_rad = self.loop.states[self.winch].position_rad
+        self.anchor_rad = self.loop.states[self.winch].position_rad + self.reel * moved_rad
         self.anchor_ns = self.loop.clock.monotonic_ns()
         self.advance()
 
@@ -236,10 +240,22 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
     switch_n = arm_n
     if predicted is not None and math.isfinite(predicted):
         switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
+    # Where the sampling limit binds (low rates) it applies from `capped_n` on: the low edge of the
+    # expected slip load, or from the arm threshold with nothing to go on. The fast phase stops
+    # short of it by what the winch reels at full speed while the loop's reading is a tick and a
+    # sample old; the protocol's slow speed covers that approach.
+    capped_n = arm_n
     if trial.kind == TrialKind.JOINT_ESTIMATION and trial.distance_m is not None:
-        switch_n = speeds.switch_n(
+        capped_n = speeds.switch_n(
             switch_n, ctx.estimator.joint_estimation_force_low_n(trial.distance_m, BAND_Z)
         )
+        if capped_n > switch_n:
+            stale_s = ctx.protocol.control_period_s + 1.0 / speeds.rate_hz
+            switch_n = max(switch_n, capped_n - speeds.n_per_rad * ramp.fast_speed_rad_s * stale_s)
+
+    def slow_speed(force_n: float) -> float:
+        return ramp.slow_speed_rad_s if force_n < capped_n else speeds.slow_at(force_n, arm_n)
+
     zero = ctx.winch_zero_rad
     assert zero is not None
     reel = ctx.config.reel_direction
@@ -261,7 +277,7 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
     recorder.phase(
         Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP, start_ns
     )
-    drive.set_speed(ramp.fast_speed_rad_s if fast else speeds.slow_at(loop.force_n, arm_n))
+    drive.set_speed(ramp.fast_speed_rad_s if fast else slow_speed(loop.force_n))
     while feed.event is None:
         loop.tick()
         event = feed.feed(loop.tick_samples)
@@ -270,10 +286,10 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
             break
         if fast and loop.force_n >= switch_n:
             fast = False
-            drive.set_speed(speeds.slow_at(loop.force_n, arm_n))
+            drive.set_speed(slow_speed(loop.force_n))
             recorder.phase(Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP)
-        elif not fast and _speed_moved(drive.speed_rad_s, speeds.slow_at(loop.force_n, arm_n)):
-            drive.set_speed(speeds.slow_at(loop.force_n, arm_n))
+        elif not fast and _speed_moved(drive.speed_rad_s, slow_speed(loop.force_n)):
+            drive.set_speed(slow_speed(loop.force_n))
         else:
             drive.advance()
         if loop.force_n >= ramp.max_force_n:
