@@ -114,9 +114,10 @@ class DetectorParams:
             slow drift on a noisy cell is not a drop, [0, 1e9] N/s; 0: it never decays (as before
             the train rule).
         drop_ramp_s: the percentage drop's peak is carried on along the running ramp rate for up to
-            this long after the peak, so that the line's re-tension between samples does not hide a
-            drop at a low rate, [0, 100] s; None: not carried (as before 2026-11-27; the default at
-            1000 samples/s and above, `rate_defaults` sets 3 sample periods below).
+            this long after the peak, and the newer sample of the pair need only be half the drop
+            below it, so that the line's re-tension between samples does not hide a drop at a low
+            rate, [0, 100] s; None: neither (as before 2026-11-27; the default at 1000 samples/s
+            and above, `rate_defaults` sets 3 sample periods below).
         train_k: after an event, a sudden fall of this many noise σ counts as a further drop of a
             stick-slip train (`further_drops`), (0, 1e3]; None: off (no train is counted). It
             changes no event, only how the runner classifies the trial.
@@ -591,6 +592,10 @@ def detector_step(
         # between two samples by a good share of a small drop.
         carried_ns = min(time_ns - peak_time, params.drop_ramp_s * 1e9)
         level_peak += max(state.rate_n, 0.0) * carried_ns / (time_ns - last)
+        if params.spike_samples == 2.0 and params.drop_fraction is not None:
+            # ... and the newer sample of the pair need only be half the drop below the peak: the
+            # winch takes the line up again after a slip, by a good part of it in one sample period.
+            level = max(state.previous_force_n, force_n - 0.5 * params.drop_fraction * level_peak)
     robust_drop = level_peak - level
     if (
         params.drop_fraction is not None

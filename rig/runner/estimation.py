@@ -46,9 +46,10 @@ BETWEEN_JOINT_SD_LOG = 0.10
 # The per-joint filter's trial-to-trial scatter is the upper bound of this one-sided confidence
 # level on the scatter the joint-estimation slips show (see RunEstimator._trial_scatter_log).
 SCATTER_CONFIDENCE_QUANTILE = 0.25
-# The spread of one trial's slip load assumed before 3 slips have measured it (log sd): wide, so that
-# a ramp slowed for the predicted slip load starts slowing well below it.
-ONE_SLIP_SPREAD_LOG = 0.3
+# The spread of one trial's slip load assumed before 3 slips have measured it (log sd): about twice
+# the trial-to-trial scatter of the simulated joints (0.085), so that a ramp slowed for the predicted
+# slip load starts slowing well below it.
+ONE_SLIP_SPREAD_LOG = 0.2
 
 
 @dataclass(frozen=True, slots=True)

@@ -242,16 +242,18 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
     # Where the sampling limit binds (low rates) it applies from `capped_n` on: the low edge of the
     # expected slip load, or from the arm threshold with nothing to go on. The fast phase stops
-    # short of it by what the winch reels at full speed while the loop's reading is a tick and a
-    # sample old; the protocol's slow speed covers that approach.
+    # short of it by what the winch reels at full speed in a control tick; the protocol's slow
+    # speed covers that approach. Between samples (up to 0.1 s apart at 10/s, 5 N at full speed)
+    # the tension is read ahead from the winch's travel since the last sample.
     capped_n = arm_n
+    read_ahead = speeds.binds_at(switch_n)
     if trial.kind == TrialKind.JOINT_ESTIMATION and trial.distance_m is not None:
         capped_n = speeds.switch_n(
             switch_n, ctx.estimator.joint_estimation_force_low_n(trial.distance_m, BAND_Z)
         )
         if capped_n > switch_n:
-            stale_s = ctx.protocol.control_period_s + 1.0 / speeds.rate_hz
-            switch_n = max(switch_n, capped_n - speeds.n_per_rad * ramp.fast_speed_rad_s * stale_s)
+            tick_rise_n = speeds.n_per_rad * ramp.fast_speed_rad_s * ctx.protocol.control_period_s
+            switch_n = max(switch_n, capped_n - tick_rise_n)
 
     def slow_speed(force_n: float) -> float:
         return ramp.slow_speed_rad_s if force_n < capped_n else speeds.slow_at(force_n, arm_n)
@@ -278,13 +280,20 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP, start_ns
     )
     drive.set_speed(ramp.fast_speed_rad_s if fast else slow_speed(loop.force_n))
+    sampled_at_rad: float | None = None  # the winch's position (reel-in sense) at the newest sample
     while feed.event is None:
         loop.tick()
         event = feed.feed(loop.tick_samples)
         found.peak_observed_n = feed.peak_n
         if event is not None:
             break
-        if fast and loop.force_n >= switch_n:
+        position_rad = reel * loop.states[ctx.session.winch_id].position_rad
+        if loop.tick_samples or sampled_at_rad is None:
+            sampled_at_rad = position_rad
+        force_n = loop.force_n
+        if read_ahead and force_n >= arm_n:
+            force_n += speeds.n_per_rad * max(0.0, position_rad - sampled_at_rad)
+        if fast and force_n >= switch_n:
             fast = False
             drive.set_speed(slow_speed(loop.force_n))
             recorder.phase(Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP)
