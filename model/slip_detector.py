@@ -229,9 +229,9 @@ RATE_DEPENDENT_FIELDS = (
     "peak_leak_n_per_s", "drop_leak_n_per_s", "creep_min_s", "noise_window_s", "drop_ramp_s",
 )  # fmt: skip
 # At any rate: a sudden drop is seen on the 2nd sample after its onset, and the onset the detector
-# gives is the peak sample, which on a stepped ramp's plateau can be 2-3 samples before the slip; so
+# gives is the peak sample, which on a stepped ramp's plateau (10/s) can be 4-5 samples before the slip; so
 # an event detected this many sample periods after its onset or later is a creep (`creep_min_s`); ...
-CREEP_MIN_SAMPLES = 5
+CREEP_MIN_SAMPLES = 8
 # ... the noise σ is averaged over at least this many samples (`noise_window_s`); below the tuned
 # rate the percentage drop's peak is carried along the ramp for this many periods (`drop_ramp_s`).
 NOISE_WINDOW_SAMPLES = 100

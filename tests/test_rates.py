@@ -37,11 +37,11 @@ def _speeds(rate_hz: float) -> RampSpeeds:
 
 def test_the_sampling_limit_leaves_the_1khz_ramp_alone_and_slows_the_slow_rates() -> None:
     fast_cell, slow_cell = _speeds(1000.0), _speeds(10.0)
-    # 0.45 % of the tension per sample: 0.09·F rad/s at 1000/s, over 0.08 rad/s from 0.9 N on.
-    assert fast_cell.limit_rad_s(2.0) == pytest.approx(0.18)
+    # 0.47 % of the tension per sample: 0.094·F rad/s at 1000/s, over 0.08 rad/s from 0.86 N on.
+    assert fast_cell.limit_rad_s(2.0) == pytest.approx(0.188)
     assert not fast_cell.binds_at(1.0) and fast_cell.slow_at(2.0, 2.0) == 0.08
-    # At 10/s it binds up to 89 N; one sample's rise is then exactly the fraction of the tension.
-    assert slow_cell.binds_at(80.0) and not slow_cell.binds_at(90.0)
+    # At 10/s it binds up to 85 N; one sample's rise is then exactly the fraction of the tension.
+    assert slow_cell.binds_at(84.0) and not slow_cell.binds_at(86.0)
     speed = slow_cell.slow_at(20.0, 2.0)
     assert speed * SIM_N_PER_RAD / 10.0 == pytest.approx(SAMPLING_ERROR_FRACTION * 20.0)
     assert slow_cell.slow_at(0.5, 2.0) == slow_cell.slow_at(2.0, 2.0)  # the arm threshold as floor

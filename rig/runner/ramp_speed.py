@@ -8,11 +8,11 @@ rate of ε·F/T at every F keeps it wherever the slip comes. In winch speed that
 k the rig's nominal line stiffness and r the spool radius (a line stiffer than its nominal value
 raises the error in proportion).
 
-With the simulated rig (5000 N/m, 10 mm spool) at 1000 samples/s the limit is 0.09·F rad/s, above
+With the simulated rig (5000 N/m, 10 mm spool) at 1000 samples/s the limit is 0.094·F rad/s, above
 the protocols' slow speeds from 1 N on: the ramp is the protocol's. At 80/s it binds below 11 N, at
-10/s below 89 N (100 times slower than at 1000/s): there the tension rises by ε of itself per
+10/s below 85 N (100 times slower than at 1000/s): there the tension rises by ε of itself per
 sample, exponentially, and crossing a band of loads from F₁ to F₂ takes ln(F₂/F₁)/(ε·rate) s
-(22 s per e-fold at 10/s). So the ramp is slow only where the slip is expected: it reels fast up to
+(21 s per e-fold at 10/s). So the ramp is slow only where the slip is expected: it reels fast up to
 the larger of `fast_until_fraction` × the prediction and the low edge of the slip load's expected
 range (`RunEstimator.joint_estimation_force_low_n`, `BAND_Z` spreads below the prediction), then
 follows the limit. A trial with nothing to go on (the first one) is slow, at the limit, from the
@@ -25,8 +25,8 @@ import math
 from dataclasses import dataclass
 
 # The largest share of the slip load the sampling may cost (the target is 0.5 %; the rest is margin
-# for the speed's steps and the line's stiffness).
-SAMPLING_ERROR_FRACTION = 0.0045
+# for the line's stiffness; the speed's steps stay below the limit).
+SAMPLING_ERROR_FRACTION = 0.0047
 # The low edge of the expected slip load is this many relative spreads below the prediction (the
 # one-sided 99.5 % point of a normal spread).
 BAND_Z = 2.576
