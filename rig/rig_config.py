@@ -109,6 +109,7 @@ class LoadCellConfig:
             unit="Hz",
             optional=True,
             default_doc="none (a simulated rig's `simulation.loadcell_rate_hz`, else 1000 Hz)",
+            allowed_doc="[1, 10000] Hz or none",
             doc="the cell's nominal sample rate: the detector's and the ramp's rate-derived defaults "
             "follow it, and a run warns when the measured rate is more than 20 % off",
         ),
