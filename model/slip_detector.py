@@ -51,7 +51,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from typing import Any, NamedTuple
 
@@ -269,7 +269,7 @@ def params_for_rate(params: DetectorParams, given: Iterable[str], rate_hz: float
     """
     chosen = set(given)
     updates = {name: value for name, value in rate_defaults(rate_hz).items() if name not in chosen}
-    return replace(params, **updates) if updates else params
+    return DetectorParams.from_mapping({**params.to_mapping(), **updates}) if updates else params
 
 
 # The fields and their bounds, as declared above (`model.field_spec`).
