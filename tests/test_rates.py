@@ -18,7 +18,9 @@ from model.slip_detector import (
     params_for_rate,
     rate_defaults,
 )
+from rig.analysis.runlog import read_parts
 from rig.cli import main
+from rig.log import schemas
 from rig.protocol import for_loadcell_rate, load_protocol
 from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, load_rig_config, nominal_loadcell_rate_hz
 from rig.runner.ramp_speed import SAMPLING_ERROR_FRACTION, RampSpeeds
@@ -198,3 +200,17 @@ def test_a_run_at_10_samples_per_s_ends_in_slips_with_the_slip_load_close(tmp_pa
     for trial in report["trials"]:
         assert trial["slip_mass_kg"] * trial["distance_m"] == pytest.approx(true_k, rel=0.3)
     assert math.isfinite(report["estimate"]["k"])
+    log = read_parts(report["log"])[0].log.topic(schemas.LOG)
+    assert not [m for m in log["message"] if "measured at" in m]  # 10/s configured, 10/s measured
+
+
+def test_a_cell_far_from_its_configured_rate_is_warned_about_once(tmp_path: Path, capsys) -> None:
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("extends: simulated\nloadcell: {rate_hz: 500}\n")  # the simulated cell streams 1000/s
+    protocols = Path(__file__).resolve().parent.parent / "protocols"
+    argv = ["run", str(protocols / "smoke.yaml"), "--rig", str(rig), "--json", "--out", str(tmp_path / "o")]
+    assert main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    log = read_parts(report["log"])[0].log.topic(schemas.LOG)
+    warnings = [m for m in log["message"] if "measured at" in m]
+    assert len(warnings) == 1 and "configured 500/s" in warnings[0]
