@@ -40,6 +40,9 @@ _BACKING_OFF_RAD_S = -0.05
 # A measured load-cell rate this far (relative) from the configured one is warned about, once the
 # ramp has fed samples over at least RATE_MIN_SPAN_S.
 RATE_TOLERANCE = 0.2
+# Where the sampling limit binds, the fast phase ends this many control ticks of full-speed rise
+# below the capped ramp (at 10/s the winch overshot one tick's rise by up to 3 N onto the slip load).
+APPROACH_TICKS = 3
 RATE_MIN_SPAN_S = 1.0
 
 
@@ -242,9 +245,10 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
     # Where the sampling limit binds (low rates) it applies from `capped_n` on: the low edge of the
     # expected slip load, or from the arm threshold with nothing to go on. The fast phase stops
-    # short of it by what the winch reels at full speed in a control tick; the protocol's slow
-    # speed covers that approach. Between samples (up to 0.1 s apart at 10/s, 5 N at full speed)
-    # the tension is read ahead from the winch's travel since the last sample.
+    # short of it by what the winch reels at full speed in `APPROACH_TICKS` control ticks (it
+    # overshoots the switch by about that much); the protocol's slow speed covers that approach.
+    # Between samples (up to 0.1 s apart at 10/s, 5 N at full speed) the tension is read ahead
+    # from the winch's travel since the last sample.
     capped_n = arm_n
     read_ahead = speeds.binds_at(switch_n)
     if trial.kind == TrialKind.JOINT_ESTIMATION and trial.distance_m is not None:
@@ -252,8 +256,9 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
             switch_n, ctx.estimator.joint_estimation_force_low_n(trial.distance_m, BAND_Z)
         )
         if capped_n > switch_n:
-            tick_rise_n = speeds.n_per_rad * ramp.fast_speed_rad_s * ctx.protocol.control_period_s
-            switch_n = max(switch_n, capped_n - tick_rise_n)
+            stop_s = APPROACH_TICKS * ctx.protocol.control_period_s
+            stop_n = speeds.n_per_rad * ramp.fast_speed_rad_s * stop_s
+            switch_n = max(switch_n, capped_n - stop_n)
 
     def slow_speed(force_n: float) -> float:
         return ramp.slow_speed_rad_s if force_n < capped_n else speeds.slow_at(force_n, arm_n)
@@ -291,7 +296,7 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         if loop.tick_samples or sampled_at_rad is None:
             sampled_at_rad = position_rad
         force_n = loop.force_n
-        if read_ahead and force_n >= arm_n:
+        if read_ahead and force_n >= arm_n:  # the line is taut: its take-up shows as tension
             force_n += speeds.n_per_rad * max(0.0, position_rad - sampled_at_rad)
         if fast and force_n >= switch_n:
             fast = False
