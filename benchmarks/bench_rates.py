@@ -100,10 +100,10 @@ def score(report: dict[str, Any], rate_hz: float) -> tuple[list[int], list[float
 
 def runs(rates: list[float], seeds: list[int]) -> None:
     print(
-        "| rate [/s] | seed | exit | outcomes | k [99 % bounds] | true k | inside | lag max [samples] "
-        "| slip-load error mean, max abs [%] | early | run time [s] |"
+        "| rate [/s] | seed | exit | outcomes | k [99 % bounds] | true k | inside | lag <= 2 "
+        "| lag max [samples] | slip-load error mean, max abs [%] | error < 0.5 % | early | run time [s] |"
     )
-    print("|" + "---|" * 11)
+    print("|" + "---|" * 13)
     for rate in rates:
         for seed in seeds:
             with tempfile.TemporaryDirectory() as folder:
@@ -121,8 +121,10 @@ def runs(rates: list[float], seeds: list[int]) -> None:
             err_text = f"{err.mean():+.3f}, {np.abs(err).max():.3f}" if err.size else "-"
             print(
                 f"| {rate:g} | {seed} | {code} | {', '.join(f'{k} {v}' for k, v in sorted(outcomes.items()))} "  # noqa: E501
-                f"| {k_text} | {k_true:.5f} | {'yes' if inside else 'NO'} | {max(lags) if lags else '-'} "
-                f"| {err_text} | {early} | {span_s:.1f} |",
+                f"| {k_text} | {k_true:.5f} | {'yes' if inside else 'NO'} "
+                f"| {sum(n <= 2 for n in lags)}/{len(lags)} "
+                f"| {max(lags) if lags else '-'} | {err_text} | {int(np.sum(np.abs(err) < 0.5))}/{err.size} "
+                f"| {early} | {span_s:.1f} |",
                 flush=True,
             )
 
