@@ -202,6 +202,10 @@ def test_a_run_at_10_samples_per_s_ends_in_slips_with_the_slip_load_close(tmp_pa
     assert math.isfinite(report["estimate"]["k"])
     log = read_parts(report["log"])[0].log.topic(schemas.LOG)
     assert not [m for m in log["message"] if "measured at" in m]  # 10/s configured, 10/s measured
+    # The log carries the rate's detector defaults: replay re-detects every slip as it ran.
+    assert main(["replay", report["log"], "--json"]) == 0
+    redetection = json.loads(capsys.readouterr().out)["redetection"]
+    assert redetection["matches"] == redetection["trials"] == 3
 
 
 def test_a_cell_far_from_its_configured_rate_is_warned_about_once(tmp_path: Path, capsys) -> None:
