@@ -72,6 +72,9 @@ _FIELDS_2026_11_23 = _LEGACY_FIELDS | {
     "noise_k", "noise_floor_n", "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k",
     "creep_drift_n_per_s", "creep_min_s", "spike_samples",
 }  # fmt: skip
+# Fields added after 2026-11-23's that `to_mapping` names only when set (None is their default and
+# the detector before them).
+_LOGGED_WHEN_SET = frozenset({"drop_ramp_s"})
 # A logged mapping naming exactly one of these field sets keeps the detector of its day.
 _VINTAGES: tuple[tuple[frozenset[str], dict[str, float | None]], ...] = (
     (
@@ -218,8 +221,16 @@ class DetectorParams:
         return DetectorParams.from_mapping(mapping, source=source)
 
     def to_mapping(self) -> dict[str, float | None]:
-        """Every field by name (None for disabled triggers): log it, re-apply it with `from_mapping`."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        """Every field by name (None for disabled triggers): log it, re-apply it with `from_mapping`.
+
+        The fields of `_LOGGED_WHEN_SET` are left out while None (their default): a detector that
+        does not use them logs, and replays, the very mapping it did before they existed.
+        """
+        return {
+            f.name: getattr(self, f.name)
+            for f in fields(self)
+            if f.name not in _LOGGED_WHEN_SET or getattr(self, f.name) is not None
+        }
 
 
 # The rate the defaults above were tuned at (the simulated cell's, 1000 samples/s), and the fields

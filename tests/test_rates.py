@@ -77,6 +77,13 @@ def test_rate_defaults_are_the_class_defaults_at_and_above_1khz() -> None:
         assert params_for_rate(base, (), rate_hz) == base
 
 
+def test_drop_ramp_s_is_logged_only_when_set() -> None:
+    assert "drop_ramp_s" not in DetectorParams().to_mapping()  # 1 kHz logs read as before
+    slow = params_for_rate(DetectorParams(), (), 10.0)
+    assert slow.to_mapping()["drop_ramp_s"] == pytest.approx(0.3)
+    assert DetectorParams.from_mapping(slow.to_mapping()) == slow
+
+
 def test_rate_defaults_below_1khz() -> None:
     low = rate_defaults(10.0)
     assert low["peak_leak_n_per_s"] == pytest.approx(0.01) and low["drop_leak_n_per_s"] == pytest.approx(0.01)

@@ -278,7 +278,7 @@ def test_params_round_trip_through_a_mapping():
         "arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
         "cusum_threshold_n", "cusum_drift_n", "rearm_below_n", "noise_k", "noise_floor_n",
         "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k", "creep_drift_n_per_s",
-        "creep_min_s", "spike_samples", "train_k", "drop_leak_n_per_s", "drop_ramp_s",
+        "creep_min_s", "spike_samples", "train_k", "drop_leak_n_per_s",
     ]  # fmt: skip
 
 
@@ -477,9 +477,7 @@ def test_old_parameter_sets_count_no_train():
 
 def test_a_parameter_set_logged_on_2026_11_23_keeps_that_days_detector():
     logged = {
-        k: v
-        for k, v in DetectorParams().to_mapping().items()
-        if k not in ("train_k", "drop_leak_n_per_s", "drop_ramp_s")
+        k: v for k, v in DetectorParams().to_mapping().items() if k not in ("train_k", "drop_leak_n_per_s")
     }
     params = DetectorParams.from_mapping(logged)
     assert params.train_k is None and params.drop_leak_n_per_s == 0.0
