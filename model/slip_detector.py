@@ -72,6 +72,9 @@ _FIELDS_2026_11_23 = _LEGACY_FIELDS | {
     "noise_k", "noise_floor_n", "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k",
     "creep_drift_n_per_s", "creep_min_s", "spike_samples",
 }  # fmt: skip
+# Fields added after 2026-11-23's that `to_mapping` names only when set (None is their default and
+# the detector before them).
+_LOGGED_WHEN_SET = frozenset({"drop_ramp_s"})
 # A logged mapping naming exactly one of these field sets keeps the detector of its day.
 _VINTAGES: tuple[tuple[frozenset[str], dict[str, float | None]], ...] = (
     (
@@ -113,6 +116,11 @@ class DetectorParams:
         drop_leak_n_per_s: the percentage drop's spike-robust peak decays at this rate, so that a
             slow drift on a noisy cell is not a drop, [0, 1e9] N/s; 0: it never decays (as before
             the train rule).
+        drop_ramp_s: the percentage drop's peak is carried on along the running ramp rate for up to
+            this long after the peak, and the newer sample of the pair need only be half the drop
+            below it, so that the line's re-tension between samples does not hide a drop at a low
+            rate, [0, 100] s; None: neither (as before 2026-11-27; the default at 1000 samples/s
+            and above, `rate_defaults` sets 3 sample periods below).
         train_k: after an event, a sudden fall of this many noise σ counts as a further drop of a
             stick-slip train (`further_drops`), (0, 1e3]; None: off (no train is counted). It
             changes no event, only how the runner classifies the trial.
@@ -151,6 +159,10 @@ class DetectorParams:
     )
     train_k: float | None = field(default=10.0, metadata=number(0.0, 1e3, lo_open=True, optional=True))
     drop_leak_n_per_s: float = field(default=1.0, metadata=number(0.0, 1e9, unit="N/s"))
+    drop_ramp_s: float | None = field(
+        default=None,
+        metadata=number(0.0, 100.0, unit="s", optional=True, default_doc="none (3 samples below 1 kHz)"),
+    )
 
     def __post_init__(self) -> None:
         """Validate every field (a direct construction is checked like `from_mapping`)."""
@@ -209,8 +221,66 @@ class DetectorParams:
         return DetectorParams.from_mapping(mapping, source=source)
 
     def to_mapping(self) -> dict[str, float | None]:
-        """Every field by name (None for disabled triggers): log it, re-apply it with `from_mapping`."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        """Every field by name (None for disabled triggers): log it, re-apply it with `from_mapping`.
+
+        The fields of `_LOGGED_WHEN_SET` are left out while None (their default): a detector that
+        does not use them logs, and replays, the very mapping it did before they existed.
+        """
+        return {
+            f.name: getattr(self, f.name)
+            for f in fields(self)
+            if f.name not in _LOGGED_WHEN_SET or getattr(self, f.name) is not None
+        }
+
+
+# The rate the defaults above were tuned at (the simulated cell's, 1000 samples/s), and the fields
+# whose default follows the load cell's rate below it (`rate_defaults`).
+TUNED_RATE_HZ = 1000.0
+RATE_DEPENDENT_FIELDS = (
+    "peak_leak_n_per_s", "drop_leak_n_per_s", "creep_min_s", "noise_window_s", "drop_ramp_s",
+)  # fmt: skip
+# At any rate: a sudden drop is seen on the 2nd sample after its onset, and the onset the detector
+# gives is the peak sample, which on a stepped ramp's plateau (10/s) can be 4-5 samples before the slip; so
+# an event detected this many sample periods after its onset or later is a creep (`creep_min_s`); ...
+CREEP_MIN_SAMPLES = 8
+# ... the noise σ is averaged over at least this many samples (`noise_window_s`); below the tuned
+# rate the percentage drop's peak is carried along the ramp for this many periods (`drop_ramp_s`).
+NOISE_WINDOW_SAMPLES = 100
+DROP_RAMP_SAMPLES = 3
+
+
+def rate_defaults(rate_hz: float) -> dict[str, float | None]:
+    """The defaults of `RATE_DEPENDENT_FIELDS` for a load cell streaming `rate_hz` samples/s.
+
+    At `TUNED_RATE_HZ` and above, the class defaults. Below it: the leaks of the peaks scale with
+    the rate (the same fall per sample: over the 2 samples a drop takes to be seen, a fixed N/s leak
+    would eat a 3 % drop at 10/s); `creep_min_s` is at least `CREEP_MIN_SAMPLES` periods (a slide
+    shorter than that is called a drop: the limit of what the rate resolves); the noise window
+    spans at least `NOISE_WINDOW_SAMPLES` samples (a σ from a few samples makes the 10σ triggers
+    fire on noise); the percentage drop's peak is carried along the ramp for `DROP_RAMP_SAMPLES`
+    periods (at 10/s the line re-tensions by up to 1 % of the load between two samples).
+    """
+    if not math.isfinite(rate_hz) or rate_hz <= 0.0:
+        raise ValueError(f"rate_hz = {rate_hz!r}; allowed: a positive number of samples per second")
+    base = DetectorParams()
+    share = min(1.0, rate_hz / TUNED_RATE_HZ)
+    return {
+        "peak_leak_n_per_s": base.peak_leak_n_per_s * share,
+        "drop_leak_n_per_s": base.drop_leak_n_per_s * share,
+        "creep_min_s": max(base.creep_min_s, CREEP_MIN_SAMPLES / rate_hz),
+        "noise_window_s": max(base.noise_window_s, NOISE_WINDOW_SAMPLES / rate_hz),
+        "drop_ramp_s": None if rate_hz >= TUNED_RATE_HZ else DROP_RAMP_SAMPLES / rate_hz,
+    }
+
+
+def params_for_rate(params: DetectorParams, given: Iterable[str], rate_hz: float) -> DetectorParams:
+    """`params` with each rate-dependent field not in `given` at its default for `rate_hz`.
+
+    `given`: the fields the protocol set. Unchanged at `TUNED_RATE_HZ` and above.
+    """
+    chosen = set(given)
+    updates = {name: value for name, value in rate_defaults(rate_hz).items() if name not in chosen}
+    return DetectorParams.from_mapping({**params.to_mapping(), **updates}) if updates else params
 
 
 # The fields and their bounds, as declared above (`model.field_spec`).
@@ -368,6 +438,7 @@ QUIET_STRETCH_FIELDS: dict[str, QuietUse] = {
     "spike_samples": QuietUse.MIRRORED,
     "train_k": QuietUse.PLAIN_ONLY,  # latched
     "drop_leak_n_per_s": QuietUse.MIRRORED,
+    "drop_ramp_s": QuietUse.GATE,  # set below 1 kHz only: the plain step, sample by sample
 }
 _QUIET_GATES = tuple(name for name, use in QUIET_STRETCH_FIELDS.items() if use is QuietUse.GATE)
 
@@ -526,6 +597,16 @@ def detector_step(
     # drop_leak_n_per_s: noise maxima on the high side of a slow drift and the low side later, on a
     # cell with 10x the noise, made a percentage "drop" of a quiet hold.
     level_peak, level = (drop_peak, high2) if params.spike_samples == 2.0 else (peak_force, force_n)
+    if params.drop_ramp_s is not None and last is not None and time_ns > last and level < level_peak:
+        # Where the ramp would have taken the peak since (the rate before this sample: a drop's own
+        # samples must not lower it), for at most drop_ramp_s: at a low rate the line re-tensions
+        # between two samples by a good share of a small drop.
+        carried_ns = min(time_ns - peak_time, params.drop_ramp_s * 1e9)
+        level_peak += max(state.rate_n, 0.0) * carried_ns / (time_ns - last)
+        if params.spike_samples == 2.0 and params.drop_fraction is not None:
+            # ... and the newer sample of the pair need only be half the drop below the peak: the
+            # winch takes the line up again after a slip, by a good part of it in one sample period.
+            level = max(state.previous_force_n, force_n - 0.5 * params.drop_fraction * level_peak)
     robust_drop = level_peak - level
     if (
         params.drop_fraction is not None

@@ -15,7 +15,7 @@ import math
 import random
 import re
 import string
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, assert_never
 
@@ -28,7 +28,7 @@ from model.design import (
 from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
 from model.field_spec import choice, custom, flag, integer, keys_within, number, numbers, section, top_keys
 from model.field_spec import text as text_field
-from model.slip_detector import DetectorParams
+from model.slip_detector import DetectorParams, params_for_rate
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
 from rig.validate import Section, read_field, read_fields, reject_undeclared
@@ -365,6 +365,7 @@ class Protocol:
     )
     adaptive: tuple[AdaptiveBlock, ...] = ()
     estimates_from: str | None = None  # "run" (earlier block of this protocol) or a file path
+    detector_given: frozenset[str] = frozenset()  # the detector fields the file set (the rest: defaults)
 
     @property
     def kinds(self) -> set[str]:
@@ -508,6 +509,7 @@ def parse_protocol(
         "name": name,
         "estimator": estimator,
         "detector": detector,
+        "detector_given": frozenset(str(key) for key in top.section("detector", default={}).data),
         "ramp": ramp,
         "trials": tuple(trials),
         "adaptive": tuple(adaptive),
@@ -741,3 +743,12 @@ def _check_prompts(block: Section, trial: TrialPlan) -> None:
                 raise block.error(
                     f"steps[{i}]", f"prompt text: {exc}; allowed: format specs that suit the field"
                 ) from None
+
+
+def for_loadcell_rate(protocol: Protocol, rate_hz: float) -> Protocol:
+    """The protocol with the detector's rate-dependent defaults for a cell at `rate_hz` samples/s.
+
+    Fields the protocol's `detector:` section set are kept (`model.slip_detector.params_for_rate`).
+    """
+    detector = params_for_rate(protocol.detector, protocol.detector_given, rate_hz)
+    return protocol if detector == protocol.detector else replace(protocol, detector=detector)

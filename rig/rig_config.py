@@ -146,7 +146,9 @@ class LoadCellConfig:
             unit="1/s",
             default_doc="none (simulated: `simulation.loadcell_rate_hz`)",
             doc="samples per second the cell sends, or a polled format's poll rate (required for "
-            "one); sets the stale timeout's default and is checked against `baud`",
+            "one); sets the stale timeout's default and the detector's and the ramp's rate-derived "
+            "defaults, and is checked against `baud`; a run warns when the measured rate is more "
+            "than 20 % off",
         ),
     )
     boot_grace_s: float = field(
@@ -597,6 +599,22 @@ def _loadcell(sec: Section, base_dir: Path) -> LoadCellConfig:
     calibration = sec.string("calibration", default="")
     given = {"port": _port(sec), "calibration_path": (base_dir / calibration) if calibration else None}
     return LoadCellConfig(**read_fields(sec, LoadCellConfig, given=given))
+
+
+# The load-cell rate a rig config that names none is taken to stream at (the detector's tuning rate).
+DEFAULT_LOADCELL_RATE_HZ = 1000.0
+
+
+def nominal_loadcell_rate_hz(config: RigConfig) -> float:
+    """The sample rate the run expects of the load cell [Hz].
+
+    `loadcell.rate_hz`, else the simulated cell's rate, else `DEFAULT_LOADCELL_RATE_HZ`.
+    """
+    if config.loadcell.rate_hz is not None:
+        return config.loadcell.rate_hz
+    if config.simulation is not None:
+        return config.simulation.loadcell_rate_hz
+    return DEFAULT_LOADCELL_RATE_HZ
 
 
 def require_simulated(config: RigConfig) -> SimulationConfig:

@@ -197,6 +197,7 @@ SAMPLERS: dict[str, Callable[[random.Random], float | None]] = {
     "spike_samples": lambda r: r.choice([1.0, 2.0]),
     "train_k": lambda r: _maybe(r, 3.0, 20.0),
     "drop_leak_n_per_s": lambda r: r.uniform(0.0, 5.0),
+    "drop_ramp_s": lambda r: _maybe(r, 0.0, 0.3, none_share=0.5),
 }
 
 

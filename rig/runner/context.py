@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from model.slip_detector import DetectorParams
 from rig.hw.session import RigSession
 from rig.protocol import Protocol
-from rig.rig_config import RigConfig
+from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, RigConfig
 from rig.runner.control_loop import ControlLoop
 from rig.runner.estimation import RunEstimator
 from rig.runner.link_view import LinkView
@@ -31,6 +31,8 @@ class StepContext:
     line_stiffness_n_per_m: float
     link_view: LinkView
     winch_zero_rad: float | None = None
+    loadcell_rate_hz: float = DEFAULT_LOADCELL_RATE_HZ  # nominal (`rig_config.nominal_loadcell_rate_hz`)
+    rate_mismatch_noted: bool = False  # the run has warned once that the measured rate differs
 
     def line_release(self) -> LineRelease:
         """A release starting from a copy of what the loop saw last (`rig.runner.release`)."""

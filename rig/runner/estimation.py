@@ -46,6 +46,10 @@ BETWEEN_JOINT_SD_LOG = 0.10
 # The per-joint filter's trial-to-trial scatter is the upper bound of this one-sided confidence
 # level on the scatter the joint-estimation slips show (see RunEstimator._trial_scatter_log).
 SCATTER_CONFIDENCE_QUANTILE = 0.25
+# The spread of one trial's slip load assumed before 3 slips have measured it (log sd): about twice
+# the trial-to-trial scatter of the simulated joints (0.085), so that a ramp slowed for the predicted
+# slip load starts slowing well below it.
+ONE_SLIP_SPREAD_LOG = 0.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,6 +130,31 @@ class RunEstimator:
         if summary is None:
             return None
         return summary.capacity_nm / distance_m
+
+    def joint_estimation_force_low_n(self, distance_m: float, z: float) -> float | None:
+        """A low edge of where the next slip tension at `distance_m` lies (None: nothing to go on).
+
+        The prediction (the fit's, or from one slip its m·l) times exp(−z·s), s the relative spread of
+        one trial's slip load: the slips' trial-to-trial scatter (`_trial_scatter_log`, from 3 slips;
+        `ONE_SLIP_SPREAD_LOG` before) combined with the fit's own uncertainty (its bounds' half-width
+        over the level's quantile). The rate-aware ramp slows down from there (rig/runner/ramp_speed.py).
+        """
+        points = zip(self._distances_m, self._masses_kg, self._censored, strict=True)
+        slips = [d * m for d, m, censored in points if not censored]
+        summary = self.summary()
+        if (not slips and summary is None) or distance_m <= 0.0:
+            return None
+        fit_sd = 0.0
+        if summary is not None and summary.capacity_nm > 0.0 and math.isfinite(summary.capacity_nm):
+            centre = summary.capacity_nm / distance_m
+            lo, hi = summary.capacity_ci_nm
+            quantile = NormalDist().inv_cdf(0.5 + self.level / 2.0)
+            if math.isfinite(lo) and math.isfinite(hi):
+                fit_sd = (hi - lo) / (2.0 * quantile * summary.capacity_nm)
+        else:
+            centre = float(np.mean(slips)) * self.article.g / distance_m
+        spread = self._trial_scatter_log() if len(slips) >= 3 else ONE_SLIP_SPREAD_LOG
+        return centre * math.exp(-z * math.hypot(spread, fit_sd))
 
     def transforms_for(self, joint_angles_rad: Sequence[float]) -> np.ndarray:
         """The link's (J, 4, 4) transforms at a planar configuration."""

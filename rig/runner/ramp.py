@@ -23,6 +23,7 @@ from model.slip_detector import (
 from model.slipped_joint import moved_joint, noise_threshold_rad
 from rig.errors import InterlockTripped, StepTimeoutError
 from rig.hw.configuration.factory import sees_slips
+from rig.hw.dxl.units import RAD_PER_PULSE, RAD_S_PER_VELOCITY_UNIT
 from rig.log import schemas
 from rig.log.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcome
 from rig.protocol import TrialPlan
@@ -30,6 +31,7 @@ from rig.runner.context import StepContext
 from rig.runner.control_loop import ControlLoop
 from rig.runner.measuring import measure_configuration
 from rig.runner.phases import Phase
+from rig.runner.ramp_speed import BAND_Z, SPEED_STEP, RampSpeeds
 from rig.runner.results import TrialMeasurements, slip_outcome
 from rig.runner.safe_state import POSITION_TOLERANCE_RAD
 from rig.vocabulary import StepKind, TrialKind
@@ -38,6 +40,13 @@ from rig.vocabulary import StepKind, TrialKind
 RAMP_GOAL_LEAD_S = 0.5
 # A tension drop while the winch turns back faster than this is the winch backing off, not a slip.
 _BACKING_OFF_RAD_S = -0.05
+# A measured load-cell rate this far (relative) from the configured one is warned about, once the
+# ramp has fed samples over at least RATE_MIN_SPAN_S.
+RATE_TOLERANCE = 0.2
+# Where the sampling limit binds, the fast phase ends this many control ticks of full-speed rise
+# below the capped ramp (at 10/s the winch overshot one tick's rise by up to 3 N onto the slip load).
+APPROACH_TICKS = 3
+RATE_MIN_SPAN_S = 1.0
 
 
 class WinchDrive:
@@ -50,14 +59,29 @@ class WinchDrive:
         self.servos = ctx.session.servos
         self.winch = ctx.session.winch_id
         self.limit_rad = limit_rad
+        self.period_s = ctx.protocol.control_period_s
         self.speed_rad_s = 0.0
         self.goal_rad: float | None = None
+        self.stepped = False  # the goal is stepped on (a speed below one velocity unit)
+        self.anchor_rad = 0.0  # where the winch was, and when, at the last speed change
+        self.anchor_ns = 0
 
     def set_speed(self, speed_rad_s: float) -> None:
-        """Change the winch's profile speed and set a new goal for it."""
+        """Change the winch's profile speed and set a new goal for it.
+
+        Below one Profile Velocity unit the servo cannot be told the speed (0 would mean no limit):
+        the profile is set to one unit and the goal is stepped on at `speed_rad_s`, count by count.
+        """
+        # The position read is up to a control period old: the winch has gone on at the old speed
+        # since, and a stepped goal behind it would turn it back (a fall of tension, a false peak).
+        moved_rad = self.speed_rad_s * self.period_s
         self.speed_rad_s = speed_rad_s
-        self.servos.set_profile(self.winch, velocity_rad_s=speed_rad_s)
+        self.stepped = speed_rad_s < RAD_S_PER_VELOCITY_UNIT
+        profile = RAD_S_PER_VELOCITY_UNIT if self.stepped else speed_rad_s
+        self.servos.set_profile(self.winch, velocity_rad_s=profile)
         self.goal_rad = None
+        self.anchor_rad = self.loop.states[self.winch].position_rad + self.reel * moved_rad
+        self.anchor_ns = self.loop.clock.monotonic_ns()
         self.advance()
 
     def advance(self) -> None:
@@ -65,9 +89,19 @@ class WinchDrive:
 
         The goal leads the winch by `RAMP_GOAL_LEAD_S` of motion and is moved on once the winch is
         halfway there. If the host stops talking (crash, lost link), the winch stops within that
-        lead instead of reeling on to `limit_rad`.
+        lead instead of reeling on to `limit_rad`. Stepped (below one velocity unit): the goal is
+        where the speed has taken it since `set_speed`, written when it has moved a count.
         """
         reel = self.reel  # in reel-in coordinates (the sign times the position) the goal only grows
+        if self.stepped:
+            elapsed_s = (self.loop.clock.monotonic_ns() - self.anchor_ns) * 1e-9
+            target = min(reel * self.limit_rad, reel * self.anchor_rad + self.speed_rad_s * elapsed_s)
+            if self.goal_rad is not None and target - reel * self.goal_rad < RAD_PER_PULSE:
+                return
+            self.goal_rad = reel * target
+            self.servos.write_goal_positions({self.winch: self.goal_rad})
+            self.recorder.command(self.winch, ServoCommandName.GOAL_POSITION, self.goal_rad, "rad")
+            return
         position = reel * self.loop.states[self.winch].position_rad
         lead = self.speed_rad_s * RAMP_GOAL_LEAD_S
         goal = self.goal_rad
@@ -114,6 +148,15 @@ class DetectorFeed:
         self.peak_n = 0.0
         self.event: SlipEvent | None = None
         self.after_event: list[tuple[int, float]] = []  # samples of the detecting tick after the event
+        self.first_ns: int | None = None  # the first and last sample fed, and how many
+        self.last_ns = 0
+        self.fed = 0
+
+    def measured_rate_hz(self) -> float | None:
+        """The rate the samples fed so far came at (None before `RATE_MIN_SPAN_S` of them)."""
+        if self.first_ns is None or self.fed < 3 or self.last_ns - self.first_ns < RATE_MIN_SPAN_S * 1e9:
+            return None
+        return (self.fed - 1) / ((self.last_ns - self.first_ns) * 1e-9)
 
     def feed(self, tick_samples: list[tuple[int, float]]) -> SlipEvent | None:
         """Step the detector over one tick's samples; the confirmed slip, if one fired."""
@@ -123,6 +166,11 @@ class DetectorFeed:
         fed = [i for i, (t_ns, _) in enumerate(samples) if t_ns >= self.start_ns]
         times = [samples[i][0] for i in fed]
         forces = [samples[i][1] for i in fed]
+        if times:
+            if self.first_ns is None:
+                self.first_ns = times[0]
+            self.last_ns = times[-1]
+            self.fed += len(times)
         j = 0
         while j < len(fed):
             # detector_run: detector_step over the samples until one fires (with a fast path).
@@ -179,23 +227,54 @@ def predicted_force_n(ctx: StepContext, trial: TrialPlan, found: TrialMeasuremen
 def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements) -> None:
     """Load the line, fast to a share of the predicted slip force and slow after, until a slip.
 
+    The slow speed is capped so that one sample period's rise is a small share of the tension
+    (`rig.runner.ramp_speed`): at low load-cell rates the ramp slows as the tension climbs towards
+    the expected slip load, and reels fast up to the low edge of it.
     Ends with the winch holding where it is: after a slip (kept `hold_after_slip_s` longer to
     count the further drops), or with `no_slip` at the ramp's force limit or the winch's travel.
     """
     ramp = ctx.protocol.ramp
     loop, recorder = ctx.loop, ctx.recorder
+    speeds = RampSpeeds(
+        fast_rad_s=ramp.fast_speed_rad_s,
+        slow_rad_s=ramp.slow_speed_rad_s,
+        rate_hz=ctx.loadcell_rate_hz,
+        n_per_rad=ctx.line_stiffness_n_per_m * ctx.config.spool_radius_m,
+    )
     predicted = predicted_force_n(ctx, trial, found)
-    switch_n = ctx.detector_params.arm_threshold_n
+    arm_n = ctx.detector_params.arm_threshold_n
+    switch_n = arm_n
     if predicted is not None and math.isfinite(predicted):
         switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
+    # Where the sampling limit binds (low rates) it applies from `capped_n` on: the low edge of the
+    # expected slip load, or from the arm threshold with nothing to go on. The fast phase stops
+    # short of it by what the winch reels at full speed in `APPROACH_TICKS` control ticks (it
+    # overshoots the switch by about that much); the protocol's slow speed covers that approach.
+    # Between samples (up to 0.1 s apart at 10/s, 5 N at full speed) the tension is read ahead
+    # from the winch's travel since the last sample.
+    capped_n = arm_n
+    read_ahead = speeds.binds_at(switch_n)
+    if trial.kind == TrialKind.JOINT_ESTIMATION and trial.distance_m is not None:
+        capped_n = speeds.switch_n(
+            switch_n, ctx.estimator.joint_estimation_force_low_n(trial.distance_m, BAND_Z)
+        )
+        if capped_n > switch_n:
+            stop_s = APPROACH_TICKS * ctx.protocol.control_period_s
+            stop_n = speeds.n_per_rad * ramp.fast_speed_rad_s * stop_s
+            switch_n = max(switch_n, capped_n - stop_n)
+
+    def slow_speed(force_n: float) -> float:
+        return ramp.slow_speed_rad_s if force_n < capped_n else speeds.slow_at(force_n, arm_n)
+
     zero = ctx.winch_zero_rad
     assert zero is not None
     reel = ctx.config.reel_direction
     drive = WinchDrive(ctx, zero + reel * ctx.config.limits.max_winch_travel_rev * 2 * math.pi)
-    # Timeout from the motion: the slow ramp to the protocol's maximum force, with the nominal line
-    # stiffness, three times over, plus the margin.
-    slow_s = ramp.max_force_n / (
-        ctx.line_stiffness_n_per_m * ctx.config.spool_radius_m * ramp.slow_speed_rad_s
+    # Timeout from the motion: the slow ramp from the arm threshold to the protocol's maximum force,
+    # with the nominal line stiffness, three times over, plus the margin.
+    slow_s = max(
+        ramp.max_force_n / (speeds.n_per_rad * ramp.slow_speed_rad_s),
+        speeds.slow_ramp_s(arm_n, ramp.max_force_n),
     )
     timeout_s = 3.0 * slow_s + ctx.protocol.step_timeout_margin_s
     deadline = loop.clock.monotonic_ns() + round(timeout_s * 1e9)
@@ -208,9 +287,10 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
     recorder.phase(
         Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP, start_ns
     )
-    drive.set_speed(ramp.fast_speed_rad_s if fast else ramp.slow_speed_rad_s)
+    drive.set_speed(ramp.fast_speed_rad_s if fast else slow_speed(loop.force_n))
     view = ctx.link_view
     view.ramp_started(trial, found, loop.force_n, start_ns)
+    sampled_at_rad: float | None = None  # the winch's position (reel-in sense) at the newest sample
     while feed.event is None:
         loop.tick()
         event = feed.feed(loop.tick_samples)
@@ -218,10 +298,18 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         view.ramp_tick(trial, found, loop.force_n, loop.clock.time_ns())
         if event is not None:
             break
-        if fast and loop.force_n >= switch_n:
+        position_rad = reel * loop.states[ctx.session.winch_id].position_rad
+        if loop.tick_samples or sampled_at_rad is None:
+            sampled_at_rad = position_rad
+        force_n = loop.force_n
+        if read_ahead and force_n >= arm_n:  # the line is taut: its take-up shows as tension
+            force_n += speeds.n_per_rad * max(0.0, position_rad - sampled_at_rad)
+        if fast and force_n >= switch_n:
             fast = False
-            drive.set_speed(ramp.slow_speed_rad_s)
+            drive.set_speed(slow_speed(loop.force_n))
             recorder.phase(Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP)
+        elif not fast and _speed_moved(drive.speed_rad_s, slow_speed(loop.force_n)):
+            drive.set_speed(slow_speed(loop.force_n))
         else:
             drive.advance()
         if loop.force_n >= ramp.max_force_n:
@@ -238,8 +326,29 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
             )
     drive.hold()  # and keep logging the post-slip tension briefly
     found.peak_observed_n = feed.peak_n
+    _check_rate(ctx, feed)
     if feed.event is not None:
         _record_slip(ctx, trial, found, feed)
+
+
+def _speed_moved(speed_rad_s: float, target_rad_s: float) -> bool:
+    """The slow phase's speed should be rewritten: its target has moved by more than a step."""
+    return target_rad_s > speed_rad_s * SPEED_STEP or target_rad_s * SPEED_STEP < speed_rad_s
+
+
+def _check_rate(ctx: StepContext, feed: DetectorFeed) -> None:
+    """Warn once per run when the ramp's samples came at a rate far from the configured one."""
+    measured = feed.measured_rate_hz()
+    if measured is None or ctx.rate_mismatch_noted:
+        return
+    if abs(measured / ctx.loadcell_rate_hz - 1.0) > RATE_TOLERANCE:
+        ctx.rate_mismatch_noted = True
+        ctx.recorder.note(
+            LogLevel.WARNING,
+            f"load cell measured at {measured:.1f} samples/s, configured {ctx.loadcell_rate_hz:g}/s "
+            f"(more than {RATE_TOLERANCE:.0%} off): the detector's and the ramp's rate-derived "
+            "defaults assume the configured rate; set loadcell.rate_hz",
+        )
 
 
 def _record_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements, feed: DetectorFeed) -> None:

@@ -35,8 +35,8 @@ from rig.log import schemas
 from rig.log.live import LivePublisher
 from rig.log.records import JointCapacity, LogLevel, LogMessage, TrialResult
 from rig.log.writer import LogWriteError, RunLogger
-from rig.protocol import Protocol, TrialPlan, load_protocol
-from rig.rig_config import RigConfig, load_rig_config
+from rig.protocol import Protocol, TrialPlan, for_loadcell_rate, load_protocol
+from rig.rig_config import RigConfig, load_rig_config, nominal_loadcell_rate_hz
 from rig.runner.estimation import RunEstimator, load_estimates_file
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
@@ -203,6 +203,9 @@ def _resumed_journal(request: RunRequest, config: RigConfig, run_id: str) -> tup
 def _prepared(
     request: RunRequest, protocol: Protocol, config: RigConfig, journal: RunJournal, lock: RunLock | None
 ) -> PreparedRun:
+    # The detector's rate-dependent defaults for this rig's load cell; the logged protocol metadata
+    # carries them, so replay detects with them.
+    protocol = for_loadcell_rate(protocol, nominal_loadcell_rate_hz(config))
     prior = None
     if protocol.estimates_from not in (None, "run"):
         prior = load_estimates_file(protocol.estimates_from)

@@ -39,7 +39,7 @@ from rig.log import schemas
 from rig.log.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOutcome, TrialResult
 from rig.log.writer import RunLogger
 from rig.protocol import Protocol, TrialPlan
-from rig.rig_config import RigConfig
+from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
 from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.control_loop import ControlLoop
 from rig.runner.estimation import RunEstimator
@@ -123,6 +123,7 @@ class TrialRunner:
             detector_params=protocol.detector,
             line_stiffness_n_per_m=line_stiffness_n_per_m,
             link_view=LinkView(self.recorder, config.article),
+            loadcell_rate_hz=nominal_loadcell_rate_hz(config),
         )
         self.trial: TrialPlan | None = None
         self.connected = False
