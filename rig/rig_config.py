@@ -446,18 +446,16 @@ def default_stale_timeout_s(rate_hz: float) -> float:
 def _loadcell_rate(
     top: Section, loadcell: LoadCellConfig, simulation: SimulationConfig | None
 ) -> LoadCellConfig:
-    """The cell's rate (a simulated cell's: its simulation's), checked against the baud rate and format."""
+    """The cell's rate (left out on a simulated rig: its simulation's), checked against baud and format."""
     sec = top.section("loadcell")
     traits = LOADCELL_FORMAT_TRAITS[loadcell.format]
     rate_hz = loadcell.rate_hz
     if simulation is not None:
-        if rate_hz is not None and rate_hz != simulation.loadcell_rate_hz:
-            raise sec.error(
-                "rate_hz",
-                f"{rate_hz:g}; allowed: the simulated cell's rate, simulation.loadcell_rate_hz "
-                f"{simulation.loadcell_rate_hz:g} (or leave it out)",
-            )
-        rate_hz = simulation.loadcell_rate_hz
+        # Left out, a simulated cell's rate is its simulation's. Given, it is what the operator
+        # believes, and may be wrong as on a real rig: the run and `rig check` compare it with what
+        # the simulated cell sends.
+        if rate_hz is None:
+            rate_hz = simulation.loadcell_rate_hz
         cell = simulation.cell
         if cell is not None and cell.format != loadcell.format:
             raise sec.error(

@@ -113,8 +113,10 @@ def test_the_nominal_rate_is_the_cells_then_the_simulations_then_1khz(tmp_path: 
     sim = tmp_path / "sim.yaml"
     sim.write_text("extends: simulated\nsimulation: {loadcell_rate_hz: 80}\n")
     assert nominal_loadcell_rate_hz(load_rig_config(sim)) == 80.0
+    sim.write_text("extends: simulated\nloadcell: {rate_hz: 80}\nsimulation: {loadcell_rate_hz: 80}\n")
+    assert nominal_loadcell_rate_hz(load_rig_config(sim)) == 80.0
     sim.write_text("extends: simulated\nloadcell: {rate_hz: 12}\nsimulation: {loadcell_rate_hz: 80}\n")
-    assert nominal_loadcell_rate_hz(load_rig_config(sim)) == 12.0
+    assert nominal_loadcell_rate_hz(load_rig_config(sim)) == 12.0  # what the operator believes
     assert DEFAULT_LOADCELL_RATE_HZ == 1000.0
 
 
