@@ -32,6 +32,7 @@ from model.slip_detector import SlipEvent
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats, LoadCellSample, ServoState
 from rig.log.records import (
+    ControlTickStats,
     Estimate,
     JointCapacity,
     LogLevel,
@@ -217,13 +218,14 @@ def _trial_links() -> dict[str, Any]:
     return _rig_object(
         "rig.TrialLinkStats",
         "What the device links delivered and lost during one trial; a device that keeps no counts is absent.",
-        _field_schemas(TrialLinkStats, exclude=("bus", "loadcell"))
+        _field_schemas(TrialLinkStats, exclude=("bus", "loadcell", "control"))
         + Fields(
             {
                 "bus": counts(BusStats, "the servo bus's exchanges during the trial"),
                 "loadcell": counts(LoadCellLineStats, "the load cell's serial lines during the trial"),
+                "control": counts(ControlTickStats, "the control loop's ticks during the trial"),
             },
-            frozenset({"bus", "loadcell"}),
+            frozenset({"bus", "loadcell", "control"}),
         ),
     )
 

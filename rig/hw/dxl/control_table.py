@@ -42,6 +42,7 @@ RAD_S2_PER_ACCELERATION_UNIT = ACCELERATION_UNIT_REV_MIN2 * 2.0 * math.pi / 3600
 RETURN_DELAY_UNIT_S = 2e-6
 BUS_WATCHDOG_UNIT_MS = 20
 BUS_WATCHDOG_UNIT_S = BUS_WATCHDOG_UNIT_MS / 1000
+BUS_WATCHDOG_TRIPPED = 0xFF  # Bus Watchdog (98) reads -1 after a trip, until 0 is written
 LOAD_UNIT_PERCENT = 0.1  # XL430 Present Load
 
 EEPROM_END = 64  # addresses below this are EEPROM (locked while Torque Enable = 1)

@@ -73,6 +73,7 @@ class BusStats:
     fast_sync_reads: int = 0
     sync_reads: int = 0
     sync_writes: int = 0
+    watchdog_trips: int = 0  # Bus Watchdog trips found (register 98 read -1) and cleared
 
     def since(self, earlier: BusStats) -> BusStats:
         """The counts after `earlier` (e.g. one trial's); all of these if the driver was made since."""
@@ -83,14 +84,16 @@ class BusStats:
 
     @property
     def clean(self) -> bool:
-        """No retry, timeout, corrupt reply, failed operation or reboot."""
-        return not (self.retries or self.timeouts or self.corrupt or self.failures or self.reboots)
+        """No retry, timeout, corrupt reply, failed operation, reboot or Bus Watchdog trip."""
+        lost = (self.retries, self.timeouts, self.corrupt, self.failures)
+        return not any(lost) and not self.reboots and not self.watchdog_trips
 
     def describe(self) -> str:
         """One line for an operator."""
         return (
             f"{self.operations} operations; {self.retries} retries, {self.timeouts} timeouts, "
             f"{self.corrupt} corrupt replies, {self.failures} failures, {self.reboots} reboots"
+            + (f", {self.watchdog_trips} Bus Watchdog trips" if self.watchdog_trips else "")
         )
 
 
