@@ -43,6 +43,8 @@ class ServoSpec:
 # The servos' Bus Watchdog unless a config says otherwise (0 turns it off): a servo that hears nothing
 # from the host this long stops where it is. The runner talks to every servo each control period.
 DEFAULT_WATCHDOG_MS = 500
+# How long the release keeps trying a servo bus that went quiet before it gives up (rig config may say).
+DEFAULT_RELEASE_PATIENCE_S = 10.0
 _PORT = f"serial port, 1-{MAX_PORT_CHARS} characters"
 
 
@@ -65,6 +67,17 @@ class ServoBusConfig:
     watchdog_ms: int = field(
         default=DEFAULT_WATCHDOG_MS,
         metadata=integer(0, 127 * 20, unit="ms", doc="Bus Watchdog, 20 ms units; 0 turns it off"),
+    )
+    release_patience_s: float = field(
+        default=DEFAULT_RELEASE_PATIENCE_S,
+        metadata=number(
+            0.0,
+            600.0,
+            unit="s",
+            doc="how long the release of the line keeps trying a servo bus that stopped answering (a USB "
+            "adapter that hangs); once it answers, the safe state is verified and the trial repeated; a bus "
+            "silent for longer ends the run (exit 1)",
+        ),
     )
 
     @property

@@ -20,6 +20,7 @@ field names, SI units, the Alert bit and limits belong to `rig.hw.dxl.bus`.
 from __future__ import annotations
 
 import contextlib
+import termios
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any, TypeVar
@@ -48,6 +49,16 @@ from rig.hw.dxl.errors import (
 from rig.hw.seams import Clock
 
 T = TypeVar("T")
+
+
+def port_vanished(port_name: str, exc: BaseException) -> str:
+    """The message for a servo port that failed under an open connection (the adapter gone)."""
+    detail = exc.args[1] if isinstance(exc, termios.error) and len(exc.args) > 1 else str(exc)
+    return (
+        f"servo port {port_name} vanished ({detail}): the servo adapter (e.g. a U2D2) was unplugged or lost "
+        "power; plug it back in, check that it is listed in /dev/serial/by-id/, and resume the run "
+        "(`rig run PROTOCOL --rig CONFIG --resume RUN_ID`)"
+    )
 
 
 class BusOwnershipError(RigError, RuntimeError):
@@ -297,11 +308,16 @@ class Transport:
             self._busy = False
 
     def _sdk(self, fn: Callable[..., T], *args: Any) -> T:
-        """Call the SDK; its stray exceptions become a retryable failure or `NotConnectedError`."""
+        """Call the SDK; its stray exceptions become a retryable failure or `NotConnectedError`.
+
+        A port that fails under the SDK (EIO when a USB adapter is pulled out; pyserial raises it as
+        `SerialException`, `OSError` or, from its buffer flush, `termios.error`) is reported as the
+        port that vanished, with what to do.
+        """
         try:
             return fn(*args)
-        except (serial.SerialException, OSError) as exc:
-            raise NotConnectedError(f"servo port {self.port_name} failed: {exc}") from exc
+        except (serial.SerialException, OSError, termios.error) as exc:
+            raise NotConnectedError(port_vanished(self.port_name, exc)) from exc
         except (IndexError, ValueError, TypeError, KeyError) as exc:
             if self._port is not None:
                 self._port.is_using = False
