@@ -1,9 +1,10 @@
-"""A servo bus that goes quiet mid-ramp, over pseudo-terminals: `rig run` against `rig sim servos`.
+"""A servo bus that goes quiet, or a host that pauses, mid-ramp: `rig run` against `rig sim servos`.
 
-The servo emulator is frozen (SIGSTOP) mid-ramp, as a USB adapter that hangs for a while: the
+Over ptys. The servo emulator is frozen (SIGSTOP) mid-ramp, as a USB adapter that hangs: the
 release keeps trying for `servos.release_patience_s`, verifies the safe state once the bus answers
 and the trial is repeated; a bus silent for longer ends the run (exit 1) saying what state the
-winch is in. An emulator killed outright (the adapter pulled out) is reported naming its port.
+winch is in. An emulator killed outright (the adapter pulled out) is reported naming its port. The
+run itself frozen for longer than the watchdog (a host pause) trips it; the run clears it.
 The winch's position and torque are read back from the emulator afterwards.
 """
 
@@ -93,12 +94,14 @@ def _start(tmp_path: Path, dxl_server, patience_s: float):
     return servos, cell, run
 
 
-def _freeze(servos, seconds: float) -> None:
-    servos.process.send_signal(signal.SIGSTOP)
+def _freeze(process, seconds: float) -> None:
+    """Stop a process (an emulator, or the host's run) for `seconds`, then let it go on."""
+    process = getattr(process, "process", process)
+    process.send_signal(signal.SIGSTOP)
     try:
         time.sleep(seconds)
     finally:
-        servos.process.send_signal(signal.SIGCONT)
+        process.send_signal(signal.SIGCONT)
 
 
 def _journal(tmp_path: Path) -> dict:
@@ -123,12 +126,33 @@ def test_a_bus_quiet_for_a_second_mid_ramp_costs_a_repeated_trial(tmp_path, dxl_
     assert run.returncode == 0, (report["reason"], err[-3000:])
     assert report["safe_state_verified"] is True
     notes = _notes(tmp_path)
-    assert _journal(tmp_path)["retried_trials"] == [1], notes
+    # Repeated (a host stalled beyond the watchdog by a loaded machine may void it once more).
+    assert _journal(tmp_path)["retried_trials"][:1] == [1], "\n".join(n for n in notes if "late by" not in n)
     assert any("Bus Watchdog tripped" in n for n in notes), notes
     link = Path(servos.link)
-    assert [_read(link, i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
+    assert [_read_back(link, i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
     # The winch's zero is where it stood at connect (pulse 0 in the emulator): back there, line slack.
-    assert abs(_signed(_read(link, 1, PRESENT_POSITION, 4))) < 30
+    assert abs(_signed(_read_back(link, 1, PRESENT_POSITION, 4))) < 30
+
+
+def test_a_host_paused_mid_ramp_finds_the_tripped_watchdog_clears_it_and_repeats_the_trial(
+    tmp_path, dxl_server
+):
+    servos, cell, run = _start(tmp_path, dxl_server, patience_s=5.0)
+    try:
+        _freeze(run, 1.5)  # the host stops (a suspend, a slow disk); the servos' watchdog (0.5 s) trips
+        out, err = run.communicate(timeout=180)
+    finally:
+        cell.kill()
+    report = json.loads(out)
+    assert run.returncode == 0, (report["reason"], err[-3000:])
+    notes = _notes(tmp_path)
+    assert any("servo 1 (winch): Bus Watchdog tripped" in n and "cleared and re-armed" in n for n in notes)
+    assert any(n.startswith("control tick late by") for n in notes)
+    assert _journal(tmp_path)["retried_trials"][:1] == [1]
+    link = Path(servos.link)
+    assert [_read_back(link, i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
+    assert abs(_signed(_read_back(link, 1, PRESENT_POSITION, 4))) < 30
 
 
 def test_a_bus_silent_beyond_the_patience_ends_the_run_saying_what_state_the_winch_is_in(
@@ -166,6 +190,18 @@ def test_a_servo_adapter_pulled_out_is_reported_naming_its_port(tmp_path, dxl_se
     assert f"servo port {servos.link} vanished" in reason
     assert "was unplugged or lost power" in reason and "--resume" in reason
     assert report["safe_state_verified"] is False and "THE LINE MAY BE LOADED" in reason
+
+
+def _read_back(link: Path, servo_id: int, address: int, size: int) -> int:
+    """`_read`, tried up to three times (a loaded machine can miss the SDK's 34 ms window)."""
+    for attempt in range(3):
+        try:
+            return _read(link, servo_id, address, size)
+        except AssertionError:
+            if attempt == 2:
+                raise
+            time.sleep(0.2)
+    raise AssertionError("unreachable")
 
 
 def _signed(raw: int) -> int:

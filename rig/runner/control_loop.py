@@ -95,7 +95,7 @@ class ControlLoop:
         if (lateness_ns > 0 and not slept) or lateness_ns >= self.period_ns:
             self._next_tick_ns = now  # late: do not try to catch up with a burst of ticks
         self.states = self.session.servos.read_states()
-        tripped = self._watchdog_trips()
+        tripped = self.watchdog_trips()
         samples = self.session.load_cell.poll()
         self.ingest(samples)
         if tripped is not None:
@@ -122,7 +122,7 @@ class ControlLoop:
                 "the host did not run in time (load, a slow disk, a suspend)",
             )
 
-    def _watchdog_trips(self) -> BusWatchdogTripped | None:
+    def watchdog_trips(self) -> BusWatchdogTripped | None:
         """Log the Bus Watchdog trips the driver cleared on this read; the error that voids the trial."""
         servos = self.session.servos
         if not isinstance(servos, WatchdogTripSource):
