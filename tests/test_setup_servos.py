@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from rig.cli import main
+from rig.rig_config import DEFAULT_RIG_CONFIG
 
 pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
 
@@ -100,3 +101,8 @@ def test_without_a_terminal_it_exits_2_saying_why(tmp_path, dxl_server):
     assert run.returncode == 2
     assert "needs a terminal on stdin" in run.stderr and "ssh -t" in run.stderr
     assert "Traceback" not in run.stderr
+
+
+def test_a_simulated_rig_has_no_servos_to_set_up(capsys):
+    assert main(["setup-servos", "--rig", str(DEFAULT_RIG_CONFIG)]) == 2
+    assert "servos.port: sim://dxl is not a serial port" in capsys.readouterr().err
