@@ -119,13 +119,13 @@ def test_a_bus_quiet_for_a_second_mid_ramp_costs_a_repeated_trial(tmp_path, dxl_
     servos, cell, run = _start(tmp_path, dxl_server, patience_s=5.0)
     try:
         _freeze(servos, 1.0)  # longer than the servos' Bus Watchdog (0.5 s): it trips on resuming
-        out, err = run.communicate(timeout=180)
+        out, _ = run.communicate(timeout=180)
     finally:
         cell.kill()
     report = json.loads(out)
-    assert run.returncode == 0, (report["reason"], err[-3000:])
-    assert report["safe_state_verified"] is True
     notes = _notes(tmp_path)
+    assert run.returncode == 0, "\n".join([str(report["reason"]), *(n for n in notes if "late by" not in n)])
+    assert report["safe_state_verified"] is True
     # Repeated (a host stalled beyond the watchdog by a loaded machine may void it once more).
     assert _journal(tmp_path)["retried_trials"][:1] == [1], "\n".join(n for n in notes if "late by" not in n)
     assert any("Bus Watchdog tripped" in n for n in notes), notes
@@ -141,12 +141,12 @@ def test_a_host_paused_mid_ramp_finds_the_tripped_watchdog_clears_it_and_repeats
     servos, cell, run = _start(tmp_path, dxl_server, patience_s=5.0)
     try:
         _freeze(run, 1.5)  # the host stops (a suspend, a slow disk); the servos' watchdog (0.5 s) trips
-        out, err = run.communicate(timeout=180)
+        out, _ = run.communicate(timeout=180)
     finally:
         cell.kill()
     report = json.loads(out)
-    assert run.returncode == 0, (report["reason"], err[-3000:])
     notes = _notes(tmp_path)
+    assert run.returncode == 0, "\n".join([str(report["reason"]), *(n for n in notes if "late by" not in n)])
     assert any("servo 1 (winch): Bus Watchdog tripped" in n and "cleared and re-armed" in n for n in notes)
     assert any(n.startswith("control tick late by") for n in notes)
     assert _journal(tmp_path)["retried_trials"][:1] == [1]
