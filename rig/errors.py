@@ -48,6 +48,10 @@ class HardwareFault(RigError):
     """A device reported a fault (e.g. a latched Dynamixel hardware error)."""
 
 
+class BusWatchdogTripped(HardwareFault):
+    """A servo's Bus Watchdog tripped (the bus was quiet too long); cleared by the driver, the trial void."""
+
+
 class StaleDataError(RigError, TimeoutError):
     """A stream (e.g. the load cell) delivered no valid sample for longer than allowed."""
 

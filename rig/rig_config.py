@@ -19,7 +19,13 @@ from model.field_spec import text as text_field
 from model.gravity import PAPER_G_M_S2
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file
-from rig.servo_ratings import STALL_TENSION_CEILING_RATIO, current_for_tension_a, stall_tension_n
+from rig.servo_ratings import (
+    MOTOR_RATINGS,
+    STALL_TENSION_CEILING_RATIO,
+    current_for_tension_a,
+    stall_tension_n,
+    winch_models,
+)
 from rig.sim_config import SimulationConfig, parse_simulation
 from rig.validate import Section, read_field, read_fields, reject_undeclared
 from rig.vocabulary import (
@@ -60,6 +66,8 @@ class ServoSpec:
 # The servos' Bus Watchdog unless a config says otherwise (0 turns it off): a servo that hears nothing
 # from the host this long stops where it is. The runner talks to every servo each control period.
 DEFAULT_WATCHDOG_MS = 500
+# How long the release keeps trying a servo bus that went quiet before it gives up (rig config may say).
+DEFAULT_RELEASE_PATIENCE_S = 10.0
 _PORT = f"serial port, 1-{MAX_PORT_CHARS} characters"
 
 
@@ -74,14 +82,26 @@ class ServoBusConfig:
     servos: tuple[ServoSpec, ...] = field(
         metadata=custom(
             key="ids",
-            allowed_doc=f"list of 1-253 `{inline_text(ServoSpec)}`; ids unique; exactly one winch, which "
-            "must not be an XL430-W250 (no current control)",
+            allowed_doc=f"list of 1-253 `{inline_text(ServoSpec)}`; ids unique; exactly one winch, a model "
+            "with current-based position control (mode 5; not the XL430, XC430, their 2X versions or the "
+            "MX-28(2.0))",
         )
     )
     retries: int = field(default=2, metadata=integer(0, 10, doc="retries per bus transaction"))
     watchdog_ms: int = field(
         default=DEFAULT_WATCHDOG_MS,
         metadata=integer(0, 127 * 20, unit="ms", doc="Bus Watchdog, 20 ms units; 0 turns it off"),
+    )
+    release_patience_s: float = field(
+        default=DEFAULT_RELEASE_PATIENCE_S,
+        metadata=number(
+            0.0,
+            600.0,
+            unit="s",
+            doc="how long the release of the line keeps trying a servo bus that stopped answering (a USB "
+            "adapter that hangs); once it answers, the safe state is verified and the trial repeated; a bus "
+            "silent for longer ends the run (exit 1)",
+        ),
     )
 
     @property
@@ -577,9 +597,12 @@ def _servo_bus(sec: Section) -> ServoBusConfig:
     winches = [s for s in specs if s.role == ServoRole.WINCH]
     if len(winches) != 1:
         raise sec.error("ids", f"expected exactly one servo with role 'winch', found {len(winches)}")
-    if winches[0].model == ServoModel.XL430_W250:
+    if not MOTOR_RATINGS[winches[0].model].current_based_position:
+        index = specs.index(winches[0])
         raise sec.error(
-            "ids", "the winch needs current-based position mode (5); XL430-W250 has no current control"
+            f"ids[{index}].model",
+            f"{winches[0].model} has no current-based position control (Operating Mode 5), which the winch "
+            f"needs; allowed for the winch: {', '.join(winch_models())}",
         )
     given = {"port": _port(sec), "baud": baud, "servos": tuple(specs)}
     return ServoBusConfig(**read_fields(sec, ServoBusConfig, given=given))

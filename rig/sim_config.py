@@ -35,6 +35,7 @@ FAULT_KINDS: dict[str, tuple[str, ...]] = {
     "bender": SERVO_FAULT_KINDS,
     "loadcell": ("garble", "checksum", "gap", "silent", "disconnect"),
     "logger": ("write_error",),
+    "host": ("pause",),
 }
 # Kinds that happen per reply or per line with a probability (`rate`); the others happen at a time.
 RATE_FAULT_KINDS = frozenset({"drop", "corrupt", "delay", "garble", "checksum"})
@@ -477,5 +478,5 @@ def parse_fault(sec: Section) -> FaultConfig:
             delay = read_field(sec, FaultConfig, "delay_ms", default=50.0)
         return FaultConfig(device, kind, rate=rate, delay_ms=delay)
     at_s = read_field(sec, FaultConfig, "at_s", required=True)
-    duration = read_field(sec, FaultConfig, "duration_s")
+    duration = read_field(sec, FaultConfig, "duration_s", required=device == "host")
     return FaultConfig(device, kind, at_s=at_s, duration_s=duration)

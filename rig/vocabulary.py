@@ -135,10 +135,27 @@ LOADCELL_FORMAT_TRAITS: dict[LoadCellFormatName, LoadCellFormatTraits] = {
 
 
 class ServoModel(StrEnum):
-    """The Dynamixel models the rig supports (control tables in rig.hw.dxl.control_table)."""
+    """The Dynamixel models the rig supports (Protocol 2.0 firmware): the name as ROBOTIS writes it.
+
+    Their facts (model number, current sensing, stall point, voltage range) are data in
+    `rig.servo_ratings`; their control tables are built in `rig.hw.dxl.control_table`.
+    """
 
     XM430_W350 = "XM430-W350"
     XL430_W250 = "XL430-W250"
+    XM430_W210 = "XM430-W210"
+    XH430_W210 = "XH430-W210"
+    XH430_W350 = "XH430-W350"
+    XM540_W150 = "XM540-W150"
+    XM540_W270 = "XM540-W270"
+    XH540_W150 = "XH540-W150"
+    XH540_W270 = "XH540-W270"
+    XW540_T140 = "XW540-T140"
+    TWO_XL430_W250 = "2XL430-W250"
+    XC430_W150 = "XC430-W150"
+    XC430_W240 = "XC430-W240"
+    TWO_XC430_W250 = "2XC430-W250"
+    MX_28_2 = "MX-28(2.0)"
 
 
 # The baud rates a Dynamixel X servo's Baud Rate register (8) holds that dynamixel-sdk can also set,

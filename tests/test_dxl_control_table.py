@@ -83,7 +83,7 @@ def test_xl430_differences():
     assert MODELS_BY_NUMBER[1060] is XL430_W250 and MODELS_BY_NUMBER[1020] is XM430_W350
     assert table_for_model("XL430-W250") is XL430_W250 and table_for_model(1020) is XM430_W350
     with pytest.raises(KeyError, match="known: XM430-W350"):
-        table_for_model(1030)
+        table_for_model(1190)  # an XL330-M077: another indirect layout, not covered
 
 
 def test_signed_encoding_round_trips():

@@ -49,6 +49,7 @@ MATRIX = {
         1, 0, slack=True, torque_off=True, verified=True, reason="ZeroNotVerified: the load cell reads"
     ),
     "drifting-zero": Expected(1, 1, slack=True, torque_off=True, verified=True, reason="trial 2: tare"),
+    "host-pause": Expected(0, 2, slack=True, torque_off=True, verified=True, retries=1),
 }
 
 
@@ -82,4 +83,4 @@ def test_fault_scenario_ends_as_stated(scenario, tmp_path):
     journal = prepared.journal
     assert len(journal.retried_trials) == expected.retries
     fired = sim.devices.faults.fired
-    assert all(f.startswith(("servos", "winch", "bender", "loadcell")) for f in fired)
+    assert all(f.startswith(("servos", "winch", "bender", "loadcell", "host")) for f in fired)

@@ -19,8 +19,22 @@ def test_scan_finds_emulated_servos_at_their_baud_only(dxl_server, capsys):
     assert out == {
         "port": server.link,
         "servos": [
-            {"id": 1, "model_number": 1020, "model": "XM430-W350", "firmware": 48, "baud": 57_600},
-            {"id": 3, "model_number": 1020, "model": "XM430-W350", "firmware": 48, "baud": 57_600},
+            {
+                "id": 1,
+                "model_number": 1020,
+                "model": "XM430-W350",
+                "firmware": 48,
+                "baud": 57_600,
+                "protocol": 2.0,
+            },
+            {
+                "id": 3,
+                "model_number": 1020,
+                "model": "XM430-W350",
+                "firmware": 48,
+                "baud": 57_600,
+                "protocol": 2.0,
+            },
         ],
     }
 
@@ -33,8 +47,8 @@ def test_scan_at_1m_prints_a_table(dxl_server, capsys):
     assert main(["scan", "--port", server.link, "--baud", "1000000"]) == 0
     out = capsys.readouterr().out
     lines = out.splitlines()
-    assert lines[0].split() == ["id", "model", "model", "number", "firmware", "baud"]
-    assert lines[2].split() == ["5", "XL430-W250", "1060", "44", "1000000"]
+    assert lines[0].split() == ["id", "model", "model", "number", "firmware", "baud", "protocol"]
+    assert lines[2].split() == ["5", "XL430-W250", "1060", "44", "1000000", "2.0"]
     assert "1 servo(s) at 1000000 baud" in lines[-1]
 
 
@@ -45,6 +59,36 @@ def test_scan_with_nothing_answering(dxl_server, capsys):
     server = dxl_server(ids=[1], baud=57_600)
     assert main(["scan", "--port", server.link, "--baud", "1000000", "--json"]) == 0
     assert json.loads(capsys.readouterr().out) == {"port": server.link, "servos": []}
+
+
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
+def test_scan_names_a_protocol_1_servo_and_how_to_switch_it(dxl_server, capsys):
+    # An XM430-W350 switched to Protocol 1.0 (Protocol Type 1): a 2.0 ping does not find it.
+    server = dxl_server(ids=[4], baud=57_600, extra_args=["--protocol", "1.0"])
+    args = ["scan", "--port", server.link, "--baud", "57600", "--protocol1-max-id", "6"]
+    assert main([*args, "--json"]) == 0
+    (found,) = json.loads(capsys.readouterr().out)["servos"]
+    assert found["id"] == 4 and found["protocol"] == 1.0 and found["baud"] == 57_600
+    assert found["model"] == "XM430-W350" and found["model_number"] == 1020 and found["firmware"] == 48
+    assert "write 2 to its Protocol Type (address 13)" in found["switch"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "servo 4 (XM430-W350) answers Protocol 1.0" in out and "DYNAMIXEL Wizard 2.0" in out
+    # Without the Protocol 1.0 search it is not found at all (what `rig scan` did before).
+    assert main([*args[:-2], "--protocol1-max-id", "-1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["servos"] == []
+
+
+def test_protocol_1_advice_per_kind_of_servo():
+    from rig.hw.dxl.scan import protocol1_advice, protocol1_model_name
+
+    assert protocol1_model_name(29) == "MX-28" and "MX-28(2.0)" in protocol1_advice(29)
+    assert "Firmware Recovery" in protocol1_advice(29) and "does not support" not in protocol1_advice(29)
+    assert "does not support the MX-64(2.0)" in protocol1_advice(310)
+    assert protocol1_model_name(12) == "AX-12A" and "cannot drive it" in protocol1_advice(12)
+    assert "Protocol Type (address 13)" in protocol1_advice(1030)
 
 
 def test_scan_of_a_missing_port_exits_2_naming_it(tmp_path, capsys):

@@ -16,8 +16,8 @@ from rig import __version__
 from rig.errors import ExitCode, InputError, RigError, one_line
 from rig.runner.safety import interrupts_held, terminate_as_interrupt
 
-# Each module `rig.cli.<name>` defines `register(subparsers)`, which adds its parser and sets
-# `handler=<callable(args) -> int>` as a default.
+# Each module `rig.cli.<name>` (a `-` in the command is a `_` in the module) defines
+# `register(subparsers)`, which adds its parser and sets `handler=<callable(args) -> int>` as a default.
 COMMAND_MODULES: tuple[str, ...] = (
     "run",
     "fit",
@@ -31,6 +31,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "study",
     "camera",
     "config",
+    "setup-servos",
 )
 
 
@@ -55,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"rig {__version__}")
     subparsers = parser.add_subparsers(title="commands", metavar="COMMAND", parser_class=_Parser)
     for name in COMMAND_MODULES:
-        importlib.import_module(f"rig.cli.{name}").register(subparsers)
+        importlib.import_module(f"rig.cli.{name.replace('-', '_')}").register(subparsers)
     return parser
 
 

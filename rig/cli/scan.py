@@ -1,4 +1,4 @@
-"""`rig scan --port PORT`: find the Dynamixel servos on a port by broadcast ping at each baud rate."""
+"""`rig scan --port PORT`: find the Dynamixel servos on a port (Protocol 2.0 and 1.0) at each baud rate."""
 
 from __future__ import annotations
 
@@ -12,15 +12,22 @@ from rig.hw.dxl.control_table import SDK_BAUDS
 from rig.hw.dxl.scan import scan_port
 
 DEFAULT_BAUDS = (57_600, 1_000_000)
+DEFAULT_PROTOCOL1_MAX_ID = 31
 
 DESCRIPTION = """\
 Broadcast-ping the Dynamixel bus (Protocol 2.0) on PORT at each --baud and list every servo that
 answers with its ID, model and firmware version. dynamixel-sdk waits its whole broadcast window
 whatever answers, so each baud rate takes about a second (0.8 s at 1 Mbps, 1.4 s at 57600).
+
+Then look for Protocol 1.0 servos (an X-series servo switched to 1.0, an MX on its 1.0 firmware,
+an AX), which a 2.0 ping does not reach: 1.0 has no broadcast ping that answers, so IDs
+0..--protocol1-max-id are pinged one by one at each baud (about 35 ms per silent ID). Each one
+found is named with how to switch it to Protocol 2.0, which the rig speaks.
 """
 
 EPILOG = """\
-JSON (--json): {"port": PORT, "servos": [{"id", "model_number", "model", "firmware", "baud"}, ...]}.
+JSON (--json): {"port": PORT, "servos": [{"id", "model_number", "model", "firmware", "baud",
+"protocol": 2.0 or 1.0, "switch": how to switch a 1.0 servo to 2.0 (1.0 servos only)}, ...]}.
 Exit codes: 0 done (also when nothing answered); 1 the port could not be used; 2 invalid input
 (e.g. the port does not exist, or a baud rate the SDK cannot set).
 """
@@ -44,6 +51,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help=f"baud rate to scan; repeat for several (default: {' and '.join(map(str, DEFAULT_BAUDS))})",
     )
     parser.add_argument(
+        "--protocol1-max-id",
+        type=int,
+        default=DEFAULT_PROTOCOL1_MAX_ID,
+        metavar="N",
+        help=f"ping IDs 0..N with Protocol 1.0 at each baud (0-252; default {DEFAULT_PROTOCOL1_MAX_ID}; "
+        "-1 skips the Protocol 1.0 search)",
+    )
+    parser.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
     )
     parser.set_defaults(handler=run)
@@ -58,8 +73,11 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--baud {baud}: not a baud rate dynamixel-sdk can set; allowed: {SDK_BAUDS}")
     if "://" not in port and not os.path.exists(port):
         raise InputError(f"--port {port}: no such serial port (see `rig ports`)")
+    max_id = args.protocol1_max_id
+    if not -1 <= max_id <= 252:
+        raise InputError(f"--protocol1-max-id {max_id}: out of range; allowed: -1 (skip) or 0..252")
     started = time.monotonic()
-    servos = scan_port(port, bauds)
+    servos = scan_port(port, bauds, protocol1_ids=range(max_id + 1))
     elapsed_s = time.monotonic() - started
     if args.json:
         servo_records = [
@@ -69,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
                 "model": s.model,
                 "firmware": s.firmware,
                 "baud": s.baud,
+                "protocol": s.protocol,
+                **({"switch": s.switch_advice} if s.protocol == 1.0 else {}),
             }
             for s in servos
         ]
@@ -78,7 +98,13 @@ def run(args: argparse.Namespace) -> int:
     if not servos:
         print(f"{port}: no servos answered at {scanned} baud ({elapsed_s:.1f} s)")
         return 0
-    rows = [[s.servo_id, s.model, s.model_number, s.firmware, s.baud] for s in servos]
-    print(format_table(["id", "model", "model number", "firmware", "baud"], rows))
+    rows = [[s.servo_id, s.model, s.model_number, s.firmware, s.baud, f"{s.protocol:.1f}"] for s in servos]
+    print(format_table(["id", "model", "model number", "firmware", "baud", "protocol"], rows))
     print(f"{port}: {len(servos)} servo(s) at {scanned} baud ({elapsed_s:.1f} s)")
+    for s in servos:
+        if s.protocol == 1.0:
+            print(
+                f"servo {s.servo_id} ({s.model}) answers Protocol 1.0, which the rig does not speak: "
+                + s.switch_advice
+            )
     return 0

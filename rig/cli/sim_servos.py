@@ -1,4 +1,4 @@
-"""`rig sim servos`: serve emulated Dynamixel servos (Protocol 2.0) on a pty until killed.
+"""`rig sim servos`: serve emulated Dynamixel servos (Protocol 2.0, or 1.0) on a pty until killed.
 
 Also runnable as `python -m rig.cli.sim_servos ...` with the same arguments (used by the test
 fixture, so that it does not depend on every other command importing).
@@ -16,7 +16,8 @@ from rig.hw.clock import SystemClock
 from rig.hw.dxl.control_table import BAUD_REGISTER_BY_RATE, MODELS
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.faults import FaultSpec, parse_fault
-from rig.sim.dxl.pty_server import serve
+from rig.sim.dxl.protocol1 import Protocol1Bus
+from rig.sim.dxl.pty_server import ServedBus, serve
 from rig.sim.pty_link import PtyLink, StopFlag
 
 
@@ -45,6 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baud", type=int, default=1_000_000, help="servo baud rate (default 1000000)")
     parser.add_argument("--link", required=True, help="path of the symlink to create (e.g. /tmp/dxl)")
     parser.add_argument("--firmware", type=int, default=None, help="firmware version to report (default 48)")
+    parser.add_argument(
+        "--protocol",
+        choices=("2.0", "1.0"),
+        default="2.0",
+        help="the protocol the servos answer: 1.0 as an X-series servo switched to it (Protocol Type 1)",
+    )
     parser.add_argument(
         "--wire-timing",
         action="store_true",
@@ -149,13 +156,16 @@ def build_bus(args: argparse.Namespace) -> tuple[EmulatedBus, list[FaultSpec]]:
 def run(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; returns 0."""
     bus, _ = build_bus(args)
+    served: ServedBus = bus
+    if getattr(args, "protocol", "2.0") == "1.0":
+        served = Protocol1Bus(bus.servos, baud=bus.baud)
     stop = StopFlag()
     with PtyLink.for_cli(args.link) as link:
         latency_file = _write_latency_timer(args, link.slave_name)
         print(f"PTY {link.slave_name} LINK {link.link_path}", flush=True)
         try:
             latency_s = args.usb_latency_ms / 1e3
-            stats = serve(bus, link, stop, wire_timing=args.wire_timing, usb_latency_s=latency_s)
+            stats = serve(served, link, stop, wire_timing=args.wire_timing, usb_latency_s=latency_s)
         finally:
             if latency_file is not None:
                 latency_file.unlink(missing_ok=True)

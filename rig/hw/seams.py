@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
 import numpy as np
 
 if TYPE_CHECKING:
+    from rig.hw.dxl.bus import WatchdogTrip
     from rig.hw.dxl.transport import BusStats  # the driver's counters (it imports this module)
 
 
@@ -235,6 +236,15 @@ class BusStatsSource(Protocol):
     @property
     def stats(self) -> BusStats:
         """A copy of the counters since the driver was made (retries, timeouts, corrupt replies, ...)."""
+        ...
+
+
+@runtime_checkable
+class WatchdogTripSource(Protocol):
+    """A servo bus that finds and clears Bus Watchdog trips mid-run (optional: check with isinstance)."""
+
+    def take_watchdog_trips(self) -> list[WatchdogTrip]:
+        """The trips found and cleared since the last call (each to be logged once)."""
         ...
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import operator
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from enum import IntEnum, StrEnum
 from typing import Any
 
@@ -612,6 +612,7 @@ class LogMessage:
 
 __all__ = [
     "SLIP_LIKE",
+    "ControlTickStats",
     "Estimate",
     "JointCapacity",
     "LogLevel",
@@ -634,19 +635,26 @@ __all__ = [
 class TrialLinkStats:
     """What the device links delivered and lost during one trial (`/rig/trial/links`).
 
-    `bus`: the servo bus's exchanges (retries, timeouts, corrupt replies, reboots, ...);
-    `loadcell`: the load cell's serial lines. A device that keeps no counts (the object-level
+    `bus`: the servo bus's exchanges (retries, timeouts, corrupt replies, reboots, Bus Watchdog
+    trips, ...); `loadcell`: the load cell's serial lines; `control`: the control loop's ticks and
+    how many started late. A device that keeps no counts (the object-level
     simulation) leaves its part out of the payload: absent, never null.
     """
 
     trial_id: int
     bus: BusStats | None = None
     loadcell: LoadCellLineStats | None = None
+    control: ControlTickStats | None = None
 
     def to_payload(self) -> dict[str, Any]:
         """The `/rig/trial/links` payload."""
         out: dict[str, Any] = {"trial_id": integer(self.trial_id, "trial_id")}
-        for name, counts in (("bus", self.bus), ("loadcell", self.loadcell)):
+        parts: tuple[tuple[str, Any], ...] = (
+            ("bus", self.bus),
+            ("loadcell", self.loadcell),
+            ("control", self.control),
+        )
+        for name, counts in parts:
             if counts is not None:
                 out[name] = {
                     f.name: integer(getattr(counts, f.name), f"{name}.{f.name}") for f in fields(counts)
@@ -661,12 +669,20 @@ class TrialLinkStats:
             part = payload.get(name)
             if not isinstance(part, Mapping) or all(v is None for v in part.values()):
                 return None
-            return kind(**{f.name: integer(part[f.name], f"{name}.{f.name}") for f in fields(kind)})
+            # A count added later (e.g. `bus.watchdog_trips`) is absent from older logs: its default.
+            return kind(
+                **{
+                    f.name: integer(part[f.name], f"{name}.{f.name}")
+                    for f in fields(kind)
+                    if part.get(f.name) is not None or f.default is MISSING
+                }
+            )
 
         return cls(
             trial_id=integer(payload["trial_id"], "trial_id"),
             bus=counts("bus", BusStats),
             loadcell=counts("loadcell", LoadCellLineStats),
+            control=counts("control", ControlTickStats),
         )
 
 
@@ -723,3 +739,17 @@ class ConfigurationMeasurement:
             commanded_angles_rad=_tuple_or_none(payload.get("commanded_angles_rad")),
             slipped_joint=integer_or_none(payload.get("slipped_joint"), "slipped_joint"),
         )
+
+
+@dataclass(frozen=True, slots=True)
+class ControlTickStats:
+    """The control loop's ticks during one trial (`control` of `/rig/trial/links`).
+
+    A tick is late when it starts after its scheduled time (the previous tick's work, or a host
+    pause, overran the period); its lateness is how much after.
+    """
+
+    ticks: int = 0
+    late_ticks: int = 0
+    max_lateness_us: int = 0
+    total_lateness_us: int = 0

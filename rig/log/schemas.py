@@ -33,6 +33,7 @@ from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats, LoadCellSample, ServoState
 from rig.log.records import (
     ConfigurationMeasurement,
+    ControlTickStats,
     Estimate,
     JointCapacity,
     LogLevel,
@@ -222,13 +223,14 @@ def _trial_links() -> dict[str, Any]:
     return _rig_object(
         "rig.TrialLinkStats",
         "What the device links delivered and lost during one trial; a device that keeps no counts is absent.",
-        _field_schemas(TrialLinkStats, exclude=("bus", "loadcell"))
+        _field_schemas(TrialLinkStats, exclude=("bus", "loadcell", "control"))
         + Fields(
             {
                 "bus": counts(BusStats, "the servo bus's exchanges during the trial"),
                 "loadcell": counts(LoadCellLineStats, "the load cell's serial lines during the trial"),
+                "control": counts(ControlTickStats, "the control loop's ticks during the trial"),
             },
-            frozenset({"bus", "loadcell"}),
+            frozenset({"bus", "loadcell", "control"}),
         ),
     )
 

@@ -43,4 +43,6 @@ class StepContext:
             control_period_s=self.protocol.control_period_s,
             tare_n=self.loop.tare_n,
             last=self.loop.reading(),
+            patience_s=self.config.servos.release_patience_s,
+            port=self.config.servos.port,
         )

@@ -5,6 +5,12 @@ blocking), hands both to the recorder and checks the interlocks; the steps read 
 (`states`, `tick_samples`, `force_n`) and wait with `ticks_for` / `wait_until`. The safe state's
 release does not tick here: it keeps its own readings (`rig.runner.release`) and hands them back
 when it ends (`adopt`).
+
+Two things the loop sees about time are logged, not absorbed: a tick that starts more than a
+tenth of a period after its scheduled time is late (counted per trial in `/rig/trial/links`
+`control`; one late by a whole period or more is a warning with its lateness), and a Bus
+Watchdog trip that the driver found and cleared after a quiet bus (a warning; the trial is void,
+raised as `BusWatchdogTripped`, and repeated as after any device fault that clears).
 """
 
 from __future__ import annotations
@@ -12,11 +18,17 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from rig.errors import InterlockTripped, StepTimeoutError
-from rig.hw.seams import LoadCellSample, ServoState
+from rig.errors import BusWatchdogTripped, InterlockTripped, StepTimeoutError
+from rig.hw.seams import LoadCellSample, ServoState, WatchdogTripSource
 from rig.hw.session import RigSession
+from rig.log.records import ControlTickStats, LogLevel
 from rig.runner.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
 from rig.runner.recorder import RunRecorder
+
+# A tick is late when it starts more than this fraction of a period after its scheduled time.
+LATE_TICK_FRACTION = 0.1
+# Warnings for late ticks: one per tick late by at least a period, up to this many per trial.
+MAX_LATE_TICK_NOTES = 10
 
 
 def tare_corrected(samples: list[LoadCellSample], tare_n: float) -> list[tuple[int, float]]:
@@ -57,6 +69,11 @@ class ControlLoop:
         self.force_n = 0.0  # latest tare-corrected tension
         self.states: dict[int, ServoState] = {}
         self.tick_samples: list[tuple[int, float]] = []  # (time_ns, tare-corrected force) this tick
+        self._ticks = 0
+        self._late_ticks = 0
+        self._max_lateness_ns = 0
+        self._total_lateness_ns = 0
+        self._late_notes = 0
 
     def restart_pacing(self) -> None:
         """Count the next period from now (after connecting, or after a pause outside the loop)."""
@@ -68,15 +85,66 @@ class ControlLoop:
             raise self.recorder.failed  # a run whose log cannot be written stops (a fault)
         self._next_tick_ns += self.period_ns
         now = self.clock.monotonic_ns()
-        if self._next_tick_ns > now:
+        self._ticks += 1
+        slept = self._next_tick_ns > now
+        if slept:
             self.clock.sleep((self._next_tick_ns - now) / 1e9)
-        else:
+            now = self.clock.monotonic_ns()
+        lateness_ns = now - self._next_tick_ns
+        self._late(lateness_ns)
+        if (lateness_ns > 0 and not slept) or lateness_ns >= self.period_ns:
             self._next_tick_ns = now  # late: do not try to catch up with a burst of ticks
         self.states = self.session.servos.read_states()
+        tripped = self.watchdog_trips()
         samples = self.session.load_cell.poll()
         self.ingest(samples)
+        if tripped is not None:
+            raise tripped
         if interlocks:
             self.check_interlocks()
+
+    def _late(self, lateness_ns: int) -> None:
+        """Count a late tick; a tick late by a whole period or more (one was skipped) is a warning.
+
+        Late means starting more than `LATE_TICK_FRACTION` of a period after the scheduled time
+        (a sleep's usual overshoot on a real host is not lateness).
+        """
+        if lateness_ns <= LATE_TICK_FRACTION * self.period_ns:
+            return
+        self._late_ticks += 1
+        self._total_lateness_ns += lateness_ns
+        self._max_lateness_ns = max(self._max_lateness_ns, lateness_ns)
+        if lateness_ns >= self.period_ns and self._late_notes < MAX_LATE_TICK_NOTES:
+            self._late_notes += 1
+            self.recorder.note(
+                LogLevel.WARNING,
+                f"control tick late by {lateness_ns / 1e6:.1f} ms (period {self.period_ns / 1e6:g} ms): "
+                "the host did not run in time (load, a slow disk, a suspend)",
+            )
+
+    def watchdog_trips(self) -> BusWatchdogTripped | None:
+        """Log the Bus Watchdog trips the driver cleared on this read; the error that voids the trial."""
+        servos = self.session.servos
+        if not isinstance(servos, WatchdogTripSource):
+            return None
+        trips = servos.take_watchdog_trips()
+        for trip in trips:
+            self.recorder.note(LogLevel.WARNING, trip.describe())
+        if not trips:
+            return None
+        return BusWatchdogTripped("; ".join(trip.describe() for trip in trips))
+
+    def take_tick_stats(self) -> ControlTickStats:
+        """The ticks since the last call (a trial's, when called at its start and end); resets them."""
+        stats = ControlTickStats(
+            ticks=self._ticks,
+            late_ticks=self._late_ticks,
+            max_lateness_us=self._max_lateness_ns // 1000,
+            total_lateness_us=self._total_lateness_ns // 1000,
+        )
+        self._ticks = self._late_ticks = self._max_lateness_ns = self._total_lateness_ns = 0
+        self._late_notes = 0
+        return stats
 
     def check_interlocks(self) -> None:
         """Raise InterlockTripped if this tick's samples or servo states trip an interlock."""

@@ -58,6 +58,7 @@ def recover(ctx: StepContext, trial: TrialPlan, exc: RigError) -> bool:
         except RigError:
             continue
         loop.ingest(samples)
+        loop.watchdog_trips()  # a trip found here is logged; the release resends its goal anyway
         home = abs(loop.states[winch].position_rad - zero) < POSITION_TOLERANCE_RAD
         if home and samples and not any(s.hardware_error for s in loop.states.values()):
             loop.restart_pacing()

@@ -9,18 +9,23 @@ its last readings back to the loop when it ends.
 Each stage goes on when an earlier one failed, and what was verified is recorded in `report`: a
 winch with a latched hardware error is rebooted first (its turn count is lost, so the zero is
 carried over into the new count); the goal goes out as a broadcast sync write, which needs no
-reply; the wait reads the winch's position back, and if the winch stops answering it waits the
-travel time blind. The load cell is optional: it may be what failed.
+reply; the wait reads the winch's position back. A bus that stops answering (a USB adapter that
+hangs) is given `patience_s` (`servos.release_patience_s`) per silence: when it answers again the
+goal goes out again (a servo whose Bus Watchdog tripped in the silence refused the first one; the
+driver has cleared the trip by then) and the wait goes on. A bus silent for longer, or a port that
+vanished, ends the wait unverified, with what is known of the winch in `report`. The load cell is
+optional: it may be what failed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 
-from rig.errors import RigError, StepTimeoutError
-from rig.hw.seams import LoadCellSample
+from rig.errors import NotConnectedError, RigError, StepTimeoutError
+from rig.hw.seams import LoadCellSample, WatchdogTripSource
 from rig.hw.session import RigSession
-from rig.log.records import ServoCommandName
+from rig.log.records import LogLevel, ServoCommandName
 from rig.protocol import RampSettings
 from rig.runner.control_loop import Reading, tare_corrected
 from rig.runner.recorder import RunRecorder
@@ -43,6 +48,8 @@ class LineRelease:
         control_period_s: float,
         tare_n: float,
         last: Reading,
+        patience_s: float = 0.0,
+        port: str = "the servo port",
     ) -> None:
         self.session = session
         self.clock = session.clock
@@ -53,6 +60,8 @@ class LineRelease:
         self.states = dict(last.states)
         self.tick_samples = list(last.tick_samples)
         self.force_n = last.force_n
+        self.patience_s = patience_s
+        self.port = port
         self.report: list[str] = []  # what the release did and verified
         self.verified = False  # the winch's position was read back at its zero-tension angle
 
@@ -76,33 +85,88 @@ class LineRelease:
             # The profile in force is one the ramp set: wait as long as the slowest would take.
             speed = min(speed, self.ramp.slow_speed_rad_s, self.ramp.fast_speed_rad_s)
             report.append(f"release speed not confirmed ({exc})")
-        servos.write_goal_positions({winch: zero_rad})
-        self.recorder.command(winch, ServoCommandName.GOAL_POSITION, zero_rad, "rad")
+        self._send_goal(zero_rad)
         last = self.states.get(winch)
         travel = abs(last.position_rad - zero_rad) if last is not None else 2 * math.pi
         wait_s = move_timeout_s(travel, speed, SAFE_STATE_MARGIN_S)
-        deadline = self.clock.monotonic_ns() + round(wait_s * 1e9)
-        answered = False
-        while self.clock.monotonic_ns() < deadline:
+        clock = self.clock
+        deadline = clock.monotonic_ns() + round(wait_s * 1e9)
+        silent_since: int | None = None  # when the bus stopped answering (None: it answers)
+        while True:
+            now = clock.monotonic_ns()
+            if silent_since is None and now >= deadline:
+                break
             try:
                 self._tick_without_interlocks()
+            except NotConnectedError:  # the port itself failed: no point in waiting
+                report.append(
+                    f"the servo port {self.port} is gone: the release was not confirmed (not verified)"
+                )
+                return zero_rad
             except RigError:
-                self.clock.sleep(self.control_period_s)  # not answering: wait out the travel
+                now = clock.monotonic_ns()
+                silent_since = now if silent_since is None else silent_since
+                if now - silent_since >= self.patience_s * 1e9 and now >= deadline:
+                    report.append(self._silent_bus_report(zero_rad, (now - silent_since) / 1e9))
+                    return zero_rad
+                clock.sleep(self.control_period_s)  # not answering: keep trying
                 continue
-            answered = True
+            if silent_since is not None or self._watchdog_tripped():
+                # The bus is back: a goal sent into the silence, or refused by a tripped watchdog,
+                # goes out again, and the winch gets the travel time from where it is now.
+                quiet_s = (clock.monotonic_ns() - silent_since) / 1e9 if silent_since is not None else 0.0
+                if silent_since is not None:
+                    report.append(f"the servo bus was silent for {quiet_s:.1f} s and answered again")
+                silent_since = None
+                with contextlib.suppress(RigError):  # the speed may not have been set in the silence
+                    servos.set_profile(winch, velocity_rad_s=speed)
+                self._send_goal(zero_rad)
+                travel = abs(self.states[winch].position_rad - zero_rad)
+                deadline = clock.monotonic_ns() + round(
+                    move_timeout_s(travel, speed, SAFE_STATE_MARGIN_S) * 1e9
+                )
             if abs(self.states[winch].position_rad - zero_rad) < POSITION_TOLERANCE_RAD:
                 self.verified = True
                 report.append("winch back at its zero-tension angle (read back)")
                 if self.tick_samples:  # the load cell, when it still works, says what is left
                     report.append(f"tension {self.force_n:+.2f} N (load cell)")
                 return zero_rad
-        if answered:
-            raise StepTimeoutError("winch did not return to zero tension within its timeout")
-        report.append(
-            f"winch not answering: its zero-tension goal went out by broadcast; it was given {wait_s:.1f} s"
-            " (not verified)"
+        raise StepTimeoutError("winch did not return to zero tension within its timeout")
+
+    def _send_goal(self, zero_rad: float) -> None:
+        """The zero-tension goal by broadcast (no reply needed); a port that fails is reported, not raised."""
+        winch = self.session.winch_id
+        try:
+            self.session.servos.write_goal_positions({winch: zero_rad})
+        except NotConnectedError:
+            self.report.append(f"zero-tension goal not sent (the servo port {self.port} failed)")
+            return
+        self.recorder.command(winch, ServoCommandName.GOAL_POSITION, zero_rad, "rad")
+
+    def _watchdog_tripped(self) -> bool:
+        """Whether the driver found (and cleared) a Bus Watchdog trip on this read; logged."""
+        servos = self.session.servos
+        if not isinstance(servos, WatchdogTripSource):
+            return False
+        trips = servos.take_watchdog_trips()
+        for trip in trips:
+            self.recorder.note(LogLevel.WARNING, trip.describe())
+            self.report.append(trip.describe())
+        return bool(trips)
+
+    def _silent_bus_report(self, zero_rad: float, silent_s: float) -> str:
+        """What is known of the winch when the bus stayed silent beyond the patience (for the report)."""
+        last = self.states.get(self.session.winch_id)
+        where = f"{last.position_rad - zero_rad:+.2f} rad from its zero-tension angle" if last else "unknown"
+        tension = f"; the load cell last read {self.force_n:+.2f} N" if self.tick_samples else ""
+        return (
+            f"the winch has not answered on the servo bus {self.port} for {silent_s:.1f} s "
+            f"(servos.release_patience_s {self.patience_s:g} s): it was last read {where}{tension}; its "
+            "zero-tension goal went "
+            "out by broadcast but was not confirmed, and if the servos did not hear it their Bus Watchdog "
+            "holds the winch where it was, torque on (not verified). Check the servo adapter's USB cable "
+            "and the servos' power supply"
         )
-        return zero_rad
 
     def _recover_winch(self, zero_rad: float) -> float:
         """Reboot a winch whose hardware error dropped its torque; the zero-tension angle after it.

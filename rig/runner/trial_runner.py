@@ -257,9 +257,10 @@ class TrialRunner:
         within `RECOVERY_GRACE_S`, the trial starts again from its first step; the retry is logged
         and counted in the journal. Otherwise the fault ends the run (exit 1).
         """
+        links = TrialLinkCounter(self.session, self.loop.take_tick_stats)  # over every attempt
         for retries in range(MAX_TRIAL_RETRIES + 1):
             try:
-                return self._run_trial(trial)
+                return self._run_trial(trial, links)
             except (
                 StaleDataError,
                 NotConnectedError,
@@ -280,13 +281,12 @@ class TrialRunner:
             )
         raise AssertionError("unreachable")
 
-    def _run_trial(self, trial: TrialPlan) -> TrialResult:
+    def _run_trial(self, trial: TrialPlan, links: TrialLinkCounter) -> TrialResult:
         self.trial = trial
         self.session.begin_trial(trial)
         start_ns = self.clock.time_ns()
         self.progress.trial_started(trial.trial_id, _describe(trial))
         found = TrialMeasurements(joint_angles_rad=trial.joint_angles_rad)
-        links = TrialLinkCounter(self.session)
         try:
             for step in trial.steps:
                 STEPS[step.kind](self.ctx, step, trial, found)
@@ -325,8 +325,15 @@ class TrialRunner:
         self.recorder.note(LogLevel.WARNING, f"trial {trial.trial_id}: aborted ({exc}); the run goes on")
 
     def _log_links(self, links: TrialLinkStats) -> None:
-        """Log the trial's link counts, and what the load cell lost as a note (a warning if anything)."""
+        """Log the trial's link counts; late control ticks and what the load cell lost as notes."""
         self.recorder.write(schemas.TRIAL_LINKS, links.to_payload())
+        ticks = links.control
+        if ticks is not None and ticks.late_ticks:
+            self.recorder.note(
+                LogLevel.WARNING,
+                f"trial {links.trial_id}: {ticks.late_ticks} of {ticks.ticks} control ticks started late, "
+                f"the latest by {ticks.max_lateness_us / 1000:.1f} ms",
+            )
         lines = links.loadcell
         if lines is not None:
             level = LogLevel.INFO if lines.lossless else LogLevel.WARNING

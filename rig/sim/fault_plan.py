@@ -8,7 +8,10 @@ clock, `at_s` after the invocation's start and, with `duration_s`, undone after 
 * `disconnect` servo: it neither hears nor answers (a cut cable; its Bus Watchdog trips);
 * `overload` servo: Hardware Error Status 0x20 latches and its torque drops, as a real overload;
 * `gap` / `silent` load cell: no lines for `duration_s` / from then on (stale data);
-* `disconnect` load cell: the host's serial port fails, as when a USB adapter is pulled out.
+* `disconnect` load cell: the host's serial port fails, as when a USB adapter is pulled out;
+* `pause` host: the host stops running for `duration_s` (a slow disk, a laptop suspend) while the
+  devices go on: virtual time jumps by that much with nothing said on the bus, so a pause longer
+  than the servos' Bus Watchdog trips it.
 
 Rate kinds (drop, corrupt, delay, garble, checksum) need `rate`; the others need `at_s`.
 
@@ -98,6 +101,8 @@ def apply_faults(
     for fault in faults:
         if fault.device == "loadcell":
             _loadcell_fault(fault, loadcell, schedule, start_ns)
+        elif fault.device == "host":
+            _host_pause(fault, clock, schedule, start_ns)
         elif fault.device != "logger":
             for servo_id in _servo_ids(config, fault.device):
                 _servo_fault(fault, servo_id, bus, schedule, start_ns)
@@ -169,3 +174,10 @@ def _loadcell_fault(
         schedule.at(begin, name, plug(True))
         if end is not None:
             schedule.at(end, f"{name} ends", plug(False))
+
+
+def _host_pause(fault: FaultConfig, clock: VirtualClock, schedule: FaultSchedule, start_ns: int) -> None:
+    """The host stops for `duration_s` at `at_s`: the clock jumps while the host is in a wait."""
+    begin, end = _window_ns(fault, start_ns)
+    assert end is not None  # a pause has a duration (parse_fault)
+    schedule.at(begin, "host pause", lambda: clock.advance_ns(end - begin))

@@ -25,8 +25,11 @@ Design decisions (see docs/design.md §7 for the facts behind them):
   (a broadcast sync write, then a confirmed write per servo), then closes the port; it keeps going
   through failures, defers Ctrl-C while torquing off, and re-raises the first error. The bus
   watchdog (address 98) is set when `bus_watchdog_ms` > 0: if the host crashes or stops talking
-  for that long, the servos stop by themselves (they hold position with torque on until the next
-  host clears the watchdog; this driver clears it on connect and after a reboot).
+  for that long, the servos stop by themselves (they hold position with torque on, and refuse
+  goals, until a host clears the watchdog). This driver clears it on connect, after a reboot, and
+  mid-run: a state read that follows a quiet bus (no answer for 80 % of the window: a host pause,
+  a bus that went silent) reads register 98 of every servo, clears a trip (writes 0, re-arms) and
+  counts it (`BusStats.watchdog_trips`); `take_watchdog_trips` hands the trips to the runner to log.
 """
 
 from __future__ import annotations
@@ -117,6 +120,27 @@ class ServoHealthReport:
     temperature_c: float
     hardware_error: int
     time_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class WatchdogTrip:
+    """A servo's Bus Watchdog found tripped (register 98 read -1) and cleared by the driver.
+
+    `quiet_s` is how long the host had heard nothing from the bus before the read that found it.
+    While tripped the servo held where it was and refused every goal write (Data Range error).
+    """
+
+    servo_id: int
+    role: str
+    quiet_s: float
+
+    def describe(self) -> str:
+        """One line for the log."""
+        return (
+            f"{servo_label(self.servo_id, self.role)}: Bus Watchdog tripped (the bus was quiet for "
+            f"{self.quiet_s:.2f} s); it held its position and refused goals until cleared; cleared and "
+            "re-armed"
+        )
 
 
 @dataclass(slots=True)
@@ -241,6 +265,10 @@ class DynamixelServoBus:
         self._block_length = 0
         self._offsets: dict[str, int] = {}
         self._state_ids: list[int] = list(self._servos)
+        # Bus Watchdog trips: when the host heard nothing for most of the window (a host pause, a
+        # bus that went quiet), the next state read checks register 98 of every servo.
+        self._last_answer_ns: int | None = None
+        self._watchdog_trips: list[WatchdogTrip] = []
 
     # ------------------------------------------------------------------ properties
 
@@ -454,6 +482,7 @@ class DynamixelServoBus:
                 raise
             # A silent servo garbles a fast sync read (COMM_RX_CORRUPT); the cause is a timeout.
             raise RigTimeoutError(f"{exc}; not answering a ping: {', '.join(silent)}") from exc
+        self._check_watchdogs_after_quiet()
         time_ns = self._clock.time_ns()
         off = self._offsets
         o_moving = off["Moving"]
@@ -487,6 +516,34 @@ class DynamixelServoBus:
                 time_ns=time_ns,
             )
         return states
+
+    def _check_watchdogs_after_quiet(self) -> None:
+        """After a quiet bus, read every servo's Bus Watchdog (98); clear and re-arm a tripped one.
+
+        A trip needs the servo to hear nothing for the whole window; the host's clock measures
+        the quiet from the last answer it had, and checks from 80 % of the window on (the two
+        clocks need not agree). A healthy run reads in every control period and never checks.
+        """
+        now_ns = self._clock.monotonic_ns()
+        last, self._last_answer_ns = self._last_answer_ns, now_ns
+        if self._bus_watchdog_ms <= 0 or last is None:
+            return
+        quiet_ns = now_ns - last
+        if quiet_ns < 0.8 * self._bus_watchdog_ms * 1e6:
+            return
+        for servo in self._servos.values():
+            if _field(servo.table, "Bus Watchdog") is None or not servo.torque_enabled:
+                continue  # only monitored while torque is on
+            if self._read(servo, "Bus Watchdog", alerts="record") != ct.BUS_WATCHDOG_TRIPPED:
+                continue
+            self._apply_watchdog(servo)
+            self._link.stats.watchdog_trips += 1
+            self._watchdog_trips.append(WatchdogTrip(servo.spec.servo_id, servo.spec.role, quiet_ns / 1e9))
+
+    def take_watchdog_trips(self) -> list[WatchdogTrip]:
+        """The Bus Watchdog trips found (and cleared) since the last call; the caller logs them."""
+        trips, self._watchdog_trips = self._watchdog_trips, []
+        return trips
 
     def raise_for_hardware_errors(self, states: Mapping[int, ServoState]) -> None:
         """Raise `ServoHardwareFault` for the first state with a non-zero hardware error."""
@@ -904,4 +961,4 @@ class DynamixelServoBus:
             )
 
 
-__all__ = ["DynamixelServoBus", "ServoHealthReport", "ServoInfo", "ServoSpecLike"]
+__all__ = ["DynamixelServoBus", "ServoHealthReport", "ServoInfo", "ServoSpecLike", "WatchdogTrip"]

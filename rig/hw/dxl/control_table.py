@@ -6,15 +6,18 @@ servo emulator (`rig.sim.dxl`) and the CLI all import from here, so each fact is
 addresses, unit constants, the baud-rate tables (the Baud Rate register's rates and the rates
 dynamixel-sdk can set), model name <-> number lookup, and two's-complement decoding (`to_signed`).
 
-Models: XM430-W350 (model number 1020) and XL430-W250 (1060), from the ROBOTIS e-manual as
-summarised in docs/design.md §7. The XL430 has no Current Limit (38) or Goal Current (102),
-reports Present Load (0.1 % of stall torque) at 126 instead of Present Current, and supports
-operating modes 1, 3, 4 and 16 only.
+Models: every `ServoModel`, one table each built from one X430 layout (`_x430_fields`, from the
+XM430-W350 and XL430-W250 e-manual pages, summarised in docs/design.md §7): the model's number and
+motor constants come from `rig.servo_ratings`, where it differs from the XM430-W350 (limits,
+defaults) from `_TABLE_DEFAULTS`. A model without current sensing (XL430, XC430, their 2X
+versions, MX-28(2.0)) has no Current Limit (38) or Goal Current (102), reports Present Load (0.1 %
+of stall torque) at 126 instead of Present Current, and supports operating modes 1, 3, 4 and 16
+only. The X540 models' External Port registers (56-58, 152-157) and the MX-28(2.0)'s Acceleration
+Limit (40) are not in the table: the rig does not use them.
 
 The motor constants (`stall_torque_nm`, `stall_current_a`, `no_load_speed_rad_s`) are the
-datasheet values at 12 V, from `rig.servo_ratings`; `torque_constant_nm_per_a = stall_torque_nm /
-stall_current_a` is the output-shaft torque per ampere the emulator uses (XM430-W350: 4.1 N·m /
-2.3 A ≈ 1.78 N·m/A).
+datasheet values at 12 V; `torque_constant_nm_per_a = stall_torque_nm / stall_current_a` is the
+output-shaft torque per ampere the emulator uses (XM430-W350: 4.1 N·m / 2.3 A ≈ 1.78 N·m/A).
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Literal, assert_never
+from typing import Literal
 
 from rig.errors import InputError
 from rig.servo_ratings import MOTOR_RATINGS
@@ -42,6 +45,7 @@ RAD_S2_PER_ACCELERATION_UNIT = ACCELERATION_UNIT_REV_MIN2 * 2.0 * math.pi / 3600
 RETURN_DELAY_UNIT_S = 2e-6
 BUS_WATCHDOG_UNIT_MS = 20
 BUS_WATCHDOG_UNIT_S = BUS_WATCHDOG_UNIT_MS / 1000
+BUS_WATCHDOG_TRIPPED = 0xFF  # Bus Watchdog (98) reads -1 after a trip, until 0 is written
 LOAD_UNIT_PERCENT = 0.1  # XL430 Present Load
 
 EEPROM_END = 64  # addresses below this are EEPROM (locked while Torque Enable = 1)
@@ -363,57 +367,88 @@ def _x430_fields(
     return tuple(rows)
 
 
-XM430_W350 = ControlTable(
-    model_name=ServoModel.XM430_W350,
-    model_number=1020,
-    fields=_x430_fields(
-        model_number=1020,
-        has_current=True,
-        temperature_limit=80,
-        voltage_limits=(160, 95, 95, 160),
-        current_limit=1193,
-        velocity_limit=200,
-        gains=(1920, 100, 0, 0, 800),
-        modes=frozenset({0, 1, 3, 4, 5, 16}),
-    ),
-    operating_modes=frozenset({0, 1, 3, 4, 5, 16}),
-    stall_torque_nm=MOTOR_RATINGS[ServoModel.XM430_W350].stall_torque_nm,
-    stall_current_a=MOTOR_RATINGS[ServoModel.XM430_W350].stall_current_a,
-    no_load_speed_rad_s=MOTOR_RATINGS[ServoModel.XM430_W350].no_load_speed_rad_s,
-)
+@dataclass(frozen=True)
+class _TableDefaults:
+    """Where a model's table differs from the XM430-W350's: limits' defaults and ranges, modes.
 
-XL430_W250 = ControlTable(
-    model_name=ServoModel.XL430_W250,
-    model_number=1060,
-    fields=_x430_fields(
-        model_number=1060,
-        has_current=False,
-        temperature_limit=72,
-        voltage_limits=(140, 60, 60, 140),
-        current_limit=0,
-        velocity_limit=265,  # notes: 265 or 415 depending on the doc revision; read it from the device
-        gains=(1000, 100, 4000, 0, 640),
-        modes=frozenset({1, 3, 4, 16}),
-    ),
-    operating_modes=frozenset({1, 3, 4, 16}),
-    stall_torque_nm=MOTOR_RATINGS[ServoModel.XL430_W250].stall_torque_nm,
-    stall_current_a=MOTOR_RATINGS[ServoModel.XL430_W250].stall_current_a,
-    no_load_speed_rad_s=MOTOR_RATINGS[ServoModel.XL430_W250].no_load_speed_rad_s,
+    From the XM430-W350 and XL430-W250 e-manual pages and each model's Current Limit maximum (its
+    e-manual page; ROBOTIS Dynamixel2Arduino). The gains, Temperature Limit and Voltage Limit
+    defaults of the models other than those two are their family's (not checked per model): they
+    are only the emulator's starting values, and the driver reads what it uses from the device.
+    """
+
+    current_limit: int = 1193  # Current Limit (38) maximum and default, 2.69 mA units; 0: no current
+    temperature_limit: int = 80
+    voltage_limits: tuple[int, int, int, int] = (160, 95, 95, 160)  # max default, min default, range
+    velocity_limit: int | None = None  # Velocity Limit (44) default; None: the no-load speed
+    gains: tuple[int, int, int, int, int] = (1920, 100, 0, 0, 800)
+    has_led: bool = True  # XW: no LED (65)
+
+
+_CURRENT_MODES = frozenset({0, 1, 3, 4, 5, 16})
+_NO_CURRENT_MODES = frozenset({1, 3, 4, 16})
+_XL430 = _TableDefaults(
+    current_limit=0, temperature_limit=72, voltage_limits=(140, 60, 60, 140), velocity_limit=265,
+    gains=(1000, 100, 4000, 0, 640),
+)  # fmt: skip
+_XC430 = _TableDefaults(current_limit=0, voltage_limits=(160, 60, 60, 160), gains=(1000, 100, 4000, 0, 640))
+_X540 = _TableDefaults(current_limit=2047)
+_TABLE_DEFAULTS: Mapping[ServoModel, _TableDefaults] = MappingProxyType(
+    {
+        ServoModel.XM430_W350: _TableDefaults(velocity_limit=200),
+        ServoModel.XM430_W210: _TableDefaults(),
+        ServoModel.XH430_W210: _TableDefaults(current_limit=648),
+        ServoModel.XH430_W350: _TableDefaults(current_limit=648),
+        ServoModel.XM540_W150: _X540,
+        ServoModel.XM540_W270: _X540,
+        ServoModel.XH540_W150: _X540,
+        ServoModel.XH540_W270: _X540,
+        ServoModel.XW540_T140: _TableDefaults(current_limit=2047, has_led=False),
+        ServoModel.XL430_W250: _XL430,  # velocity limit: 265 or 415 by doc revision; read it from the device
+        ServoModel.TWO_XL430_W250: _XL430,
+        ServoModel.XC430_W150: _XC430,
+        ServoModel.XC430_W240: _XC430,
+        ServoModel.TWO_XC430_W250: _XC430,
+        ServoModel.MX_28_2: _TableDefaults(current_limit=0),
+    }
 )
 
 
 def control_table(model: ServoModel) -> ControlTable:
-    """The control table of one model (mypy names this match when a model is added)."""
-    match model:
-        case ServoModel.XM430_W350:
-            return XM430_W350
-        case ServoModel.XL430_W250:
-            return XL430_W250
-        case _:
-            assert_never(model)
+    """The control table of one model, from its facts (`rig.servo_ratings`) and table defaults."""
+    rating = MOTOR_RATINGS[model]
+    defaults = _TABLE_DEFAULTS[model]
+    has_current = rating.current_sensing
+    modes = _CURRENT_MODES if has_current else _NO_CURRENT_MODES
+    velocity_limit = defaults.velocity_limit
+    if velocity_limit is None:
+        velocity_limit = min(1023, math.floor(rating.no_load_speed_rad_s / RAD_S_PER_VELOCITY_UNIT))
+    fields = _x430_fields(
+        model_number=rating.model_number,
+        has_current=has_current,
+        temperature_limit=defaults.temperature_limit,
+        voltage_limits=defaults.voltage_limits,
+        current_limit=defaults.current_limit,
+        velocity_limit=velocity_limit,
+        gains=defaults.gains,
+        modes=modes,
+    )
+    if not defaults.has_led:
+        fields = tuple(f for f in fields if f.name != "LED")
+    return ControlTable(
+        model_name=model,
+        model_number=rating.model_number,
+        fields=fields,
+        operating_modes=modes,
+        stall_torque_nm=rating.stall_torque_nm,
+        stall_current_a=rating.stall_current_a,
+        no_load_speed_rad_s=rating.no_load_speed_rad_s,
+    )
 
 
 MODELS: Mapping[ServoModel, ControlTable] = MappingProxyType({m: control_table(m) for m in ServoModel})
+XM430_W350 = MODELS[ServoModel.XM430_W350]
+XL430_W250 = MODELS[ServoModel.XL430_W250]
 MODELS_BY_NUMBER: Mapping[int, ControlTable] = MappingProxyType({t.model_number: t for t in MODELS.values()})
 
 

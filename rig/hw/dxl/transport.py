@@ -20,6 +20,7 @@ field names, SI units, the Alert bit and limits belong to `rig.hw.dxl.bus`.
 from __future__ import annotations
 
 import contextlib
+import termios
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any, TypeVar
@@ -50,6 +51,16 @@ from rig.hw.seams import Clock
 T = TypeVar("T")
 
 
+def port_vanished(port_name: str, exc: BaseException) -> str:
+    """The message for a servo port that failed under an open connection (the adapter gone)."""
+    detail = exc.args[1] if isinstance(exc, termios.error) and len(exc.args) > 1 else str(exc)
+    return (
+        f"servo port {port_name} vanished ({detail}): the servo adapter (e.g. a U2D2) was unplugged or lost "
+        "power; plug it back in, check that it is listed in /dev/serial/by-id/, and resume the run "
+        "(`rig run PROTOCOL --rig CONFIG --resume RUN_ID`)"
+    )
+
+
 class BusOwnershipError(RigError, RuntimeError):
     """The bus was used re-entrantly (it has exactly one owner and is not thread-safe)."""
 
@@ -73,6 +84,7 @@ class BusStats:
     fast_sync_reads: int = 0
     sync_reads: int = 0
     sync_writes: int = 0
+    watchdog_trips: int = 0  # Bus Watchdog trips found (register 98 read -1) and cleared
 
     def since(self, earlier: BusStats) -> BusStats:
         """The counts after `earlier` (e.g. one trial's); all of these if the driver was made since."""
@@ -83,14 +95,16 @@ class BusStats:
 
     @property
     def clean(self) -> bool:
-        """No retry, timeout, corrupt reply, failed operation or reboot."""
-        return not (self.retries or self.timeouts or self.corrupt or self.failures or self.reboots)
+        """No retry, timeout, corrupt reply, failed operation, reboot or Bus Watchdog trip."""
+        lost = (self.retries, self.timeouts, self.corrupt, self.failures)
+        return not any(lost) and not self.reboots and not self.watchdog_trips
 
     def describe(self) -> str:
         """One line for an operator."""
         return (
             f"{self.operations} operations; {self.retries} retries, {self.timeouts} timeouts, "
             f"{self.corrupt} corrupt replies, {self.failures} failures, {self.reboots} reboots"
+            + (f", {self.watchdog_trips} Bus Watchdog trips" if self.watchdog_trips else "")
         )
 
 
@@ -294,11 +308,16 @@ class Transport:
             self._busy = False
 
     def _sdk(self, fn: Callable[..., T], *args: Any) -> T:
-        """Call the SDK; its stray exceptions become a retryable failure or `NotConnectedError`."""
+        """Call the SDK; its stray exceptions become a retryable failure or `NotConnectedError`.
+
+        A port that fails under the SDK (EIO when a USB adapter is pulled out; pyserial raises it as
+        `SerialException`, `OSError` or, from its buffer flush, `termios.error`) is reported as the
+        port that vanished, with what to do.
+        """
         try:
             return fn(*args)
-        except (serial.SerialException, OSError) as exc:
-            raise NotConnectedError(f"servo port {self.port_name} failed: {exc}") from exc
+        except (serial.SerialException, OSError, termios.error) as exc:
+            raise NotConnectedError(port_vanished(self.port_name, exc)) from exc
         except (IndexError, ValueError, TypeError, KeyError) as exc:
             if self._port is not None:
                 self._port.is_using = False

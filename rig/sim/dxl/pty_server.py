@@ -19,11 +19,22 @@ import heapq
 import select
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
-from rig.sim.dxl.bus import EmulatedBus
+from rig.sim.dxl.bus import Reply
 from rig.sim.pty_link import PtyLink, StopFlag
 
 IDLE_POLL_MS = 50  # how often the loop looks at the stop flag when nothing happens
+
+
+class ServedBus(Protocol):
+    """What `serve` needs of a bus: the line rate to set, and bytes in, replies out."""
+
+    baud: int
+
+    def feed(self, data: bytes, now_ns: int) -> list[Reply]:
+        """The replies to the bytes the host starts writing at `now_ns`."""
+        ...
 
 
 @dataclass(slots=True)
@@ -37,7 +48,7 @@ class ServeStats:
 
 
 def serve(
-    bus: EmulatedBus,
+    bus: ServedBus,
     link: PtyLink,
     stop: StopFlag,
     *,

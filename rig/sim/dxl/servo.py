@@ -46,7 +46,7 @@ from rig.sim.dxl.shaft_motion import IntegratedShaft
 OVERLOAD_FRACTION = 0.95
 DEFAULT_OVERLOAD_TIME_S = 1.5
 DEFAULT_BOOT_TIME_S = 0.25
-WATCHDOG_TRIPPED = 0xFF  # Bus Watchdog reads -1 after a trip
+WATCHDOG_TRIPPED = ct.BUS_WATCHDOG_TRIPPED  # Bus Watchdog reads -1 after a trip
 _INDIRECT_DATA_RANGES = tuple(
     (data_base, data_base + count, addr_base) for addr_base, data_base, count, _ in ct.INDIRECT_ADDRESS_BLOCKS
 )
