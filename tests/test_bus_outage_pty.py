@@ -52,6 +52,9 @@ def _rig(tmp_path: Path, servo_link: str, cell_link: Path, patience_s: float) ->
         f"""\
 kind: hardware
 spool_radius_m: 0.01
+# The cell reads a constant 0.5 N: no slip, so the ramp ends on its timeout, which this nominal
+# stiffness keeps short (the default 200 N/m would allow minutes).
+line_stiffness_n_per_m: 2000
 servos:
   port: {servo_link}
   baud: 1000000

@@ -27,9 +27,23 @@ def test_the_shipped_protocols_are_found() -> None:
     assert "example_link" not in names  # a link file, not a protocol
 
 
+TEMPLATE_SEGMENTS = "segment_lengths_m: [0.04, 0.04, 0.04, 0.04, 0.04, 0.04, 0.04, 0.04]"
+
+
+def _template_for(protocol: Path, tmp_path: Path) -> Path:
+    """The template, or for a link-2 protocol (10 joints) a lab's copy of it with link 2's ten segments."""
+    if "link2" not in protocol.stem:
+        return TEMPLATE
+    text = TEMPLATE.read_text()
+    assert TEMPLATE_SEGMENTS in text
+    copy = tmp_path / "hardware-link2.yaml"
+    copy.write_text(text.replace(TEMPLATE_SEGMENTS, "segment_lengths_m: [" + ", ".join(["0.04"] * 10) + "]"))
+    return copy
+
+
 @pytest.mark.parametrize("protocol", PROTOCOLS, ids=lambda p: p.stem)
-def test_template_dry_runs_pass(protocol: Path, run_cli: Callable[..., Any]) -> None:
-    result = run_cli("run", protocol, "--rig", TEMPLATE, "--dry-run")
+def test_template_dry_runs_pass(protocol: Path, run_cli: Callable[..., Any], tmp_path: Path) -> None:
+    result = run_cli("run", protocol, "--rig", _template_for(protocol, tmp_path), "--dry-run")
     assert result.code == 0, result.err
     assert "nothing was moved" in result.out
     assert "does not exist yet" in result.out  # the calibration is made after the plan, and said so
