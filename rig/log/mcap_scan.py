@@ -212,6 +212,7 @@ class FileScan:
     attachments: list[Attachment] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     window: tuple[int, int] = ALL_TIMES
+    deferred: frozenset[str] = frozenset()  # wanted topics only located (spans), read later by window
     spans: list[Span] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -243,7 +244,9 @@ class FileScan:
         self.channels[channel_id] = channel
         sink = None
         if self.wanted is None or channel.topic in self.wanted:
-            if channel.message_encoding == "json":
+            if channel.topic in self.deferred:
+                pass
+            elif channel.message_encoding == "json":
                 sink = self.batches.get(channel.topic)
                 if sink is None:
                     sink = self.batches[channel.topic] = TopicBatches(channel.topic, self.batch_size)

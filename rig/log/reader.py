@@ -5,11 +5,12 @@ survived and what is bounded); `read_run` puts the scans of a run's files togeth
 order, and `RunLog` is the view of the run: per-topic DataFrames decoded on first use, metadata,
 attachments, counts and the warnings of what was lost.
 
-A run read with `topics=` keeps only those topics' messages; `RunLog.window` reads any topic's
-messages of a time span from the files again (only the chunks that may hold them), and
-`RunLog.last_before` the latest message before a time: so the high-rate topics (`/rig/loadcell`,
-`/rig/servo/state`) of a long run are held one trial at a time, never whole. A topic that was not
-kept is read in full on the first `RunLog.topic` call.
+A run read with `topics=` keeps only those topics' messages, and with `deferred=` keeps none of
+those topics' but still locates them; `RunLog.window` reads any topic's messages of a time span
+from the files again (only the chunks that may hold them), and `RunLog.last_before` the latest
+message before a time: so the high-rate topics (`/rig/loadcell`, `/rig/servo/state`) of a long run
+are held one trial at a time, never whole. A topic that was not kept is read in full on the first
+`RunLog.topic` call.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ class RunLog:
         warnings: list[str],
         sources: list[SpanSource] | None = None,
         kept: frozenset[str] | None = None,
+        deferred: frozenset[str] = frozenset(),
         batch_size: int = DEFAULT_BATCH_SIZE,
     ) -> None:
         self.reports = reports
@@ -61,7 +63,8 @@ class RunLog:
         self._batches = batches
         self._frames: dict[str, pd.DataFrame] = {}
         self._sources = sources or []  # in the order the files were scanned
-        self._kept = kept  # the topics whose messages were kept (None: all)
+        self._kept = kept  # the topics whose messages were kept (None: all but the deferred ones)
+        self._deferred = deferred
         self._batch_size = batch_size
 
     @property
@@ -105,7 +108,7 @@ class RunLog:
         return self._frames[name]
 
     def _was_kept(self, name: str) -> bool:
-        return self._kept is None or name in self._kept
+        return (self._kept is None or name in self._kept) and name not in self._deferred
 
     def _note(self, warnings: Iterable[str]) -> None:
         self.warnings.extend(w for w in warnings if w not in self.warnings)
@@ -198,20 +201,29 @@ def read_run(
     paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     *,
     topics: Iterable[str] | None = None,
+    deferred: Iterable[str] = (),
     batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> RunLog:
     """Read one run from MCAP files (a path, a directory or a list), tolerating crashes and damage.
 
     :param topics: decode only these topics (all are still counted); None decodes every topic.
+    :param deferred: topics not decoded now but read by time span later (`RunLog.window`); their
+        channels are checked (a non-JSON one is warned about) as for a decoded topic.
     :param batch_size: payloads decoded per batch; bounds the memory of pending raw payloads.
     """
     wanted = None if topics is None else frozenset(topics)
+    later = frozenset(deferred)
     batches: dict[str, TopicBatches] = {}
     scans: list[FileScan] = []
     sources: list[SpanSource] = []
     for path in mcap_files(paths):
         scan = FileScan(
-            path=path, size=path.stat().st_size, batches=batches, wanted=wanted, batch_size=batch_size
+            path=path,
+            size=path.stat().st_size,
+            batches=batches,
+            wanted=wanted,
+            batch_size=batch_size,
+            deferred=later,
         )
         if scan.size == 0:
             scan.warn("empty file (nothing was written); no data")
@@ -243,5 +255,6 @@ def read_run(
         warnings=warnings,
         sources=sources,
         kept=wanted,
+        deferred=later,
         batch_size=batch_size,
     )
