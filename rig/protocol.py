@@ -46,8 +46,9 @@ DEFAULT_STEPS: dict[TrialKind, tuple[StepKind, ...]] = {
         StepKind.RESET, StepKind.PAUSE,
     ),
 }  # fmt: skip
-# Steps that move or read the bending fixture: only a link-validation trial has them.
-LINK_ONLY_STEPS = frozenset({StepKind.BEND, StepKind.RESET, StepKind.MEASURE})
+# Steps that move the bending fixture: only a link-validation trial has them. (`measure` may be in a
+# joint-estimation template too: with a camera, the configuration before the slip tells which joint moved.)
+LINK_ONLY_STEPS = frozenset({StepKind.BEND, StepKind.RESET})
 # Size limits (docs/formats.md §1): generous for any real protocol, small enough that a hostile
 # file cannot make the plan take minutes or gigabytes.
 MAX_BLOCKS = 100
@@ -169,6 +170,21 @@ class LinkValidationBlockFields:
         ),
     )
     steps: tuple[str, ...] = field(default=(), metadata=_STEPS)
+    bend_tolerance_deg: float = field(
+        default=1.0,
+        metadata=number(
+            0.01,
+            10.0,
+            unit="°",
+            doc="a bent configuration within this of its target (every joint) needs no correction",
+        ),
+    )
+    bend_corrections: int = field(
+        default=2,
+        metadata=integer(
+            0, 10, doc="at most this many corrections after bending by forks (bend, measure, correct)"
+        ),
+    )
 
 
 # The keys of each joint-estimation design: the other design's are refused by name.
@@ -250,6 +266,8 @@ class TrialPlan:
     distance_m: float | None = None
     joint_angles_rad: tuple[float, ...] | None = None
     configuration_index: int | None = None
+    bend_tolerance_rad: float = math.radians(1.0)  # link validation: reached within this needs no correction
+    bend_corrections: int = 2  # link validation: at most this many corrections
 
     def prompt_text(self, template: str) -> str:
         """The operator prompt for this trial with its fields filled in."""
@@ -656,6 +674,8 @@ def _adaptive_block(
 def _link_validation_block(block: Section, b: int, offset: int, joint_count: int | None) -> list[TrialPlan]:
     reject_undeclared(block, LinkValidationBlockFields)
     repeats = read_field(block, LinkValidationBlockFields, "repeats")
+    tolerance_rad = math.radians(read_field(block, LinkValidationBlockFields, "bend_tolerance_deg"))
+    corrections = read_field(block, LinkValidationBlockFields, "bend_corrections")
     steps = _steps(block, TrialKind.LINK_VALIDATION)
     configs = block.sequence("configurations_deg", min_length=1, max_length=MAX_ITEMS)
     angles: list[tuple[float, ...]] = []
@@ -677,6 +697,8 @@ def _link_validation_block(block: Section, b: int, offset: int, joint_count: int
                     steps=steps,
                     joint_angles_rad=config,
                     configuration_index=c + 1,
+                    bend_tolerance_rad=tolerance_rad,
+                    bend_corrections=corrections,
                 )
             )
     return trials

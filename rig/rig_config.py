@@ -9,7 +9,7 @@ serial ports (template: `protocols/rigs/hardware.example.yaml`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
@@ -22,7 +22,16 @@ from rig.files import parse_yaml, read_text_file
 from rig.servo_ratings import STALL_TENSION_CEILING_RATIO, current_for_tension_a, stall_tension_n
 from rig.sim_config import SimulationConfig, parse_simulation
 from rig.validate import Section, read_field, read_fields, reject_undeclared
-from rig.vocabulary import SERVO_BAUDS, LoadCellFormatName, RigKind, ServoModel, ServoRole
+from rig.vocabulary import (
+    LOADCELL_FORMAT_TRAITS,
+    SERVO_BAUDS,
+    UART_BITS_PER_BYTE,
+    ConfigurationSourceKind,
+    LoadCellFormatName,
+    RigKind,
+    ServoModel,
+    ServoRole,
+)
 
 # The built-in simulated rig, shipped as package data. A package installed as a directory (a wheel or
 # an editable install) gives a real path, which the journal records for `--resume`.
@@ -38,6 +47,14 @@ class ServoSpec:
     servo_id: int = field(metadata=integer(0, 252, key="id"))
     role: ServoRole = field(metadata=choice(ServoRole))
     model: ServoModel = field(default=ServoModel.XM430_W350, metadata=choice(ServoModel))
+    component: int | None = field(
+        default=None,
+        metadata=custom(
+            default_doc="none",
+            allowed_doc="1..J, each component at most once; benders only",
+            doc="the link component whose fork this bender drives (docs/bending.md)",
+        ),
+    )
 
 
 # The servos' Bus Watchdog unless a config says otherwise (0 turns it off): a servo that hears nothing
@@ -88,7 +105,15 @@ class LoadCellConfig:
             "convention when simulated)"
         )
     )
-    baud: int = field(default=921_600, metadata=integer(1200, 4_000_000))
+    baud: int = field(
+        default=115_200,
+        metadata=integer(
+            1200,
+            4_000_000,
+            doc="must carry `rate_hz` lines of the format (8N1, the longest line): rig-lc1 at 115200 "
+            "carries up to 311/s, at 921600 up to 2490/s",
+        ),
+    )
     format: LoadCellFormatName = field(
         default=LoadCellFormatName.RIG_LC1, metadata=choice(LoadCellFormatName)
     )
@@ -96,9 +121,42 @@ class LoadCellConfig:
         default=None,
         metadata=custom(
             key="calibration",
-            allowed_doc="a §6 file, relative to the config; required on hardware; when given it must be "
-            "valid for a simulated rig too (`rig run`, also `--dry-run`, reads it), though the simulated "
-            "cell keeps its nominal calibration",
+            allowed_doc="a §6 file, relative to the config; required on hardware (`rig run --dry-run` only "
+            "notes one not made yet); when given it must be valid for a simulated rig too (`rig run`, also "
+            "`--dry-run`, reads it), though the simulated cell keeps its nominal calibration",
+        ),
+    )
+    capacity_n: float | None = field(
+        default=None,
+        metadata=number(
+            0.1,
+            100_000.0,
+            unit="N",
+            optional=True,
+            doc="the cell's rated capacity; `rig check` checks that the force ceiling and the winch's "
+            "stall tension stay below it",
+        ),
+    )
+    # Appended fields (issue 21): the cell's rate and the boot grace after opening its port.
+    rate_hz: float | None = field(
+        default=None,
+        metadata=number(
+            0.1,
+            2000.0,
+            unit="1/s",
+            default_doc="none (simulated: `simulation.loadcell_rate_hz`)",
+            doc="samples per second the cell sends, or a polled format's poll rate (required for "
+            "one); sets the stale timeout's default and is checked against `baud`",
+        ),
+    )
+    boot_grace_s: float = field(
+        default=3.0,
+        metadata=number(
+            0.0,
+            30.0,
+            unit="s",
+            doc="after opening the port, how long the first valid sample may take (an Arduino "
+            "resets when its port opens and is silent 1-3 s); then `limits.stale_timeout_s` applies",
         ),
     )
 
@@ -119,7 +177,14 @@ class RigLimits:
         )
     )
     stale_timeout_s: float = field(
-        default=0.2, metadata=number(0.005, 10.0, unit="s", doc="without a valid load-cell sample")
+        default=0.2,
+        metadata=number(
+            0.005,
+            10.0,
+            unit="s",
+            default_doc="5 sample periods of the cell's rate, at least 0.2 (0.2 without a rate)",
+            doc="without a valid load-cell sample",
+        ),
     )
     max_winch_travel_rev: float = field(default=20.0, metadata=number(0.1, 255.0, unit="rev"))
     zero_tolerance_n: float = field(
@@ -163,6 +228,66 @@ class ArticleConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class ConfigurationConfig:
+    """Where the measured link configuration comes from (`configuration:`; docs/formats.md)."""
+
+    source: ConfigurationSourceKind | None = field(
+        default=None,
+        metadata=choice(
+            ConfigurationSourceKind,
+            default_doc="`simulator` on a simulated rig, `command` on hardware",
+            doc="`command`: nothing is measured, the commanded angles stand in",
+        ),
+    )
+    file: Path | None = field(
+        default=None,
+        metadata=custom(
+            default_doc="none",
+            allowed_doc="a CSV or YAML file of measured angles per configuration (the format: "
+            '"Measured configurations" below), relative to the config; required with `source: file`',
+        ),
+    )
+    camera: Path | None = field(
+        default=None,
+        metadata=custom(
+            default_doc="none",
+            allowed_doc="the camera calibration (OpenCV FileStorage YAML), relative to the config; "
+            "required with `source: camera`",
+        ),
+    )
+    markers: Path | None = field(
+        default=None,
+        metadata=custom(
+            default_doc="none",
+            allowed_doc="the marker map, relative to the config; required with `source: camera`",
+        ),
+    )
+    device: int = field(default=0, metadata=integer(0, 63, doc="the camera's device index"))
+
+
+@dataclass(frozen=True, kw_only=True)
+class BendingConfig:
+    """The bending fixture's forks (`bending:`): how a bender's shaft turns into fork travel."""
+
+    pinion_radius_m: float = field(
+        default=0.01,
+        metadata=number(0.001, 0.1, unit="m", doc="fork travel per rad of bender shaft (rack and pinion)"),
+    )
+
+
+def configuration_source_kind(config: RigConfig) -> ConfigurationSourceKind:
+    """The configuration source a rig config selects (its default depends on the rig's kind)."""
+    chosen = config.configuration.source
+    if chosen is not None:
+        return chosen
+    return (
+        ConfigurationSourceKind.SIMULATOR
+        if config.kind == RigKind.SIMULATED
+        else ConfigurationSourceKind.COMMAND
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
 class RigConfig:
     """A validated rig config."""
 
@@ -182,13 +307,24 @@ class RigConfig:
         ),
     )
     line_stiffness_n_per_m: float = field(
-        default=2000.0, metadata=number(1.0, 1e7, unit="N/m", doc="nominal; used for plans and timeouts")
+        default=200.0,
+        metadata=number(
+            1.0,
+            1e7,
+            unit="N/m",
+            doc="nominal; used for plans and timeouts (200: about a metre of thin nylon line); "
+            "`rig check --move` measures it",
+        ),
     )
     servos: ServoBusConfig = field(metadata=section())
     loadcell: LoadCellConfig = field(metadata=section())
     article: ArticleConfig = field(metadata=section())
     limits: RigLimits = field(metadata=section())
     simulation: SimulationConfig | None = field(default=None, metadata=section(default_doc="none"))
+    configuration: ConfigurationConfig = field(
+        default_factory=lambda: ConfigurationConfig(), metadata=section(default_doc="see the fields")
+    )
+    bending: BendingConfig = field(default_factory=lambda: BendingConfig(), metadata=section())
 
     @property
     def winch_stall_tension_n(self) -> float:
@@ -266,6 +402,8 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
         simulation = parse_simulation(top.section("simulation", default={}), article.joint_count)
     elif top.has("simulation"):
         raise top.error("simulation", "only allowed with kind: simulated")
+    loadcell = _loadcell(top.section("loadcell"), base_dir or Path("."))
+    loadcell = _loadcell_rate(top, loadcell, simulation)
     values = read_fields(
         top,
         RigConfig,
@@ -276,12 +414,72 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             "reel_direction": _reel_direction(top),
             "kind": kind,
             "servos": _servo_bus(top.section("servos")),
-            "loadcell": _loadcell(top.section("loadcell"), base_dir or Path(".")),
+            "loadcell": loadcell,
             "article": article,
             "simulation": simulation,
+            "configuration": _configuration(top, kind, base_dir or Path(".")),
+            "bending": _bending(top),
         },
     )
-    return RigConfig(**values)
+    if loadcell.rate_hz is not None and not top.section("limits").has("stale_timeout_s"):
+        values["limits"] = replace(
+            values["limits"], stale_timeout_s=default_stale_timeout_s(loadcell.rate_hz)
+        )
+    config = RigConfig(**values)
+    _check_forks(top, config)
+    return config
+
+
+# The stale timeout's default for a cell of known rate: 5 sample periods, at least 0.2 s (so the
+# 1000/s default is unchanged). The driver uses the same rule.
+MIN_STALE_TIMEOUT_S = 0.2
+STALE_SAMPLE_PERIODS = 5
+
+
+def default_stale_timeout_s(rate_hz: float) -> float:
+    """The stale timeout for a cell at `rate_hz`: five sample periods, but at least 0.2 s."""
+    return max(MIN_STALE_TIMEOUT_S, STALE_SAMPLE_PERIODS / rate_hz)
+
+
+def _loadcell_rate(
+    top: Section, loadcell: LoadCellConfig, simulation: SimulationConfig | None
+) -> LoadCellConfig:
+    """The cell's rate (a simulated cell's: its simulation's), checked against the baud rate and format."""
+    sec = top.section("loadcell")
+    traits = LOADCELL_FORMAT_TRAITS[loadcell.format]
+    rate_hz = loadcell.rate_hz
+    if simulation is not None:
+        if rate_hz is not None and rate_hz != simulation.loadcell_rate_hz:
+            raise sec.error(
+                "rate_hz",
+                f"{rate_hz:g}; allowed: the simulated cell's rate, simulation.loadcell_rate_hz "
+                f"{simulation.loadcell_rate_hz:g} (or leave it out)",
+            )
+        rate_hz = simulation.loadcell_rate_hz
+        cell = simulation.cell
+        if cell is not None and cell.format != loadcell.format:
+            raise sec.error(
+                "format",
+                f"{loadcell.format}; allowed: {cell.format}, the format of simulation.loadcell_cell "
+                f"{simulation.loadcell_cell}",
+            )
+    if rate_hz is None:
+        if traits.poll_command is not None:
+            raise sec.error(
+                "rate_hz", f"required for the polled format {loadcell.format}: its poll rate, 0.1-2000"
+            )
+        return loadcell
+    highest_hz = traits.max_rate_hz(loadcell.baud)
+    if rate_hz > highest_hz:
+        field_name = "rate_hz" if sec.has("rate_hz") else "baud"
+        raise sec.error(
+            field_name,
+            f"{rate_hz:g} lines/s of {loadcell.format} (up to {traits.max_line_bytes} bytes, 10 bits a byte) "
+            f"need {rate_hz * traits.max_line_bytes * UART_BITS_PER_BYTE:.0f} baud, more than baud "
+            f"{loadcell.baud} carries; allowed: rate_hz 0.1-{math.floor(highest_hz * 10) / 10:g} at this "
+            "baud, or a faster baud",
+        )
+    return replace(loadcell, rate_hz=rate_hz)
 
 
 def check_tension_cap(config: RigConfig) -> None:
@@ -310,6 +508,49 @@ def check_tension_cap(config: RigConfig) -> None:
         )
 
 
+def _configuration(top: Section, kind: RigKind, base_dir: Path) -> ConfigurationConfig:
+    sec = top.section("configuration", default={})
+    reject_undeclared(sec, ConfigurationConfig)
+    given: dict[str, Any] = {}
+    for key in ("file", "camera", "markers"):
+        name = sec.string(key, default="")
+        given[key] = (base_dir / name) if name else None
+    config = ConfigurationConfig(**read_fields(sec, ConfigurationConfig, given=given))
+    source = config.source
+    if source == ConfigurationSourceKind.SIMULATOR and kind != RigKind.SIMULATED:
+        raise sec.error(
+            "source", "simulator needs kind: simulated; allowed on hardware: operator, file, camera, command"
+        )
+    needs = {ConfigurationSourceKind.FILE: ("file",), ConfigurationSourceKind.CAMERA: ("camera", "markers")}
+    for key in needs.get(source, ()) if source is not None else ():
+        if given[key] is None:
+            raise sec.error(key, f"required with source: {source}")
+    return config
+
+
+def _bending(top: Section) -> BendingConfig:
+    sec = top.section("bending", default={})
+    reject_undeclared(sec, BendingConfig)
+    return BendingConfig(**read_fields(sec, BendingConfig))
+
+
+def _check_forks(top: Section, config: RigConfig) -> None:
+    """Fork components: benders only, each in 1..J, none twice; all benders name one or none does."""
+    sec = top.section("servos")
+    joints = config.article.joint_count
+    benders = config.servos.benders
+    named = [s.component for s in benders if s.component is not None]
+    for s in config.servos.servos:
+        if s.component is not None and s.role != ServoRole.BENDER:
+            raise sec.error("ids", f"servo {s.servo_id}: component is for benders only (role {s.role})")
+        if s.component is not None and not 1 <= s.component <= joints:
+            raise sec.error("ids", f"servo {s.servo_id}: component {s.component}; allowed: 1..{joints}")
+    if named and len(named) != len(benders):
+        raise sec.error("ids", "either every bender names its component or none does")
+    if len(set(named)) != len(named):
+        raise sec.error("ids", f"components {sorted(named)}: each component takes at most one fork")
+
+
 def _reel_direction(top: Section) -> int:
     direction = top.integer("reel_direction", default=1, min_value=-1, max_value=1)
     if direction == 0:
@@ -325,7 +566,10 @@ def _servo_bus(sec: Section) -> ServoBusConfig:
     specs: list[ServoSpec] = []
     for i, item in enumerate(sec.sequence("ids", min_length=1, max_length=253)):
         entry = Section(item, sec.source, f"{sec.field('ids')}[{i}]")
-        specs.append(ServoSpec(**read_fields(entry, ServoSpec)))
+        component = (
+            entry.integer("component", min_value=1, max_value=MAX_JOINTS) if entry.has("component") else None
+        )
+        specs.append(ServoSpec(**read_fields(entry, ServoSpec, given={"component": component})))
     ids = [s.servo_id for s in specs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:

@@ -17,6 +17,7 @@ from rig.vocabulary import DeviceLevel, RigKind
 
 __all__ = [
     "check_session_inputs",
+    "open_check_session",
     "open_object_simulated_rig",
     "open_session",
     "open_simulated_rig",
@@ -49,6 +50,11 @@ def open_session(prepared: PreparedRun, *, devices: DeviceLevel = DeviceLevel.BY
                     assert_never(level)
         case kind:
             assert_never(kind)
+
+
+def open_check_session(config: RigConfig, *, seed: int = 0) -> RigSession:
+    """A simulated config's session for `rig check` (seeded, virtual time; no run around it)."""
+    return simulated_rig(config, seed=seed).session
 
 
 def open_object_simulated_rig(prepared: PreparedRun) -> ObjectSimulatedRig:

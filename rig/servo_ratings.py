@@ -53,3 +53,18 @@ def stall_tension_n(model: ServoModel, current_limit_a: float, spool_radius_m: f
 def current_for_tension_a(model: ServoModel, tension_n: float, spool_radius_m: float) -> float:
     """The current limit at which a winch of `model` stalls at `tension_n` (inverse of stall_tension_n)."""
     return tension_n * spool_radius_m / MOTOR_RATINGS[model].torque_constant_nm_per_a
+
+
+# The input voltage each model is specified for (lowest, highest), from the ROBOTIS e-manual model
+# pages (XM430-W350: 10.0-14.8 V, recommended 12.0 V; XL430-W250: 6.5-12.0 V, recommended 11.1 V).
+# `rig check` compares Present Input Voltage (144) with it.
+INPUT_VOLTAGE_RANGE_V: Mapping[ServoModel, tuple[float, float]] = MappingProxyType(
+    {
+        ServoModel.XM430_W350: (10.0, 14.8),
+        ServoModel.XL430_W250: (6.5, 12.0),
+    }
+)
+
+# Bus Watchdog (98) exists from this firmware version on (ROBOTIS e-manual, Bus Watchdog section of the
+# X-series control tables: "available from firmware v38").
+BUS_WATCHDOG_MIN_FIRMWARE = 38

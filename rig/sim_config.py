@@ -215,6 +215,71 @@ class LoadCellArtefacts:
 
 
 @dataclass(frozen=True)
+class SimulatedCell:
+    """A load cell as labs have them, for the simulator (`simulation.loadcell_cell`).
+
+    The bridge: a `capacity_n` cell at 2 mV/V on 5 V excitation gives 10 mV at capacity. An ADC at
+    gain 128 on 5 V has a full scale of +-20 mV over 2**23 counts (2.384 nV a count), so its counts
+    per newton and its noise in counts follow from the input noise (HX711 datasheet: 50 nV RMS at
+    10/s, 90 nV at 80/s). `settling_s`: no conversion after power-up, a reset or a rate change
+    until then (HX711: 400 ms at 10/s, 50 ms at 80/s). A polled gauge (`value-unit`) answers with
+    its reading in `gauge_unit` to `gauge_decimals`; its own noise is `input_noise_nv` equivalent.
+    Figures marked assumed in `SIMULATED_CELLS` are not from a datasheet.
+    """
+
+    rate_hz: float
+    format: str  # a LoadCellFormatName value
+    input_noise_nv: float  # RMS input-referred noise of the converter
+    settling_s: float
+    capacity_n: float = 49.03  # a 5 kg cell
+    full_scale_mv: float = 20.0  # +-0.5 AVDD / gain 128 at 5 V
+    adc_bits: int = 24
+    bridge_mv_at_capacity: float = 10.0  # 2 mV/V x 5 V
+    gauge_unit: str = "lbf"
+    gauge_decimals: int = 2
+    doc: str = ""
+
+    @property
+    def counts_per_n(self) -> float:
+        """ADC counts per newton of line tension."""
+        nv_per_count = self.full_scale_mv * 1e6 / (1 << (self.adc_bits - 1))
+        return self.bridge_mv_at_capacity * 1e6 / self.capacity_n / nv_per_count
+
+    @property
+    def noise_counts(self) -> float:
+        """RMS noise in counts."""
+        nv_per_count = self.full_scale_mv * 1e6 / (1 << (self.adc_bits - 1))
+        return self.input_noise_nv / nv_per_count
+
+
+# `default` is the simulator's own cell (1000/s, 5 mN noise from the preset); the others are the
+# cells labs own (issue 21). Scenario rigs for each: protocols/rigs/scenarios/cell-*.yaml.
+SIMULATED_CELLS: dict[str, SimulatedCell | None] = {
+    "default": None,
+    "hx711-10": SimulatedCell(
+        10.0, "rig-lc1", 50.0, 0.4, doc="HX711 breakout as sold (RATE to GND): 10/s, 50 nV, settles 400 ms"
+    ),
+    "hx711-80": SimulatedCell(
+        80.0, "rig-lc1", 90.0, 0.05, doc="HX711 with RATE high: 80/s, 90 nV, settles 50 ms"
+    ),
+    "hx717-320": SimulatedCell(
+        320.0,
+        "rig-lc1",
+        180.0,
+        0.0125,
+        doc="HX717 or NAU7802 at 320/s; noise (90 nV x sqrt(320/80)) and settling (4 conversions) assumed",
+    ),
+    "gauge-12": SimulatedCell(
+        12.0,
+        "value-unit",
+        500.0,
+        0.0,
+        doc="a polled force gauge (Mark-10 style `-18.78 lbF`), polled 12/s, 0.01 lbf display; noise assumed",
+    ),
+}
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     """Simulated-world settings (only for `kind: simulated`)."""
 
@@ -238,6 +303,23 @@ class SimulationConfig:
             unit="N",
             doc="the line's tension when the world starts, as after a stop that could not release it "
             "(0: slack, the preset's reel-in before taut)",
+        ),
+    )
+    servo_supply_v: float = field(
+        default=12.0,
+        metadata=number(
+            0.0, 30.0, unit="V", doc="every emulated servo's Present Input Voltage (`rig check` compares it)"
+        ),
+    )
+    servo_temperature_c: int = field(
+        default=30, metadata=integer(0, 120, unit="°C", doc="every emulated servo's Present Temperature")
+    )
+    servo_firmware: int = field(
+        default=48,
+        metadata=integer(
+            0,
+            255,
+            doc="every emulated servo's Firmware Version (< 38: no Bus Watchdog; < 45: no Fast Sync Read)",
         ),
     )
     torsion_weak_joint: int | None = field(
@@ -276,6 +358,36 @@ class SimulationConfig:
             expand_doc=False,
         ),
     )
+    # Appended (issue 21): which kind of cell the simulator emulates.
+    loadcell_cell: str = field(
+        default="default",
+        metadata=choice(
+            SIMULATED_CELLS,
+            doc="the simulated cell: `default` (1000/s, the preset's noise) or a cell labs own, "
+            "`hx711-10`, `hx711-80`, `hx717-320`, `gauge-12` (its rate must be `loadcell_rate_hz`)",
+        ),
+    )
+    loadcell_clock_error_ppm: float = field(
+        default=0.0,
+        metadata=number(
+            -50_000.0, 50_000.0, unit="ppm", doc="the cell's clock runs this fast (negative: slow)"
+        ),
+    )
+    loadcell_dtr_reset_s: float = field(
+        default=0.0,
+        metadata=number(
+            0.0,
+            10.0,
+            unit="s",
+            doc="opening the port resets the cell's board (an Arduino's DTR): silent this long, "
+            "then its banner",
+        ),
+    )
+
+    @property
+    def cell(self) -> SimulatedCell | None:
+        """The simulated cell's profile (None: the simulator's default cell)."""
+        return SIMULATED_CELLS[self.loadcell_cell]
 
 
 def parse_simulation(sec: Section, joint_count: int) -> SimulationConfig:
@@ -298,6 +410,13 @@ def parse_simulation(sec: Section, joint_count: int) -> SimulationConfig:
             "scatter": parse_scatter(sec.section("scatter", default={})),
         },
     )
+    cell = SIMULATED_CELLS[values["loadcell_cell"]]
+    if cell is not None and values["loadcell_rate_hz"] != cell.rate_hz:
+        raise sec.error(
+            "loadcell_rate_hz",
+            f"{values['loadcell_rate_hz']:g}; allowed: {cell.rate_hz:g}, the rate of loadcell_cell "
+            f"{values['loadcell_cell']}",
+        )
     return SimulationConfig(**values)
 
 

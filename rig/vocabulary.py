@@ -11,6 +11,7 @@ names every place a new member has to be handled (docs/extending.md lists them).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from enum import StrEnum
 
 # The detector's event kinds are the model's (model/ may not import rig): re-used, not restated.
@@ -101,6 +102,36 @@ class LoadCellFormatName(StrEnum):
 
     RIG_LC1 = "rig-lc1"
     INDICATOR_ST = "indicator-st"
+    VALUE_UNIT = "value-unit"
+
+
+UART_BITS_PER_BYTE = 10  # 8N1: start bit, 8 data bits, stop bit
+
+
+@dataclass(frozen=True, slots=True)
+class LoadCellFormatTraits:
+    """What every layer needs to know of a load-cell format besides its codec.
+
+    The rig config checks the baud rate against the rate with it, the driver polls with it, the
+    emulator answers polls with it, and the codec (rig.hw.loadcell.formats) takes its longest line
+    from it, so that each fact is stated here once.
+    """
+
+    max_line_bytes: int  # the longest valid line, terminator included
+    poll_command: bytes | None = None  # a polled device answers one line per command; None: it streams
+
+    def max_rate_hz(self, baud: int) -> float:
+        """The most lines per second `baud` carries, every line the longest (8N1, no gaps)."""
+        return baud / (UART_BITS_PER_BYTE * self.max_line_bytes)
+
+
+# One entry per format (tests/test_loadcell_formats.py checks that every member has one).
+LOADCELL_FORMAT_TRAITS: dict[LoadCellFormatName, LoadCellFormatTraits] = {
+    LoadCellFormatName.RIG_LC1: LoadCellFormatTraits(len(b"$LC,65535,4294967295,-2147483648*FF\r\n")),
+    LoadCellFormatName.INDICATOR_ST: LoadCellFormatTraits(len(b"ST,GS,+0001.23kg\r\n") + 1),
+    # `-12345.678 lbF` CR LF: sign, up to 9 characters of digits and point, space, 3-letter unit.
+    LoadCellFormatName.VALUE_UNIT: LoadCellFormatTraits(len(b"-12345.678 kgf\r\n"), poll_command=b"?\r"),
+}
 
 
 class ServoModel(StrEnum):
@@ -116,10 +147,13 @@ SERVO_BAUDS: tuple[int, ...] = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000
 
 
 __all__ = [
+    "LOADCELL_FORMAT_TRAITS",
     "SERVO_BAUDS",
     "SLIP_LIKE",
+    "UART_BITS_PER_BYTE",
     "DeviceLevel",
     "LoadCellFormatName",
+    "LoadCellFormatTraits",
     "RigKind",
     "ServoModel",
     "ServoRole",
@@ -129,3 +163,20 @@ __all__ = [
     "TrialKind",
     "TrialOutcome",
 ]
+
+
+class ConfigurationSourceKind(StrEnum):
+    """Where a run's measured link configuration comes from (`configuration.source:` of a rig config)."""
+
+    SIMULATOR = "simulator"  # the simulated world, with the preset's measurement noise
+    OPERATOR = "operator"  # a person types the angles at a prompt
+    FILE = "file"  # measured angles per configuration index, from a CSV or YAML file
+    CAMERA = "camera"  # fiducial markers seen by a calibrated camera (optional extra)
+    COMMAND = "command"  # nothing is measured: the commanded angles stand in
+
+
+class MeasurementStage(StrEnum):
+    """When in a trial a configuration was measured (`/rig/configuration/measured`)."""
+
+    BENT = "bent"  # after bending (and after each correction)
+    AFTER_SLIP = "after_slip"  # after the slip, to tell which joint moved

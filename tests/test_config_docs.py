@@ -56,6 +56,8 @@ def test_each_declared_bound_is_what_the_parser_enforces(where, declared):
     if where[:2] == ("simulation", "scatter"):  # the shape that takes both a_kg and b
         base = _with(_with(base, (*where[:2], "shape"), "mixed"), (*where[:2], "a_kg"), 0.1)
     bounds = declared.spec.bounds
+    if where == ("loadcell", "rate_hz"):  # a simulated cell's rate must be its simulation's
+        base = _with(base, ("simulation", "loadcell_rate_hz"), bounds.hi)
     assert bounds.hi is not None and bounds.lo is not None and not bounds.hi_open
     parse_rig_config(_with(base, where, bounds.hi), source="r.yaml")  # the bound itself is allowed
     above = bounds.hi + 1 if declared.spec.type == FieldType.INTEGER else bounds.hi * 1.5 + 1

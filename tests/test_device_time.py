@@ -48,3 +48,39 @@ def test_batch_mapping_equals_one_by_one():
     assert got == expected
     assert batch.sample_times_ns([], 5) == []
     assert batch.sample_times_ns([None, None], 5) == [5, 5]
+
+
+def _stamp_errors_ns(mapper, rate_hz, clock_error, seconds, read_every_ns=16_000_000):
+    """|stamp - truth| of every sample, the device clock reading host time x (1 + clock_error)."""
+    period_ns = 1e9 / rate_hz
+    errors, batch_dev, batch_true = [], [], []
+    next_read = read_every_ns
+    k = 0
+    while k < seconds * rate_hz:
+        t_true = k * period_ns / (1 + clock_error)
+        if t_true <= next_read:
+            batch_dev.append(int(k * period_ns / 1000))
+            batch_true.append(t_true)
+            k += 1
+            continue
+        if batch_dev:
+            stamps = mapper.sample_times_ns(batch_dev, 10**18 + next_read)
+            errors += [abs(s - (10**18 + t)) for s, t in zip(stamps, batch_true, strict=True)]
+            batch_dev, batch_true = [], []
+        next_read += read_every_ns + (k * 7919) % 1_000_000
+    return errors
+
+
+def test_rate_tracking_keeps_a_slow_or_fast_clock_within_a_sample_period():
+    for clock_error in (0.01, -0.01, 0.005):
+        tracked = _stamp_errors_ns(DeviceClockMapper(), 10.0, clock_error, 600)
+        offset_only = _stamp_errors_ns(DeviceClockMapper(track_rate=False), 10.0, clock_error, 600)
+        assert max(tracked[-600:]) < 100e6 / 10  # a tenth of the 100 ms period after 10 min
+        if clock_error < 0:  # the device clock slow: the offset-only leak (20 ppm at 10/s) falls behind
+            assert max(offset_only[-600:]) > 1e9
+
+
+def test_a_clock_that_keeps_time_is_mapped_as_by_the_offset_alone():
+    tracked, offset_only = DeviceClockMapper(), DeviceClockMapper(track_rate=False)
+    assert _stamp_errors_ns(tracked, 80.0, 0.0, 300) == _stamp_errors_ns(offset_only, 80.0, 0.0, 300)
+    assert tracked.applied_skew_ppm == 0.0 and abs(tracked.skew_ppm) < 10

@@ -416,8 +416,10 @@ def test_fault_and_profile_specs(profile):
 def test_rig_sim_loadcell_options(profile):
     options = st.fixed_dictionaries(
         {
-            "rate": st.one_of(st.floats(), st.sampled_from([10.0, 1000.0, 2000.0])),
-            "format": st.sampled_from(["rig-lc1", "indicator-st"]),
+            "rate": st.one_of(st.none(), st.floats(), st.sampled_from([10.0, 12.0, 80.0, 1000.0, 2000.0])),
+            "format": st.sampled_from([None, "rig-lc1", "indicator-st", "value-unit"]),
+            "cell": st.sampled_from([None, "hx711-10", "hx711-80", "hx717-320", "gauge-12"]),
+            "clock_error_ppm": st.one_of(st.floats(), st.sampled_from([0.0, -5000.0, 50_000.0])),
             "baud": st.sampled_from([921600, 115200, 0, -1, 10**30]),
             "profile": SPEC_TEXT,
             "fault": st.lists(SPEC_TEXT, max_size=3),
@@ -435,6 +437,7 @@ def test_rig_sim_loadcell_options(profile):
             emulator = build_emulator(argparse.Namespace(**values), 0)
         except InputError:
             return
+        emulator.receive(b"?\r?\r", 1_000_000)  # a polled format answers; a streaming one ignores it
         emulator.lines_until(50_000_000)  # 50 ms of lines: the values reach every computation
 
     fuzz(profile, options, check)
@@ -452,6 +455,9 @@ def test_rig_sim_servos_options(profile):
             "baud": st.sampled_from([57600, 1_000_000, 0, -1, 10**30]),
             "firmware": st.one_of(st.none(), st.integers(-5, 300)),
             "fault": st.lists(SPEC_TEXT, max_size=3),
+            "usb_latency_ms": st.floats(-5, 300) | st.sampled_from([float("nan"), float("inf")]),
+            "voltage_v": st.none() | st.floats(allow_nan=True, allow_infinity=True),
+            "temperature_c": st.none() | st.integers(-5, 300),
         }
     )
 

@@ -346,6 +346,7 @@ def test_the_foxglove_layout_names_only_logged_topics_and_fields():
     paths += [
         config[key] for config in panels.values() for key in ("topicPath", "topicToRender") if key in config
     ]
+    paths += [topic for config in panels.values() for topic in config.get("topics", {})]
     assert paths
     for path in paths:
         topic = next(t for t in sorted(schemas.TOPICS, key=len, reverse=True) if path.startswith(t))

@@ -179,13 +179,14 @@ def test_stale_when_nothing_ever_arrives_at_the_wrong_baud():
         "sim",
         baud=460800,
         clock=clock,
-        stale_timeout_s=0.3,
+        stale_timeout_s=0.2,
+        boot_grace_s=0.3,
         serial_factory=in_process_serial_factory(emulator, clock),
     )
     driver.open()
     assert run_for(driver, clock, 0.3) == []
     clock.sleep(0.02)
-    with pytest.raises(StaleDataError, match=r"no valid sample for 0\.32"):
+    with pytest.raises(StaleDataError, match=r"no valid sample for 0\.32.*boot grace of 0\.3 s"):
         driver.poll()
     stats = driver.stats()
     assert stats.lines_ok == 0 and stats.bytes_discarded > 0
@@ -196,7 +197,9 @@ def test_sequence_and_device_time_kept_as_sent_across_wraps():
     emulator = LoadCellEmulator(
         ConstantTension(0.0), rate_hz=1000, seq_start=65530, device_time_start_us=(1 << 32) - 3000, start_ns=0
     )
-    driver = SerialLoadCell("sim", clock=clock, serial_factory=in_process_serial_factory(emulator, clock))
+    driver = SerialLoadCell(
+        "sim", baud=921600, clock=clock, serial_factory=in_process_serial_factory(emulator, clock)
+    )
     driver.open()
     samples = run_for(driver, clock, 0.02)
     assert [s.seq for s in samples[:8]] == [65530, 65531, 65532, 65533, 65534, 65535, 0, 1]
@@ -235,6 +238,7 @@ def test_queue_bound_drops_oldest_and_counts():
     emulator = LoadCellEmulator(ConstantTension(0.0), rate_hz=1000, start_ns=0)
     driver = SerialLoadCell(
         "sim",
+        baud=921600,
         clock=clock,
         queue_samples=100,
         stale_timeout_s=10.0,
@@ -357,7 +361,7 @@ def test_a_banner_before_the_first_sample_is_information_only():
     clock = VirtualClock()
     emulator = LoadCellEmulator(ConstantTension(1.0), rate_hz=100, banner=b"#BOOT fw=test\r\n")
     driver = SerialLoadCell(
-        "sim://loadcell", clock=clock, serial_factory=in_process_serial_factory(emulator, clock)
+        "sim://loadcell", baud=921600, clock=clock, serial_factory=in_process_serial_factory(emulator, clock)
     )
     with driver:
         samples = run_for(driver, clock, 0.5)

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from rig.errors import InputError
 from rig.hw.loadcell.formats import (
+    FORCE_UNITS_N,
     MAX_INFO_LINE_BYTES,
     ChecksumError,
     DeviceReading,
@@ -15,11 +16,12 @@ from rig.hw.loadcell.formats import (
     LineDecoder,
     LineError,
     RigLc1Codec,
+    ValueUnitCodec,
     get_codec,
     nmea_checksum,
     nmea_checksums,
 )
-from rig.vocabulary import LoadCellFormatName
+from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName
 
 LC1 = RigLc1Codec()
 IND = IndicatorStCodec()
@@ -131,8 +133,44 @@ def test_every_format_has_a_codec_that_round_trips_and_keeps_its_bounds(name):
         assert line.endswith(b"\n") and len(line) <= codec.max_line_bytes
         assert codec.count_line_starts(line) == 1 and codec.last_line_start(line) == 0
         decoded = codec.decode(line[:-1])
-        assert decoded.raw == raw
+        if isinstance(codec, ValueUnitCodec):  # a display: raw (micronewtons) to its last digit
+            step_un = 10.0**-codec.decimals * FORCE_UNITS_N[codec.unit] * 1e6
+            assert abs(decoded.raw - raw) <= step_un / 2 + 1
+            assert codec.encode(DeviceReading(decoded.raw)) == line
+        else:
+            assert decoded.raw == raw
         assert decoded.seq == (seq if codec.has_sequence else None)
+    assert LOADCELL_FORMAT_TRAITS[name].max_line_bytes == codec.max_line_bytes
+
+
+@pytest.mark.parametrize(
+    ("line", "newtons"),
+    [
+        # Mark-10 Series 4 user's guide, 9.1.4: tension and compression replies.
+        (b"-18.78 lbF", -18.78 * 4.4482216152605),
+        (b"4.285 N", 4.285),
+        (b"12.5 ozF", 12.5 * 0.27801385095378125),
+        (b"+1.250 kgf", 1.25 * 9.80665),
+        (b"500 gF", 500 * 0.00980665),
+        (b"0.1234 kN", 123.4),
+        (b"7N", 7.0),
+    ],
+)
+def test_value_unit_lines_in_every_force_unit_are_read_in_newtons(line, newtons):
+    decoded = ValueUnitCodec().decode(line + b"\r")
+    assert decoded.raw == round(newtons * 1e6) and decoded.unit == "N" and decoded.seq is None
+
+
+@pytest.mark.parametrize("line", [b"-18.78", b"18.78 kg", b"1.2.3 N", b"- 5 N", b"N", b"12 lbF extra"])
+def test_value_unit_refuses_lines_without_a_force_unit(line):
+    with pytest.raises(LineError):
+        ValueUnitCodec().decode(line)
+
+
+def test_value_unit_decoder_resyncs_after_garbage():
+    decoder = LineDecoder(ValueUnitCodec())
+    lines = decoder.feed(b"\x81\x82-18.78 lbF\r\n*10\r\n4.285 N\r\n")
+    assert [ln.raw for ln in lines] == [round(-18.78 * 4.4482216152605e6), 4_285_000]
 
 
 def test_registry_rejects_unknown_format():

@@ -76,7 +76,7 @@ def read_for(driver, seconds):
 @pytest.mark.subprocess
 def test_rig_lc1_over_pyserial_then_sigterm_removes_link(tmp_path):
     with sim_loadcell(tmp_path, "--rate", "1000", "--profile", "sawtooth:20:1") as (link, proc):
-        driver = SerialLoadCell(str(link), calibration=SIM_CAL, stale_timeout_s=0.5)
+        driver = SerialLoadCell(str(link), baud=921600, calibration=SIM_CAL, stale_timeout_s=0.5)
         with driver:
             assert isinstance(driver._serial, serial.Serial)  # real pyserial, reader thread
             samples = read_for(driver, 1.5)
@@ -130,7 +130,7 @@ def test_faults_from_cli_flags_are_counted(tmp_path):
         "gap:0.02",
     )
     with sim_loadcell(tmp_path, "--rate", "1000", *faults) as (link, _):
-        with SerialLoadCell(str(link), calibration=SIM_CAL) as driver:
+        with SerialLoadCell(str(link), baud=921600, calibration=SIM_CAL) as driver:
             samples = read_for(driver, 1.0)
         stats = driver.stats()
     assert len(samples) > 600
@@ -145,7 +145,7 @@ def test_faults_from_cli_flags_are_counted(tmp_path):
 def test_staleness_in_real_time_after_silence(tmp_path):
     with (
         sim_loadcell(tmp_path, "--rate", "1000", "--fault", "silence:1.0:1.0") as (link, _),
-        SerialLoadCell(str(link), calibration=SIM_CAL, stale_timeout_s=0.25) as driver,
+        SerialLoadCell(str(link), baud=921600, calibration=SIM_CAL, stale_timeout_s=0.25) as driver,
     ):
         received, raised_ns, deadline = [], None, time.monotonic() + 5.0
         while time.monotonic() < deadline:

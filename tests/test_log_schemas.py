@@ -41,6 +41,9 @@ EXPECTED = {
     "/rig/estimate": "rig.Estimate",
     "/rig/trial/links": "rig.TrialLinkStats",
     "/rig/log": "foxglove.Log",
+    "/rig/link/frames": "foxglove.FrameTransforms",
+    "/rig/link/scene": "foxglove.SceneUpdate",
+    "/rig/configuration/measured": "rig.ConfigurationMeasurement",
 }
 
 

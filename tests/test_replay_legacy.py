@@ -26,6 +26,9 @@ def test_a_log_from_before_a_payload_change_replays_exactly_as_it_did(capsys, na
     out.pop("files")
     expected = json.loads((DATA / f"{name}.replay.json").read_text())
     assert out.keys() == expected.keys()
+    # Since the configuration measurements: a log from before has none, so their columns are empty.
+    for trial in out["trials"]:
+        assert trial.pop("configuration_source") is None and trial.pop("bend_corrections") is None
     for key, value in expected.items():
         if key in ("estimate", "redetected_estimate", "online_estimate") and value is not None:
             # Since the estimators: the refit names its estimator (a log from before: the paper's,

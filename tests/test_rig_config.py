@@ -31,7 +31,7 @@ def test_shipped_configs_load():
         ("spool_radius_m: 0.01", "spool_radius_m: -0.01", "spool_radius_m"),
         ("format: rig-lc1", "format: nmea", "loadcell.format"),
         ("direction: [0, -1, 0]", "direction: [0, 0, 0]", "load.direction"),
-        ("stale_timeout_s: 0.2", "stale_timout_s: 0.2", "stale_timout_s"),
+        ("max_winch_travel_rev: 20", "max_winch_travl_rev: 20", "max_winch_travl_rev"),
         ("preset: link1", "preset: link9", "simulation.preset"),
     ],
 )

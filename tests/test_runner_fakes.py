@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from model.chain import planar_transforms
 from rig.analysis.replay import replay
 from rig.hw.seams import ConfigurationReading
 from rig.runner.journal import RunJournal
@@ -353,3 +354,33 @@ def test_a_slip_of_another_joint_is_kept_out_of_the_fit(run_on_fakes):
     assert [t.outcome for t in report.trials] == ["other_joint"] * 3
     assert all(t.slipped_joint == 3 and not t.slipped for t in report.trials)
     assert report.estimate is None or report.estimate.n == 0
+
+
+class _CameraLike:
+    """A source that sees the link straight before each slip and, after it, joint `moved` turned by 2°."""
+
+    def __init__(self, moved: int | None) -> None:
+        self.moved = moved
+        self.calls = 0
+
+    def measure(self) -> ConfigurationReading:
+        self.calls += 1
+        angles = np.zeros(8)  # the rig config's link: 8 joints
+        if self.calls % 2 == 0 and self.moved is not None:  # the second reading of a trial: after the slip
+            angles[self.moved - 1] = np.radians(2.0)
+        transforms = planar_transforms(angles, 0.03)
+        return ConfigurationReading(transforms, 0, tuple(angles), None, (np.radians(0.1),) * 8)
+
+
+@pytest.mark.parametrize(("moved", "outcome"), [(2, "other_joint"), (1, "slip"), (None, "slip")])
+def test_the_joint_that_moved_is_found_from_the_configuration_before_and_after(
+    tmp_path, protocol_file, moved, outcome
+):
+    protocol = protocol_file(QUICK_PROTOCOL.replace("steps: [prompt, ", "steps: [prompt, measure, "))
+    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
+    rig.session.configuration = _CameraLike(moved)
+    request = RunRequest(protocol_path=protocol, rig_path=None, out_dir=tmp_path / "out", seed=1, run_id="f1")
+    report = execute_run(prepare_run(request), rig.session, SilentProgress())
+    assert report.exit_code == 0 and report.completed == 3
+    assert [t.outcome for t in report.trials] == [outcome] * 3
+    assert [t.slipped_joint for t in report.trials] == [moved] * 3

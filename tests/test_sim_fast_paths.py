@@ -49,7 +49,7 @@ def _scripted_world(skip_still: bool, steps: list[int]) -> tuple[SimWorld, Objec
     world = SimWorld(
         make_preset("link1", 2),
         bus.servo(1),
-        bender=bus.servo(2),
+        forks=[(1, bus.servo(2))],
         step_devices=step_devices,
         devices_at_rest=bus.at_rest if skip_still else None,
     )
@@ -100,7 +100,7 @@ def _slip_kind_world(plain: bool, mix: SlipKindMix, seed: int) -> tuple[SimWorld
     world = SimWorld(
         make_preset("link1", seed, slip_mix=mix),
         bus.servo(1),
-        bender=bus.servo(2),
+        forks=[(1, bus.servo(2))],
         step_devices=bus.advance_to,
         devices_at_rest=bus.at_rest,
         seed=seed,
@@ -110,10 +110,11 @@ def _slip_kind_world(plain: bool, mix: SlipKindMix, seed: int) -> tuple[SimWorld
     bus.set_torque([1, 2], True)
     for trial in range(6):
         if trial % 3 == 2:
-            goal = world.request_bend([0.15, -0.1, 0.2, 0.0, 0.1, 0.0, -0.1, 0.05])
-            bus.write_goal_positions({2: goal})
-            clock.sleep(1.5)  # the fixture moves and holds the link
             world.begin_trial("link_validation")
+            world.engage_fork(1)
+            bus.write_goal_positions({2: bus.servo(2).present_position_rad + 1.0})
+            clock.sleep(1.5)  # the fork pushes component 1 and holds the link
+            world.open_forks()
         else:
             world.begin_trial("joint_estimation", distance_m=0.06 + 0.04 * trial, joint=1 + trial % 8)
         goal = bus.servo(1).present_position_rad

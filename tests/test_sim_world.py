@@ -16,7 +16,6 @@ from model.joint import PAPER_CONSTANT
 from rig.hw.truth import WorldTruth
 from rig.sim.physics.article_presets import PRESET_NAMES, SimPreset, make_preset
 from rig.sim.physics.world import SimWorld, TrialKind
-from rig.sim.simulated_rig import SimBendingFixture
 from tests.helpers import ScriptedShaft
 
 MS = 1_000_000
@@ -297,16 +296,15 @@ def test_tension_at_interpolates_linearly_within_the_history() -> None:
 
 def run_protocol(seed: int) -> WorldTruth:
     preset = make_preset("link1", seed=seed)
-    winch, bender = ScriptedShaft(), ScriptedShaft()
-    world = SimWorld(preset, winch, bender=bender, seed=seed)
+    winch = ScriptedShaft()
+    world = SimWorld(preset, winch, seed=seed)
     world.begin_trial("joint_estimation", distance_m=0.08)
     ramp_until_first_slip(world, winch, 2.0)
     winch.present_position_rad = 0.0
     world.step_devices = None
-    goal = world.request_bend([0.2] * 8)
-    bender.present_position_rad = goal
-    world.advance_to(world.now_ns + 10 * MS)
     world.begin_trial("link_validation")
+    world.bend_by_hand([0.2] * 8)
+    world.advance_to(world.now_ns + 10 * MS)
     ramp_until_first_slip(world, winch, 2.0)
     world.advance_to(world.now_ns + 200 * MS)
     return world.truth()
@@ -319,49 +317,25 @@ def test_same_seed_same_world_and_different_seed_different_world() -> None:
     assert a.trials[0].capacity_factors != c.trials[0].capacity_factors
 
 
-def test_bending_fixture_holds_then_sets_the_configuration_with_placement_error() -> None:
+def test_bending_by_hand_has_the_placement_error_and_a_reset_is_exactly_straight() -> None:
     preset = replace(make_preset("link1", seed=1), sigma_bend_rad=0.02)
-    winch, bender = ScriptedShaft(), ScriptedShaft(position_rad=0.3)
-    world = SimWorld(preset, winch, bender=bender, seed=1)
-    fixture = SimBendingFixture(world, bender_id=2)
+    world = SimWorld(preset, ScriptedShaft(), seed=1)
     target = np.array([0.1, -0.2, 0.3, 0.0, 0.1, 0.0, -0.1, 0.2])
-    goals = fixture.bend_goals(tuple(target))
-    assert goals == {2: pytest.approx(0.3 + preset.bender_travel_per_bend * np.abs(target).sum())}
-    assert world.bending
-    # Half way: the link is held and half bent; even a taut line cannot make it slip.
-    bender.present_position_rad = 0.3 + 0.5 * (goals[2] - 0.3)
-    winch.present_position_rad = preset.winch_slack_rad + 50.0
-    world.advance_to(100 * MS)
-    assert world.bending and not world.slips
-    assert np.allclose(world.link.planar_joint_angles(), 0.5 * target)
-    winch.present_position_rad = 0.0
-    bender.present_position_rad = goals[2] + 0.01  # within the arrival tolerance
-    world.advance_to(101 * MS)
-    assert not world.bending
-    error = np.array(world.link.planar_joint_angles()) - target
-    assert 0 < np.abs(error).max() < 5 * 0.02
-    # Reset: straight, exactly.
-    home = fixture.home_goals()
-    assert home == {2: pytest.approx(0.3)}
-    bender.present_position_rad = 0.3
-    world.advance_to(102 * MS)
-    assert world.link.planar_joint_angles() == (0.0,) * 8
-    # Placement error statistics over many bends.
     errors = []
     for _ in range(300):
-        goal = world.request_bend(target)
-        bender.present_position_rad = goal
-        world.advance_to(world.now_ns + MS)
+        world.bend_by_hand(target)
         errors.append(np.array(world.link.planar_joint_angles()) - target)
+        world.straighten()
+        assert world.link.planar_joint_angles() == (0.0,) * 8
     errors_a = np.array(errors)
     assert errors_a.std() == pytest.approx(0.02, rel=0.05)
     assert abs(errors_a.mean()) < 0.002
 
 
-def test_world_without_bender_refuses_bend_requests() -> None:
+def test_world_without_forks_refuses_to_engage_one() -> None:
     world = SimWorld(make_preset("link1"), ScriptedShaft())
-    with pytest.raises(RuntimeError, match="no bender"):
-        world.request_bend([0.0] * 8)
+    with pytest.raises(RuntimeError, match="no fork on component 3"):
+        world.engage_fork(3)
 
 
 @pytest.mark.parametrize("name", PRESET_NAMES)

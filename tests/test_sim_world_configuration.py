@@ -75,14 +75,36 @@ def slip_report_fractions(probability: float, seed: int) -> tuple[int, int, bool
     return seen, reported, correct
 
 
-def test_slipped_joint_is_reported_with_the_configured_probability() -> None:
-    seen, reported, correct = slip_report_fractions(0.5, seed=1)
-    assert seen == 240 and correct
+def test_the_link_joint_that_moved_is_seen_from_the_configuration_before_and_after() -> None:
+    # The report probability is the specimen's: on the link the simulator sees every slip.
+    for probability in (0.0, 1.0):
+        seen, reported, correct = slip_report_fractions(probability, seed=2)
+        assert seen == 240 and reported == seen and correct
+
+
+def test_the_specimen_slip_is_reported_with_the_configured_probability() -> None:
+    preset = replace(make_preset("link1", seed=1), slipped_joint_report_probability=0.5)
+    shaft = ScriptedShaft()
+    world = SimWorld(preset, shaft, seed=1)
+    source = SimConfigurationSource(world)
+    seen = reported = 0
+    for cycle in range(200):
+        trial = world.begin_trial("joint_estimation", distance_m=0.1, joint=1 + cycle % 8)
+        shaft.present_position_rad = world.line.winch_angle_for_tension_rad(
+            trial.slip_force_n * 1.01, world.article.take_up_m
+        )
+        before = len(world.slips)
+        world.advance_to(world.now_ns + 50 * MS)
+        reading = source.measure()
+        if len(world.slips) > before:
+            seen += 1
+            if reading.slipped_joint is not None:
+                reported += 1
+                assert reading.slipped_joint == trial.specimen_joint
+        shaft.present_position_rad = 0.0
+        world.advance_to(world.now_ns + 50 * MS)
+    assert seen >= 150
     assert reported / seen == pytest.approx(0.5, abs=0.12)
-    seen, reported, correct = slip_report_fractions(1.0, seed=2)
-    assert seen == 240 and reported == seen and correct
-    seen, reported, correct = slip_report_fractions(0.0, seed=2)
-    assert seen == 240 and reported == 0 and correct
 
 
 def rotation_angle(r: np.ndarray) -> float:

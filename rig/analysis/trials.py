@@ -30,7 +30,15 @@ from rig.analysis.runlog import LogPart, RunSettings
 from rig.errors import InputError
 from rig.log import schemas
 from rig.log.frames import frame_payloads
-from rig.log.records import SLIP_LIKE, SlipMessage, TrialKind, TrialPhase, TrialResult
+from rig.log.records import (
+    SLIP_LIKE,
+    ConfigurationMeasurement,
+    SlipMessage,
+    TrialKind,
+    TrialPhase,
+    TrialResult,
+)
+from rig.vocabulary import MeasurementStage
 
 RAMP_PHASES = (TrialPhase.RAMP_FAST.value, TrialPhase.RAMP_SLOW.value)
 UNLOADING_PHASE = TrialPhase.UNLOADING.value
@@ -64,6 +72,8 @@ TRIAL_COLUMNS: dict[str, str] = {
     "redetected_slip_mass_kg": "float64",
     "redetected_peak_time_ns": "Int64",
     "redetected_detection_time_ns": "Int64",
+    "configuration_source": "string",  # where the measured angles came from (absent: the commanded)
+    "bend_corrections": "Int64",  # corrections after bending by forks (the last measurement's attempt)
 }
 ANGLE_COLUMN = re.compile(r"^joint_angle_(\d+)_rad$")
 
@@ -80,6 +90,8 @@ class TrialRecord:
     extra: dict[str, Any] = field(default_factory=dict)
     # Further drops the runner counted after the slip; None if not logged (before the train rule).
     train_drops: int | None = None
+    # The last measurement after bending (`/rig/configuration/measured`); None when none was logged.
+    configuration: ConfigurationMeasurement | None = None
 
     @property
     def trial_id(self) -> int:
@@ -126,6 +138,7 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
         for _, slip_payload in frame_payloads(part.log.topic(schemas.SLIP)):
             slip_message = SlipMessage.from_payload(slip_payload)
             slips.setdefault(slip_message.trial_id, []).append(slip_message)
+        measured = _bent_measurements(part, warnings)
         for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_RESULT)):
             try:
                 result = TrialResult.from_payload(payload)
@@ -145,12 +158,33 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
             message = _logged_slip(slips.get(trial_id, ()), trial_id, start, end)
             slip = message.event if message is not None else None
             train = message.train_drops if message is not None and "train_k" in message.detector else None
-            records.append(TrialRecord(part, result, ramp_start, unloading, slip, train_drops=train))
+            configuration = measured.get(trial_id)
+            records.append(
+                TrialRecord(
+                    part, result, ramp_start, unloading, slip, train_drops=train, configuration=configuration
+                )
+            )
             if result.slipped and slip is None:
                 warnings.append(
                     f"{part.name}: trial {trial_id}: outcome {result.outcome} but no /rig/slip event logged"
                 )
     return records
+
+
+def _bent_measurements(part: LogPart, warnings: list[str]) -> dict[int, ConfigurationMeasurement]:
+    """Each trial's last configuration measured after bending (logs from before it have none)."""
+    out: dict[int, ConfigurationMeasurement] = {}
+    for _, payload in frame_payloads(part.log.topic(schemas.CONFIGURATION_MEASURED)):
+        try:
+            measurement = ConfigurationMeasurement.from_payload(payload)
+        except (KeyError, TypeError, ValueError) as exc:
+            warnings.append(
+                f"{part.name}: a /rig/configuration/measured could not be decoded ({exc}); skipped"
+            )
+            continue
+        if measurement.stage == MeasurementStage.BENT:
+            out[measurement.trial_id] = measurement
+    return out
 
 
 class _TrialPhases:
@@ -248,6 +282,8 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
             "ramp_start_ns": record.ramp_start_ns,
             "slip_peak_time_ns": record.slip.peak_time_ns if record.slip else None,
             "slip_detection_time_ns": record.slip.detection_time_ns if record.slip else None,
+            "configuration_source": record.configuration.source.value if record.configuration else None,
+            "bend_corrections": record.configuration.attempt if record.configuration else None,
         }
         row.update(record.extra)
         for j in range(joints):

@@ -26,8 +26,11 @@ COMMAND_MODULES: tuple[str, ...] = (
     "scan",
     "ports",
     "calibrate",
+    "check",
     "replay",
     "study",
+    "camera",
+    "config",
 )
 
 

@@ -23,9 +23,10 @@ from rig.hw.loadcell.driver import DEFAULT_BAUD, DEFAULT_STALE_TIMEOUT_S, Serial
 from rig.hw.loadcell.formats import FORMATS
 from rig.hw.seams import Clock, LoadCell
 from rig.rig_config import load_rig_config
-from rig.vocabulary import RigKind
+from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName, RigKind
 
 PromptFn = Callable[[CalibrationStep, str], None]
+DEFAULT_POLL_RATE_HZ = 12.0  # a force gauge's display rate (issue 21: 10-12/s)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -35,9 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="two-point load-cell calibration (tare + reference mass) written as JSON",
         description=(
             "Calibrate the line load cell: with no load, the mean raw count is the offset (tare); "
-            "with a reference mass hanging, factor = mass * g / (raw_ref - raw_zero). Prompts the "
-            "operator before each step, then writes --out atomically (Ctrl-C leaves no file). "
-            "--sim runs against the in-process simulated load cell, where the simulation hangs the mass."
+            "with a known tension in the line, factor = mass * g / (raw_ref - raw_zero). The cell sits "
+            "inline, so the reference is a tension through it: a mass hanging from the line (over the "
+            "pulley, the cell in the line as in a trial), or a pull read on a reference gauge given as "
+            "--reference-kg = newtons / g. Prompts the operator before each step, then writes --out "
+            "atomically (Ctrl-C leaves no file). --sim runs against the in-process simulated load cell, "
+            "where the simulation applies the load."
         ),
     )
     source = parser.add_mutually_exclusive_group(required=True)
@@ -49,12 +53,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         metavar="CONFIG",
         help="take port, baud, format (and --out: loadcell.calibration) from a hardware rig config",
     )
-    parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help=f"baud rate (default {DEFAULT_BAUD})")
+    parser.add_argument(
+        "--baud",
+        type=int,
+        default=None,
+        help=f"baud rate (default {DEFAULT_BAUD}; with --sim, the emulator's default)",
+    )
+    parser.add_argument(
+        "--rate",
+        type=float,
+        default=None,
+        help="samples per second the cell sends, or the poll rate of a polled format such as value-unit "
+        f"(default: none for a streaming cell, {DEFAULT_POLL_RATE_HZ:g} for a polled one; with --sim, "
+        "the emulator's default for a streaming cell)",
+    )
     parser.add_argument(
         "--format", default="rig-lc1", choices=sorted(FORMATS), help="line format (default rig-lc1)"
     )
     parser.add_argument(
-        "--reference-kg", type=float, required=True, help="mass of the reference weight in kg"
+        "--reference-kg",
+        type=float,
+        required=True,
+        help="the reference tension as a mass in kg: the hanging mass, or a gauge's newtons / g",
     )
     parser.add_argument(
         "--out", default=None, help="calibration JSON file to write (required unless --rig names one)"
@@ -97,6 +117,7 @@ def apply_rig_config(args: argparse.Namespace) -> None:
         raise InputError(f"{args.rig}: kind: {config.kind}; --rig needs a hardware rig (use --sim to try it)")
     args.port = config.loadcell.port
     args.baud = config.loadcell.baud
+    args.rate = config.loadcell.rate_hz
     args.format = config.loadcell.format
     if args.out is None:
         if config.loadcell.calibration_path is None:
@@ -107,6 +128,17 @@ def apply_rig_config(args: argparse.Namespace) -> None:
 def validate_args(args: argparse.Namespace) -> None:
     """Reject impossible values before touching any hardware."""
     apply_rig_config(args)
+    if args.baud is None:
+        args.baud = DEFAULT_BAUD
+        if args.sim:  # imported here: only --sim needs the simulator
+            from rig.sim.loadcell.emulator import DEFAULT_BAUD as SIM_BAUD
+
+            args.baud = SIM_BAUD
+    polled = LOADCELL_FORMAT_TRAITS[LoadCellFormatName(args.format)].poll_command is not None
+    if args.rate is None and polled:
+        args.rate = DEFAULT_POLL_RATE_HZ
+    if args.rate is not None and not 1 <= args.rate <= 2000:
+        raise InputError(f"--rate {args.rate}; allowed: 1-2000 samples (or polls) per second")
     if args.out is None:
         raise InputError("--out: required (the calibration JSON file to write)")
     lo_kg, hi_kg = REFERENCE_MASS_RANGE_KG  # what a calibration file may hold (docs/formats.md §6)
@@ -174,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
             format_name=args.format,
             stale_timeout_s=args.stale_timeout_s,
             clock=clock,
+            rate_hz=args.rate,
         )
         port = args.port
     log(f"load cell on {port} ({args.format}); reference {args.reference_kg:g} kg, g = {args.g:g} m/s^2")
@@ -217,7 +250,7 @@ def _report(args: argparse.Namespace, calibration: Calibration) -> None:
 def _simulated(args: argparse.Namespace, prompt: PromptFn) -> tuple[LoadCell, Clock, PromptFn]:
     """The in-process emulator on a virtual clock; the prompts move the simulated mass."""
     from rig.sim.clock import VirtualClock
-    from rig.sim.loadcell.emulator import LoadCellEmulator
+    from rig.sim.loadcell.emulator import DEFAULT_RATE_HZ, LoadCellEmulator
     from rig.sim.loadcell.inprocess import SIM_PORT, in_process_serial_factory
     from rig.sim.loadcell.profiles import StepTension
 
@@ -225,7 +258,12 @@ def _simulated(args: argparse.Namespace, prompt: PromptFn) -> tuple[LoadCell, Cl
     # The line starts with an unknown load on it: the operator has to take it off for the tare.
     tension = StepTension(0.8)
     emulator = LoadCellEmulator(
-        tension, format_name=args.format, baud=args.baud, seed=args.seed, start_ns=clock.monotonic_ns()
+        tension,
+        format_name=args.format,
+        rate_hz=args.rate or DEFAULT_RATE_HZ,
+        baud=args.baud,
+        seed=args.seed,
+        start_ns=clock.monotonic_ns(),
     )
     load_cell = SerialLoadCell(
         SIM_PORT,
@@ -234,6 +272,7 @@ def _simulated(args: argparse.Namespace, prompt: PromptFn) -> tuple[LoadCell, Cl
         stale_timeout_s=args.stale_timeout_s,
         clock=clock,
         serial_factory=in_process_serial_factory(emulator, clock),
+        rate_hz=args.rate,
     )
 
     def sim_prompt(step: CalibrationStep, message: str) -> None:

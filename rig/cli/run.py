@@ -13,7 +13,7 @@ from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
 from rig.files import check_out_dir
-from rig.vocabulary import DeviceLevel
+from rig.vocabulary import DeviceLevel, RigKind, StepKind
 
 if TYPE_CHECKING:
     from model.estimate_summary import EstimateSummary
@@ -21,6 +21,8 @@ if TYPE_CHECKING:
     from model.payload_errors import PayloadErrorStats
     from rig.hw.truth import RunTruth
     from rig.log.live import LivePublisher
+    from rig.protocol import Protocol
+    from rig.rig_config import RigConfig
     from rig.runner.run import RunReport, RunRequest
 
 DESCRIPTION = """\
@@ -119,7 +121,9 @@ def run(args: argparse.Namespace) -> int:
         return _dry_run(args)
     # Everything is validated before anything is written (the --out directory, the lock, the journal):
     # first as a dry run, with the files the session will read; then for real.
-    check_session_inputs(prepare_run(_request(args), dry_run=True).config)
+    checked = prepare_run(_request(args), dry_run=True)
+    check_session_inputs(checked.config)
+    _require_a_terminal_for_prompts(checked.protocol, checked.config)
     live = _start_live(args)  # a port in use is an InputError before anything is written or moves
     try:
         prepared = prepare_run(_request(args))  # locks the run; InputError -> exit 2
@@ -168,10 +172,12 @@ def _dry_run(args: argparse.Namespace) -> int:
     from rig.runner.run import prepare_run
 
     prepared = prepare_run(_request(args), dry_run=True)
-    check_session_inputs(prepared.config)
+    notes = _calibration_not_made_yet(prepared.config)
+    if not notes:
+        check_session_inputs(prepared.config)
     plan = plan_summary(prepared.protocol, prepared.config)
     if args.json:
-        emit_json(plan.as_json())
+        emit_json({**plan.as_json(), "notes": notes} if notes else plan.as_json())
         return 0
     rows = []
     for t in plan.trials:
@@ -196,8 +202,46 @@ def _dry_run(args: argparse.Namespace) -> int:
     )
     minutes = plan.estimated_duration_s / 60
     print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan.duration_assumption})")
+    for note in notes:
+        print(f"note: {note}")
     print("dry run: nothing was moved")
     return 0
+
+
+# Steps that wait for a person on a hardware rig (bending and resetting are by hand there).
+_OPERATOR_STEPS = frozenset({StepKind.PROMPT, StepKind.BEND, StepKind.RESET})
+
+
+def _require_a_terminal_for_prompts(protocol: Protocol, config: RigConfig) -> None:
+    """Refuse, before anything moves, a hardware run whose operator steps could never be confirmed.
+
+    Over `ssh HOST rig run ...` (no -t), from cron or with stdin from /dev/null there is no terminal
+    to press Enter in; the first prompt would stop the run half way.
+    """
+    if config.kind != RigKind.HARDWARE or sys.stdin is None or sys.stdin.isatty():
+        return
+    templates = [t.steps for t in protocol.trials] + [b.steps for b in protocol.adaptive]
+    waits = sorted({s.kind.value for steps in templates for s in steps if s.kind in _OPERATOR_STEPS})
+    if waits:
+        raise InputError(
+            f"{protocol.source}: its {', '.join(waits)} steps wait for the operator to press Enter, and "
+            "stdin is not a terminal; run it from one: `ssh -t HOST rig run ...`, best inside tmux or "
+            "screen so that a dropped connection does not stop the run"
+        )
+
+
+def _calibration_not_made_yet(config: RigConfig) -> list[str]:
+    """A hardware rig's calibration file that does not exist yet: a note for a dry run, not a refusal.
+
+    The bring-up order is plan first, then calibrate (docs/hardware.md); a real run still refuses.
+    """
+    path = config.loadcell.calibration_path
+    if config.kind != RigKind.HARDWARE or path is None or path.exists():
+        return []
+    return [
+        f"{config.source}: loadcell.calibration {path} does not exist yet; make it with "
+        f"`rig calibrate --rig {config.source} --reference-kg M` before a run"
+    ]
 
 
 def _request(args: argparse.Namespace) -> RunRequest:

@@ -5,20 +5,24 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import Any
 
 from rig.errors import InputError
 from rig.hw.loadcell.formats import FORMATS
 from rig.sim.loadcell.emulator import (
     DEFAULT_BANNER,
     DEFAULT_BAUD,
+    DEFAULT_RATE_HZ,
     FaultPlan,
     LoadCellEmulator,
     SignalModel,
     parse_fault,
 )
+from rig.sim.loadcell.inprocess import cell_emulator_options
 from rig.sim.loadcell.profiles import parse_profile
 from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.pty_link import PtyLink, StopFlag
+from rig.sim_config import SIMULATED_CELLS
 
 MAX_SEED = 2**64 - 1
 
@@ -38,10 +42,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     parser.add_argument("--link", required=True, help="path of the symlink to create (e.g. /tmp/loadcell)")
     parser.add_argument(
-        "--rate", type=float, default=1000.0, help="samples per second, 10-2000 (default 1000)"
+        "--rate",
+        type=float,
+        default=None,
+        help="samples per second, 10-2000, or a polled format's most polls per second (default 1000)",
     )
     parser.add_argument(
-        "--format", default="rig-lc1", choices=sorted(FORMATS), help="line format (default rig-lc1)"
+        "--format", default=None, choices=sorted(FORMATS), help="line format (default rig-lc1)"
     )
     parser.add_argument(
         "--baud", type=int, default=DEFAULT_BAUD, help=f"device baud rate (default {DEFAULT_BAUD})"
@@ -87,6 +94,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help=f"zero drift in counts per second (default {defaults.drift_counts_per_s:g})",
     )
     parser.add_argument(
+        "--cell",
+        choices=[name for name, cell in SIMULATED_CELLS.items() if cell is not None],
+        default=None,
+        help="emulate a cell labs own (its rate, format, counts, noise, settling and banner; "
+        "protocols/README.md); --rate and --format must then be left out or agree with it",
+    )
+    parser.add_argument(
+        "--clock-error-ppm",
+        type=float,
+        default=0.0,
+        help="the device clock runs this fast, in ppm (negative: slow; default 0)",
+    )
+    parser.add_argument(
         "--banner",
         action="store_true",
         help=f"rig-lc1: send a boot banner ({DEFAULT_BANNER.decode().strip()}) before the first line, "
@@ -102,21 +122,34 @@ def build_emulator(args: argparse.Namespace, start_ns: int) -> LoadCellEmulator:
     plan = FaultPlan()
     for spec in args.fault:
         plan = parse_fault(spec, plan)
-    return LoadCellEmulator(
-        parse_profile(args.profile, start_ns),
-        format_name=args.format,
-        rate_hz=args.rate,
-        baud=args.baud,
-        signal=SignalModel(
+    options: dict[str, Any] = {
+        "signal": SignalModel(
             gain_counts_per_n=args.gain_counts_per_n,
             offset_counts=args.offset_counts,
             drift_counts_per_s=args.drift_counts_per_s,
             noise_counts=args.noise_counts,
         ),
+        "banner": DEFAULT_BANNER if args.banner else None,
+    }
+    cell = SIMULATED_CELLS[args.cell] if args.cell else None
+    if cell is not None:
+        for flag, given, own in (("--rate", args.rate, cell.rate_hz), ("--format", args.format, cell.format)):
+            if given is not None and given != own:
+                raise InputError(f"{flag} {given}; allowed: {own} with --cell {args.cell} (or leave it out)")
+        args.rate, args.format = cell.rate_hz, cell.format
+        options = cell_emulator_options(cell)
+    args.rate = DEFAULT_RATE_HZ if args.rate is None else args.rate
+    args.format = args.format or "rig-lc1"
+    return LoadCellEmulator(
+        parse_profile(args.profile, start_ns),
+        format_name=args.format,
+        rate_hz=args.rate,
+        baud=args.baud,
         faults=plan,
         seed=args.seed,
         start_ns=start_ns,
-        banner=DEFAULT_BANNER if args.banner else None,
+        clock_error_ppm=args.clock_error_ppm,
+        **options,
     )
 
 

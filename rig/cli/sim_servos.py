@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from rig.errors import InputError, one_line
 from rig.hw.clock import SystemClock
@@ -50,6 +51,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="hold each reply until its simulated wire time (default: reply as soon as computed)",
     )
     parser.add_argument(
+        "--usb-latency-ms",
+        type=float,
+        default=0.0,
+        help="hold every reply this long, as a USB-serial adapter's latency timer does (Linux's FTDI "
+        "default 16, set to 1 by the udev rule in docs/udev/99-rig.rules); default 0",
+    )
+    parser.add_argument(
+        "--sysfs-root",
+        default=None,
+        metavar="DIR",
+        help="with --usb-latency-ms: also write DIR/bus/usb-serial/devices/<pty>/latency_timer, where "
+        "`rig check --sysfs-root DIR` reads it as it reads /sys for a real adapter",
+    )
+    parser.add_argument(
+        "--voltage-v", type=float, default=None, help="Present Input Voltage to report, V (default 12.0)"
+    )
+    parser.add_argument(
+        "--temperature-c", type=int, default=None, help="Present Temperature to report, degC (default 30)"
+    )
+    parser.add_argument(
         "--fault",
         action="append",
         default=[],
@@ -87,9 +108,20 @@ def build_bus(args: argparse.Namespace) -> tuple[EmulatedBus, list[FaultSpec]]:
         raise InputError(f"--baud {args.baud}: not a Dynamixel baud rate; allowed: {allowed}")
     if args.firmware is not None and not 0 <= args.firmware <= 255:
         raise InputError(f"--firmware {args.firmware}: out of range; allowed: 0..255")
+    if not 0 <= args.usb_latency_ms <= 255:  # the FTDI latency timer's range, 1-255 ms (0: none)
+        raise InputError(f"--usb-latency-ms {args.usb_latency_ms}: allowed: 0 to 255")
+    if args.voltage_v is not None and not 0 <= args.voltage_v <= 6553.5:
+        raise InputError(f"--voltage-v {args.voltage_v}: allowed: 0 to 6553.5")
+    if args.temperature_c is not None and not 0 <= args.temperature_c <= 255:
+        raise InputError(f"--temperature-c {args.temperature_c}: allowed: 0 to 255")
     specs = [parse_fault(s) for s in args.fault]
     kwargs = {} if args.firmware is None else {"firmware": args.firmware}
     bus = EmulatedBus.with_servos(SystemClock(), ids=ids, model=args.model, baud=args.baud, **kwargs)
+    for servo in bus.servos:
+        if args.voltage_v is not None:
+            servo.supply_voltage_v = args.voltage_v
+        if args.temperature_c is not None:
+            servo.set_temperature_c(args.temperature_c)
     for spec in specs:
         if (
             spec.servo_id is not None
@@ -119,14 +151,33 @@ def run(args: argparse.Namespace) -> int:
     bus, _ = build_bus(args)
     stop = StopFlag()
     with PtyLink.for_cli(args.link) as link:
+        latency_file = _write_latency_timer(args, link.slave_name)
         print(f"PTY {link.slave_name} LINK {link.link_path}", flush=True)
-        stats = serve(bus, link, stop, wire_timing=args.wire_timing)
+        try:
+            latency_s = args.usb_latency_ms / 1e3
+            stats = serve(bus, link, stop, wire_timing=args.wire_timing, usb_latency_s=latency_s)
+        finally:
+            if latency_file is not None:
+                latency_file.unlink(missing_ok=True)
     print(
         f"stopped: {stats.bytes_in} bytes in, {stats.replies} replies ({stats.bytes_out} bytes) out, "
         f"{bus.crc_errors} CRC errors",
         file=sys.stderr,
     )
     return 0
+
+
+def _write_latency_timer(args: argparse.Namespace, device: str) -> Path | None:
+    """With --sysfs-root: the emulated adapter's latency timer where `rig check` looks for it."""
+    if args.sysfs_root is None:
+        return None
+    path = Path(args.sysfs_root) / "bus" / "usb-serial" / "devices" / Path(device).name / "latency_timer"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(f"{round(args.usb_latency_ms)}\n")
+    except OSError as exc:
+        raise InputError(f"--sysfs-root {args.sysfs_root}: cannot write {path} ({exc.strerror})") from None
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:

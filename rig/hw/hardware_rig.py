@@ -1,4 +1,4 @@
-"""The hardware rig: a `RigSession` on real serial ports, a person at the console, manual bending.
+"""The hardware rig: a `RigSession` on real serial ports, a person at the console, forks or hand bending.
 
 Nothing is opened here; the runner connects inside its safety `try`, so a failure while
 connecting still ends in the safe state.
@@ -11,13 +11,15 @@ import sys
 from collections.abc import Callable
 
 from rig.errors import InputError
+from rig.hw.bending import config_fixture
 from rig.hw.clock import SystemClock
+from rig.hw.configuration.factory import hardware_configuration_source
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.session import RigSession
 from rig.protocol import TrialPlan
-from rig.rig_config import RigConfig
+from rig.rig_config import RigConfig, configuration_source_kind
 from rig.vocabulary import RigKind
 
 
@@ -61,6 +63,8 @@ def hardware_session(config: RigConfig) -> RigSession:
         calibration=calibration,
         stale_timeout_s=config.limits.stale_timeout_s,
         clock=clock,
+        rate_hz=config.loadcell.rate_hz,
+        boot_grace_s=config.loadcell.boot_grace_s,
     )
     return RigSession(
         kind=RigKind.HARDWARE,
@@ -68,8 +72,9 @@ def hardware_session(config: RigConfig) -> RigSession:
         servos=servos,
         load_cell=load_cell,
         operator=ConsoleOperator(),
-        fixture=ManualBending(),
-        configuration=None,
+        fixture=config_fixture(config),
+        configuration=hardware_configuration_source(config, clock),
+        configuration_kind=configuration_source_kind(config),
         winch_id=config.servos.winch.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
         attachments=[(cal_path.name, "application/json", cal_path.read_bytes())],
@@ -82,20 +87,11 @@ class ConsoleOperator:
     def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
         """Prompt, then keep the rig's control loop running until Enter; no terminal is an error."""
         if not sys.stdin or not sys.stdin.isatty():
-            raise InputError(f"operator step needs a person at a terminal: {text}")
+            raise InputError(
+                f"operator step needs a person at a terminal (stdin is not one; over ssh use `ssh -t`, "
+                f"best inside tmux or screen): {text}"
+            )
         print(f"\n>>> {text}  [Enter to continue, Ctrl-C to abort] ", end="", file=sys.stderr, flush=True)
         while not select.select([sys.stdin], [], [], 0)[0]:
             keep_alive()
         sys.stdin.readline()
-
-
-class ManualBending:
-    """No bender servos: the configuration is set by hand after a prompt."""
-
-    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
-        """No servo goals: the runner falls back to an operator prompt."""
-        return {}
-
-    def home_goals(self) -> dict[int, float]:
-        """No servo goals."""
-        return {}

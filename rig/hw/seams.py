@@ -77,6 +77,7 @@ class ConfigurationReading:
     time_ns: int
     joint_angles_rad: tuple[float, ...] | None = None  # planar links only
     slipped_joint: int | None = None
+    uncertainty_rad: tuple[float, ...] | None = None  # per-joint sd, where the source knows it
 
 
 @runtime_checkable
@@ -239,8 +240,31 @@ class BusStatsSource(Protocol):
 
 @runtime_checkable
 class ConfigurationSource(Protocol):
-    """Where the measured link configuration comes from (simulator, file, operator, command)."""
+    """Where the measured link configuration comes from (simulator, file, operator, camera)."""
 
     def measure(self) -> ConfigurationReading:
         """Measure the current configuration (with the source's noise)."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class MeasurementRequest:
+    """What the runner tells a source before a measurement: which configuration, why, and a keep-alive.
+
+    `keep_alive()` is one control period of the runner: a source that waits (for a person typing)
+    calls it over and over, so the rig keeps being read and the servos keep hearing the host.
+    """
+
+    configuration_index: int | None  # 1-based index of the protocol's configuration; None outside one
+    commanded_angles_rad: tuple[float, ...] | None
+    after_slip: bool  # False: after bending; True: after a slip, to tell which joint moved
+    keep_alive: Callable[[], None]
+
+
+@runtime_checkable
+class RequestAwareSource(Protocol):
+    """A configuration source that needs to know what is being measured (file, operator): optional."""
+
+    def prepare(self, request: MeasurementRequest) -> None:
+        """Called before each `measure()`."""
         ...

@@ -8,14 +8,15 @@ configuration into bender-servo goals, or asks the operator to bend the link by 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from rig.hw.bending import BendStage
 from rig.hw.seams import Clock, ConfigurationSource, LoadCell, ServoBus
 from rig.hw.truth import RunTruth
 from rig.protocol import TrialPlan
-from rig.vocabulary import RigKind, ServoRole
+from rig.vocabulary import ConfigurationSourceKind, RigKind, ServoRole
 
 
 class GroundTruth(Protocol):
@@ -40,14 +41,34 @@ class Operator(Protocol):
 
 
 class BendingFixture(Protocol):
-    """Sets the link's configuration before a validation trial and resets it after."""
+    """Sets the link's configuration before a validation trial and resets it after (rig/hw/bending.py)."""
 
-    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
-        """Bender-servo goal positions [rad] for a configuration ({} when bending is manual)."""
+    def bend_stages(
+        self,
+        target_rad: Sequence[float],
+        present_rad: Sequence[float],
+        positions_rad: Mapping[int, float],
+        *,
+        tolerance_rad: float = 0.0,
+        correcting: bool = False,
+    ) -> list[BendStage]:
+        """The forks' moves, in order, toward `target_rad` ([] when bending is manual)."""
+        ...
+
+    def begin_stage(self, stage: BendStage) -> None:
+        """A fork closes on its component before it moves."""
+        ...
+
+    def end_stage(self, stage: BendStage) -> None:
+        """The fork has arrived: it holds its component."""
+        ...
+
+    def end_bend(self) -> None:
+        """Every fork opens: the link is free for the trial."""
         ...
 
     def home_goals(self) -> dict[int, float]:
-        """Bender-servo goal positions [rad] of the straight (reset) link."""
+        """Bender-servo goal positions [rad] of the reset (the link straightened, forks home)."""
         ...
 
 
@@ -69,3 +90,7 @@ class RigSession:
     attachments: list[tuple[str, str, bytes]] = field(default_factory=list)  # (name, media type, data)
     close: Callable[[], None] = field(default=lambda: None)
     log_limit_bytes: int | None = None  # the most the run's log file may hold (writes beyond fail)
+    configuration_kind: ConfigurationSourceKind | None = None  # the source behind `configuration`
+    # Bending by hand (no forks), after the operator's prompt: what the simulated person does.
+    hand_bend: Callable[[tuple[float, ...]], None] = field(default=lambda angles: None)
+    hand_straighten: Callable[[], None] = field(default=lambda: None)

@@ -9,7 +9,9 @@ from model.slip_detector import SlipEvent
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
 from rig.log import schemas as S
+from rig.log.link_scene import LinkGeometry, LinkScene
 from rig.log.records import (
+    ConfigurationMeasurement,
     Estimate,
     JointCapacity,
     LogLevel,
@@ -24,7 +26,7 @@ from rig.log.records import (
     TrialResult,
     TrialState,
 )
-from rig.vocabulary import ServoRole
+from rig.vocabulary import ConfigurationSourceKind, MeasurementStage, ServoRole
 
 EXAMPLE_TIME_NS = 1_767_225_600_123_456_789  # 2026-01-01T00:00:00.123456789Z
 
@@ -39,6 +41,15 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
         force_after_n=8.0,
         drop_fraction=0.36,
         trigger="drop",
+    )
+    scene = LinkScene(
+        LinkGeometry((0.03, 0.03, 0.03), 0.01, (0.0, 0.0, 0.03), (0.0, -1.0, 0.0)),
+        time_ns,
+        trial_id=3,
+        joint_angles_rad=(0.1, -0.2, 0.05),
+        tension_n=12.5,
+        slipped_joint=2,
+        slipped=True,
     )
     fit = FitSummary(
         n=4,
@@ -102,4 +113,17 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
             LoadCellLineStats(4100, 1, 0, 3, 2, 0),
         ).to_payload(),
         S.LOG: LogMessage(time_ns, LogLevel.WARNING, "tension high", line=12).to_payload(),
+        S.LINK_FRAMES: scene.frames_payload(),
+        S.LINK_SCENE: scene.scene_payload(),
+        S.CONFIGURATION_MEASURED: ConfigurationMeasurement(
+            trial_id=3,
+            source=ConfigurationSourceKind.CAMERA,
+            stage=MeasurementStage.BENT,
+            measured_time_ns=time_ns,
+            attempt=1,
+            configuration_index=2,
+            joint_angles_rad=(0.01, -0.49),
+            uncertainty_rad=(0.007, 0.007),
+            commanded_angles_rad=(0.0, -0.5),
+        ).to_payload(),
     }

@@ -27,7 +27,7 @@ from model.fit import SUMMARY_KEYS, FitSummary
 from model.slip_detector import SlipEvent, SlipEventKind
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
-from rig.vocabulary import SLIP_LIKE, TrialKind, TrialOutcome
+from rig.vocabulary import SLIP_LIKE, ConfigurationSourceKind, MeasurementStage, TrialKind, TrialOutcome
 
 NS_PER_S = 1_000_000_000
 
@@ -667,4 +667,59 @@ class TrialLinkStats:
             trial_id=integer(payload["trial_id"], "trial_id"),
             bus=counts("bus", BusStats),
             loadcell=counts("loadcell", LoadCellLineStats),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class ConfigurationMeasurement:
+    """One measurement of the link's configuration (`/rig/configuration/measured`), beside the commanded one.
+
+    Angles in rad, joint 1 (base) first; `uncertainty_rad` is each angle's standard deviation where
+    the source knows it. `stage`: after bending (`attempt` 0, then n after the n-th correction) or
+    after a slip (`slipped_joint`: the joint that moved, when the source or the comparison with the
+    measurement before could tell). Absent values are absent fields, never null.
+    """
+
+    trial_id: int
+    source: ConfigurationSourceKind
+    stage: MeasurementStage
+    measured_time_ns: int
+    attempt: int = 0
+    configuration_index: int | None = None
+    joint_angles_rad: tuple[float, ...] | None = None
+    uncertainty_rad: tuple[float, ...] | None = None
+    commanded_angles_rad: tuple[float, ...] | None = None
+    slipped_joint: int | None = None
+
+    def to_payload(self) -> dict[str, Any]:
+        """The `/rig/configuration/measured` payload."""
+        return present(
+            {
+                "trial_id": integer(self.trial_id, "trial_id"),
+                "source": ConfigurationSourceKind(self.source).value,
+                "stage": MeasurementStage(self.stage).value,
+                "measured": stamp(self.measured_time_ns),
+                "attempt": integer(self.attempt, "attempt"),
+                "configuration_index": integer_or_none(self.configuration_index, "configuration_index"),
+                "joint_angles_rad": _numbers_or_none(self.joint_angles_rad, "joint_angles_rad"),
+                "uncertainty_rad": _numbers_or_none(self.uncertainty_rad, "uncertainty_rad"),
+                "commanded_angles_rad": _numbers_or_none(self.commanded_angles_rad, "commanded_angles_rad"),
+                "slipped_joint": integer_or_none(self.slipped_joint, "slipped_joint"),
+            }
+        )
+
+    @classmethod
+    def from_payload(cls, payload: Mapping[str, Any]) -> ConfigurationMeasurement:
+        """Decode a `/rig/configuration/measured` payload."""
+        return cls(
+            trial_id=integer(payload["trial_id"], "trial_id"),
+            source=ConfigurationSourceKind(payload["source"]),
+            stage=MeasurementStage(payload["stage"]),
+            measured_time_ns=time_ns_from_payload(payload, "measured_time_ns"),
+            attempt=integer(payload.get("attempt") or 0, "attempt"),
+            configuration_index=integer_or_none(payload.get("configuration_index"), "configuration_index"),
+            joint_angles_rad=_tuple_or_none(payload.get("joint_angles_rad")),
+            uncertainty_rad=_tuple_or_none(payload.get("uncertainty_rad")),
+            commanded_angles_rad=_tuple_or_none(payload.get("commanded_angles_rad")),
+            slipped_joint=integer_or_none(payload.get("slipped_joint"), "slipped_joint"),
         )

@@ -32,6 +32,7 @@ from model.slip_detector import SlipEvent
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats, LoadCellSample, ServoState
 from rig.log.records import (
+    ConfigurationMeasurement,
     Estimate,
     JointCapacity,
     LogLevel,
@@ -46,6 +47,7 @@ from rig.log.records import (
     present,
     stamp_name,
 )
+from rig.log.scene_schemas import frame_transforms_schema, scene_update_schema
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
@@ -60,6 +62,9 @@ TRIAL_RESULT = "/rig/trial/result"
 ESTIMATE = "/rig/estimate"
 TRIAL_LINKS = "/rig/trial/links"
 LOG = "/rig/log"
+LINK_FRAMES = "/rig/link/frames"
+LINK_SCENE = "/rig/link/scene"
+CONFIGURATION_MEASURED = "/rig/configuration/measured"
 
 # ---------------------------------------------------------------------------------------------
 # Deriving schemas from type hints
@@ -304,6 +309,17 @@ _SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     TRIAL_LINKS: ("rig.TrialLinkStats", _trial_links()),
     LOG: ("foxglove.Log", _foxglove_log()),
+    LINK_FRAMES: ("foxglove.FrameTransforms", frame_transforms_schema()),
+    LINK_SCENE: ("foxglove.SceneUpdate", scene_update_schema()),
+    CONFIGURATION_MEASURED: (
+        "rig.ConfigurationMeasurement",
+        _rig_object(
+            "rig.ConfigurationMeasurement",
+            "A measured link configuration (rad, joint 1 first; uncertainty: sd where known) beside the"
+            " commanded one; stage bent (attempt n after the n-th correction) or after_slip.",
+            _field_schemas(ConfigurationMeasurement),
+        ),
+    ),
 }
 
 

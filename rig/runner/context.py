@@ -10,6 +10,7 @@ from rig.protocol import Protocol
 from rig.rig_config import RigConfig
 from rig.runner.control_loop import ControlLoop
 from rig.runner.estimation import RunEstimator
+from rig.runner.link_view import LinkView
 from rig.runner.recorder import RunRecorder
 from rig.runner.release import LineRelease
 
@@ -28,6 +29,7 @@ class StepContext:
     estimator: RunEstimator
     detector_params: DetectorParams
     line_stiffness_n_per_m: float
+    link_view: LinkView
     winch_zero_rad: float | None = None
 
     def line_release(self) -> LineRelease:

@@ -20,12 +20,15 @@ from model.slip_detector import (
     detector_run,
     further_drops,
 )
+from model.slipped_joint import moved_joint, noise_threshold_rad
 from rig.errors import InterlockTripped, StepTimeoutError
+from rig.hw.configuration.factory import sees_slips
 from rig.log import schemas
 from rig.log.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcome
 from rig.protocol import TrialPlan
 from rig.runner.context import StepContext
 from rig.runner.control_loop import ControlLoop
+from rig.runner.measuring import measure_configuration
 from rig.runner.phases import Phase
 from rig.runner.results import TrialMeasurements, slip_outcome
 from rig.runner.safe_state import POSITION_TOLERANCE_RAD
@@ -206,10 +209,13 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP, start_ns
     )
     drive.set_speed(ramp.fast_speed_rad_s if fast else ramp.slow_speed_rad_s)
+    view = ctx.link_view
+    view.ramp_started(trial, found, loop.force_n, start_ns)
     while feed.event is None:
         loop.tick()
         event = feed.feed(loop.tick_samples)
         found.peak_observed_n = feed.peak_n
+        view.ramp_tick(trial, found, loop.force_n, loop.clock.time_ns())
         if event is not None:
             break
         if fast and loop.force_n >= switch_n:
@@ -242,15 +248,30 @@ def _record_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements, f
     assert event is not None
     found.event = event
     found.train_drops = feed.drops_in_hold(ctx.loop, ctx.protocol.ramp.hold_after_slip_s)
-    if ctx.session.configuration is not None:
-        found.slipped_joint = ctx.session.configuration.measure().slipped_joint
+    found.slipped_joint = _slipped_joint(ctx, trial, found)
     found.outcome = slip_outcome(trial, event, found.train_drops, found.slipped_joint)
     message = SlipMessage(
         trial.trial_id, event, feed.params.to_mapping(), found.slipped_joint, found.train_drops
     )
     ctx.recorder.write(schemas.SLIP, message.to_payload(), event.detection_time_ns)
+    ctx.link_view.show(trial, found, event.peak_force_n, event.detection_time_ns)
     if found.outcome != TrialOutcome.SLIP:
         ctx.recorder.note(LogLevel.INFO, f"trial {trial.trial_id}: {found.outcome} ({_why(found)})")
+
+
+def _slipped_joint(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements) -> int | None:
+    """The joint that moved, where the source sees it: as it says, or from the configuration before/after."""
+    kind = ctx.session.configuration_kind
+    if ctx.session.configuration is None or (kind is not None and not sees_slips(kind)):
+        return None
+    after = measure_configuration(ctx, trial, after_slip=True)
+    if after.slipped_joint is not None:
+        return after.slipped_joint
+    before = found.measured
+    if before is None or before.transforms.shape != after.transforms.shape:
+        return None
+    sd = None if after.uncertainty_rad is None else max(after.uncertainty_rad, default=None)
+    return moved_joint(before.transforms, after.transforms, noise_threshold_rad(sd))
 
 
 def _confirmed_by_winch(ctx: StepContext, event: SlipEvent) -> bool:

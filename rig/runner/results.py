@@ -13,6 +13,7 @@ from typing import assert_never
 
 from model.payload_errors import PayloadErrorStats, payload_error_stats, signed_percentage_error
 from model.slip_detector import SlipEvent, SlipEventKind
+from rig.hw.seams import ConfigurationReading
 from rig.log.records import SLIP_LIKE, TrialKind, TrialOutcome, TrialResult
 from rig.protocol import TrialPlan
 
@@ -30,6 +31,7 @@ class TrialMeasurements:
     slipped_joint: int | None = None
     train_drops: int = 0  # further drops in the hold after the event
     reason: str | None = None  # why the trial was aborted
+    measured: ConfigurationReading | None = None  # the configuration measured after bending
 
 
 def slip_outcome(

@@ -9,19 +9,21 @@ when a step kind is added.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from types import MappingProxyType
 from typing import assert_never
 
 from rig.errors import InterlockTripped, StaleDataError
+from rig.hw.bending import BendStage
 from rig.log.records import LogLevel, ServoCommandName
 from rig.protocol import StepSpec, TrialPlan
 from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
+from rig.runner.measuring import measure_configuration
 from rig.runner.phases import Phase
 from rig.runner.ramp import ramp_until_slip
 from rig.runner.results import TrialMeasurements
 from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
-from rig.vocabulary import StepKind
+from rig.vocabulary import ServoRole, StepKind
 
 _RELEASED_TENSION_N = 0.5
 
@@ -62,29 +64,86 @@ def tare(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
 
 
 def bend(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
-    """Bend the link to the trial's configuration: by the fixture's servos, or by the operator."""
+    """Bend the link to the trial's configuration: by the forks, base to tip, or by the operator's hands."""
     ctx.recorder.phase(Phase.BENDING, trial.trial_id, StepKind.BEND)
     angles = trial.joint_angles_rad or ()
-    goals = ctx.session.fixture.bend_goals(angles)
-    if not goals:
+    fixture = ctx.session.fixture
+    straight = (0.0,) * len(angles)  # a bend starts from the reset (straight) link
+    stages = fixture.bend_stages(angles, straight, _positions(ctx))
+    if not stages:
         degrees = ", ".join(f"{math.degrees(a):.1f}" for a in angles)
-        ctx.session.operator.confirm(
-            f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg",
-            trial,
-            ctx.loop.tick,
-        )
+        _by_hand(ctx, trial, f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg")
+        ctx.session.hand_bend(tuple(angles))
         return
-    _move_servos(ctx, goals, StepKind.BEND, speed_rad_s=BENDER_SPEED_RAD_S)
+    _run_stages(ctx, stages)
+    if StepKind.MEASURE not in [s.kind for s in trial.steps]:
+        fixture.end_bend()  # nothing will correct it: the forks open now
 
 
 def measure(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
-    """Read the link's configuration, when the rig has a source for it."""
+    """Measure the link's configuration and, with forks, correct it toward the target (bounded).
+
+    Every measurement is logged on `/rig/configuration/measured` beside the commanded angles; the
+    prediction uses the last one. Without a source the commanded angles stand in.
+    """
     source = ctx.session.configuration
+    fixture = ctx.session.fixture
     if source is None:
-        return  # the commanded configuration stands for the measured one
-    reading = source.measure()
+        fixture.end_bend()
+        return
+    target = trial.joint_angles_rad
+    reading = measure_configuration(ctx, trial, after_slip=False, attempt=0)
+    attempt = 0
+    while target is not None and reading.joint_angles_rad is not None and attempt < trial.bend_corrections:
+        if _worst_error_rad(reading.joint_angles_rad, target) <= trial.bend_tolerance_rad:
+            break
+        stages = fixture.bend_stages(
+            target,
+            reading.joint_angles_rad,
+            _positions(ctx),
+            tolerance_rad=trial.bend_tolerance_rad,
+            correcting=True,
+        )
+        if not stages:
+            break
+        attempt += 1
+        _run_stages(ctx, stages)
+        reading = measure_configuration(ctx, trial, after_slip=False, attempt=attempt)
+    fixture.end_bend()
     if reading.joint_angles_rad is not None:
         found.joint_angles_rad = tuple(reading.joint_angles_rad)
+        if target is not None and attempt > 0:
+            worst = _worst_error_rad(reading.joint_angles_rad, target)
+            level = LogLevel.INFO if worst <= trial.bend_tolerance_rad else LogLevel.WARNING
+            ctx.recorder.note(
+                level,
+                f"trial {trial.trial_id}: configuration {trial.configuration_index} reached within "
+                f"{math.degrees(worst):.2f} deg after {attempt} corrections (tolerance "
+                f"{math.degrees(trial.bend_tolerance_rad):.2f} deg); the prediction uses the measurement",
+            )
+    found.measured = reading
+
+
+def _worst_error_rad(measured: Sequence[float], target: Sequence[float]) -> float:
+    return max((abs(m - t) for m, t in zip(measured, target, strict=True)), default=0.0)
+
+
+def _positions(ctx: StepContext) -> dict[int, float]:
+    """Every bender's present shaft angle [rad]."""
+    return {
+        sid: ctx.loop.states[sid].position_rad
+        for sid, role in ctx.session.roles.items()
+        if role == ServoRole.BENDER and sid in ctx.loop.states
+    }
+
+
+def _run_stages(ctx: StepContext, stages: Sequence[BendStage]) -> None:
+    """Move the forks one at a time, each closing on its component first and holding once there."""
+    fixture = ctx.session.fixture
+    for stage in stages:
+        fixture.begin_stage(stage)
+        _move_servos(ctx, {stage.servo_id: stage.goal_rad}, StepKind.BEND, speed_rad_s=BENDER_SPEED_RAD_S)
+        fixture.end_stage(stage)
 
 
 def ramp(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
@@ -122,7 +181,8 @@ def reset(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasur
     ctx.recorder.phase(Phase.RESETTING, trial.trial_id, StepKind.RESET)
     goals = ctx.session.fixture.home_goals()
     if not goals:
-        ctx.session.operator.confirm("Straighten the link (reset), then confirm.", trial, ctx.loop.tick)
+        _by_hand(ctx, trial, "Straighten the link (reset), then confirm.")
+        ctx.session.hand_straighten()
         return
     _move_servos(ctx, goals, StepKind.RESET, speed_rad_s=BENDER_SPEED_RAD_S)
 
@@ -131,6 +191,29 @@ def pause(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasur
     """Wait `duration_s`, ticking."""
     ctx.recorder.phase(Phase.PAUSING, trial.trial_id, StepKind.PAUSE)
     ctx.loop.ticks_for(step.duration_s)
+
+
+def _by_hand(ctx: StepContext, trial: TrialPlan, text: str) -> None:
+    """The operator sets the link by hand: the benders' torque is off meanwhile, so that they give way.
+
+    Afterwards each bender holds where the operator left it (its goal set to its position before
+    its torque comes back on), so the configuration stays as bent.
+    """
+    benders = [sid for sid, role in ctx.session.roles.items() if role == ServoRole.BENDER]
+    servos = ctx.session.servos
+    if benders:
+        servos.set_torque(benders, False)
+        for sid in benders:
+            ctx.recorder.command(sid, ServoCommandName.TORQUE, 0.0, "")
+    ctx.session.operator.confirm(text, trial, ctx.loop.tick)
+    if benders:
+        ctx.loop.tick()
+        held = {sid: ctx.loop.states[sid].position_rad for sid in benders}
+        servos.write_goal_positions(held)
+        servos.set_torque(benders, True)
+        for sid in benders:
+            ctx.recorder.command(sid, ServoCommandName.GOAL_POSITION, held[sid], "rad")
+            ctx.recorder.command(sid, ServoCommandName.TORQUE, 1.0, "")
 
 
 def _move_servos(ctx: StepContext, goals: dict[int, float], what: str, speed_rad_s: float) -> None:

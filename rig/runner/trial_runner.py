@@ -46,6 +46,7 @@ from rig.runner.estimation import RunEstimator
 from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.journal import RunJournal
 from rig.runner.link_counts import TrialLinkCounter
+from rig.runner.link_view import LinkView
 from rig.runner.phases import Phase
 from rig.runner.progress import ProgressReporter
 from rig.runner.recorder import RunRecorder
@@ -121,6 +122,7 @@ class TrialRunner:
             estimator=estimator,
             detector_params=protocol.detector,
             line_stiffness_n_per_m=line_stiffness_n_per_m,
+            link_view=LinkView(self.recorder, config.article),
         )
         self.trial: TrialPlan | None = None
         self.connected = False
@@ -301,6 +303,7 @@ class TrialRunner:
         self.estimator.apply_result(result)
         estimate = self.estimator.estimate(trial.trial_id)
         log_time = self.clock.time_ns()
+        self.ctx.link_view.show(trial, found, found.peak_observed_n or 0.0, log_time)
         self.recorder.write(schemas.TRIAL_RESULT, result.to_payload(), log_time)
         self.recorder.write(schemas.ESTIMATE, estimate.to_payload(), log_time)
         self.recorder.flush()

@@ -16,7 +16,6 @@ from rig.errors import ConfigError
 from rig.hw.session import RigSession
 from rig.rig_config import RigConfig, require_simulated
 from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
-from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
 from rig.sim.simulated_rig import (
     SimGroundTruth,
@@ -24,10 +23,12 @@ from rig.sim.simulated_rig import (
     bending_fixture,
     calibration_json,
     config_preset,
+    configuration_source,
     loadcell_artefacts,
     loadcell_signal,
     new_world,
     run_clock,
+    session_extras,
     trial_starter,
 )
 from rig.vocabulary import RigKind
@@ -53,6 +54,13 @@ def object_simulated_rig(
             f"{config.source}: simulation/faults: the object-level devices have no bytes to corrupt; "
             "allowed: no faults, or the byte-level devices (--devices byte)"
         )
+    if sim.cell is not None or sim.loadcell_clock_error_ppm or sim.loadcell_dtr_reset_s:
+        raise ConfigError(
+            f"{config.source}: simulation.loadcell_cell: {sim.loadcell_cell} (clock error "
+            f"{sim.loadcell_clock_error_ppm:g} ppm, DTR reset {sim.loadcell_dtr_reset_s:g} s): the "
+            "object-level load cell has no lines, settling, polls or device clock; allowed: the default "
+            "cell, or the byte-level devices (--devices byte)"
+        )
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
     bus = ObjectServoBus(clock, [(s.servo_id, config.servos.winch.model) for s in config.servos.servos])
@@ -75,11 +83,12 @@ def object_simulated_rig(
         load_cell=load_cell,
         operator=SimOperator(),
         fixture=bending_fixture(world, config),
-        configuration=SimConfigurationSource(world, clock, seed=seed),
+        configuration=configuration_source(world, config, clock, seed),
         winch_id=config.servos.winch.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
         begin_trial=trial_starter(world),
         truth=SimGroundTruth(world, bus),
         attachments=[("loadcell-calibration.json", "application/json", calibration_json(load_cell))],
+        **session_extras(world, config),
     )
     return ObjectSimulatedRig(session, world, bus, load_cell)

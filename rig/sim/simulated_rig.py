@@ -12,7 +12,8 @@ Assembly, in the order time flows on every clock advance:
 
 The simulated operator confirms prompts at once; placing the hook (joint estimation) or starting a
 validation trial is done at trial start through `SimWorld.begin_trial`, which also draws the
-trial's capacity variation. Bending goes through the bender servo and the world's fixture.
+trial's capacity variation. Bending goes through the forks' bender servos and the world's fork
+fixture (rig/sim/physics/forks.py); without forks the simulated person bends by hand.
 """
 
 from __future__ import annotations
@@ -24,11 +25,14 @@ from dataclasses import dataclass, replace
 from typing import Any, Protocol, assert_never
 
 from rig.errors import ConfigError
+from rig.hw.bending import BendStage, ForkBending, ManualBending, fork_components
+from rig.hw.configuration.factory import hardware_configuration_source
 from rig.hw.dxl.bus import DynamixelServoBus
+from rig.hw.seams import ConfigurationSource
 from rig.hw.session import RigSession
 from rig.hw.truth import RunTruth
 from rig.protocol import TrialPlan
-from rig.rig_config import RigConfig, require_simulated
+from rig.rig_config import RigConfig, configuration_source_kind, require_simulated
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
@@ -39,7 +43,7 @@ from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, SimPreset, make_preset, stream_rng
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import ShaftLike, SimWorld
-from rig.vocabulary import RigKind, TrialKind
+from rig.vocabulary import ConfigurationSourceKind, RigKind, TrialKind
 
 
 class PacedVirtualClock(VirtualClock):
@@ -63,20 +67,35 @@ class SimOperator:
         self.prompts.append(text)
 
 
-class SimBendingFixture:
-    """Bender goals from the world's fixture (one bender servo; see rig/sim/physics/bending_fixture.py)."""
+class SimForkBending(ForkBending):
+    """Forks on the simulated link: the world closes each fork as its stage begins (physics/forks.py)."""
 
-    def __init__(self, world: SimWorld, bender_id: int) -> None:
+    def __init__(self, world: SimWorld, config: RigConfig) -> None:
+        article = config.article
+        super().__init__(
+            fork_components(config),
+            article.segment_lengths_m,
+            article.point_m,
+            config.bending.pinion_radius_m,
+        )
         self.world = world
-        self.bender_id = bender_id
 
-    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
-        """Ask the fixture for the configuration; command this bender goal."""
-        return {self.bender_id: self.world.request_bend(joint_angles_rad)}
+    def begin_stage(self, stage: BendStage) -> None:
+        """The fork closes on its component."""
+        self.world.engage_fork(stage.component)
+
+    def end_stage(self, stage: BendStage) -> None:
+        """The fork has arrived: the link settles and the fork holds."""
+        self.world.settle_fork()
+
+    def end_bend(self) -> None:
+        """The forks open."""
+        self.world.open_forks()
 
     def home_goals(self) -> dict[int, float]:
-        """Ask the fixture to straighten the link."""
-        return {self.bender_id: self.world.request_reset()}
+        """The guide bar straightens the link; the forks go home."""
+        self.world.straighten()
+        return super().home_goals()
 
 
 # Each invocation of a run (the first, then every --resume) starts its virtual clock a day after
@@ -149,7 +168,12 @@ def simulated_rig(
     clock = run_clock(realtime, invocation)
     winch_spec = config.servos.winch
     ids = [s.servo_id for s in config.servos.servos]
-    bus = EmulatedBus.with_servos(clock, ids=ids, model=winch_spec.model, baud=config.servos.baud)
+    bus = EmulatedBus.with_servos(
+        clock, ids=ids, model=winch_spec.model, baud=config.servos.baud, firmware=sim.servo_firmware
+    )
+    for servo in bus.servos:
+        servo.supply_voltage_v = sim.servo_supply_v
+        servo.set_temperature_c(sim.servo_temperature_c)
     world = new_world(preset, config, bus, clock, seed)
     load_cell, loadcell_emulator = simulated_load_cell(
         world.tension_at,
@@ -161,6 +185,11 @@ def simulated_rig(
         seed=seed,
         stale_timeout_s=config.limits.stale_timeout_s,
         artefacts=loadcell_artefacts(preset, seed),
+        baud=config.loadcell.baud,
+        cell=sim.cell,
+        clock_error_ppm=sim.loadcell_clock_error_ppm,
+        dtr_reset_s=sim.loadcell_dtr_reset_s,
+        boot_grace_s=config.loadcell.boot_grace_s,
     )
     schedule = apply_faults(config, sim.faults, bus=bus, loadcell=loadcell_emulator, clock=clock, seed=seed)
     servos = DynamixelServoBus(
@@ -180,13 +209,14 @@ def simulated_rig(
         load_cell=load_cell,
         operator=SimOperator(),
         fixture=bending_fixture(world, config),
-        configuration=SimConfigurationSource(world, clock, seed=seed),
+        configuration=configuration_source(world, config, clock, seed),
         winch_id=winch_spec.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
         begin_trial=trial_starter(world),
         truth=SimGroundTruth(world, bus),
         attachments=[("loadcell-calibration.json", "application/json", calibration_json(load_cell))],
         log_limit_bytes=log_limit_bytes(sim.faults),
+        **session_extras(world, config),
     )
     return SimulatedRig(session, SimulatedDevices(bus, world, loadcell_emulator, schedule))
 
@@ -194,16 +224,6 @@ def simulated_rig(
 def calibration_json(load_cell: Any) -> bytes:
     """The simulated cell's calibration as the JSON file a real rig would attach."""
     return (json.dumps(load_cell.calibration.to_dict(), indent=2, allow_nan=False) + "\n").encode()
-
-
-class _NoFixture:
-    """A simulated rig without a bender: link validation would need manual bending, refused here."""
-
-    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
-        raise ConfigError("the simulated rig has no bender servo; add one with role: bender")
-
-    def home_goals(self) -> dict[int, float]:
-        raise ConfigError("the simulated rig has no bender servo; add one with role: bender")
 
 
 class _ShaftBus(Protocol):
@@ -284,7 +304,8 @@ def new_world(
     world = SimWorld(
         preset,
         winch,
-        bender=bus.servo(benders[0].servo_id) if benders else None,
+        forks=[(s.component, bus.servo(s.servo_id)) for s in benders if s.component is not None],
+        pinion_radius_m=config.bending.pinion_radius_m,
         step_devices=bus.advance_to,
         seed=seed,
         start_ns=clock.monotonic_ns(),
@@ -308,10 +329,27 @@ def loadcell_artefacts(preset: SimPreset, seed: int) -> ArtefactModel | None:
     )
 
 
-def bending_fixture(world: SimWorld, config: RigConfig) -> SimBendingFixture | _NoFixture:
-    """The motorised fixture on the first bender, or none (link validation then cannot bend)."""
-    benders = config.servos.benders
-    return SimBendingFixture(world, benders[0].servo_id) if benders else _NoFixture()
+def bending_fixture(world: SimWorld, config: RigConfig) -> SimForkBending | ManualBending:
+    """Forks where the config's benders name components; else the simulated person bends by hand."""
+    return SimForkBending(world, config) if fork_components(config) else ManualBending()
+
+
+def configuration_source(
+    world: SimWorld, config: RigConfig, clock: VirtualClock, seed: int
+) -> ConfigurationSource | None:
+    """The source the config selects: the world's own for `simulator`, else the hardware factory's."""
+    if configuration_source_kind(config) == ConfigurationSourceKind.SIMULATOR:
+        return SimConfigurationSource(world, clock, seed=seed)
+    return hardware_configuration_source(config, clock)
+
+
+def session_extras(world: SimWorld, config: RigConfig) -> dict[str, Any]:
+    """The session fields every simulated rig shares: the source's kind and the simulated person's hands."""
+    return {
+        "configuration_kind": configuration_source_kind(config),
+        "hand_bend": world.bend_by_hand,
+        "hand_straighten": world.straighten,
+    }
 
 
 def trial_starter(world: SimWorld) -> Callable[[TrialPlan], None]:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 from rig.errors import CommunicationError, HardwareFault, NotConnectedError, StaleDataError
+from rig.hw.bending import ManualBending
 from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample, OperatingMode, ServoState
 from rig.hw.session import RigSession
 from rig.protocol import TrialPlan
@@ -543,18 +544,6 @@ class FakeOperator:
         self.prompts.append((trial_id, text))
         if trial_id is not None and trial_id == self.interrupt_at_trial:
             raise KeyboardInterrupt
-
-
-class ManualBending:
-    """A `BendingFixture` without bender servos: the operator bends the link by hand."""
-
-    def bend_goals(self, joint_angles_rad: tuple[float, ...]) -> dict[int, float]:
-        """No servo goals: the runner asks the operator."""
-        return {}
-
-    def home_goals(self) -> dict[int, float]:
-        """No servo goals: the runner asks the operator."""
-        return {}
 
 
 def fake_session(

@@ -45,6 +45,11 @@ const PROBE_HUE_TOLERANCE_DEG = 12;
 // A State Transitions row counts as drawn when coloured bars cover at least this many pixel columns
 // (the grey playback cursor and axes are not coloured).
 const MIN_STATE_COLUMNS = 4;
+// 3D panel: the hue of the rig scene's line arrow (RGB 0.98, 0.60, 0.10: 36°) and how many pixels of it
+// count as the scene drawn (the arrow is at least 3 cm long, tens of pixels at the layout's zoom).
+const SCENE_ARROW_HUE_DEG = 36;
+const SCENE_HUE_TOLERANCE_DEG = 8;
+const MIN_SCENE_PIXELS = 12;
 const STATE_ROW_HEIGHT = 64; // the State Transitions panel's height per path, from the chart's top (1.10.x)
 const EXPECTS_APP =
   "expected a Lichtblick web build directory (the web/.webpack output of a Lichtblick 1.10.x web build " +
@@ -657,6 +662,25 @@ async function readPanels(page, panels, png) {
       } else {
         Object.assign(result, { state: "empty", detail: "no log lines" });
       }
+    } else if (panel.type === "3D") {
+      // The rig's scene draws the line as an orange arrow (rig/log/link_scene.py); the viewer's own
+      // grid and frame axes are blue, red, green and grey, so orange pixels mean the scene is drawn.
+      let orange = 0;
+      if (d.canvasRect) {
+        ({ huePixels: [orange] } = await page.evaluate(countPixelsInPage, {
+          png: png.toString("base64"),
+          rect: d.canvasRect,
+          masks: [],
+          hues: [SCENE_ARROW_HUE_DEG],
+          hueTolerance: SCENE_HUE_TOLERANCE_DEG,
+          bands: [],
+        }));
+      }
+      Object.assign(result, {
+        state: orange >= MIN_SCENE_PIXELS ? "data" : "empty",
+        detail: `${orange} px of the scene's orange line arrow`,
+        scenePixels: orange,
+      });
     } else {
       Object.assign(result, {
         state: "unchecked",

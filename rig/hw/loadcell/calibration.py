@@ -294,12 +294,14 @@ def run_calibration(
     load_cell.poll()  # drop whatever was buffered before the operator was ready
     zero = measure(
         CalibrationStep.REMOVE_LOAD,
-        "Step 1/2: remove every load from the line (empty hook hanging freely), keep the rig still.",
+        "Step 1/2: take every load off the line (slack, nothing on the hook), keep the rig still.",
         "zero",
     )
     reference = measure(
         CalibrationStep.PLACE_REFERENCE,
-        f"Step 2/2: hang the {reference_kg:g} kg reference mass on the line and let it come to rest.",
+        f"Step 2/2: load the line through the cell with the reference: hang the {reference_kg:g} kg mass "
+        "from it (over the pulley, so that the cell sits in the line as in a trial), or pull it to "
+        f"{reference_kg * g:.4g} N read on a reference gauge; let it come to rest.",
         "reference",
     )
     return two_point(

@@ -2,10 +2,29 @@
 
 A load cell that sends its own microsecond clock (`rig-lc1`) lets the host time each sample when
 it was taken rather than when its line happened to be read (several lines often arrive in one
-read). The mapping is the classic minimum-latency estimate: every line arrives after it was
-sampled, so `offset = min(receipt − device time)` over the lines seen is the best estimate of the
-clocks' offset; a small leak per sample lets it follow drift between the two clocks. A mapped
-time is never later than the line's receipt.
+read). The mapping has two parts, both estimated from the lower envelope of
+`observed = receipt − device time` (every line arrives after it was sampled, so the smallest
+observed values are the ones with the least transmission and reading delay):
+
+* **Offset**: the classic minimum-latency estimate, `offset = min(observed)`, with a small leak
+  per sample (`OFFSET_LEAK_NS`) so that it can also move up.
+* **Rate** (`track_rate`, on by default): a device clock that runs a fraction `s` slow or fast
+  makes `observed` climb or fall by `s` per device second. A leak of 2 µs per sample follows at
+  most 2 µs per sample period (2000 ppm at 1 kHz but only 20 ppm at 10/s), so a resonator 0.5 %
+  off would leave the stamps seconds wrong after minutes. The mapper therefore takes the minimum
+  of `observed` in each window of device time (`RATE_WINDOW_S`, or `RATE_WINDOW_SAMPLES` samples
+  if that is longer), and estimates `s` as the slope between the first window's minimum and the
+  latest window's minimum: a two-point fit of the lower envelope, whose error is the minima's
+  jitter divided by the time between them, so it improves the longer the device runs. The device
+  time is then corrected, `d' = d + s (d − d_first)`, the offset is re-anchored on the first
+  minimum in the corrected frame, and the offset estimate above runs on `d'`.
+  A slope below `RATE_DEADBAND_PPM` is not applied until one above it has been (a crystal's
+  tolerance is tens of ppm, which the leak follows at every rate from 10/s): so a device whose
+  clock keeps the host's time is mapped exactly as by the offset alone.
+
+A mapped time is never later than the line's receipt once the rate is known (before that, the
+first line of a read is placed at its receipt). `benchmarks/bench_device_clock.py` measures the
+stamps' error after an hour with a clock 1 % off, with and without rate tracking.
 """
 
 from __future__ import annotations
@@ -16,43 +35,63 @@ DEVICE_CLOCK_WRAP_US = 1 << 32
 # How fast the offset estimate may move later, per sample: 2 µs at 1 kHz follows a drift of up to
 # 2000 ppm, far beyond a crystal's, while keeping the estimate near the minimum latency.
 OFFSET_LEAK_NS = 2_000
+# The rate estimate: minima of `observed` per window of device time, at least this long ...
+RATE_WINDOW_S = 5.0
+# ... and holding at least this many samples (50 s at 10/s: enough lines for a clean minimum).
+RATE_WINDOW_SAMPLES = 500
+# A slope is first applied once it exceeds this (thereafter every estimate is applied).
+RATE_DEADBAND_PPM = 10.0
 
 
 class DeviceClockMapper:
-    """Maps wrapping 32-bit device microseconds onto host epoch nanoseconds."""
+    """Maps wrapping 32-bit device microseconds onto host epoch nanoseconds (offset and rate)."""
 
-    def __init__(self) -> None:
+    def __init__(self, track_rate: bool = True) -> None:
+        self.track_rate = track_rate
         self._offset_ns: int | None = None
         self._last_raw_us: int | None = None
         self._wraps = 0
+        # Rate tracking: the current window (its start, sample count, minimum and where it was).
+        self._window_start_ns: int | None = None
+        self._window_samples = 0
+        self._window_min: tuple[int, int] | None = None  # (device ns, observed ns)
+        self._first_min: tuple[int, int] | None = None
+        self._skew = 0.0  # applied fractional rate error of the device clock (observed per device ns)
+        self._estimate = 0.0  # latest estimate, applied or not
+        self._rate_known = False
 
     def reset(self) -> None:
         """Forget the mapping (e.g. after reopening the port: the device may have restarted)."""
-        self.__init__()  # type: ignore[misc]
+        self.__init__(self.track_rate)  # type: ignore[misc]
+
+    @property
+    def skew_ppm(self) -> float:
+        """The device clock's estimated rate error in ppm (positive: the device clock runs slow)."""
+        return self._estimate * 1e6
+
+    @property
+    def applied_skew_ppm(self) -> float:
+        """The rate correction in use, in ppm (0 until an estimate beyond the deadband)."""
+        return self._skew * 1e6
 
     def sample_time_ns(self, device_time_us: int | None, receipt_ns: int) -> int:
         """The host time at which a sample stamped `device_time_us` was taken."""
-        if device_time_us is None:
-            return receipt_ns
-        last = self._last_raw_us
-        if last is not None and device_time_us < last and last - device_time_us > DEVICE_CLOCK_WRAP_US // 2:
-            self._wraps += 1
-        self._last_raw_us = device_time_us
-        device_ns = (device_time_us + self._wraps * DEVICE_CLOCK_WRAP_US) * 1000
-        observed = receipt_ns - device_ns
-        offset = self._offset_ns
-        offset = observed if offset is None else min(offset + OFFSET_LEAK_NS, observed)
-        self._offset_ns = offset
-        return offset + device_ns
+        return self.sample_times_ns([device_time_us], receipt_ns)[0]
 
     def sample_times_ns(self, device_times_us: Sequence[int | None], receipt_ns: int) -> list[int]:
-        """`sample_time_ns` of each device time in turn (all received at `receipt_ns`), in one call."""
-        if not device_times_us or device_times_us[0] is None:  # a format without a device clock
-            return [self.sample_time_ns(t, receipt_ns) for t in device_times_us]
-        # The same steps as `sample_time_ns`, with the state in locals for the whole batch.
+        """The host time of each device time in turn (all received at `receipt_ns`)."""
+        if not device_times_us:
+            return []
+        if device_times_us[0] is None:  # a format without a device clock
+            if any(t is not None for t in device_times_us):
+                raise TypeError("device times of one batch must all be set or all be None")
+            return [receipt_ns] * len(device_times_us)
         offset, last, wraps = self._offset_ns, self._last_raw_us, self._wraps
+        track = self.track_rate
         half_wrap = DEVICE_CLOCK_WRAP_US // 2
         unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
+        skew = self._skew
+        ref_ns = self._first_min[0] if self._first_min is not None else 0
         times: list[int] = []
         append = times.append
         for device_time_us in device_times_us:
@@ -63,6 +102,15 @@ class DeviceClockMapper:
                 unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
             last = device_time_us
             device_ns = (device_time_us + unwrap_us) * 1000
+            if track and self._window_sample(device_ns, receipt_ns - device_ns):
+                # A new rate estimate: the offset is re-anchored in the corrected frame.
+                skew = self._skew
+                first = self._first_min
+                assert first is not None
+                ref_ns = first[0]
+                offset = first[1]
+            if skew:
+                device_ns += round(skew * (device_ns - ref_ns))
             observed = receipt_ns - device_ns
             if offset is None:
                 offset = observed
@@ -73,3 +121,38 @@ class DeviceClockMapper:
             append(offset + device_ns)
         self._offset_ns, self._last_raw_us, self._wraps = offset, last, wraps
         return times
+
+    def _window_sample(self, device_ns: int, observed_ns: int) -> bool:
+        """Follow the lower envelope; True when the applied rate changed with this sample."""
+        start = self._window_start_ns
+        if start is None:
+            self._window_start_ns, self._window_samples = device_ns, 0
+            self._window_min = (device_ns, observed_ns)
+            start = device_ns
+        changed = False
+        if device_ns - start >= RATE_WINDOW_S * 1e9 and self._window_samples >= RATE_WINDOW_SAMPLES:
+            changed = self._close_window()
+            self._window_start_ns, self._window_samples = device_ns, 0
+            self._window_min = (device_ns, observed_ns)
+        self._window_samples += 1
+        low = self._window_min
+        if low is None or observed_ns < low[1]:
+            self._window_min = (device_ns, observed_ns)
+        return changed
+
+    def _close_window(self) -> bool:
+        low = self._window_min
+        assert low is not None
+        first = self._first_min
+        if first is None:
+            self._first_min = low
+            return False
+        span_ns = low[0] - first[0]
+        if span_ns <= 0:
+            return False
+        self._estimate = (low[1] - first[1]) / span_ns
+        if not self._rate_known and abs(self._estimate) * 1e6 < RATE_DEADBAND_PPM:
+            return False
+        self._rate_known = True
+        self._skew = self._estimate
+        return True

@@ -14,6 +14,17 @@ taken at `open()`), decodes them and feeds a bounded queue that `poll()` drains.
 port object (the in-process emulator, which lives in virtual time) `poll()` itself reads what is
 waiting, without a thread. Staleness is never papered over: when no valid sample has arrived for
 longer than `stale_timeout_s`, `poll()` raises `StaleDataError`.
+
+Serial realities of cheap boards:
+* Boot grace: opening the port of an Arduino Uno or Nano resets it (DTR), and its bootloader and
+  setup keep it silent for 1-3 s. Until the first valid sample after `open()`, staleness allows
+  `boot_grace_s` (default 3 s) instead of `stale_timeout_s`; a boot banner received meanwhile is
+  logged as the device's start. After the first sample the stale timeout applies as usual.
+* The stale timeout's default follows the rate: `default_stale_timeout_s(rate_hz)`, five sample
+  periods but at least 0.2 s.
+* Polled devices (a format with a poll command, `rig.vocabulary.LOADCELL_FORMAT_TRAITS`): the
+  driver writes the command `rate_hz` times a second (from the reader thread, or from `poll()`
+  when there is none) and each answer is one sample.
 """
 
 from __future__ import annotations
@@ -35,10 +46,16 @@ from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.device_time import DeviceClockMapper
 from rig.hw.loadcell.formats import InfoLine, LineDecoder, get_codec
 from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample, load_cell_samples
-from rig.vocabulary import LoadCellFormatName
+from rig.rig_config import default_stale_timeout_s
+from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName
 
-DEFAULT_BAUD = 921600
+# 115200 suits Arduino-class boards (FT232, CH340, 16U2 bridges) and carries 80 samples/s of
+# rig-lc1 with room to spare (311/s at most); faster cells need a faster baud (`max_rate_hz`).
+DEFAULT_BAUD = 115200
 DEFAULT_STALE_TIMEOUT_S = 0.5
+DEFAULT_BOOT_GRACE_S = 3.0
+MAX_BOOT_GRACE_S = 30.0
+
 DEFAULT_QUEUE_SAMPLES = 20_000  # 10 s at 2 kHz
 _READ_TIMEOUT_S = 0.05  # how often the reader thread checks for close()
 _READ_CHUNK_BYTES = 65536
@@ -81,22 +98,40 @@ class SerialLoadCell:
         baud: int = DEFAULT_BAUD,
         format_name: LoadCellFormatName = LoadCellFormatName.RIG_LC1,
         calibration: Calibration | None = None,
-        stale_timeout_s: float = DEFAULT_STALE_TIMEOUT_S,
+        stale_timeout_s: float | None = None,
         clock: Clock | None = None,
         serial_factory: SerialFactory | None = None,
         reader: Literal["auto", "thread", "poll"] = "auto",
         queue_samples: int = DEFAULT_QUEUE_SAMPLES,
+        rate_hz: float | None = None,
+        boot_grace_s: float = DEFAULT_BOOT_GRACE_S,
     ) -> None:
+        traits = LOADCELL_FORMAT_TRAITS[get_codec(format_name).name]  # fails early on an unknown format
+        if rate_hz is not None and not (rate_hz > 0 and math.isfinite(rate_hz)):
+            raise InputError(f"load cell rate_hz: {rate_hz}; allowed: > 0")
+        if traits.poll_command is not None and rate_hz is None:
+            raise InputError(f"load cell format {format_name} is polled: give its poll rate (rate_hz)")
+        if stale_timeout_s is None:
+            stale_timeout_s = DEFAULT_STALE_TIMEOUT_S if rate_hz is None else default_stale_timeout_s(rate_hz)
         if not (stale_timeout_s > 0 and math.isfinite(stale_timeout_s)):
             raise InputError(f"load cell stale_timeout_s: {stale_timeout_s}; allowed: > 0")
+        if not 0 <= boot_grace_s <= MAX_BOOT_GRACE_S:
+            raise InputError(f"load cell boot_grace_s: {boot_grace_s}; allowed: 0-{MAX_BOOT_GRACE_S:g}")
         if reader not in ("auto", "thread", "poll"):
             raise InputError(f"load cell reader: {reader!r}; allowed: auto, thread, poll")
-        get_codec(format_name)  # fail early on an unknown format
         self.port = port
         self.baud = baud
         self.format_name = format_name
         self.calibration = calibration
         self.stale_timeout_s = stale_timeout_s
+        self.boot_grace_s = boot_grace_s
+        self.rate_hz = rate_hz
+        self.poll_command = traits.poll_command
+        self._poll_period_ns = round(1e9 / rate_hz) if rate_hz else 0
+        self._next_poll_ns = 0
+        self.polls_sent = 0
+        self._first_sample_seen = False
+        self.banner: InfoLine | None = None  # the latest boot banner since open()
         self.clock: Clock = clock or SystemClock()
         self._serial_factory = serial_factory or default_serial_factory
         self._reader_mode = reader
@@ -143,8 +178,14 @@ class SerialLoadCell:
         self._reader_error = None
         self._anchor_ns = self.clock.time_ns() - self.clock.monotonic_ns()
         self._last_valid_mono_ns = self.clock.monotonic_ns()  # staleness counts from open()
+        self._first_sample_seen = False
+        self.banner = None
+        self._next_poll_ns = self._last_valid_mono_ns
+        self.polls_sent = 0
         self._serial = ser
         if threaded:
+            if self.poll_command is not None:  # wake often enough to poll on time
+                ser.timeout = min(_READ_TIMEOUT_S, self._poll_period_ns / 4e9)
             self._stop.clear()
             self._thread = threading.Thread(
                 target=self._read_forever, name=f"loadcell-reader {self.port}", daemon=True
@@ -185,6 +226,8 @@ class SerialLoadCell:
             raise NotConnectedError(f"load cell {self.port}: not open")
         if self._thread is None:
             try:
+                if self.poll_command is not None:
+                    self._send_poll_if_due(ser)
                 waiting = ser.in_waiting
                 data = ser.read(waiting) if waiting else b""
             except (OSError, serial.SerialException) as exc:
@@ -199,11 +242,33 @@ class SerialLoadCell:
         if self._reader_error is not None:
             raise NotConnectedError(f"load cell {self.port}: reading failed: {self._reader_error}")
         age_s = self.last_sample_age_s
-        if age_s > self.stale_timeout_s:
+        if not self._first_sample_seen:
+            if age_s > max(self.boot_grace_s, self.stale_timeout_s):
+                heard = f"its banner came: {self.banner.text}" if self.banner else "nothing valid came"
+                raise StaleDataError(
+                    f"load cell {self.port}: no valid sample for {age_s:.3f} s after opening the port, "
+                    f"beyond the boot grace of {self.boot_grace_s:g} s ({heard}); check the baud rate "
+                    f"({self.baud}), the format ({self.format_name}) and that the device streams "
+                    "(`rig check --only loadcell`)"
+                )
+        elif age_s > self.stale_timeout_s:
             raise StaleDataError(
                 f"load cell {self.port}: no valid sample for {age_s:.3f} s; limit {self.stale_timeout_s:g} s"
             )
         return samples
+
+    def _send_poll_if_due(self, ser: Any) -> None:
+        """Write the poll command when its time has come (a polled format only)."""
+        now_ns = self.clock.monotonic_ns()
+        if now_ns < self._next_poll_ns:
+            return
+        assert self.poll_command is not None
+        ser.write(self.poll_command)
+        self.polls_sent += 1
+        # On schedule; after a stall, from now (no burst of catch-up polls).
+        self._next_poll_ns = max(
+            self._next_poll_ns + self._poll_period_ns, now_ns + self._poll_period_ns // 2
+        )
 
     @property
     def last_sample_age_s(self) -> float:
@@ -212,8 +277,15 @@ class SerialLoadCell:
 
     @property
     def is_stale(self) -> bool:
-        """No valid sample for longer than the stale timeout."""
+        """No valid sample for longer than the stale timeout (the boot grace until the first one)."""
+        if not self._first_sample_seen:
+            return self.last_sample_age_s > max(self.boot_grace_s, self.stale_timeout_s)
         return self.last_sample_age_s > self.stale_timeout_s
+
+    @property
+    def device_clock_skew_ppm(self) -> float:
+        """The device clock's rate error the mapping has estimated (0 until it has; rig-lc1 only)."""
+        return self._device_clock.skew_ppm
 
     @property
     def is_open(self) -> bool:
@@ -287,11 +359,14 @@ class SerialLoadCell:
                 self._samples_dropped += overflow  # the bounded deque drops the oldest
             queue.extend(samples)
             self._last_valid_mono_ns = receipt_mono_ns
+            self._first_sample_seen = True
 
     def _note_info(self, info: list[InfoLine]) -> None:
         """Log and keep information lines (called with the lock held)."""
         self._info.extend(info)
         for line in info:
+            if line.banner:
+                self.banner = line
             if line.restart:
                 logger.warning(
                     "load cell %s restarted (boot banner after a sample: %s); its sequence and clock "
@@ -320,7 +395,10 @@ class SerialLoadCell:
     def _read_forever(self) -> None:
         ser, stop, clock = self._serial, self._stop, self.clock
         try:
+            polled = self.poll_command is not None
             while not stop.is_set():
+                if polled:
+                    self._send_poll_if_due(ser)
                 data = ser.read(max(1, min(ser.in_waiting, _READ_CHUNK_BYTES)))
                 if data:
                     self._ingest(data, clock.monotonic_ns())

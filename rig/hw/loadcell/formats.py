@@ -14,6 +14,12 @@ same lines and counters, and is tested against `feed` (tests/test_loadcell_forma
   hands over (`take_info`) but never turns into samples or counts as damage.
 * `indicator-st`, a commercial weighing-indicator style: `ST,GS,+0001.23kg\r\n` (no sequence
   number, no device clock, no checksum).
+* `value-unit`, a polled force gauge's answer (Mark-10 style): `-18.78 lbF\r\n`, a value and a
+  force unit (N, kN, gf, kgf, ozf, lbf), sent once per poll command (`?` CR). The codec converts the
+  value to newtons: its `raw` is micronewtons.
+
+What every layer needs of a format besides its codec (longest line, poll command) is its entry in
+`rig.vocabulary.LOADCELL_FORMAT_TRAITS`.
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ from typing import NamedTuple, Protocol, assert_never
 import numpy as np
 
 from rig.errors import InputError
-from rig.vocabulary import LoadCellFormatName
+from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName
 
 SEQ_MODULUS = 1 << 16  # rig-lc1 sequence counter wraps at 65536
 DEVICE_TIME_MODULUS_US = 1 << 32  # rig-lc1 device clock wraps at 2**32 us (about 71.6 min)
@@ -135,7 +141,7 @@ class RigLc1Codec:
     name = LoadCellFormatName.RIG_LC1
     has_sequence = True
     has_checksum = True
-    max_line_bytes = len(b"$LC,65535,4294967295,-2147483648*FF\r\n")  # 37
+    max_line_bytes = LOADCELL_FORMAT_TRAITS[LoadCellFormatName.RIG_LC1].max_line_bytes  # 37
     header_bytes = 1  # the `$`
     has_info_lines = True
 
@@ -191,7 +197,7 @@ class IndicatorStCodec:
     name = LoadCellFormatName.INDICATOR_ST
     has_sequence = False
     has_checksum = False
-    max_line_bytes = len(b"ST,GS,+0001.23kg\r\n") + 1  # up to a 3-letter unit: 19
+    max_line_bytes = LOADCELL_FORMAT_TRAITS[LoadCellFormatName.INDICATOR_ST].max_line_bytes  # 19
     header_bytes = len(b"ST,GS,")
     has_info_lines = False
 
@@ -259,6 +265,87 @@ class IndicatorStCodec:
         return len(_INDICATOR_START.findall(segment))
 
 
+# Force units of a value-unit line, in newtons (exact by definition: NIST SP 811, appendix B).
+# Keys are lower case; a device may write any case (Mark-10 writes `lbF`, `kgF`, `gF`, `ozF`).
+FORCE_UNITS_N: dict[str, float] = {
+    "n": 1.0,
+    "kn": 1000.0,
+    "gf": 0.00980665,
+    "kgf": 9.80665,
+    "ozf": 0.27801385095378125,  # lbf / 16
+    "lbf": 4.4482216152605,  # 0.45359237 kg x 9.80665 m/s^2
+}
+# How a Mark-10 gauge writes each unit (the emulator's spelling; the decoder takes any case).
+_GAUGE_UNIT_TEXT = {"n": "N", "kn": "kN", "gf": "gF", "kgf": "kgF", "ozf": "ozF", "lbf": "lbF"}
+MICRONEWTONS_PER_N = 1_000_000
+_VALUE_UNIT_LINE = re.compile(rb"([+-]?)([0-9]{1,9}(?:\.[0-9]{1,6})?|\.[0-9]{1,6}) ?([A-Za-z]{1,3})\r?")
+_VALUE_UNIT_START = re.compile(rb"[+-]?[0-9.]")
+
+
+class ValueUnitCodec:
+    r"""`-18.78 lbF\r\n`: a signed decimal value, an optional space, a force unit; one line per poll.
+
+    `raw` is the value in micronewtons (`decimals` 6, `unit` "N"), so the driver's calibration is
+    nominally 1e-6 N per count whatever unit the gauge shows, and a unit changed on the gauge's
+    keypad mid-run still reads right. `encode` writes `raw` (micronewtons) in this codec's `unit`
+    with its `decimals`, as the emulated gauge displays it.
+    """
+
+    name = LoadCellFormatName.VALUE_UNIT
+    has_sequence = False
+    has_checksum = False
+    max_line_bytes = LOADCELL_FORMAT_TRAITS[LoadCellFormatName.VALUE_UNIT].max_line_bytes
+    header_bytes = 1  # a sign or a digit
+    has_info_lines = False
+
+    def __init__(self, unit: str = "lbf", decimals: int = 2) -> None:
+        if unit.lower() not in FORCE_UNITS_N:
+            raise InputError(f"value-unit: unit {unit!r}; allowed: {', '.join(_GAUGE_UNIT_TEXT.values())}")
+        if not 0 <= decimals <= 3:
+            raise InputError(f"value-unit: decimals {decimals}; allowed: 0-3")
+        self.unit = unit.lower()
+        self.decimals = decimals
+
+    def encode(self, reading: DeviceReading) -> bytes:
+        """The gauge's answer: `reading.raw` micronewtons shown in `unit` with `decimals`."""
+        value = reading.raw / MICRONEWTONS_PER_N / FORCE_UNITS_N[self.unit]
+        text = b"%.*f" % (self.decimals, value)
+        if text.startswith(b"-") and float(text) == 0.0:
+            text = text[1:]
+        if len(text) > 10:
+            raise ValueError(f"value {value:g} {self.unit} does not fit a value-unit line")
+        return b"%s %s\r\n" % (text, _GAUGE_UNIT_TEXT[self.unit].encode("ascii"))
+
+    def decode(self, line: bytes) -> DecodedLine:
+        """Parse one line; the value in micronewtons."""
+        match = _VALUE_UNIT_LINE.fullmatch(line)
+        if match is None:
+            raise LineError("not a value-unit line")
+        sign, digits, unit = match.groups()
+        unit_n = FORCE_UNITS_N.get(unit.decode("ascii").lower())
+        if unit_n is None:
+            raise LineError(f"value-unit: unknown unit {unit.decode('ascii')!r}")
+        value = float(digits) * unit_n
+        raw = round(value * MICRONEWTONS_PER_N)
+        return DecodedLine(-raw if sign == b"-" else raw, None, None, unit="N", decimals=6)
+
+    def last_line_start(self, segment: bytes) -> int:
+        """Start of the last run of value characters that could begin a line."""
+        start = -1
+        for match in _VALUE_UNIT_START.finditer(segment):
+            if match.start() == 0 or segment[match.start() - 1 : match.start()] not in b"0123456789.+-":
+                start = match.start()
+        return start
+
+    def count_line_starts(self, segment: bytes) -> int:
+        """Number of places a value could start (a sign or digit not inside another value)."""
+        return sum(
+            1
+            for match in _VALUE_UNIT_START.finditer(segment)
+            if match.start() == 0 or segment[match.start() - 1 : match.start()] not in b"0123456789.+-"
+        )
+
+
 def codec_class(name: LoadCellFormatName) -> Callable[[], LineCodec]:
     """The codec of one format (mypy names this match when a format is added)."""
     match name:
@@ -266,6 +353,8 @@ def codec_class(name: LoadCellFormatName) -> Callable[[], LineCodec]:
             return RigLc1Codec
         case LoadCellFormatName.INDICATOR_ST:
             return IndicatorStCodec
+        case LoadCellFormatName.VALUE_UNIT:
+            return ValueUnitCodec
         case _:
             assert_never(name)
 

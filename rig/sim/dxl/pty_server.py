@@ -5,8 +5,12 @@ a reply must land inside its ~34 ms window, so the loop is lean: `poll` on the m
 arrived to the bus with the monotonic time, write the replies. By default replies are written as
 soon as they are computed (a pty does not throttle bytes, so pacing them by the simulated wire time
 would only add latency); `wire_timing=True` holds each reply until its simulated due time. Injected
-reply delays are always honoured. The client's baud rate is read from the pty on every chunk;
-servos at another rate (or a non-standard client rate) stay silent, so baud scans are testable.
+reply delays are always honoured. `usb_latency_s` emulates a USB-serial adapter's latency timer (an
+FTDI chip such as the U2D2's holds a short reply until its timer expires: 16 ms by default on
+Linux, 1 ms once set): every reply is held that long after it is computed, the worst case of a
+timer that runs freely (a real chip's wait is between 0 and the timer). The client's baud rate
+is read from the pty on every chunk; servos at another rate (or a non-standard client rate) stay
+silent, so baud scans are testable.
 """
 
 from __future__ import annotations
@@ -32,8 +36,16 @@ class ServeStats:
     chunks_ignored_for_baud: int = 0
 
 
-def serve(bus: EmulatedBus, link: PtyLink, stop: StopFlag, *, wire_timing: bool = False) -> ServeStats:
+def serve(
+    bus: EmulatedBus,
+    link: PtyLink,
+    stop: StopFlag,
+    *,
+    wire_timing: bool = False,
+    usb_latency_s: float = 0.0,
+) -> ServeStats:
     """Answer the client on `link` until `stop.stopped`; returns the counters."""
+    latency_ns = round(usb_latency_s * 1e9)
     stats = ServeStats()
     poller = select.poll()
     poller.register(link.master_fd, select.POLLIN)
@@ -54,7 +66,7 @@ def serve(bus: EmulatedBus, link: PtyLink, stop: StopFlag, *, wire_timing: bool 
                 else:
                     bus.baud = baud
                     for reply in bus.feed(data, now):
-                        due = reply.due_ns if wire_timing else now + reply.extra_delay_ns
+                        due = (reply.due_ns if wire_timing else now + reply.extra_delay_ns) + latency_ns
                         if due <= now and not pending:
                             link.write(reply.data)
                             stats.bytes_out += len(reply.data)

@@ -254,6 +254,10 @@ class Servo(IntegratedShaft):
         return not self.silent and self.baud == line_baud and not self.is_booting(now_ns)
 
     # ----- faults ---------------------------------------------------------------------------------------
+    def set_temperature_c(self, temperature_c: int) -> None:
+        """Present Temperature (146) from now on, in degC (a knob for tests and `rig sim servos`)."""
+        self._set("Present Temperature", temperature_c)
+
     def set_hardware_error(self, bits: int, now_ns: int | None = None) -> None:
         """Latch Hardware Error Status bits (until reboot); torque drops if Shutdown selects any of them."""
         if now_ns is not None:

@@ -25,6 +25,17 @@ keeps sampling and counting, nothing is sent), a restart (rig-lc1: the boot bann
 and the device clock from 0, as the firmware in firmware/ does after a reset).
 
 A rig-lc1 emulator given a `banner` sends it before its first line, as that firmware does at boot.
+
+Cells as labs have them (`rig/sim/loadcell/cells.py` sets these; all off by default):
+* `settling_s`: no sample before this long after power-on (an HX711 is not ready for 400 ms at
+  10/s, 50 ms at 80/s after power-up), and again after `change_rate` (a rate change resets it).
+* `clock_error_ppm`: the device's clock runs this fast (negative: slow); its samples come at its
+  own rate, so `rate_hz x (1 + error)` in host time, and its microsecond stamps run fast too.
+* `dtr_reset_s`: opening the port resets the board (an Arduino's DTR line): `host_opened` makes it
+  silent this long, then it boots: the banner, seq and its clock from 0.
+* A polled format (`value-unit`: its poll command in `rig.vocabulary.LOADCELL_FORMAT_TRAITS`)
+  sends a line only when asked: `receive` takes the host's bytes, and each complete poll command
+  is answered `POLL_RESPONSE_NS` later with the reading at that time.
 """
 
 from __future__ import annotations
@@ -41,23 +52,26 @@ from rig.hw.loadcell.formats import (
     BANNER_PREFIX,
     DEVICE_TIME_MODULUS_US,
     MAX_INFO_LINE_BYTES,
+    MICRONEWTONS_PER_N,
     SEQ_MODULUS,
     DeviceReading,
     IndicatorStCodec,
     LineCodec,
     RigLc1Codec,
+    ValueUnitCodec,
     get_codec,
     nmea_checksums,
 )
 from rig.sim.loadcell.artefacts import ArtefactModel
-from rig.vocabulary import LoadCellFormatName
+from rig.vocabulary import LOADCELL_FORMAT_TRAITS, UART_BITS_PER_BYTE, LoadCellFormatName
 
 MIN_RATE_HZ = 10.0
 MAX_RATE_HZ = 2000.0
-BITS_PER_BYTE = 10  # 8N1: start bit, 8 data bits, stop bit
+BITS_PER_BYTE = UART_BITS_PER_BYTE
 STANDARD_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
                   1000000, 1152000, 1500000, 2000000, 2500000, 3000000, 3500000, 4000000)  # fmt: skip
 DEFAULT_BAUD = 921600
+DEFAULT_RATE_HZ = 1000.0
 # Ranges of the signal model and the faults (`rig sim loadcell` options): finite, and small enough
 # that no count or time computed from them overflows.
 GAIN_RANGE_COUNTS_PER_N = (1e-3, 1e9)  # |gain|
@@ -65,6 +79,12 @@ COUNTS_LIMIT = 1e9  # |offset|, |drift per second|, noise
 MAX_SILENCE_S = 1e6  # start and duration of a scheduled silence
 _GARBAGE_ALPHABET = bytes(b for b in range(256) if b not in b"$\r\n")
 DEFAULT_BANNER = b"#BOOT fw=rig-sim-loadcell adc=emulated gain=A128\r\n"
+MAX_CLOCK_ERROR_PPM = 50_000.0  # 5 %: far beyond a ceramic resonator's 0.5 %
+MAX_SETTLING_S = 10.0
+MAX_DTR_RESET_S = 10.0
+# A polled gauge answers this long after the command's last byte (not from a manual: an assumption).
+POLL_RESPONSE_NS = 2_000_000
+_MAX_POLL_COMMAND_BYTES = 16
 
 TensionSource = Callable[[int], float]
 _LC1_TAILS = [b"*%02X\r\n" % checksum for checksum in range(256)]  # rig-lc1 line ends by checksum
@@ -211,6 +231,8 @@ class EmulatorCounts:
     silenced_samples: int = 0
     overload_lines: int = 0
     banners: int = 0  # boot banners sent (at start and at each restart)
+    polls: int = 0  # poll commands received (polled formats)
+    unknown_commands: int = 0  # other commands received, ignored
 
 
 @dataclass(slots=True)
@@ -222,6 +244,7 @@ class _Pending:
     silence_until_ns: int = -1
     banner: bool = False  # send the banner before the next line
     restart: bool = False  # ... and restart seq and the device clock at 0 with it
+    boot_at_ns: int = 0  # ... not before this time (a DTR reset's silence)
 
 
 class LoadCellEmulator:
@@ -232,7 +255,7 @@ class LoadCellEmulator:
         tension_n: TensionSource,
         *,
         format_name: LoadCellFormatName = LoadCellFormatName.RIG_LC1,
-        rate_hz: float = 1000.0,
+        rate_hz: float = DEFAULT_RATE_HZ,
         baud: int = DEFAULT_BAUD,
         signal: SignalModel | None = None,
         faults: FaultPlan | None = None,
@@ -243,15 +266,30 @@ class LoadCellEmulator:
         indicator_g: float = STANDARD_GRAVITY_M_S2,
         artefacts: ArtefactModel | None = None,
         banner: bytes | None = None,
+        codec: LineCodec | None = None,
+        settling_s: float = 0.0,
+        clock_error_ppm: float = 0.0,
+        dtr_reset_s: float = 0.0,
     ) -> None:
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
             raise InputError(f"--rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
         if baud not in STANDARD_BAUDS:
             raise InputError(f"--baud {baud}; allowed: {', '.join(map(str, STANDARD_BAUDS))}")
-        self.codec: LineCodec = get_codec(format_name)
+        for flag, value, limit in (
+            ("--clock-error-ppm", abs(clock_error_ppm), MAX_CLOCK_ERROR_PPM),
+            ("--settling-s", settling_s, MAX_SETTLING_S),
+            ("--dtr-reset-s", dtr_reset_s, MAX_DTR_RESET_S),
+        ):
+            if not (math.isfinite(value) and 0 <= value <= limit):
+                raise InputError(f"{flag} {value:g}; allowed: 0-{limit:g} (magnitude)")
+        self.codec: LineCodec = codec if codec is not None else get_codec(format_name)
+        if self.codec.name != format_name:
+            raise InputError(f"load-cell codec {self.codec.name} for format {format_name}")
         self.format_name = format_name
+        traits = LOADCELL_FORMAT_TRAITS[format_name]
+        self.poll_command = traits.poll_command
         needed_baud = rate_hz * self.codec.max_line_bytes * BITS_PER_BYTE
-        if needed_baud > baud:
+        if rate_hz > traits.max_rate_hz(baud):
             raise InputError(
                 f"--rate {rate_hz:g} Hz of {format_name} lines (up to {self.codec.max_line_bytes} bytes) "
                 f"needs >= {needed_baud:.0f} baud; --baud {baud}; allowed: a faster baud or a lower rate"
@@ -281,6 +319,16 @@ class LoadCellEmulator:
         self.baud = baud
         self.signal = signal or SignalModel()
         self.start_ns = start_ns
+        self.settling_s = settling_s
+        self.clock_error_ppm = clock_error_ppm
+        self.dtr_reset_s = dtr_reset_s
+        self._clock_factor = 1.0 + clock_error_ppm * 1e-6
+        # Sample k is taken at base_ns + (k - base_k) periods of the device's clock.
+        self._base_ns = start_ns + round(settling_s * 1e9)
+        self._base_k = 0
+        self._period_ns = 1e9 / (self.rate_hz * self._clock_factor) if clock_error_ppm else 1e9 / self.rate_hz
+        self._polls_ns: list[int] = []  # when each poll received is to be answered
+        self._command = b""  # a poll command still arriving
         self.counts = EmulatorCounts()
         self._rng = random.Random(seed)
         self._spare_normal: float | None = None  # the second draw of the last Box-Muller pair
@@ -301,6 +349,7 @@ class LoadCellEmulator:
         self._fault_free_lc1 = (
             isinstance(self.codec, RigLc1Codec)
             and artefacts is None
+            and not clock_error_ppm
             and not (
                 self.faults.garbage_per_line
                 or self.faults.truncate_per_line
@@ -342,17 +391,73 @@ class LoadCellEmulator:
 
     # -- sampling ---------------------------------------------------------------------------------
     def sample_time_ns(self, k: int) -> int:
-        """Monotonic time of sample `k`."""
-        return self.start_ns + round(k * 1e9 / self.rate_hz)
+        """Monotonic time of sample `k` (of a streaming device)."""
+        if self._clock_factor != 1.0:
+            return self._base_ns + round((k - self._base_k) * self._period_ns)
+        return self._base_ns + round((k - self._base_k) * 1e9 / self.rate_hz)
 
     @property
     def next_sample_ns(self) -> int:
-        """When the next sample will be taken."""
+        """When the next line is due (a polled device with no poll waiting: far in the future)."""
+        if self.poll_command is not None:
+            return self._polls_ns[0] if self._polls_ns else self._base_ns + (1 << 62)
         return self.sample_time_ns(self._k)
+
+    def change_rate(self, rate_hz: float, at_ns: int) -> None:
+        """Switch to `rate_hz` at `at_ns` (an HX711's RATE pin): no sample until it has settled again."""
+        if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
+            raise InputError(f"rate {rate_hz:g} Hz; allowed: {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g}")
+        self.lines_until(at_ns - 1)
+        self.rate_hz = float(rate_hz)
+        self._period_ns = 1e9 / (self.rate_hz * self._clock_factor)
+        self._base_ns = at_ns + round(self.settling_s * 1e9)
+        self._base_k = self._k
+
+    def host_opened(self, t_ns: int) -> None:
+        """The host opened the port at `t_ns`: with `dtr_reset_s`, the board resets and reboots."""
+        if self.dtr_reset_s <= 0:
+            return
+        self.lines_until(t_ns)
+        boot_ns = t_ns + round(self.dtr_reset_s * 1e9)
+        self._silences_ns.append((t_ns, boot_ns))
+        self._silences_ns.sort()
+        pending = self._pending
+        pending.banner = pending.restart = self.codec.has_info_lines
+        pending.boot_at_ns = boot_ns
+        self._polls_ns = [t for t in self._polls_ns if t < t_ns]
+        if self.poll_command is None:  # the ADC restarts too: settling from the boot
+            self._base_ns = boot_ns + round(self.settling_s * 1e9)
+            self._base_k = self._k
+
+    def receive(self, data: bytes, t_ns: int) -> None:
+        """Bytes the host wrote, complete at `t_ns`: a polled device answers each poll command."""
+        command = self.poll_command
+        if command is None:
+            return
+        buffered = self._command + data
+        *complete, self._command = buffered.replace(b"\n", b"\r").split(b"\r")
+        self._command = self._command[-_MAX_POLL_COMMAND_BYTES:]
+        silent = bool(self._silences_ns) and self._silenced(t_ns)
+        for text in complete:
+            if not text:
+                continue
+            if text + b"\r" == command and not silent:
+                self.counts.polls += 1
+                self._polls_ns.append(t_ns + POLL_RESPONSE_NS)
+            else:
+                self.counts.unknown_commands += 1
 
     def lines_until(self, t_ns: int) -> list[tuple[int, bytes]]:
         """(sample time, bytes) for every sample taken at or before `t_ns` and not yet produced."""
         out: list[tuple[int, bytes]] = []
+        if self.poll_command is not None:
+            polls = self._polls_ns
+            while polls and polls[0] <= t_ns:
+                t_answer = polls.pop(0)
+                data = self._sample(t_answer)
+                if data:
+                    out.append((t_answer, data))
+            return out
         fast = self._fault_free_lc1
         while True:
             if fast and not self._pending_faults():
@@ -399,6 +504,7 @@ class LoadCellEmulator:
         drift, noise, q = signal.drift_counts_per_s, signal.noise_counts, signal.quantisation_counts
         lowest, highest = signal.adc_min, signal.adc_max
         start_ns, rate_hz, time0_us = self.start_ns, self.rate_hz, self._device_time_start_us
+        base_ns, base_k = self._base_ns, self._base_k
         tension_n = self.tension_n
         times: list[int] = []
         bodies: list[bytes] = []
@@ -410,7 +516,7 @@ class LoadCellEmulator:
         seq = self._seq
         try:
             while True:
-                t_sample = start_ns + round(k * 1e9 / rate_hz)
+                t_sample = base_ns + round((k - base_k) * 1e9 / rate_hz)
                 if t_sample > t_ns:
                     break
                 elapsed_ns = t_sample - start_ns
@@ -455,13 +561,17 @@ class LoadCellEmulator:
         On a restart, seq and the device clock start again at 0 with this sample.
         """
         pending = self._pending
-        if not pending.banner:
+        if not pending.banner or t_ns < pending.boot_at_ns:
             return self._sample_line(t_ns)
         pending.banner = False
         if pending.restart:
             pending.restart = False
             self._seq = 0
-            self._device_time_start_us = -((t_ns - self.start_ns) // 1000)
+            elapsed_ns = t_ns - self.start_ns
+            if self._clock_factor != 1.0:
+                self._device_time_start_us = -(round(elapsed_ns * self._clock_factor) // 1000)
+            else:
+                self._device_time_start_us = -(elapsed_ns // 1000)
         banner = b""
         if not (self._silences_ns and self._silenced(t_ns)):  # unplugged: lost with everything else
             banner = self.banner or DEFAULT_BANNER
@@ -476,12 +586,15 @@ class LoadCellEmulator:
             tension = self.artefacts.apparent_tension_n(tension, elapsed_ns / 1e9, 1.0 / self.rate_hz)
         counts = self.signal.counts(tension, elapsed_ns / 1e9, self._normal())
         seq = self._seq
-        device_time_us = self._device_time_start_us + elapsed_ns // 1000
+        if self._clock_factor != 1.0:
+            device_time_us = self._device_time_start_us + round(elapsed_ns * self._clock_factor) // 1000
+        else:
+            device_time_us = self._device_time_start_us + elapsed_ns // 1000
         self._k += 1
         self._seq += 1
         tally = self.counts
         tally.samples += 1
-        if self._indicator is None:
+        if self._indicator is None and self.poll_command is None:
             reading = DeviceReading(counts, seq, device_time_us)
         else:
             reading = self._reading(counts, seq, device_time_us)
@@ -528,6 +641,13 @@ class LoadCellEmulator:
     def _reading(self, counts: int, seq: int, device_time_us: int) -> DeviceReading:
         indicator = self._indicator
         if indicator is None:
+            if isinstance(self.codec, ValueUnitCodec):  # a gauge: its reading in micronewtons
+                signal = self.signal
+                micronewtons = round(
+                    (counts - signal.offset_counts) / signal.gain_counts_per_n * MICRONEWTONS_PER_N
+                )
+                overload = counts in (signal.adc_min, signal.adc_max)
+                return DeviceReading(micronewtons, seq, device_time_us, overload=overload)
             return DeviceReading(counts, seq, device_time_us)
         display = round((counts - self.signal.offset_counts) * self._display_per_count)
         saturated = abs(display) > indicator.max_display_raw or counts in (

@@ -18,18 +18,21 @@ import serial
 
 from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.hw.loadcell.calibration import Calibration, indicator_calibration
-from rig.hw.loadcell.driver import SerialLoadCell
-from rig.hw.loadcell.formats import IndicatorStCodec
+from rig.hw.loadcell.driver import DEFAULT_BOOT_GRACE_S, SerialLoadCell
+from rig.hw.loadcell.formats import MICRONEWTONS_PER_N, IndicatorStCodec, ValueUnitCodec
 from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import (
     BITS_PER_BYTE,
+    DEFAULT_BANNER,
+    DEFAULT_BAUD,
     FaultPlan,
     LoadCellEmulator,
     SignalModel,
     TensionSource,
     wrong_baud_garbage,
 )
+from rig.sim_config import SimulatedCell
 from rig.vocabulary import LoadCellFormatName
 
 DEFAULT_RX_BUFFER_BYTES = 65536
@@ -126,8 +129,10 @@ class InProcessLoadCellSerial:
 
     # -- pyserial surface -------------------------------------------------------------------------
     def open(self) -> None:
-        """Start receiving (bytes sent while closed were lost)."""
-        self._arrive(self.clock.monotonic_ns())
+        """Start receiving (bytes sent while closed were lost); a board with DTR reset restarts."""
+        now_ns = self.clock.monotonic_ns()
+        self._arrive(now_ns)
+        self.emulator.host_opened(now_ns)
         self.is_open = True
 
     def close(self) -> None:
@@ -176,8 +181,10 @@ class InProcessLoadCellSerial:
         self._rx.clear()
 
     def write(self, data: bytes) -> int:
-        """The device has no commands; bytes are accepted and ignored."""
+        """Commands to the device (a polled gauge's poll), on the wire at this port's baud rate."""
         self.bytes_written += len(data)
+        done_ns = self.clock.monotonic_ns() + round(len(data) * self._byte_ns)
+        self.emulator.receive(data, done_ns)
         return len(data)
 
     def flush(self) -> None:
@@ -225,21 +232,38 @@ def simulated_load_cell(
     seed: int = 0,
     stale_timeout_s: float = 0.5,
     artefacts: ArtefactModel | None = None,
+    baud: int = DEFAULT_BAUD,
+    cell: SimulatedCell | None = None,
+    clock_error_ppm: float = 0.0,
+    dtr_reset_s: float = 0.0,
+    boot_grace_s: float = DEFAULT_BOOT_GRACE_S,
 ) -> tuple[SerialLoadCell, LoadCellEmulator]:
     """The real driver reading an in-process emulator of `tension_n` (not yet opened).
 
     Without `calibration`, the driver uses the emulator's exact gain and offset, so `force_n`
-    tracks `tension_n` up to noise and drift.
+    tracks `tension_n` up to noise and drift. A `cell` (a profile of `rig.sim_config.SIMULATED_CELLS`)
+    sets the signal model, settling, codec and banner of a cell labs own (`cell_emulator_options`);
+    `signal` then only scales its noise (`noise_counts` / the default cell's).
     """
+    options: dict[str, Any] = {}
+    if cell is not None:
+        options = cell_emulator_options(
+            cell, noise_scale=(signal or SignalModel()).noise_counts / SignalModel().noise_counts
+        )
+        signal = options.pop("signal")
     emulator = LoadCellEmulator(
         tension_n,
         format_name=format_name,
         rate_hz=rate_hz,
+        baud=baud,
         signal=signal,
         faults=faults,
         seed=seed,
         start_ns=clock.monotonic_ns(),
         artefacts=artefacts,
+        clock_error_ppm=clock_error_ppm,
+        dtr_reset_s=dtr_reset_s,
+        **options,
     )
     if calibration is None:
         calibration = ideal_calibration(emulator)
@@ -251,8 +275,27 @@ def simulated_load_cell(
         stale_timeout_s=stale_timeout_s,
         clock=clock,
         serial_factory=in_process_serial_factory(emulator, clock),
+        rate_hz=rate_hz if emulator.poll_command is not None or cell is not None else None,
+        boot_grace_s=boot_grace_s,
     )
     return driver, emulator
+
+
+def cell_emulator_options(cell: SimulatedCell, noise_scale: float = 1.0) -> dict[str, Any]:
+    """The emulator's signal model, settling, codec and banner for a cell labs own."""
+    options: dict[str, Any] = {
+        "signal": SignalModel(
+            gain_counts_per_n=cell.counts_per_n,
+            noise_counts=cell.noise_counts * noise_scale,
+            adc_bits=cell.adc_bits,
+        ),
+        "settling_s": cell.settling_s,
+    }
+    if cell.format == LoadCellFormatName.VALUE_UNIT:
+        options["codec"] = ValueUnitCodec(cell.gauge_unit, cell.gauge_decimals)
+    else:
+        options["banner"] = DEFAULT_BANNER
+    return options
 
 
 def ideal_calibration(emulator: LoadCellEmulator) -> Calibration:
@@ -260,6 +303,16 @@ def ideal_calibration(emulator: LoadCellEmulator) -> Calibration:
     codec = emulator.codec
     if isinstance(codec, IndicatorStCodec):
         return indicator_calibration("kg", codec.decimals, serial="sim", date=SIM_CALIBRATION_DATE)
+    if isinstance(codec, ValueUnitCodec):  # the gauge reads newtons itself: raw is micronewtons
+        return Calibration(
+            factor_n_per_count=1.0 / MICRONEWTONS_PER_N,
+            offset_counts=0.0,
+            reference_mass_kg=None,
+            g=STANDARD_GRAVITY_M_S2,
+            date=SIM_CALIBRATION_DATE,
+            serial="sim",
+            format=emulator.format_name,
+        )
     signal = emulator.signal
     return Calibration(
         factor_n_per_count=1.0 / signal.gain_counts_per_n,

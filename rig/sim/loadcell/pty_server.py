@@ -19,6 +19,7 @@ from rig.sim.pty_link import PtyLink, StopFlag
 
 MAX_SLEEP_S = 0.05  # bounds how late a stop request is noticed
 MIN_SLEEP_S = 0.0005
+POLLED_MAX_SLEEP_S = 0.002  # a polled device must notice a poll soon after it arrives
 
 
 @dataclass(slots=True)
@@ -68,7 +69,10 @@ def serve_loadcell(
             counts.bytes_written += n
             counts.bytes_dropped += len(data) - n
             counts.lines_written += len(lines)
-        link.read()  # the device ignores commands; keep the host's writes from filling the pty
+        commands = link.read()  # a streaming device ignores them; a polled one answers each poll
+        if commands:
+            emulator.receive(commands, monotonic_ns())
         wait_s = (emulator.next_sample_ns - monotonic_ns()) / 1e9
-        time.sleep(min(MAX_SLEEP_S, max(MIN_SLEEP_S, wait_s)))
+        longest_s = POLLED_MAX_SLEEP_S if emulator.poll_command is not None else MAX_SLEEP_S
+        time.sleep(min(longest_s, max(MIN_SLEEP_S, wait_s)))
     return counts

@@ -110,10 +110,9 @@ class SimPreset:
     # Reel-in from the winch's starting angle before the line is taut; negative: the line starts
     # stretched by that much drum travel (loaded, `simulation.initial_tension_n`).
     winch_slack_rad: float = 0.5
-    # Bending fixture.
-    bender_travel_per_bend: float = 2.0  # bender shaft rad per rad of total requested |bend|
-    bender_arrival_tolerance_rad: float = 0.02
-    sigma_bend_rad: float = math.radians(1.0)  # per-joint placement error when the fixture sets a bend
+    # Bending: the forks' contact stiffness (rig/sim/physics/forks.py), and a person's placement error.
+    fork_contact_stiffness_n_per_m: float = 1.0e5
+    sigma_bend_rad: float = math.radians(1.0)  # per-joint placement error when a person bends by hand
     # Sensors.
     sigma_meas_rad: float = math.radians(0.4)  # configuration measurement noise per joint angle
     slipped_joint_report_probability: float = 0.8  # chance the configuration source names the joint
@@ -142,8 +141,7 @@ class SimPreset:
             "torsion_ratio": self.torsion_ratio,
             "drum_radius_m": self.drum_radius_m,
             "line_stiffness_n_per_m": self.line_stiffness_n_per_m,
-            "bender_travel_per_bend": self.bender_travel_per_bend,
-            "bender_arrival_tolerance_rad": self.bender_arrival_tolerance_rad,
+            "fork_contact_stiffness_n_per_m": self.fork_contact_stiffness_n_per_m,
         }
         for name, value in positive.items():
             if not value > 0:

@@ -9,8 +9,13 @@ single-joint specimen during joint estimation):
 * an out-of-plane configuration (after a slip under an out-of-plane load) is reported with
   `joint_angles_rad = None` and each joint rotation perturbed by a random rotation whose rotation
   vector is N(0, σ_meas² I₃);
-* `slipped_joint` names the link joint (1-based) of the most recent true slip since the previous
-  `measure()` (`SlipRecord.moved_joint`), but only with probability
+* on the link, `slipped_joint` is the joint whose true rotation changed between the onset of the
+  first slip since the previous `measure()` and now (`model.slipped_joint.moved_joint` on the world's
+  true configurations: the simulator sees the link; a slip under the winch turns a joint by a
+  fraction of a degree, below a camera's noise, so the runner's own comparison of the noisy
+  readings, used for a camera, would rarely tell);
+* on the joint-estimation specimen, `slipped_joint` names the link joint (1-based) of the most
+  recent true slip since the previous `measure()` (`SlipRecord.moved_joint`), but only with probability
   `slipped_joint_report_probability` (else None, as when a camera cannot tell which joint moved),
   so a consumer's "unknown joint" path is exercised. In joint estimation a slip of the specimen
   names the trial's joint (`TrialPlan.joint`; 1 for the nominal specimen) and a slip of a
@@ -27,11 +32,14 @@ from __future__ import annotations
 import numpy as np
 
 from model.chain import planar_transforms
+from model.slipped_joint import moved_joint
 from rig.hw.seams import Clock, ConfigurationReading
 from rig.sim.physics.article import rotation_about_axis
 from rig.sim.physics.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
 from rig.sim.physics.world import SimWorld
 from rig.vocabulary import SlipKind
+
+SEEN_ROTATION_RAD = 1e-9  # the simulator sees any rotation of a joint between two measurements
 
 
 class SimConfigurationSource:
@@ -69,7 +77,13 @@ class SimConfigurationSource:
         slipped: int | None = None
         new_slips = world.slips[self._slips_seen :]
         self._slips_seen = len(world.slips)
-        if new_slips:
+        before = [world.link_before_slip.pop(i) for i in sorted(world.link_before_slip)]
+        if world.setup == "link":
+            # The simulator sees the link's true configuration: the joint that moved since the
+            # first slip began is the one whose rotation changed (model.slipped_joint).
+            if new_slips and before:
+                slipped = moved_joint(before[0], article.transforms, SEEN_ROTATION_RAD)
+        elif new_slips:
             last = new_slips[-1]
             probability = self.report_probability
             if last.kind == SlipKind.OTHER_JOINT:
@@ -78,5 +92,9 @@ class SimConfigurationSource:
                 slipped = last.moved_joint
         time_ns = self._clock.time_ns() if self._clock is not None else world.now_ns
         return ConfigurationReading(
-            transforms=transforms, time_ns=time_ns, joint_angles_rad=noisy_angles, slipped_joint=slipped
+            transforms=transforms,
+            time_ns=time_ns,
+            joint_angles_rad=noisy_angles,
+            slipped_joint=slipped,
+            uncertainty_rad=(sigma,) * article.joint_count,
         )

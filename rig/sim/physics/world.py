@@ -1,17 +1,17 @@
-"""The simulated world: test article, winch line and bending fixture, integrated in virtual time.
+"""The simulated world: test article, winch line and the forks that bend it, integrated in virtual time.
 
 `SimWorld` couples the physics of the rig to the byte-level device emulators through two small,
 duck-typed hooks:
 
 * **Servo shafts** (`ShaftLike`): any object with `present_position_rad` (output shaft, multi-turn,
-  read each substep) and a settable `external_torque_nm`. The world reads the winch and, if there is
-  one, the bender, and writes the line's torque on the winch (−tension·r_drum, see `winch_line.py`).
+  read each substep) and a settable `external_torque_nm`. The world reads the winch and the
+  forks' benders, and writes the line's torque on the winch (−tension·r_drum, see `winch_line.py`).
 * **Device stepping**: `step_devices(t_ns)` (e.g. `EmulatedBus.advance_to`) lets the servos move
   up to `t_ns` under the torque written at the previous substep.
 
 `advance_to(now_ns)` (registered as a `VirtualClock.on_advance` listener) integrates in fixed
 substeps (1 ms by default; the last one may be shorter so that the world ends exactly at `now`).
-Per substep, explicitly: the devices move; the bending fixture (if moving) updates the link; the
+Per substep, explicitly: the devices move; a pushing fork (forks.py) moves the link; the
 line tension follows from the winch angle and the acting point's take-up; that tension is recorded
 (it is the tension *at* the substep's time); then friction acts: a joint whose criterion reaches its
 static capacity starts to slip and turns at `slip_rate_rad_s` until its moment falls to the
@@ -32,12 +32,12 @@ Trials: `begin_trial(kind, distance_m)` draws the capacities of this trial and, 
 estimation, sets up the **single-joint specimen**: one joint placed horizontally (its axis z along
 the base z, the line pulling across it along the preset's direction without its z part), the hook
 at distance l, so the lever arm is l. The specimen is re-levelled (straight) at the start of every
-such trial. Link-validation trials use the link in whatever configuration the fixture (or
+such trial. Link-validation trials use the link in whatever configuration the forks (or
 `set_configuration`) left it. `truth()` returns the ground truth as a typed record
 (`rig.hw.truth.WorldTruth`).
 
 **Fast path.** `advance_to` spells out the common substep (no slip under way, nothing pending,
-the fixture still) instead of calling `_substep`, and skips still stretches when the devices are at
+no fork pushing) instead of calling `_substep`, and skips still stretches when the devices are at
 rest; `plain_substeps = True` sends every substep through `_substep` (tests/test_sim_fast_paths.py
 holds the two histories equal).
 """
@@ -65,7 +65,7 @@ from rig.hw.truth import (
 )
 from rig.sim.physics.article import ChainArticle
 from rig.sim.physics.article_presets import STREAM_BEND, SimPreset, stream_rng
-from rig.sim.physics.bending_fixture import BendingFixture
+from rig.sim.physics.forks import ForkFixture
 from rig.sim.physics.slips import ActiveSlip, SlipBehaviour, SlipRecord, Sudden, behaviour_for
 from rig.sim.physics.trial_draws import TrialDraws
 from rig.sim.physics.winch_line import WinchLine
@@ -73,7 +73,7 @@ from rig.vocabulary import SlipKind, TrialKind
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0
-BEND_UPDATE_NS = 50_000_000  # how often a moving fixture re-poses the link (each re-pose costs ~0.2 ms)
+BEND_UPDATE_NS = 50_000_000  # how often a pushing fork re-poses the link (each re-pose costs ~0.2 ms)
 
 
 def specimen_direction(direction_w: Sequence[float]) -> tuple[float, float, float]:
@@ -106,7 +106,8 @@ class SimWorld:
         preset: SimPreset,
         winch: ShaftLike,
         *,
-        bender: ShaftLike | None = None,
+        forks: Sequence[tuple[int, ShaftLike]] = (),
+        pinion_radius_m: float = 0.01,
         step_devices: Callable[[int], None] | None = None,
         devices_at_rest: Callable[[], bool] | None = None,
         seed: int = 0,
@@ -123,7 +124,7 @@ class SimWorld:
         self.preset = preset
         self.seed = int(seed)
         self._winch = winch
-        self._bender = bender
+        self._fork_shafts = {component: shaft for component, shaft in forks}
         self.step_devices = step_devices
         # True when stepping the devices would move nothing until the load on them changes
         # (`ObjectServoBus.at_rest`); lets `advance_to` skip a still stretch in one go.
@@ -156,20 +157,23 @@ class SimWorld:
             preset.spring_stiffness_n_per_m,
             slack_angle_rad=winch.present_position_rad + preset.winch_slack_rad,
         )
-        self.fixture: BendingFixture | None = None
-        if bender is not None:
-            self.fixture = BendingFixture(
-                preset.joint_count,
-                rest_angle_rad=bender.present_position_rad,
-                travel_per_bend=preset.bender_travel_per_bend,
-                arrival_tolerance_rad=preset.bender_arrival_tolerance_rad,
-                sigma_bend_rad=preset.sigma_bend_rad,
-                rng=stream_rng(seed, STREAM_BEND),
+        self.fixture: ForkFixture | None = None
+        if self._fork_shafts:
+            self.fixture = ForkFixture(
+                self.link,
+                list(self._fork_shafts),
+                pinion_radius_m=pinion_radius_m,
+                contact_stiffness_n_per_m=preset.fork_contact_stiffness_n_per_m,
+                kinetic_ratio=preset.kinetic_ratio,
             )
+        self._hand_rng = stream_rng(seed, STREAM_BEND)  # a person's placement error, bending by hand
         self._last_bend_update_ns = self._now_ns
 
         self.trials: list[TrialTruth] = []
         self.slips: list[SlipRecord] = []
+        # The link's true transforms at the onset of each of its slips not yet measured (slip index ->
+        # (J, 4, 4)); the configuration source takes them out as it measures.
+        self.link_before_slip: dict[int, np.ndarray] = {}
         self._slip: ActiveSlip | None = None  # the slip under way
         self._behaviour: SlipBehaviour = Sudden(SlipPlan(SlipKind.SUDDEN.value), preset.kinetic_ratio)
         self._clamp_take_up_m = 0.0  # what an other-joint slip let the line in by (this trial)
@@ -208,8 +212,8 @@ class SimWorld:
 
     @property
     def bending(self) -> bool:
-        """True while the bending fixture is moving (and holding the link)."""
-        return self.fixture is not None and self.fixture.moving
+        """True while a fork is closed on the link (and holding it)."""
+        return self.fixture is not None and self.fixture.active is not None
 
     @property
     def slip_rate_rad_s(self) -> float:
@@ -252,7 +256,11 @@ class SimWorld:
         while t_ns < now_ns:
             t_ns = min(t_ns + step_ns, now_ns)
             fixture = self.fixture
-            if self._slip is not None or behaviour.pending or (fixture is not None and fixture.moving):
+            if (
+                self._slip is not None
+                or behaviour.pending
+                or (fixture is not None and fixture.active is not None)
+            ):
                 self._substep(t_ns)
                 continue
             # Fast path of `_substep` for its common case (no slip under way, nothing pending, the
@@ -337,9 +345,9 @@ class SimWorld:
             self.step_devices(t_ns)
         fixture = self.fixture
         holding = False
-        if fixture is not None and fixture.moving:
+        if fixture is not None and fixture.active is not None:
             self._follow_fixture(fixture, t_ns)
-            holding = fixture.moving and self._article is self.link
+            holding = self._article is self.link
         article = self._article
         theta = self._winch.present_position_rad
         tension = self.line.tension_n(theta, article.take_up_m + self._clamp_take_up_m)
@@ -374,6 +382,8 @@ class SimWorld:
         moved_joint: int | None = None,
     ) -> SlipRecord:
         """Record the onset of a slip of `joint` (`moved_joint` None: the link joint the article's moves)."""
+        if self._article is self.link:
+            self.link_before_slip[len(self.slips)] = self.link.transforms  # as it was before it turns
         record = SlipRecord(
             trial_index=self.trials[-1].index if self.trials else None,
             setup=self.setup,
@@ -415,33 +425,46 @@ class SimWorld:
         self._behaviour.end()
 
     # --- bending -----------------------------------------------------------------------------
-    def _follow_fixture(self, fixture: BendingFixture, t_ns: int) -> None:
-        assert self._bender is not None
-        angles, arrived = fixture.update(self._bender.present_position_rad)
-        if angles is not None and (arrived or t_ns - self._last_bend_update_ns >= BEND_UPDATE_NS):
-            self.link.set_joint_angles(angles)
-            self._last_bend_update_ns = t_ns
+    def _follow_fixture(self, fixture: ForkFixture, t_ns: int) -> None:
+        active = fixture.active
+        if active is None or t_ns - self._last_bend_update_ns < BEND_UPDATE_NS:
+            return
+        self._last_bend_update_ns = t_ns
+        fixture.update(self._fork_shafts[active].present_position_rad)
 
-    def request_bend(self, joint_angles_rad: Sequence[float]) -> float:
-        """Ask the fixture for a planar configuration; returns the bender goal (rad) to command.
-
-        The link is held by the fixture until the bender arrives within tolerance of that goal.
-        """
-        return self._request(joint_angles_rad, reset=False)
-
-    def request_reset(self) -> float:
-        """Ask the fixture to return the link to straight; returns the bender goal (rad) to command."""
-        return self._request([0.0] * self.preset.joint_count, reset=True)
-
-    def _request(self, joint_angles_rad: Sequence[float], *, reset: bool) -> float:
-        if self.fixture is None or self._bender is None:
-            raise RuntimeError("this world has no bender servo; use set_configuration instead")
+    def engage_fork(self, component: int) -> None:
+        """Close fork `component` on the link; it pushes the link as its bender moves (forks.py)."""
+        if self.fixture is None or component not in self._fork_shafts:
+            raise RuntimeError(f"this world has no fork on component {component}")
         if self._article is self.link:
             self._end_slip()
+        self.fixture.engage(component, self._fork_shafts[component].present_position_rad)
         self._last_bend_update_ns = self._now_ns
-        return self.fixture.request(
-            joint_angles_rad, self.link.planar_joint_angles(), self._bender.present_position_rad, reset=reset
-        )
+
+    def settle_fork(self) -> None:
+        """The moving fork has stopped: let the link follow it to its final angle, then hold."""
+        fixture = self.fixture
+        if fixture is not None and fixture.active is not None:
+            fixture.update(self._fork_shafts[fixture.active].present_position_rad)
+            fixture.active = None
+
+    def open_forks(self) -> None:
+        """Open every fork: the link is free (the trial may load it)."""
+        if self.fixture is not None:
+            self.settle_fork()
+            self.fixture.open_all()
+
+    def straighten(self) -> None:
+        """A reset: the forks open and a straight guide bar puts the link exactly straight."""
+        self.open_forks()
+        self.set_configuration([0.0] * self.preset.joint_count)
+
+    def bend_by_hand(self, joint_angles_rad: Sequence[float]) -> None:
+        """A person bends the link: the requested angles plus their placement error N(0, σ_bend) each."""
+        target = np.asarray(joint_angles_rad, dtype=float)
+        sigma = self.preset.sigma_bend_rad
+        error = self._hand_rng.normal(0.0, sigma, target.shape) if sigma > 0 else np.zeros(target.shape)
+        self.set_configuration(tuple(float(a) for a in target + error))
 
     def set_configuration(self, joint_angles_rad: Sequence[float]) -> None:
         """Place the link in a planar configuration at once, exactly (an operator, or a test)."""
@@ -460,6 +483,7 @@ class SimWorld:
         """
         kind = TrialKind(kind)
         self._end_slip()
+        self.link_before_slip.clear()
         preset = self.preset
         if kind is TrialKind.JOINT_ESTIMATION:
             if distance_m is None or not (math.isfinite(distance_m) and distance_m > 0):
