@@ -17,9 +17,12 @@ from mcap.stream_reader import breakup_chunk
 
 from model.chain import lever_arms_m, planar_transforms
 from rig.analysis import redetect as rd
+from rig.analysis import report as report_module
 from rig.analysis.replay import replay
 from rig.analysis.trials import load_trial_table
 from rig.cli import main
+from rig.log import schemas as S
+from rig.log.reader import RunLog, read_run
 from rig.rig_config import load_rig_config
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
@@ -342,6 +345,54 @@ def test_report_without_link_validation_leaves_out_its_figures(logs, tmp_path, c
     assert {"fit.png", "residuals.png", "force_traces.png", "trials.csv"} <= names
     assert "percentage_errors.png" not in names
     assert "not drawn" in (report / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_a_long_run_gets_its_force_traces_in_pages(logs, tmp_path, monkeypatch):
+    monkeypatch.setattr(report_module, "TRACES_PER_PAGE", 3)
+    result = replay(logs["link"].log)
+    written = report_module.write_report(result, tmp_path / "paged")
+    pages = ["force_traces_1.png", "force_traces_2.png"]
+    assert [p.name for p in written if p.name.startswith("force_traces")] == pages
+    markdown = (tmp_path / "paged" / "report.md").read_text()
+    assert "](force_traces.png)" not in markdown
+    assert "(trials 1 to 3)" in markdown and "(trials 4 to 4)" in markdown
+    for name in pages:
+        assert f"]({name})" in markdown
+    # 3 trials on the first page (one row of 3), 1 on the second: the first page is wider.
+    first, second = (imread(tmp_path / "paged" / name) for name in pages)
+    assert first.shape[1] > second.shape[1] and float(np.std(second[..., :3])) > 0.05
+
+
+# ---------------------------------------------------------------------------------------------
+# Memory: the samples are read one trial at a time
+
+
+def test_replay_and_report_read_the_samples_one_trial_at_a_time(logs, tmp_path, monkeypatch):
+    """No whole high-rate topic is decoded: each read is a trial's span, a fraction of the run."""
+    windows: list[tuple[str, int]] = []
+    window, topic = RunLog.window, RunLog.topic
+
+    def counted_window(self, name, first_ns, last_ns):
+        frame = window(self, name, first_ns, last_ns)
+        windows.append((name, len(frame)))
+        return frame
+
+    def no_whole_samples(self, name):
+        assert name not in (S.LOADCELL, S.SERVO_STATE), f"{name} read whole"
+        return topic(self, name)
+
+    monkeypatch.setattr(RunLog, "window", counted_window)
+    monkeypatch.setattr(RunLog, "topic", no_whole_samples)
+    # Other detector parameters: the winch states are read per trial too.
+    result = replay(logs["link"].log, ["drop_fraction=0.2"])
+    report_module.write_report(result, tmp_path / "report")
+    counts = read_run(logs["link"].log, topics=()).message_counts
+    for name in (S.LOADCELL, S.SERVO_STATE):
+        sizes = [n for topic_name, n in windows if topic_name == name]
+        # 4 trials: 4 reads for the replay (and 4 more of load-cell samples for the figure)
+        assert len(sizes) == (8 if name == S.LOADCELL else 4)
+        assert 0 < max(sizes) < counts[name] / 2, (name, sizes, counts[name])
 
 
 # ---------------------------------------------------------------------------------------------

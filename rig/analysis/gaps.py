@@ -13,11 +13,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 
+from rig.analysis.samples import TrialSamples, trial_samples
 from rig.analysis.trials import TrialRecord
 from rig.hw.loadcell.formats import SEQ_MODULUS
-from rig.log import schemas
 
 
 @dataclass(frozen=True)
@@ -30,20 +29,22 @@ class SampleGaps:
     sequence_gaps: int
 
 
+def trial_gaps(record: TrialRecord, samples: TrialSamples) -> SampleGaps | None:
+    """The trial's gaps in `samples` (which must hold its span from start to end), or None without any."""
+    times = samples.times_ns
+    lo = int(np.searchsorted(times, record.result.start_time_ns, side="left"))
+    hi = int(np.searchsorted(times, record.result.end_time_ns, side="right"))
+    missing, gaps = sequence_gaps(samples.seqs[lo:hi])
+    return SampleGaps(record.trial_id, record.part.name, missing, gaps) if gaps else None
+
+
 def trial_sample_gaps(records: Sequence[TrialRecord]) -> list[SampleGaps]:
-    """The trials whose logged load-cell `seq` has gaps, in the order of `records`."""
-    columns: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    """The trials whose logged load-cell `seq` has gaps, in the order of `records` (read trial by trial)."""
     found = []
     for record in records:
-        key = id(record.part)
-        if key not in columns:
-            columns[key] = _seq_column(record.part.log.topic(schemas.LOADCELL))
-        times, seqs = columns[key]
-        lo = int(np.searchsorted(times, record.result.start_time_ns, side="left"))
-        hi = int(np.searchsorted(times, record.result.end_time_ns, side="right"))
-        missing, gaps = sequence_gaps(seqs[lo:hi])
-        if gaps:
-            found.append(SampleGaps(record.trial_id, record.part.name, missing, gaps))
+        gaps = trial_gaps(record, trial_samples(record, None))
+        if gaps is not None:
+            found.append(gaps)
     return found
 
 
@@ -55,19 +56,14 @@ def sequence_gaps(seqs: np.ndarray) -> tuple[int, int]:
     return int(gaps.sum()), int(gaps.size)
 
 
+def gap_warning(gaps: SampleGaps) -> str:
+    """The warning for a trial with missing load-cell samples."""
+    return (
+        f"{gaps.part}: trial {gaps.trial_id}: {gaps.missing_samples} load-cell samples missing "
+        f"({gaps.sequence_gaps} sequence gap{'s' if gaps.sequence_gaps != 1 else ''})"
+    )
+
+
 def sample_gap_warnings(records: Sequence[TrialRecord]) -> list[str]:
     """One warning per trial with missing load-cell samples."""
-    return [
-        f"{g.part}: trial {g.trial_id}: {g.missing_samples} load-cell samples missing "
-        f"({g.sequence_gaps} sequence gap{'s' if g.sequence_gaps != 1 else ''})"
-        for g in trial_sample_gaps(records)
-    ]
-
-
-def _seq_column(frame: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-    """Log times and sequence numbers (-1 where there is none) of a `/rig/loadcell` frame."""
-    times = frame["log_time_ns"].to_numpy(np.int64)
-    if "seq" not in frame.columns:
-        return times, np.full(times.size, -1, np.int64)
-    seqs = pd.to_numeric(frame["seq"], errors="coerce").astype("Float64")
-    return times, seqs.fillna(-1).to_numpy(np.float64).astype(np.int64)
+    return [gap_warning(g) for g in trial_sample_gaps(records)]

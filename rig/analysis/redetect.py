@@ -21,6 +21,10 @@ to the unloading phase when the protocol is not attached), and counts further dr
 (`further_drops`). With the logged parameters, a count that differs from the logged one (logs that
 have it) is a mismatch.
 
+Each trial is re-detected from its own samples (`rig.analysis.samples`), read from the log for it
+alone; the winch states for the confirmation rule likewise (the latest one before the trial's span
+read back from the log when the span has none before an event).
+
 Overrides are validated like protocol fields: an unknown name or a bad value is an `InputError`
 naming it and its allowed range.
 """
@@ -42,9 +46,11 @@ from model.slip_detector import (
     detector_step,
     further_drops,
 )
+from rig.analysis.samples import TrialSamples, analysis_span, trial_samples
 from rig.analysis.trials import TrialRecord
 from rig.errors import InputError
 from rig.log import schemas
+from rig.log.reader import RunLog
 from rig.vocabulary import ServoRole
 
 WINCH_BACKING_OFF_RAD_S = -0.05  # the runner's `_confirmed_by_winch` threshold
@@ -109,23 +115,43 @@ def _same_event(event: SlipEvent, logged: SlipEvent) -> list[str]:
     return differences
 
 
-class _WinchStates:
-    """Latest logged winch state at a time, for the runner's confirmation rule."""
+def _winch_rows(states: pd.DataFrame) -> pd.DataFrame:
+    return states[states["role"] == ServoRole.WINCH] if "role" in states.columns else states.iloc[:0]
 
-    def __init__(self, states: pd.DataFrame) -> None:
-        if states.empty or "role" not in states.columns:
+
+class WinchStates:
+    """Latest logged winch state at a time, for the runner's confirmation rule.
+
+    Holds the winch states of a span of log time; for a time before the first of them, the latest
+    state before the span is read back from the log (once, when first needed).
+    """
+
+    def __init__(self, log: RunLog, first_ns: int, last_ns: int) -> None:
+        self._log = log
+        self._first_ns = first_ns
+        self._before: tuple[float, int] | None = None
+        self._before_read = False
+        winch = _winch_rows(log.window(schemas.SERVO_STATE, first_ns, last_ns))
+        if winch.empty:
             self.times = np.zeros(0, np.int64)
             return
-        winch = states[states["role"] == ServoRole.WINCH]
         self.times = winch["log_time_ns"].to_numpy(np.int64)
         self.velocity = winch["velocity_rad_s"].to_numpy(float)
         self.error = winch["hardware_error"].to_numpy(np.int64)
 
     def confirms(self, time_ns: int) -> bool:
         i = int(np.searchsorted(self.times, time_ns, side="right")) - 1
-        if i < 0:
+        if i >= 0:
+            return bool(self.velocity[i] > WINCH_BACKING_OFF_RAD_S and self.error[i] == 0)
+        if not self._before_read:
+            self._before_read = True
+            row = self._log.last_before(schemas.SERVO_STATE, self._first_ns, _winch_rows)
+            if row is not None:
+                self._before = (float(row["velocity_rad_s"]), int(row["hardware_error"]))
+        if self._before is None:
             return True  # nothing logged: no evidence of backing off
-        return bool(self.velocity[i] > WINCH_BACKING_OFF_RAD_S and self.error[i] == 0)
+        velocity, error = self._before
+        return bool(velocity > WINCH_BACKING_OFF_RAD_S and error == 0)
 
 
 def redetect_trials(
@@ -135,23 +161,32 @@ def redetect_trials(
     exact: bool,
     hold_after_slip_s: float | None = None,
 ) -> list[Redetection]:
-    """Re-detect every trial; `exact` when `params` are the logged ones (see the module docstring)."""
-    out: list[Redetection] = []
-    samples_by_part: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    winch_by_part: dict[int, _WinchStates] = {}
-    for record in records:
-        key = id(record.part)
-        if key not in samples_by_part:
-            loadcell = record.part.log.topic(schemas.LOADCELL)
-            samples_by_part[key] = (
-                loadcell["log_time_ns"].to_numpy(np.int64),
-                loadcell["force_n"].to_numpy(float),
-            )
-            winch_by_part[key] = _WinchStates(record.part.log.topic(schemas.SERVO_STATE))
-        times, forces = samples_by_part[key]
-        found = _redetect_one(record, times, forces, winch_by_part[key], params, exact)
-        out.append(_with_train(found, record, times, forces, params, exact, hold_after_slip_s))
-    return out
+    """Re-detect every trial, one at a time; `exact` when `params` are the logged ones (module docstring)."""
+    return [
+        redetect_trial(
+            record,
+            trial_samples(record, hold_after_slip_s),
+            params,
+            exact=exact,
+            hold_after_slip_s=hold_after_slip_s,
+        )
+        for record in records
+    ]
+
+
+def redetect_trial(
+    record: TrialRecord,
+    samples: TrialSamples,
+    params: DetectorParams,
+    *,
+    exact: bool,
+    hold_after_slip_s: float | None = None,
+) -> Redetection:
+    """Re-detect one trial from its samples (`samples.trial_samples` with the same hold)."""
+    times, forces = samples.times_ns, samples.forces_n
+    winch = None if exact else WinchStates(record.part.log, *analysis_span(record, hold_after_slip_s))
+    found = _redetect_one(record, times, forces, winch, params, exact)
+    return _with_train(found, record, times, forces, params, exact, hold_after_slip_s)
 
 
 def _events_and_states(
@@ -204,7 +239,7 @@ def _redetect_one(
     record: TrialRecord,
     times: np.ndarray,
     forces: np.ndarray,
-    winch: _WinchStates,
+    winch: WinchStates | None,
     params: DetectorParams,
     exact: bool,
 ) -> Redetection:
@@ -243,6 +278,7 @@ def _redetect_one(
         if differences:
             return Redetection(record.trial_id, MISMATCH, chosen, logged, count, "; ".join(differences))
         return Redetection(record.trial_id, MATCH, chosen, logged, count, "identical to the logged event")
+    assert winch is not None  # read for re-detection with other parameters
     chosen = next((e for e in events if winch.confirms(e.detection_time_ns)), None)
     if chosen is None and logged is None:
         return Redetection(record.trial_id, MATCH, None, None, count, "no slip, as logged")

@@ -7,6 +7,12 @@ agreement, the re-detection outcome per trial, and for link-validation runs the 
 Table V statistics: typed records, turned into JSON only by `as_json()`. Its warnings name, among
 others, the trials that lost load-cell samples (`gaps`). `ReplayResult.as_json()` is the
 `rig replay --json` object.
+
+Memory: the logs are read once for their low-rate topics (trial states and results, slips,
+estimates, link counts: a few records per trial), and each trial's load-cell samples (and, to
+re-detect with other parameters, winch states) are then read for that trial alone, re-detected and
+let go. What is held is the largest trial's samples plus a summary per trial (its record, its row of
+the table), whatever the length of the run (docs/design.md, "Replay").
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from model.estimate_summary import EstimateSummary
 from model.estimators import ESTIMATOR_NAMES, EstimatorName
 from model.slip_detector import DetectorParams
 from rig.analysis import redetect as rd
-from rig.analysis.gaps import sample_gap_warnings
+from rig.analysis.gaps import gap_warning, trial_gaps
 from rig.analysis.refit import (
     BaseMoments,
     EstimateAgreement,
@@ -42,6 +48,7 @@ from rig.analysis.runlog import (
     require_some_data,
     run_settings,
 )
+from rig.analysis.samples import trial_samples
 from rig.analysis.trials import TrialRecord, records_json, trial_records, trial_table
 from rig.log import schemas
 from rig.log.frames import frame_payloads
@@ -187,7 +194,20 @@ def replay(
     params = rd.detector_params(settings.detector, overrides, settings.detector_source)
 
     records = trial_records(parts, warnings)
-    warnings.extend(sample_gap_warnings(records))
+    # One trial's samples at a time: its gap count and its re-detection.
+    gap_warnings: list[str] = []
+    redetections: list[rd.Redetection] = []
+    hold_s = settings.hold_after_slip_s
+    for record in records:
+        samples = trial_samples(record, hold_s)
+        gaps = trial_gaps(record, samples)
+        if gaps is not None:
+            gap_warnings.append(gap_warning(gaps))
+        redetections.append(
+            rd.redetect_trial(record, samples, params, exact=not overrides, hold_after_slip_s=hold_s)
+        )
+        del samples
+    warnings.extend(gap_warnings)
     estimates = _logged_estimates(parts)
     online = _online_estimate(estimates)
     online_fit = online.fit if online is not None else None
@@ -197,9 +217,6 @@ def replay(
     if settings.radius_m is None and radius is None:
         warnings.append("joint radius unknown (no rig metadata): no fit")
 
-    redetections = rd.redetect_trials(
-        records, params, exact=not overrides, hold_after_slip_s=settings.hold_after_slip_s
-    )
     for record, found in zip(records, redetections, strict=True):
         event = found.event
         record.extra = {

@@ -6,7 +6,10 @@ Figures (matplotlib, drawn on `Figure` objects with the Agg canvas, no pyplot st
 * `payload_by_configuration.png` — measured and predicted payload per configuration (Fig. 11);
 * `percentage_errors.png` — histogram of the percentage errors (Fig. 12);
 * `estimate_evolution.png` — the online estimate trial by trial with its bounds;
-* `force_traces.png` — every trial's tension during its ramp with the detected peak marked.
+* `force_traces.png` — every trial's tension during its ramp with the detected peak marked; a run
+  of more than `TRACES_PER_PAGE` trials gets one page per that many trials (`force_traces_1.png`,
+  `force_traces_2.png`, ...), each drawn from its trials' samples alone, saved and let go before
+  the next, so that neither the figure nor the samples read for it grow with the run.
 A figure whose data the run does not have (no link validation, fewer than 2 slips) is left out
 and report.md says why.
 
@@ -16,6 +19,7 @@ at the end, so a failure never leaves a half-written report; an existing non-emp
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
@@ -33,9 +37,9 @@ from matplotlib.ticker import MaxNLocator
 from model.fit import t_quantile
 from rig.analysis import summary
 from rig.analysis.replay import ReplayResult
-from rig.analysis.trials import slipped_rows, write_trial_table
+from rig.analysis.samples import loadcell_samples
+from rig.analysis.trials import TrialRecord, slipped_rows, write_trial_table
 from rig.errors import InputError
-from rig.log import schemas
 from rig.log.records import TrialKind
 
 DPI = 110
@@ -44,6 +48,8 @@ PREDICTED_COLOR = "#d62728"
 REDETECTED_COLOR = "#ff7f0e"
 BAND_COLOR = "#1f77b4"
 TRACE_SECONDS_AFTER_UNLOADING = 0.3
+TRACE_COLUMNS = 6
+TRACES_PER_PAGE = 8 * TRACE_COLUMNS  # trials in one force-traces figure (a page 8 rows high)
 
 
 def check_report_dir(directory: str | os.PathLike[str]) -> Path:
@@ -85,7 +91,6 @@ def _write_all(result: ReplayResult, out: Path) -> list[str]:
         ("payload_by_configuration.png", _payload_figure),
         ("percentage_errors.png", _errors_figure),
         ("estimate_evolution.png", _evolution_figure),
-        ("force_traces.png", _traces_figure),
     ]
     for name, draw in drawers:
         drawn = draw(result)
@@ -93,15 +98,24 @@ def _write_all(result: ReplayResult, out: Path) -> list[str]:
             skipped[name] = drawn
             continue
         figure, caption = drawn
-        FigureCanvasAgg(figure)
-        figure.savefig(out / name, dpi=DPI)
+        _save(figure, out / name)
         figures[name] = caption
+    traces = _save_traces(result, out)
+    if isinstance(traces, str):
+        skipped["force_traces.png"] = traces
+    else:
+        figures.update(traces)
     table_files = write_trial_table(result.table, out)
     (out / "replay.json").write_text(
         json.dumps(_strict_json(result.as_json()), allow_nan=False, indent=1) + "\n", encoding="utf-8"
     )
     (out / "report.md").write_text(_markdown(result, figures, skipped), encoding="utf-8")
     return ["report.md", "replay.json", *figures, *(p.name for p in table_files)]
+
+
+def _save(figure: Figure, path: Path) -> None:
+    FigureCanvasAgg(figure)
+    figure.savefig(path, dpi=DPI)
 
 
 def _strict_json(value: Any) -> Any:
@@ -333,25 +347,43 @@ def _or_nan(value: float | None) -> float:
     return np.nan if value is None else value
 
 
-def _traces_figure(result: ReplayResult) -> tuple[Figure, str] | str:
-    records = [(r, r.ramp_start_ns) for r in result.records if r.ramp_start_ns is not None]
+def _save_traces(result: ReplayResult, out: Path) -> dict[str, str] | str:
+    """Draw the force traces, a page of `TRACES_PER_PAGE` trials at a time; returns name -> caption."""
+    records = [r for r in result.records if r.ramp_start_ns is not None]
     if not records:
         return "no trial has a logged ramp"
-    columns = min(6, len(records))
+    by_trial = {int(r.trial_id): r for r in result.table.itertuples()}
+    pages = [records[i : i + TRACES_PER_PAGE] for i in range(0, len(records), TRACES_PER_PAGE)]
+    saved: dict[str, str] = {}
+    for number, page in enumerate(pages, start=1):
+        name = "force_traces.png" if len(pages) == 1 else f"force_traces_{number}.png"
+        span = "" if len(pages) == 1 else f"trials {page[0].trial_id} to {page[-1].trial_id}"
+        figure, caption = _traces_figure(result, page, by_trial, span)
+        _save(figure, out / name)
+        saved[name] = caption
+        # A figure is a web of reference cycles: collect this page before drawing the next, or
+        # two pages are held at once (measured: 30 MB more at the peak for 48 trials a page).
+        del figure
+        gc.collect()
+    return saved
+
+
+def _traces_figure(
+    result: ReplayResult, records: list[TrialRecord], by_trial: dict[int, Any], span: str
+) -> tuple[Figure, str]:
+    """One figure of the force traces of `records` (each with a ramp); `span` names them, if a page."""
+    columns = min(TRACE_COLUMNS, len(records))
     rows = math.ceil(len(records) / columns)
     fig = Figure(figsize=(2.6 * columns + 0.6, 2.0 * rows + 0.8), layout="constrained")
     axes = fig.subplots(rows, columns, squeeze=False)
-    samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    by_trial = {int(r.trial_id): r for r in result.table.itertuples()}
-    for index, (record, start) in enumerate(records):
+    for index, record in enumerate(records):
         ax = axes[index // columns][index % columns]
-        key = id(record.part)
-        if key not in samples:
-            loadcell = record.part.log.topic(schemas.LOADCELL)
-            samples[key] = (loadcell["log_time_ns"].to_numpy(np.int64), loadcell["force_n"].to_numpy(float))
-        times, forces = samples[key]
+        start = record.ramp_start_ns
+        assert start is not None  # only trials with a ramp are drawn
         end = record.unloading_ns if record.unloading_ns is not None else record.result.end_time_ns
         end += int(TRACE_SECONDS_AFTER_UNLOADING * 1e9)
+        samples = loadcell_samples(record.part.log, start, end)  # this trial's alone
+        times, forces = samples.times_ns, samples.forces_n
         lo, hi = np.searchsorted(times, start), np.searchsorted(times, end)
         t_s = (times[lo:hi] - start) / 1e9
         ax.plot(t_s, forces[lo:hi], color="0.25", lw=0.7)
@@ -389,8 +421,10 @@ def _traces_figure(result: ReplayResult) -> tuple[Figure, str] | str:
     legend = "▼ logged slip peak; dotted line: unloading starts"
     if result.detector_overrides:
         legend += "; ○ re-detected peak"
-    fig.suptitle(f"Force traces of every trial ({legend})", fontsize=10)
-    return fig, "Tension during each trial's ramp, with the detected peak marked."
+    which = f"Force traces of {span}" if span else "Force traces of every trial"
+    fig.suptitle(f"{which} ({legend})", fontsize=10)
+    caption = "Tension during each trial's ramp, with the detected peak marked"
+    return fig, f"{caption} ({span})." if span else f"{caption}."
 
 
 # ---------------------------------------------------------------------------------------------

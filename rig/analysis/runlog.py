@@ -3,7 +3,8 @@
 Each file of a run is read on its own (`rig.log.reader.read_run`) and kept as a `LogPart`: a resumed
 run's parts may share log times (a simulated run restarts its virtual clock at the same epoch), so
 the samples of one part must never be interleaved with another's. Parts are ordered by the
-`session.invocation` metadata, then by their first log time, then by name.
+`session.invocation` metadata, then by their first log time, then by name. The high-rate
+`SAMPLE_TOPICS` are not held: they are read one trial's span at a time (`rig.analysis.samples`).
 
 `RunSettings` gathers what the analysis needs from the metadata and the attachments: the test
 article's geometry and g (re-parsed from the attached rig config), the detector parameters, the
@@ -31,6 +32,8 @@ from rig.protocol import TrialPlan, parse_protocol
 from rig.rig_config import ArticleConfig, parse_rig_config
 
 DEFAULT_CONSTANT = "paper"
+# Read by time span, a trial at a time, never whole: their memory would grow with the run.
+SAMPLE_TOPICS = (schemas.LOADCELL, schemas.SERVO_STATE)
 
 
 @dataclass
@@ -73,7 +76,7 @@ def read_parts(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]])
     """
     parts = []
     for path in mcap_files(paths):
-        log = read_run(path)
+        log = read_run(path, deferred=SAMPLE_TOPICS)
         invocation = _int_or_none(log.metadata.get("session", {}).get("invocation"))
         parts.append(LogPart(path=path, log=log, invocation=invocation))
     if len(parts) > 1:

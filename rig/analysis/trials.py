@@ -133,8 +133,11 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
     records: list[TrialRecord] = []
     seen: dict[int, str] = {}
     for part in parts:
-        states = part.log.topic(schemas.TRIAL_STATE)
-        slips = [SlipMessage.from_payload(p) for _, p in frame_payloads(part.log.topic(schemas.SLIP))]
+        phases = _TrialPhases(part.log.topic(schemas.TRIAL_STATE))
+        slips: dict[int, list[SlipMessage]] = {}
+        for _, slip_payload in frame_payloads(part.log.topic(schemas.SLIP)):
+            slip_message = SlipMessage.from_payload(slip_payload)
+            slips.setdefault(slip_message.trial_id, []).append(slip_message)
         measured = _bent_measurements(part, warnings)
         for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_RESULT)):
             try:
@@ -151,8 +154,8 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
                 continue
             seen[trial_id] = part.name
             start, end = result.start_time_ns, result.end_time_ns
-            ramp_start, unloading = _ramp_window(states, trial_id, start, end)
-            message = _logged_slip(slips, trial_id, start, end)
+            ramp_start, unloading = phases.ramp_window(trial_id, start, end)
+            message = _logged_slip(slips.get(trial_id, ()), trial_id, start, end)
             slip = message.event if message is not None else None
             train = message.train_drops if message is not None and "train_k" in message.detector else None
             configuration = measured.get(trial_id)
@@ -184,36 +187,44 @@ def _bent_measurements(part: LogPart, warnings: list[str]) -> dict[int, Configur
     return out
 
 
-def _ramp_window(
-    states: pd.DataFrame, trial_id: int, start_ns: int, end_ns: int
-) -> tuple[int | None, int | None]:
-    """Log times of the trial's first ramp phase and of its unloading phase after it (None if absent)."""
-    if states.empty:
-        return None, None
-    times = states["log_time_ns"].to_numpy()
-    mine = (
-        (states["trial_id"] == trial_id).fillna(False).to_numpy(bool)
-        & (times >= start_ns)
-        & (times <= end_ns)
-    )
-    phases = states["phase"].to_numpy(object)
-    # A trial repeated after a device fault logs a `recover` step; its result is the last attempt's.
-    steps = states["step"].to_numpy(object) if "step" in states else np.full(len(states), None)
-    recovered = np.flatnonzero(mine & (steps == RECOVER_STEP))
-    if recovered.size:
-        mine &= times >= times[recovered[-1]]
-    ramp_idx = np.flatnonzero(mine & np.isin(phases, RAMP_PHASES))
-    if ramp_idx.size == 0:
-        return None, None
-    ramp_start = int(times[ramp_idx[0]])
-    unload_idx = np.flatnonzero(mine & (phases == UNLOADING_PHASE) & (times >= ramp_start))
-    return ramp_start, int(times[unload_idx[0]]) if unload_idx.size else None
+class _TrialPhases:
+    """A part's `/rig/trial/state` messages, grouped by trial (each trial's looked at alone)."""
+
+    def __init__(self, states: pd.DataFrame) -> None:
+        self.times = states["log_time_ns"].to_numpy() if not states.empty else np.zeros(0, np.int64)
+        self.by_trial: dict[int, list[int]] = {}
+        if states.empty:
+            return
+        self.phases = states["phase"].to_numpy(object)
+        # A trial repeated after a device fault logs a `recover` step; its result is the last attempt's.
+        self.steps = states["step"].to_numpy(object) if "step" in states else np.full(len(states), None)
+        for index, trial_id in enumerate(states["trial_id"].tolist()):
+            if not _missing(trial_id) and trial_id == int(trial_id):
+                self.by_trial.setdefault(int(trial_id), []).append(index)
+
+    def ramp_window(self, trial_id: int, start_ns: int, end_ns: int) -> tuple[int | None, int | None]:
+        """Log times of the trial's first ramp phase and of its unloading phase after it (None if absent)."""
+        rows = np.asarray(self.by_trial.get(trial_id, ()), np.int64)
+        if rows.size == 0:
+            return None, None
+        times = self.times[rows]
+        phases = self.phases[rows]
+        mine = (times >= start_ns) & (times <= end_ns)
+        recovered = np.flatnonzero(mine & (self.steps[rows] == RECOVER_STEP))
+        if recovered.size:
+            mine &= times >= times[recovered[-1]]
+        ramp_idx = np.flatnonzero(mine & np.isin(phases, RAMP_PHASES))
+        if ramp_idx.size == 0:
+            return None, None
+        ramp_start = int(times[ramp_idx[0]])
+        unload_idx = np.flatnonzero(mine & (phases == UNLOADING_PHASE) & (times >= ramp_start))
+        return ramp_start, int(times[unload_idx[0]]) if unload_idx.size else None
 
 
 def _logged_slip(
     slips: Sequence[SlipMessage], trial_id: int, start_ns: int, end_ns: int
 ) -> SlipMessage | None:
-    """The first slip logged for the trial within its time span."""
+    """The first slip logged for the trial within its time span (`slips`: the part's, or the trial's)."""
     for slip in slips:
         if slip.trial_id == trial_id and start_ns <= slip.event.detection_time_ns <= end_ns:
             return slip

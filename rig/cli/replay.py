@@ -29,9 +29,10 @@ Fields: arm_threshold_n, drop_fraction, min_drop_n, slope_n_per_s, slope_window_
 cusum_threshold_n, cusum_drift_n, rearm_below_n ('none' disables an optional trigger).
 
 --report DIR writes report.md, PNG figures (fit with 99 % bounds, residuals, payload per
-configuration, percentage-error histogram, estimate evolution, force traces), replay.json and the
-trial table as trials.csv and trials.parquet. DIR must be new or empty; it appears complete or not
-at all.
+configuration, percentage-error histogram, estimate evolution, force traces: force_traces.png,
+or one page per 48 trials, force_traces_1.png, ...), replay.json and the trial table as trials.csv
+and trials.parquet. DIR must be new or empty; it appears complete or not at all. Replay reads the
+load-cell samples one trial at a time: its memory does not grow with the length of the run.
 
 JSON (--json): files, complete, warnings, trials, estimate (offline refit, `rig fit --json` keys),
 online_estimate, online_agreement, redetected_estimate, redetection, links (per trial: the servo

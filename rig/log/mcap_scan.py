@@ -23,6 +23,12 @@ record classes are used, on record bodies already read within bounds.)
 `scan_file` fills a `FileScan`: messages per topic as raw payloads, decoded in column batches
 (`rig.log.frames`), with the file's metadata, attachments and what was lost. `rig.log.reader`
 makes a run's `RunLog` from the scans of its files.
+
+A scan also notes where the messages it read are (`Span`: a chunk, or a run of top-level records,
+with the log times of its messages), so that a time window of a topic can be read again later
+(`scan_window`) without decoding, or keeping, the rest of the file: the high-rate topics of a long
+run are read one trial at a time. A window is read from exactly the spans whose messages the scan
+kept, with the same bounds and checks.
 """
 
 from __future__ import annotations
@@ -71,6 +77,10 @@ MAX_CHUNK_UNCOMPRESSED_BYTES = 256 << 20
 MAX_COMPRESSION_RATIO = 200
 # What parsing a record body can raise (the body itself is always within bounds).
 _RECORD_ERRORS = (McapError, EOFError, ValueError, struct.error, OverflowError)
+# Consecutive top-level records (a file written without chunks) are noted as spans up to this size.
+MAX_RECORDS_SPAN_BYTES = 1 << 20
+# Log times are u64: a window that keeps every message.
+ALL_TIMES = (0, (1 << 64) - 1)
 _READ_IN_LINEAR_PASS = frozenset(
     int(op)
     for op in (
@@ -149,9 +159,38 @@ class _Channel:
     schema_name: str
 
 
+@dataclass(slots=True)
+class Span:
+    """Where some of a file's messages are, to read them again: one chunk, or a run of top-level records."""
+
+    offset: int  # byte offset of the Chunk record, or of the first of the records
+    length: int  # bytes from `offset`: the whole Chunk record, or the run of records
+    chunk: bool
+    first_log_time_ns: int  # earliest and latest log time of the messages in it
+    last_log_time_ns: int
+    channels_known: int  # how many channels the scan knew before reading it (first of `FileScan.channels`)
+
+    def overlaps(self, first_ns: int, last_ns: int) -> bool:
+        """Whether a message of this span may have a log time from `first_ns` to `last_ns`."""
+        return self.first_log_time_ns <= last_ns and self.last_log_time_ns >= first_ns
+
+
+@dataclass(frozen=True)
+class SpanSource:
+    """What reading a time window of one file again needs: its channels and spans, as first scanned."""
+
+    path: Path
+    size: int  # the file's size when scanned: nothing after it is read
+    channels: tuple[tuple[int, _Channel], ...]  # in the order the scan met them
+    spans: tuple[Span, ...]  # in file order
+
+
 @dataclass
 class FileScan:
-    """The state of reading one file; messages go to the run-wide per-topic batches."""
+    """The state of reading one file; messages go to the run-wide per-topic batches.
+
+    Messages whose log time is outside `window` (inclusive) are counted but not kept.
+    """
 
     path: Path
     size: int
@@ -172,6 +211,9 @@ class FileScan:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: list[Attachment] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    window: tuple[int, int] = ALL_TIMES
+    deferred: frozenset[str] = frozenset()  # wanted topics only located (spans), read later by window
+    spans: list[Span] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.label = self.path.name
@@ -193,10 +235,18 @@ class FileScan:
         if channel.id in self.channels:
             return
         schema_name = self.schemas.get(channel.schema_id, "")
-        self.channels[channel.id] = _Channel(channel.topic, channel.message_encoding, schema_name)
+        self.known_channel(channel.id, _Channel(channel.topic, channel.message_encoding, schema_name))
+
+    def known_channel(self, channel_id: int, channel: _Channel) -> None:
+        """Register a channel (one this scan or an earlier scan of the file read); the first one counts."""
+        if channel_id in self.channels:
+            return
+        self.channels[channel_id] = channel
         sink = None
         if self.wanted is None or channel.topic in self.wanted:
-            if channel.message_encoding == "json":
+            if channel.topic in self.deferred:
+                pass
+            elif channel.message_encoding == "json":
                 sink = self.batches.get(channel.topic)
                 if sink is None:
                     sink = self.batches[channel.topic] = TopicBatches(channel.topic, self.batch_size)
@@ -205,16 +255,20 @@ class FileScan:
                     f"{channel.topic}: encoding {channel.message_encoding!r} is not JSON; not decoded",
                     damage=False,
                 )
-        self.sinks[channel.id] = sink
-        self.counts.setdefault(channel.id, 0)
+        self.sinks[channel_id] = sink
+        self.counts.setdefault(channel_id, 0)
 
-    def add_records(self, data: bytes, where: str) -> None:
-        """Parse the records of a chunk (or a run of top-level records); messages go to the batches."""
+    def add_records(self, data: bytes, where: str) -> tuple[int, int] | None:
+        """Parse the records of a chunk (or a run of top-level records); messages go to the batches.
+
+        Returns the earliest and latest log time of the messages parsed (None without messages).
+        """
         sinks = self.sinks
         counts = self.counts
         unpack_record = _RECORD_HEADER.unpack_from
         unpack_message = _MESSAGE_HEADER.unpack_from
-        first_time = self.first_log_time_ns
+        keep_from, keep_to = self.window
+        first_time = last_time = -1
         pending = {id(sink): len(sink.payloads) for sink in self.batches.values()}
         size = len(data)
         unreadable = 0
@@ -232,7 +286,7 @@ class FileScan:
                     continue
                 channel_id, _sequence, log_time, publish_time = unpack_message(data, body)
                 sink = sinks.get(channel_id)
-                if sink is not None:
+                if sink is not None and keep_from <= log_time <= keep_to:
                     sink.payloads.append(data[body + 22 : end])
                     sink.log_times.append(log_time)
                     sink.publish_times.append(publish_time)
@@ -240,8 +294,10 @@ class FileScan:
                     counts[channel_id] += 1
                 else:
                     counts[0] = counts.get(0, 0) + 1
-                if first_time is None or log_time < first_time:
+                if log_time < first_time or first_time < 0:
                     first_time = log_time
+                if log_time > last_time:
+                    last_time = log_time
             elif opcode == Opcode.SCHEMA or opcode == Opcode.CHANNEL:
                 try:
                     if opcode == Opcode.SCHEMA:
@@ -251,7 +307,8 @@ class FileScan:
                 except _RECORD_ERRORS:
                     unreadable += 1
             pos = end
-        self.first_log_time_ns = first_time
+        if first_time >= 0 and (self.first_log_time_ns is None or first_time < self.first_log_time_ns):
+            self.first_log_time_ns = first_time
         if unreadable:
             self.warn(f"{where}: {unreadable} unreadable records (damaged); skipped")
         if pos != size:
@@ -261,6 +318,27 @@ class FileScan:
                 sink.pending_bytes += size  # at most this much of `data` went to the sink
             if len(sink.payloads) >= sink.batch_size or sink.pending_bytes >= sink.max_pending_bytes:
                 sink.decode_pending()
+        return (first_time, last_time) if last_time >= 0 else None
+
+    def add_span(self, offset: int, length: int, chunk: bool, times: tuple[int, int], known: int) -> None:
+        """Note where messages were read (runs of top-level records merged up to a bound)."""
+        last = self.spans[-1] if self.spans else None
+        if (
+            not chunk
+            and last is not None
+            and not last.chunk
+            and last.offset + last.length == offset
+            and last.length + length <= MAX_RECORDS_SPAN_BYTES
+        ):
+            last.length += length
+            last.first_log_time_ns = min(last.first_log_time_ns, times[0])
+            last.last_log_time_ns = max(last.last_log_time_ns, times[1])
+            return
+        self.spans.append(Span(offset, length, chunk, times[0], times[1], known))
+
+    def source(self) -> SpanSource:
+        """What `scan_window` needs to read a time window of this file again."""
+        return SpanSource(self.path, self.size, tuple(self.channels.items()), tuple(self.spans))
 
     def add_chunk(self, body: bytes, offset: int) -> None:
         """Decompress one Chunk record's content within bounds, check its CRC and parse its records."""
@@ -295,7 +373,10 @@ class FileScan:
             self.skip_chunk(f"{where}: CRC mismatch (corrupted); skipped")
             return
         self.chunks += 1
-        self.add_records(records, where)
+        known = len(self.channels)
+        times = self.add_records(records, where)
+        if times is not None:
+            self.add_span(offset, 9 + len(body), True, times, known)
 
     def skip_chunk(self, warning: str) -> None:
         self.chunks_skipped += 1
@@ -610,7 +691,10 @@ def _linear_record(scan: FileScan, opcode: int, body: bytes, offset: int) -> Non
     elif opcode == Opcode.ATTACHMENT:
         scan.add_attachment(body)
     else:  # Schema, Channel or Message outside chunks
-        scan.add_records(_RECORD_HEADER.pack(opcode, len(body)) + body, f"record at byte {offset}")
+        known = len(scan.channels)
+        times = scan.add_records(_RECORD_HEADER.pack(opcode, len(body)) + body, f"record at byte {offset}")
+        if times is not None:
+            scan.add_span(offset, 9 + len(body), False, times, known)
 
 
 def _plausible_chunk(head: bytes, pos: int, size: int) -> bool:
@@ -654,3 +738,57 @@ def _next_chunk(f: IO[bytes], start: int, size: int) -> int | None:
             i = block.find(b"\x06", i + 1, _SCAN_BLOCK)
         block_start += _SCAN_BLOCK
     return None
+
+
+# ---------------------------------------------------------------------------------------------
+# A time window, read again
+
+
+def scan_window(
+    source: SpanSource,
+    batches: dict[str, TopicBatches],
+    wanted: frozenset[str],
+    first_ns: int,
+    last_ns: int,
+    batch_size: int,
+    spans: tuple[Span, ...] | None = None,
+) -> FileScan:
+    """Read the `wanted` topics' messages logged from `first_ns` to `last_ns` again into `batches`.
+
+    Only the spans that may hold such messages are read (of `spans` if given, else all of the
+    source's), each as the first scan read it: the channels it knew then, the same bounds and
+    checks. The returned scan's warnings repeat what the first scan said (or say that the file
+    changed since); its batches' warnings are about decoding the window.
+    """
+    scan = FileScan(
+        path=source.path,
+        size=source.size,
+        batches=batches,
+        wanted=wanted,
+        batch_size=batch_size,
+        window=(first_ns, last_ns),
+    )
+    channels = source.channels
+    try:
+        with open(source.path, "rb") as f:
+            for span in source.spans if spans is None else spans:
+                if not span.overlaps(first_ns, last_ns):
+                    continue
+                for channel_id, channel in channels[: span.channels_known]:
+                    scan.known_channel(channel_id, channel)
+                end = span.offset + span.length
+                try:
+                    if end > source.size:
+                        raise ValueError(f"span ends at byte {end}, past the scanned size")
+                    if span.chunk:
+                        _opcode, body = _read_record(f, span.offset, end)
+                        scan.add_chunk(body, span.offset)
+                    else:
+                        scan.add_records(
+                            _read_exact(f, span.offset, span.length), f"records at byte {span.offset}"
+                        )
+                except (EOFError, ValueError, struct.error) as error:
+                    scan.warn(f"byte {span.offset}: cannot be read again ({_short(error)}); skipped")
+    except OSError as error:
+        scan.warn(f"cannot be read again ({_short(error)})")
+    return scan

@@ -4,19 +4,35 @@ Each file is scanned within bounds by `rig.log.mcap_scan` (its docstring says ho
 survived and what is bounded); `read_run` puts the scans of a run's files together, in log-time
 order, and `RunLog` is the view of the run: per-topic DataFrames decoded on first use, metadata,
 attachments, counts and the warnings of what was lost.
+
+A run read with `topics=` keeps only those topics' messages, and with `deferred=` keeps none of
+those topics' but still locates them; `RunLog.window` reads any topic's messages of a time span
+from the files again (only the chunks that may hold them), and `RunLog.last_before` the latest
+message before a time: so the high-rate topics (`/rig/loadcell`, `/rig/servo/state`) of a long run
+are held one trial at a time, never whole. A topic that was not kept is read in full on the first
+`RunLog.topic` call.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from rig.errors import InputError
 from rig.log.frames import DEFAULT_BATCH_SIZE, TopicBatches, empty_frame
-from rig.log.mcap_scan import Attachment, FileReport, FileScan, scan_file
+from rig.log.mcap_scan import (
+    ALL_TIMES,
+    Attachment,
+    FileReport,
+    FileScan,
+    SpanSource,
+    scan_file,
+    scan_window,
+)
 
 
 class RunLog:
@@ -31,6 +47,10 @@ class RunLog:
         metadata_by_file: dict[Path, dict[str, dict[str, str]]],
         attachments: list[Attachment],
         warnings: list[str],
+        sources: list[SpanSource] | None = None,
+        kept: frozenset[str] | None = None,
+        deferred: frozenset[str] = frozenset(),
+        batch_size: int = DEFAULT_BATCH_SIZE,
     ) -> None:
         self.reports = reports
         self.files = [r.path for r in reports]
@@ -42,6 +62,10 @@ class RunLog:
         self.warnings = warnings
         self._batches = batches
         self._frames: dict[str, pd.DataFrame] = {}
+        self._sources = sources or []  # in the order the files were scanned
+        self._kept = kept  # the topics whose messages were kept (None: all but the deferred ones)
+        self._deferred = deferred
+        self._batch_size = batch_size
 
     @property
     def topics(self) -> list[str]:
@@ -69,8 +93,10 @@ class RunLog:
             batches = self._batches.get(name)
             if batches is not None:
                 self._frames[name] = batches.frame()
-                self.warnings.extend(w for w in batches.warnings if w not in self.warnings)
+                self._note(batches.warnings)
                 del self._batches[name]
+            elif not self._was_kept(name) and self.message_counts.get(name):
+                self._frames[name] = self.window(name, *ALL_TIMES)
             else:
                 from rig.log import schemas
 
@@ -80,6 +106,74 @@ class RunLog:
                     )
                 self._frames[name] = empty_frame(name)
         return self._frames[name]
+
+    def _was_kept(self, name: str) -> bool:
+        return (self._kept is None or name in self._kept) and name not in self._deferred
+
+    def _note(self, warnings: Iterable[str]) -> None:
+        self.warnings.extend(w for w in warnings if w not in self.warnings)
+
+    def window(self, name: str, first_ns: int, last_ns: int) -> pd.DataFrame:
+        """One topic's messages logged from `first_ns` to `last_ns` (inclusive), as `topic` has them.
+
+        The rows, their order and columns are those of `topic(name)` in that span. A kept topic is
+        cut from its frame; any other is read again from the chunks that may hold the span, so the
+        memory is that of the span's messages (and of the chunks holding them), not of the run.
+        """
+        if name in self._frames or (self._was_kept(name) and name in self._batches):
+            frame = self.topic(name)
+            times = frame["log_time_ns"].to_numpy()
+            return frame[(times >= first_ns) & (times <= last_ns)]
+        if name not in self.message_counts:
+            return self.topic(name)  # empty, or KeyError for an unknown topic
+        batches: dict[str, TopicBatches] = {}
+        for source in self._sources:
+            scan_window(source, batches, frozenset((name,)), first_ns, last_ns, self._batch_size)
+        sink = batches.get(name)
+        if sink is None:
+            return empty_frame(name)
+        frame = sink.frame()
+        self._note(sink.warnings)
+        return frame
+
+    def last_before(
+        self, name: str, time_ns: int, keep: Callable[[pd.DataFrame], pd.DataFrame] = lambda f: f
+    ) -> pd.Series | None:
+        """The latest message of a topic logged before `time_ns` among the rows `keep` keeps, or None.
+
+        The row `topic(name)` restricted by `keep` has last among those before `time_ns` (latest log
+        time; of equal times, the last in the files). Read back from the latest chunks first, one
+        chunk at a time, until no earlier chunk can hold a later message.
+        """
+        if name in self._frames or (self._was_kept(name) and name in self._batches):
+            frame = keep(self.window(name, 0, time_ns - 1))
+            return None if frame.empty else frame.iloc[-1]
+        candidates = [
+            (span.last_log_time_ns, index, span.offset, span)
+            for index, source in enumerate(self._sources)
+            for span in source.spans
+            if span.first_log_time_ns < time_ns
+        ]
+        candidates.sort(key=lambda c: c[0], reverse=True)
+        best: tuple[int, int, int] | None = None  # log time, file index, span offset
+        best_row = None
+        for span_last, index, offset, span in candidates:
+            if best is not None and span_last < best[0]:
+                break
+            batches: dict[str, TopicBatches] = {}
+            source = self._sources[index]
+            scan_window(source, batches, frozenset((name,)), 0, time_ns - 1, self._batch_size, spans=(span,))
+            sink = batches.get(name)
+            if sink is None:
+                continue
+            frame = keep(sink.frame())
+            if frame.empty:
+                continue
+            row = frame.iloc[-1]
+            key = (int(np.int64(row["log_time_ns"])), index, offset)
+            if best is None or key > best:
+                best, best_row = key, row
+        return best_row
 
 
 def mcap_files(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> list[Path]:
@@ -107,19 +201,29 @@ def read_run(
     paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     *,
     topics: Iterable[str] | None = None,
+    deferred: Iterable[str] = (),
     batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> RunLog:
     """Read one run from MCAP files (a path, a directory or a list), tolerating crashes and damage.
 
     :param topics: decode only these topics (all are still counted); None decodes every topic.
+    :param deferred: topics not decoded now but read by time span later (`RunLog.window`); their
+        channels are checked (a non-JSON one is warned about) as for a decoded topic.
     :param batch_size: payloads decoded per batch; bounds the memory of pending raw payloads.
     """
     wanted = None if topics is None else frozenset(topics)
+    later = frozenset(deferred)
     batches: dict[str, TopicBatches] = {}
     scans: list[FileScan] = []
+    sources: list[SpanSource] = []
     for path in mcap_files(paths):
         scan = FileScan(
-            path=path, size=path.stat().st_size, batches=batches, wanted=wanted, batch_size=batch_size
+            path=path,
+            size=path.stat().st_size,
+            batches=batches,
+            wanted=wanted,
+            batch_size=batch_size,
+            deferred=later,
         )
         if scan.size == 0:
             scan.warn("empty file (nothing was written); no data")
@@ -128,6 +232,7 @@ def read_run(
         if scan.counts.get(0):
             scan.warn(f"{scan.counts[0]} messages on channels whose Channel record was lost; skipped")
         scans.append(scan)
+        sources.append(scan.source())
     for sink in batches.values():
         sink.decode_pending()
 
@@ -148,4 +253,8 @@ def read_run(
         metadata_by_file={scan.path: scan.metadata for scan in scans},
         attachments=[a for scan in scans for a in scan.attachments],
         warnings=warnings,
+        sources=sources,
+        kept=wanted,
+        deferred=later,
+        batch_size=batch_size,
     )
