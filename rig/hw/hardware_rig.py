@@ -17,6 +17,7 @@ from rig.hw.configuration.factory import hardware_configuration_source
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
+from rig.hw.seams import Clock
 from rig.hw.session import RigSession
 from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, configuration_source_kind
@@ -40,15 +41,9 @@ def rig_calibration(config: RigConfig) -> Calibration | None:
     return Calibration.load(cal_path)
 
 
-def hardware_session(config: RigConfig) -> RigSession:
-    """A session on the serial ports named in a `kind: hardware` rig config."""
-    if config.kind != RigKind.HARDWARE:
-        raise InputError(f"{config.source}: kind: expected hardware, got {config.kind}")
-    calibration = rig_calibration(config)
-    cal_path = config.loadcell.calibration_path
-    assert calibration is not None and cal_path is not None  # a hardware rig needs both
-    clock = SystemClock()
-    servos = DynamixelServoBus(
+def config_servo_bus(config: RigConfig, clock: Clock) -> DynamixelServoBus:
+    """The servo bus a rig config names, on its port, not yet connected."""
+    return DynamixelServoBus(
         config.servos.port,
         config.servos.baud,
         config.servos.servos,
@@ -56,7 +51,11 @@ def hardware_session(config: RigConfig) -> RigSession:
         retries=config.servos.retries,
         bus_watchdog_ms=config.servos.watchdog_ms,
     )
-    load_cell = SerialLoadCell(
+
+
+def config_load_cell(config: RigConfig, calibration: Calibration | None, clock: Clock) -> SerialLoadCell:
+    """The load cell a rig config names, on its port, not yet opened (uncalibrated: raw counts)."""
+    return SerialLoadCell(
         config.loadcell.port,
         baud=config.loadcell.baud,
         format_name=config.loadcell.format,
@@ -66,6 +65,18 @@ def hardware_session(config: RigConfig) -> RigSession:
         rate_hz=config.loadcell.rate_hz,
         boot_grace_s=config.loadcell.boot_grace_s,
     )
+
+
+def hardware_session(config: RigConfig) -> RigSession:
+    """A session on the serial ports named in a `kind: hardware` rig config."""
+    if config.kind != RigKind.HARDWARE:
+        raise InputError(f"{config.source}: kind: expected hardware, got {config.kind}")
+    calibration = rig_calibration(config)
+    cal_path = config.loadcell.calibration_path
+    assert calibration is not None and cal_path is not None  # a hardware rig needs both
+    clock = SystemClock()
+    servos = config_servo_bus(config, clock)
+    load_cell = config_load_cell(config, calibration, clock)
     return RigSession(
         kind=RigKind.HARDWARE,
         clock=clock,

@@ -11,8 +11,8 @@ from __future__ import annotations
 from rig.errors import InputError
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.bus import DynamixelServoBus
+from rig.hw.hardware_rig import config_load_cell, config_servo_bus
 from rig.hw.loadcell.calibration import Calibration
-from rig.hw.loadcell.driver import SerialLoadCell
 from rig.preflight.context import CheckDevices
 from rig.rig_config import RigConfig
 from rig.rigs import open_check_session
@@ -28,24 +28,8 @@ def check_devices(config: RigConfig, *, seed: int = 0) -> CheckDevices:
         return CheckDevices(session.servos, session.load_cell, session.clock, calibrated=True)
     clock = SystemClock()
     calibration, problem = _calibration(config)
-    servos = DynamixelServoBus(
-        config.servos.port,
-        config.servos.baud,
-        config.servos.servos,
-        clock,
-        retries=config.servos.retries,
-        bus_watchdog_ms=config.servos.watchdog_ms,
-    )
-    load_cell = SerialLoadCell(
-        config.loadcell.port,
-        baud=config.loadcell.baud,
-        format_name=config.loadcell.format,
-        calibration=calibration,
-        stale_timeout_s=config.limits.stale_timeout_s,
-        clock=clock,
-        rate_hz=config.loadcell.rate_hz,
-        boot_grace_s=config.loadcell.boot_grace_s,
-    )
+    servos = config_servo_bus(config, clock)
+    load_cell = config_load_cell(config, calibration, clock)
     return CheckDevices(
         servos, load_cell, clock, calibrated=calibration is not None, calibration_problem=problem
     )
