@@ -70,6 +70,10 @@ class ControlLoop:
         self.states: dict[int, ServoState] = {}
         self.tick_samples: list[tuple[int, float]] = []  # (time_ns, tare-corrected force) this tick
         self._ticks = 0
+        # The servos' watchdog-trip side, found once per servo object (a Protocol isinstance each
+        # tick cost about 1 % of a simulated run, benchmarks/bench_runner.py).
+        self._trip_servos: object = None
+        self._trip_source: WatchdogTripSource | None = None
         self._late_ticks = 0
         self._max_lateness_ns = 0
         self._total_lateness_ns = 0
@@ -125,9 +129,13 @@ class ControlLoop:
     def watchdog_trips(self) -> BusWatchdogTripped | None:
         """Log the Bus Watchdog trips the driver cleared on this read; the error that voids the trial."""
         servos = self.session.servos
-        if not isinstance(servos, WatchdogTripSource):
+        if servos is not self._trip_servos:
+            self._trip_servos = servos
+            self._trip_source = servos if isinstance(servos, WatchdogTripSource) else None
+        source = self._trip_source
+        if source is None:
             return None
-        trips = servos.take_watchdog_trips()
+        trips = source.take_watchdog_trips()
         for trip in trips:
             self.recorder.note(LogLevel.WARNING, trip.describe())
         if not trips:
