@@ -150,14 +150,12 @@ def replay_matches(log: str) -> str:
     )
 
 
-def score_run(report: dict[str, Any], scores: dict[str, Score]) -> None:
-    """Match the run's detections with the truth's slip events, trial by trial (by time)."""
-    parts = read_parts(report["log"])
-    truth = run_settings(parts, [])
-    assert truth.truth is not None, "the log has no sim_truth"
-    world = truth.truth["world"]
-    offset = world["run_clock_offset_ns"]
-    events: list[tuple[SlipEvent, int]] = []  # with the detection sample's true sampling time
+def detections_with_sample_times(parts: list[Any], offset_ns: int) -> list[tuple[SlipEvent, int]]:
+    """Every logged slip event, with the true sampling time of the sample that detected it.
+
+    The sample's device clock, shifted by the simulator's run-clock offset, is the world's time.
+    """
+    events: list[tuple[SlipEvent, int]] = []
     for part in parts:
         cell = part.log.topic(schemas.LOADCELL)
         stamps = cell["log_time_ns"].to_numpy()
@@ -165,7 +163,18 @@ def score_run(report: dict[str, Any], scores: dict[str, Score]) -> None:
         for _, payload in frame_payloads(part.log.topic(schemas.SLIP)):
             event = SlipMessage.from_payload(payload).event
             row = min(int(np.searchsorted(stamps, event.detection_time_ns)), len(stamps) - 1)
-            events.append((event, offset + int(device_us[row]) * 1000))
+            events.append((event, offset_ns + int(device_us[row]) * 1000))
+    return events
+
+
+def score_run(report: dict[str, Any], scores: dict[str, Score]) -> None:
+    """Match the run's detections with the truth's slip events, trial by trial (by time)."""
+    parts = read_parts(report["log"])
+    truth = run_settings(parts, [])
+    assert truth.truth is not None, "the log has no sim_truth"
+    world = truth.truth["world"]
+    offset = world["run_clock_offset_ns"]
+    events = detections_with_sample_times(parts, offset)
     trials = world["trials"]
     starts = [t["start_ns"] + offset for t in trials] + [math.inf]
     for trial, start, end in zip(trials, starts, starts[1:], strict=False):

@@ -32,14 +32,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bench_detector_sim import detections_with_sample_times  # benchmarks/ is the script's directory
 
 from model.slip_detector import detector_init, detector_run, params_for_rate
 from rig.analysis.runlog import read_parts, run_settings
 from rig.cli import main as rig_main
 from rig.hw.loadcell.formats import LineDecoder
-from rig.log import schemas
-from rig.log.frames import frame_payloads
-from rig.log.records import SlipMessage
 from rig.protocol import load_protocol
 from rig.runner.ramp_speed import RampSpeeds
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
@@ -70,15 +68,7 @@ def score(report: dict[str, Any], rate_hz: float) -> tuple[list[int], list[float
     world = settings.truth["world"]
     offset = world["run_clock_offset_ns"]
     period_ns = 1e9 / rate_hz
-    events = []  # (event, true sampling time of the detecting sample)
-    for part in parts:
-        cell = part.log.topic(schemas.LOADCELL)
-        stamps = cell["log_time_ns"].to_numpy()
-        device_us = cell["device_time_us"].to_numpy()
-        for _, payload in frame_payloads(part.log.topic(schemas.SLIP)):
-            event = SlipMessage.from_payload(payload).event
-            row = min(int(np.searchsorted(stamps, event.detection_time_ns)), len(stamps) - 1)
-            events.append((event, offset + int(device_us[row]) * 1000))
+    events = detections_with_sample_times(parts, offset)  # (event, true time of its sample)
     trials = world["trials"]
     starts = [t["start_ns"] + offset for t in trials] + [math.inf]
     lags: list[int] = []
