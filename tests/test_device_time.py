@@ -1,6 +1,9 @@
 import itertools
+from pathlib import Path
 
 from rig.hw.loadcell.device_time import DEVICE_CLOCK_WRAP_US, OFFSET_LEAK_NS, DeviceClockMapper
+
+REPO = Path(__file__).resolve().parent.parent
 
 
 def test_lines_read_together_keep_their_sampling_times():
@@ -84,3 +87,30 @@ def test_a_clock_that_keeps_time_is_mapped_as_by_the_offset_alone():
     tracked, offset_only = DeviceClockMapper(), DeviceClockMapper(track_rate=False)
     assert _stamp_errors_ns(tracked, 80.0, 0.0, 300) == _stamp_errors_ns(offset_only, 80.0, 0.0, 300)
     assert tracked.applied_skew_ppm == 0.0 and abs(tracked.skew_ppm) < 10
+
+
+def test_a_long_run_whose_rate_estimates_re_anchor_the_offset_keeps_its_stamps_in_order(
+    tmp_path, monkeypatch, cli_json
+):
+    # Found by benchmarks/bench_detector_sim.py: a run with 10 % drops and the detector's old settings
+    # (most trials ramp to their timeout, so the mapper re-estimates the rate many times) stopped
+    # with an internal error, a stamp 27 us before the previous one refused by the detector.
+    import dataclasses
+
+    from rig.sim import simulated_rig
+
+    original = simulated_rig.make_preset
+    monkeypatch.setattr(
+        simulated_rig,
+        "make_preset",
+        lambda *a, **k: dataclasses.replace(original(*a, **k), kinetic_ratio=0.9),
+    )
+    text = (REPO / "protocols" / "joint_estimation.yaml").read_text()
+    old_detector = (
+        "  noise_k: null\n  creep_k: null\n  spike_samples: 1\n  train_k: null\n  drop_leak_n_per_s: 0\n"
+    )
+    assert "  drop_fraction: 0.15\n" in text
+    protocol = tmp_path / "p.yaml"
+    protocol.write_text(text.replace("  drop_fraction: 0.15\n", "  drop_fraction: 0.15\n" + old_detector, 1))
+    report = cli_json("run", protocol, "--seed", 0, "--json", "--out", tmp_path / "out")
+    assert report["completed"] == report["planned"] == 24, report.get("reason")

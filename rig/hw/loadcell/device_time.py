@@ -59,6 +59,9 @@ class DeviceClockMapper:
         self._skew = 0.0  # applied fractional rate error of the device clock (observed per device ns)
         self._estimate = 0.0  # latest estimate, applied or not
         self._rate_known = False
+        # The last stamp handed out: a new rate estimate re-anchors the offset, which can put the next
+        # stamp a few microseconds before the last one; stamps never go back (the detector needs it).
+        self._last_stamp_ns: int | None = None
 
     def reset(self) -> None:
         """Forget the mapping (e.g. after reopening the port: the device may have restarted)."""
@@ -92,6 +95,7 @@ class DeviceClockMapper:
         unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
         skew = self._skew
         ref_ns = self._first_min[0] if self._first_min is not None else 0
+        previous = self._last_stamp_ns
         times: list[int] = []
         append = times.append
         for device_time_us in device_times_us:
@@ -118,8 +122,13 @@ class DeviceClockMapper:
                 offset += OFFSET_LEAK_NS
                 if observed < offset:
                     offset = observed
-            append(offset + device_ns)
+            stamp = offset + device_ns
+            if previous is not None and stamp < previous:
+                stamp = previous
+            append(stamp)
+            previous = stamp
         self._offset_ns, self._last_raw_us, self._wraps = offset, last, wraps
+        self._last_stamp_ns = previous
         return times
 
     def _window_sample(self, device_ns: int, observed_ns: int) -> bool:
