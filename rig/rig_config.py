@@ -533,8 +533,7 @@ def _configuration(top: Section, kind: RigKind, base_dir: Path) -> Configuration
     reject_undeclared(sec, ConfigurationConfig)
     given: dict[str, Any] = {}
     for key in ("file", "camera", "markers"):
-        name = sec.string(key, default="")
-        given[key] = (base_dir / name) if name else None
+        given[key] = sec.file_path(key, base_dir)
     config = ConfigurationConfig(**read_fields(sec, ConfigurationConfig, given=given))
     source = config.source
     if source == ConfigurationSourceKind.SIMULATOR and kind != RigKind.SIMULATED:
@@ -617,8 +616,7 @@ def _port(sec: Section) -> str:
 
 def _loadcell(sec: Section, base_dir: Path) -> LoadCellConfig:
     reject_undeclared(sec, LoadCellConfig)
-    calibration = sec.string("calibration", default="")
-    given = {"port": _port(sec), "calibration_path": (base_dir / calibration) if calibration else None}
+    given = {"port": _port(sec), "calibration_path": sec.file_path("calibration", base_dir)}
     return LoadCellConfig(**read_fields(sec, LoadCellConfig, given=given))
 
 

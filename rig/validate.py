@@ -11,7 +11,9 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import os
 from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import Any, cast
 
 from model.field_spec import (
@@ -25,6 +27,9 @@ from model.field_spec import (
 from rig.errors import ConfigError
 
 _MISSING: Any = object()
+
+# The longest file or directory name common file systems accept (NAME_MAX on Linux, ext4, NTFS).
+MAX_FILE_NAME_BYTES = 255
 
 
 class Section:
@@ -111,6 +116,24 @@ class Section:
             hint = f" (did you mean '{close[0]}'?)" if close else ""
             raise self.error(key, f"{_short(value)} is not allowed{hint}; allowed: {', '.join(choices)}")
         return value
+
+    def file_path(self, key: str, base_dir: Path) -> Path | None:
+        """A file named relative to `base_dir`, or None when absent or empty.
+
+        Checked for what the operating system can open at all (no NUL byte, each name at most
+        `MAX_FILE_NAME_BYTES`), so that later existence checks never fail on the name itself.
+        """
+        name = self.string(key, default="")
+        if not name:
+            return None
+        if "\0" in name:
+            raise self.error(key, "contains a NUL character; allowed: a file path")
+        longest = max(len(os.fsencode(part)) for part in Path(name).parts)
+        if longest > MAX_FILE_NAME_BYTES:
+            raise self.error(
+                key, f"a path component of {longest} bytes; allowed: at most {MAX_FILE_NAME_BYTES} bytes each"
+            )
+        return base_dir / name
 
     def boolean(self, key: str, *, default: Any = _MISSING) -> bool:
         """A boolean: true or false."""

@@ -51,3 +51,16 @@ def test_malformed_yaml_names_the_line(tmp_path):
     path.write_text("kind: [simulated\n")
     with pytest.raises(InputError, match=r"rig.yaml: malformed YAML at line"):
         load_rig_config(path)
+
+
+@pytest.mark.parametrize("name", ["a" * 256, "cal/" + "b" * 300 + ".json"])
+def test_a_file_name_too_long_for_the_file_system_is_named(tmp_path, name):
+    # Found by the input fuzzer: a dry run's "calibration not made yet" check stat()ed such a
+    # name and raised OSError(ENAMETOOLONG) instead of a config error.
+    text = (RIGS / "hardware.example.yaml").read_text(encoding="utf-8")
+    path = tmp_path / "rig.yaml"
+    path.write_text(text.replace("calibration: loadcell-cal.json", f"calibration: {name}"))
+    with pytest.raises(
+        ConfigError, match=r"loadcell\.calibration: a path component of \d+ bytes; allowed: at most 255"
+    ):
+        load_rig_config(path)
