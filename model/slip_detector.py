@@ -117,9 +117,12 @@ class DetectorParams:
             slow drift on a noisy cell is not a drop, [0, 1e9] N/s; 0: it never decays (as before
             the train rule).
         drop_ramp_s: the percentage drop's peak is carried on along the running ramp rate for up to
-            this long after the peak, and the newer sample of the pair need only be half the drop
-            below it, so that the line's re-tension between samples does not hide a drop at a low
-            rate, [0, 100] s; None: neither (as before 2026-11-27; the default at 1000 samples/s
+            this long after the peak (by at most half the drop), and the newer sample of the pair
+            need only be half the drop below it, so that the line's re-tension between samples does
+            not hide a drop at a low rate; the spike guard is ramp-aware: a single-sample peak
+            whose rise is at most twice the rise before it is a peak, and when the older sample of
+            the pair has already fallen (4 σ, or min_drop_n), the newer alone is the level,
+            [0, 100] s; None: none of these (as before 2026-11-27; the default at 1000 samples/s
             and above, `rate_defaults` sets 3 sample periods below).
         train_k: after an event, a sudden fall of this many noise σ counts as a further drop of a
             stick-slip train (`further_drops`), (0, 1e3]; None: off (no train is counted). It
@@ -362,6 +365,10 @@ class DetectorState(NamedTuple):
     train_levels_n: tuple[float, ...] = ()  # latched: min(f[k−1], f[k]) of the last samples
     train_drops: int = 0  # latched: further drops counted since the latch
     drop_peak_n: float = 0.0  # the percentage drop's peak: robust_peak_n decaying at drop_leak_n_per_s
+    # Kept only with drop_ramp_s set (which sends every sample to the plain step): f[k−2] and
+    # f[k−2] − f[k−3], for the ramp-aware spike guard of the percentage drop.
+    older_force_n: float = 0.0
+    older_rise_n: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -404,6 +411,9 @@ _TRAIN_SAMPLES = 8
 # newest. A steady sag falls as much across the window as in its last samples, so it never counts.
 _TRAIN_STEADY = 0.25
 _TRAIN_STEADY_FLOOR = 0.15
+# With drop_ramp_s set: an older sample of the pair this many noise σ below the one before it has
+# begun to fall (a noise-free difference of two samples exceeds 4σ/√2 = 2.8 of its σ once in 400).
+_FALLING_SIGMA = 4.0
 # E|x| / σ for x ~ N(0, 2σ²), the difference of two independent noise samples: 2/√π.
 _MEAN_ABS_DIFF_PER_SIGMA = 2.0 / math.sqrt(math.pi)
 
@@ -528,6 +538,7 @@ def detector_step(
     increments, rate, scale, residual = _estimates(params, state, dt_s, force_n)
     low2 = force_n if last is None else min(force_n, state.previous_force_n)
     high2 = force_n if last is None else max(force_n, state.previous_force_n)
+    ramp_aware = params.drop_ramp_s is not None
     idle = DetectorState(
         DetectorPhase.IDLE,
         time_ns,
@@ -538,6 +549,13 @@ def detector_step(
         rate_n=rate,
         scale_n=scale,
     )
+    if ramp_aware:
+        older, rise = (
+            (force_n, 0.0)
+            if last is None
+            else (state.previous_force_n, state.previous_force_n - state.older_force_n)
+        )
+        idle = idle._replace(older_force_n=older, older_rise_n=rise)
 
     phase = state.phase
     if phase is DetectorPhase.IDLE:
@@ -596,17 +614,33 @@ def detector_step(
     # of min(f[k−1], f[k])): one spike up and one down no longer make a drop. The peak decays at
     # drop_leak_n_per_s: noise maxima on the high side of a slow drift and the low side later, on a
     # cell with 10x the noise, made a percentage "drop" of a quiet hold.
+    if ramp_aware and params.spike_samples == 2.0 and _ramp_predicted_peak(state):
+        drop_peak = max(drop_peak, state.previous_force_n)
     level_peak, level = (drop_peak, high2) if params.spike_samples == 2.0 else (peak_force, force_n)
     if params.drop_ramp_s is not None and last is not None and time_ns > last and level < level_peak:
         # Where the ramp would have taken the peak since (the rate before this sample: a drop's own
         # samples must not lower it), for at most drop_ramp_s: at a low rate the line re-tensions
         # between two samples by a good share of a small drop.
         carried_ns = min(time_ns - peak_time, params.drop_ramp_s * 1e9)
-        level_peak += max(state.rate_n, 0.0) * carried_ns / (time_ns - last)
+        carried_n = max(state.rate_n, 0.0) * carried_ns / (time_ns - last)
+        if params.drop_fraction is not None:
+            # At most half the drop: the carry alone never makes one. While warming up, the rate is
+            # the plain mean increment since the start, the fast phase's steps included, and the
+            # line resting after the fast phase would fall short of that carried peak by a "drop".
+            carried_n = min(carried_n, 0.5 * params.drop_fraction * level_peak)
+        level_peak += carried_n
         if params.spike_samples == 2.0 and params.drop_fraction is not None:
             # ... and the newer sample of the pair need only be half the drop below the peak: the
             # winch takes the line up again after a slip, by a good part of it in one sample period.
             level = max(state.previous_force_n, force_n - 0.5 * params.drop_fraction * level_peak)
+            # ... or, when the older sample had already fallen clearly below the one before it (a
+            # slide caught part-way, or a fall that began just before that sample), the newer alone:
+            # a single low spike follows no fall.
+            # The fall counts from 4 noise σ, or from min_drop_n where σ is the larger: a fast phase
+            # seen while warming up inflates σ for a noise window (10 s at 10/s).
+            older_fall = state.older_force_n - state.previous_force_n
+            if older_fall > 0.0 and older_fall >= min(_FALLING_SIGMA * sigma, params.min_drop_n):
+                level = min(level, force_n)
     robust_drop = level_peak - level
     if (
         params.drop_fraction is not None
@@ -674,7 +708,21 @@ def detector_step(
         trend_onset,
         state.armed_at_n,
         drop_peak_n=drop_peak,
+        older_force_n=idle.older_force_n,
+        older_rise_n=idle.older_rise_n,
     ), None
+
+
+def _ramp_predicted_peak(state: DetectorState) -> bool:
+    """Whether f[k−1], a sample above f[k−2], is where the ramp took the line rather than a spike.
+
+    Its rise is at most twice the rise before it (the winch may speed up between two samples; a
+    spike on a ramp rises many times the ramp's step). At a low rate the fast phase can take the
+    line onto the slip load in one sample, so the peak is a single sample: the two-sample guard
+    alone would see no drop, and wait for the next slip.
+    """
+    rise = state.previous_force_n - state.older_force_n
+    return state.older_rise_n > 0.0 and 0.0 < rise <= 2.0 * state.older_rise_n
 
 
 def _latched_step(
