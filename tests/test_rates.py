@@ -297,3 +297,17 @@ def test_a_fall_caught_part_way_is_seen_on_the_next_sample(rate_hz: float) -> No
     forces[onset] = forces[onset - 1] - 0.06  # 0.75 %: about 10 noise σ
     detected = _detected_sample(rate_hz, forces)
     assert detected is not None and detected <= onset + 1
+
+
+def test_a_protocol_giving_the_drift_per_sample_still_loads_and_keeps_it_per_sample(tmp_path: Path) -> None:
+    text = (
+        "format: rig-protocol/1\nname: p\ndetector: {cusum_threshold_n: 1.0, cusum_drift_n: 0.05}\n"
+        "blocks:\n  - {kind: joint_estimation, joint: 1, distances_m: [0.1], repeats: 1}\n"
+    )
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
+    protocol = load_protocol(path)
+    assert protocol.detector.cusum_drift_n_per_s == pytest.approx(50.0)  # 0.05 N a sample at 1000/s
+    assert for_loadcell_rate(protocol, 1000.0) is protocol
+    assert for_loadcell_rate(protocol, 10.0).detector.cusum_drift_n_per_s == pytest.approx(0.5)
+    assert for_loadcell_rate(protocol, 2000.0).detector.cusum_drift_n_per_s == pytest.approx(100.0)
