@@ -449,7 +449,7 @@ TRAIN_MIN_SAMPLES = 8
 _TRAIN_STEADY = 0.25
 _TRAIN_STEADY_FLOOR = 0.15
 # With drop_ramp_s set: an older sample of the pair this many noise σ below the one before it has
-# begun to fall (a noise-free difference of two samples exceeds 4σ/√2 = 2.8 of its σ once in 400).
+# begun to fall (the difference of two samples of pure noise, σ·√2, exceeds 4σ once in about 400).
 _FALLING_SIGMA = 4.0
 # E|x| / σ for x ~ N(0, 2σ²), the difference of two independent noise samples: 2/√π.
 _MEAN_ABS_DIFF_PER_SIGMA = 2.0 / math.sqrt(math.pi)
@@ -680,9 +680,9 @@ def detector_step(
             level = max(state.previous_force_n, force_n - 0.5 * params.drop_fraction * level_peak)
             # ... or, when the older sample had already fallen clearly below the one before it (a
             # slide caught part-way, or a fall that began just before that sample), the newer alone:
-            # a single low spike follows no fall.
-            # The fall counts from 4 noise σ, or from min_drop_n where σ is the larger: a fast phase
-            # seen while warming up inflates σ for a noise window (10 s at 10/s).
+            # a single low spike follows no fall. The fall counts from 4 noise σ, or from min_drop_n
+            # where that is less: a fast phase seen while warming up inflates σ for a noise window
+            # (10 s at 10/s).
             older_fall = state.older_force_n - state.previous_force_n
             if older_fall > 0.0 and older_fall >= min(_FALLING_SIGMA * sigma, params.min_drop_n):
                 level = min(level, force_n)
