@@ -61,9 +61,10 @@ from model.field_spec import Bounds, Declared, FieldSpec, FieldType, declared_fi
 _NONE_WORDS = frozenset({"none", "null", "off", "disabled", ""})
 
 
-# Every field the detector had before the noise and creep triggers. A mapping naming exactly these
-# is the logged parameter set of an older run: `from_mapping` keeps that run's detector (no noise or
-# creep trigger, the single-sample percentage drop), so its replay finds the events it logged.
+# Every field the detector had before the noise and creep triggers (by the names logged then: the
+# drift was `cusum_drift_n`, N per sample). A mapping naming exactly these is the logged parameter
+# set of an older run: `from_mapping` keeps that run's detector (no noise or creep trigger, the
+# single-sample percentage drop), so its replay finds the events it logged.
 _LEGACY_FIELDS = frozenset(
     {"arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
      "cusum_threshold_n", "cusum_drift_n", "rearm_below_n"}
