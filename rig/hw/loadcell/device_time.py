@@ -48,8 +48,8 @@ class DeviceClockMapper:
     """Maps wrapping 32-bit device microseconds onto host epoch nanoseconds (offset and rate)."""
 
     # True: every sample's rate-window step goes through `_window_sample` (the plain twin of the
-    # fast path in `sample_times_ns`, which keeps the window in locals: a method call per sample
-    # was about 1.5 % of a simulated run at 1 kHz, benchmarks/bench_runner_instructions.py).
+    # fast path in `sample_times_ns`, which keeps the window in locals: its call per sample was 2 %
+    # of the bytecodes of a simulated 1 kHz run, benchmarks/bench_runner_bytecodes.py).
     plain_rate_window = False
 
     def __init__(self, track_rate: bool = True) -> None:
