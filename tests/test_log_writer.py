@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -11,6 +12,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from mcap.reader import make_reader
@@ -390,3 +392,53 @@ def test_log_columns_writes_what_log_many_writes_and_checks_the_names(tmp_path):
     rows = [(m[2], m[4]) for m in mcap_messages(tmp_path / "rows.mcap")]
     assert rows == [(m[2], m[4]) for m in mcap_messages(tmp_path / "columns.mcap")]
     assert [p for _, p in rows] == samples
+
+
+def _column_requests(path: Path, *, plain: bool) -> tuple[list[bytes], int, list[tuple]]:
+    """Every request `log_columns` sends to the writer process (pickled), over ticks of all kinds."""
+    clock = VirtualClock(epoch_ns=T0_NS)
+    requests: list[bytes] = []
+    with RunLogger(path, clock=clock, strict=False, max_pending=600) as log:
+        log.plain_columns = plain
+        write_request = log._write_request
+
+        def record(request: tuple, count: int) -> None:
+            requests.append(pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL))
+            write_request(request, count)
+
+        log._write_request = record  # type: ignore[method-assign]
+        for tick in range(120):
+            clock.advance_ns(20 * MS)
+            n = tick % 23  # empty ticks too; batches fill up and are sent mid-run
+            spacing_ns = 15 * MS if tick % 11 == 1 else MS  # some ticks span a batch's log time
+            times = [T0_NS + 400 * tick * MS + i * spacing_ns for i in range(n)]
+            if tick % 7 == 3:
+                times = [np.int64(t) for t in times]  # numpy ints take the plain path's index()
+            device = [None] * n if tick % 5 == 0 else [1000 * (20 * tick + i) for i in range(n)]
+            log.log_columns(
+                S.LOADCELL,
+                iter(times),
+                seq=iter(range(n)),
+                raw=[i - 3 for i in range(n)],
+                force_n=[i / 8 for i in range(n)],
+                device_time_us=device,
+            )
+            if tick % 2:  # a message between: the next call finds the batch empty or not
+                log.log(S.LOADCELL, times[-1] if times else T0_NS, S.loadcell_sample(raw=tick, force_n=0.5))
+        with pytest.raises(ValueError):  # columns of unequal length
+            log.log_columns(
+                S.LOADCELL, [T0_NS, T0_NS], seq=[1], raw=[2, 3], force_n=[0.5, 1], device_time_us=[1, 2]
+            )
+        with pytest.raises(TypeError):  # log times are integer ns
+            log.log_columns(S.LOADCELL, [1.5], seq=[1], raw=[2], force_n=[0.5], device_time_us=[None])
+        logged = log.messages_logged
+    return requests, logged, [m[2:] for m in mcap_messages(path)]
+
+
+def test_log_columns_fast_path_sends_what_the_plain_path_sends(tmp_path):
+    # Fast path guard (docs/design.md §10): without strict mode log_columns extends the batch with
+    # zip; with plain_columns every row goes through _enqueue's loop. Same requests, byte for byte.
+    fast = _column_requests(tmp_path / "fast.mcap", plain=False)
+    plain = _column_requests(tmp_path / "plain.mcap", plain=True)
+    assert fast == plain
+    assert len(fast[0]) > 5 and len(fast[2]) > 1000  # batches sent mid-run; messages written
