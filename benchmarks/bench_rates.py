@@ -3,11 +3,13 @@
 Run (from the repository root, with the project's environment):
 
     python benchmarks/bench_rates.py runs [--rates 10 80 320 1000] [--seeds 0 1 2]
+    python benchmarks/bench_rates.py runs --rig protocols/rigs/scenarios/compliant-10.yaml
     python benchmarks/bench_rates.py quiet [--rates 10 80 320 1000] [--samples 1000000]
 
 `runs`: `rig run protocols/joint_estimation.yaml --seed S --json` on the built-in simulated rig with
-only `simulation.loadcell_rate_hz` changed. Per run: the outcomes of the 24 trials, k with its 99 %
-bounds against the true k, and the run's simulated time (first trial start to last trial end). From
+only `simulation.loadcell_rate_hz` changed (with `--rig`, on that simulated rig config at its
+rate). Per run: the outcomes of the 24 trials, k with its 99 % bounds against the true k, and the
+run's simulated time (first trial start to last trial end). From
 the log, per trial, against `sim_truth`'s first slip: the detection lag in samples (n: the detecting
 sample is the n-th taken after the true onset, its sampling time recovered from its device time),
 and the slip-load error, detected peak / true slip load − 1 (sampling and noise together).
@@ -39,6 +41,7 @@ from rig.analysis.runlog import read_parts, run_settings
 from rig.cli import main as rig_main
 from rig.hw.loadcell.formats import LineDecoder
 from rig.protocol import load_protocol
+from rig.rig_config import load_rig_config, nominal_loadcell_rate_hz
 from rig.runner.ramp_speed import RampSpeeds
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.physics.article_presets import make_preset
@@ -47,11 +50,15 @@ ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
 
 
-def run_at(rate_hz: float, seed: int, folder: Path) -> tuple[int, dict[str, Any]]:
-    """`rig run` of the default protocol with the simulated cell at `rate_hz`; (exit code, report)."""
+def run_at(
+    rate_hz: float, seed: int, folder: Path, rig_text: str | None = None
+) -> tuple[int, dict[str, Any]]:
+    """`rig run` of the default protocol with the simulated cell at `rate_hz` (or on the rig config
+    `rig_text`); (exit code, report)."""
     rig = folder / "rig.yaml"
     rig.write_text(
-        f"extends: simulated\nname: rate{rate_hz:g}\nsimulation:\n  loadcell_rate_hz: {rate_hz:g}\n"
+        rig_text
+        or f"extends: simulated\nname: rate{rate_hz:g}\nsimulation:\n  loadcell_rate_hz: {rate_hz:g}\n"
     )
     argv = ["run", str(PROTOCOL), "--rig", str(rig), "--seed", str(seed), "--json", "--out", str(folder)]
     out = io.StringIO()
@@ -88,7 +95,7 @@ def score(report: dict[str, Any], rate_hz: float) -> tuple[list[int], list[float
     return lags, errors, early
 
 
-def runs(rates: list[float], seeds: list[int]) -> None:
+def runs(rates: list[float], seeds: list[int], rig_text: str | None = None) -> None:
     print(
         "| rate [/s] | seed | exit | outcomes | k [99 % bounds] | true k | inside | lag <= 2 "
         "| lag max [samples] | slip-load error mean, max abs [%] | error < 0.5 % | early | run time [s] |"
@@ -97,7 +104,7 @@ def runs(rates: list[float], seeds: list[int]) -> None:
     for rate in rates:
         for seed in seeds:
             with tempfile.TemporaryDirectory() as folder:
-                code, report = run_at(rate, seed, Path(folder))
+                code, report = run_at(rate, seed, Path(folder), rig_text)
                 lags, errors, early = score(report, rate)
             estimate = report.get("estimate") or {}
             ci = estimate.get("k_ci")
@@ -175,8 +182,11 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--samples", type=int, default=1_000_000, help="quiet: samples per rate")
     parser.add_argument("--seed", type=int, default=0, help="quiet")
+    parser.add_argument("--rig", type=Path, help="runs: this simulated rig config, at its rate (not --rates)")
     args = parser.parse_args()
-    if args.mode == "runs":
+    if args.mode == "runs" and args.rig is not None:
+        runs([nominal_loadcell_rate_hz(load_rig_config(args.rig))], args.seeds, args.rig.read_text())
+    elif args.mode == "runs":
         runs(args.rates, args.seeds)
     else:
         quiet(args.rates, args.samples, args.seed)

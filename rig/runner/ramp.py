@@ -43,9 +43,6 @@ _BACKING_OFF_RAD_S = -0.05
 # A measured load-cell rate this far (relative) from the configured one is warned about, once the
 # ramp has fed samples over at least RATE_MIN_SPAN_S.
 RATE_TOLERANCE = 0.2
-# Where the sampling limit binds, the fast phase ends this many control ticks of full-speed rise
-# below the capped ramp (at 10/s the winch overshot one tick's rise by up to 3 N onto the slip load).
-APPROACH_TICKS = 3
 RATE_MIN_SPAN_S = 1.0
 # How much older than its read time a servo's position may be (the status packet's transit; a
 # bus transaction at 1 Mbps takes about a millisecond). Not verified on hardware.
@@ -268,34 +265,24 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
     )
     predicted = predicted_force_n(ctx, trial, found)
     arm_n = ctx.detector_params.arm_threshold_n
-    switch_n = arm_n
-    if predicted is not None and math.isfinite(predicted):
-        switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
-    # Where the sampling limit binds (low rates) the fast phase runs up to `capped_n`: the low edge
-    # of the expected slip load, or the arm threshold with nothing to go on. It stops short of it by
-    # what the winch reels at full speed in `APPROACH_TICKS` control ticks (it overshoots the switch
-    # by about that much); the slow phase, at the limit, covers that approach.
+    # Where the sampling limit binds (low rates) the fast phase runs up to the low edge of the
+    # expected slip load (`plan.capped_n`; for joint estimation, where the estimator gives one).
     # Between samples (up to 0.1 s apart at 10/s, 5 N at full speed) the tension is read ahead
     # from the winch's travel since the last sample.
-    capped_n = arm_n
-    read_ahead = speeds.binds_at(switch_n)
+    low_n = None
     if trial.kind == TrialKind.JOINT_ESTIMATION and trial.distance_m is not None:
-        capped_n = speeds.switch_n(
-            switch_n, ctx.estimator.joint_estimation_force_low_n(trial.distance_m, BAND_Z)
-        )
-        if capped_n > switch_n:
-            stop_s = APPROACH_TICKS * ctx.protocol.control_period_s
-            stop_n = speeds.n_per_rad * ramp.fast_speed_rad_s * stop_s
-            switch_n = max(switch_n, capped_n - stop_n)
+        low_n = ctx.estimator.joint_estimation_force_low_n(trial.distance_m, BAND_Z)
+    plan = speeds.plan(arm_n, predicted, low_n, ramp.fast_until_fraction, ctx.protocol.control_period_s)
+    switch_n, read_ahead = plan.switch_n, plan.read_ahead
 
-    # Nothing to go on (`capped_n` is the arm threshold), or below the expected range: the count
-    # floor. Latched off once the tension has reached the range (noise about its edge would flip it).
+    # Nothing to go on, or below the expected range: the count floor. Latched off once the tension
+    # has reached the range (noise about its edge would flip it).
     counted = [True]
 
     def slow_speed(force_n: float) -> float:
         # The limit holds from the end of the fast phase, the approach to `capped_n` included: a
         # slip below the expected range's low edge is read as finely as one inside it.
-        if capped_n > arm_n and force_n >= capped_n:
+        if plan.expected and force_n >= plan.capped_n:
             counted[0] = False
         return speeds.slow_at(force_n, arm_n, counted=counted[0])
 

@@ -53,8 +53,39 @@ SAMPLING_ERROR_FRACTION = 0.0047
 # The low edge of the expected slip load is this many relative spreads below the prediction (the
 # one-sided 99.5 % point of a normal spread).
 BAND_Z = 2.576
+# Where the sampling limit binds, the fast phase ends this many control ticks of full-speed rise
+# below the capped ramp (at 10/s the winch overshot one tick's rise by up to 3 N onto the slip load).
+APPROACH_TICKS = 3
+# The relative spread (log sd) of a trial's slip load that a plan made before the run assumes for
+# the trials after the first (`RampSpeeds.ramp_s`, `rig run --dry-run`): the simulated joints'
+# trial-to-trial scatter (0.085) with the fit's own uncertainty.
+PLANNED_SPREAD_LOG = 0.1
 # The speed follows the limit in steps: it is rewritten when the limit has moved by this factor.
 SPEED_STEP = 1.05
+
+
+@dataclass(frozen=True)
+class RampPlan:
+    """Where one ramp changes speed.
+
+    Attributes:
+        arm_n: the detector's arm threshold (the slow phase's lowest tension for the limit).
+        switch_n: the fast phase ends here.
+        capped_n: the low edge of the expected slip load where the limit binds there (the fast phase
+            ends short of it); the arm threshold with nothing to go on.
+        read_ahead: the limit binds at the switch: between samples the runner reads the tension
+            ahead from the winch's travel.
+    """
+
+    arm_n: float
+    switch_n: float
+    capped_n: float
+    read_ahead: bool
+
+    @property
+    def expected(self) -> bool:
+        """There is an expected range to go on (the count floor then applies only below it)."""
+        return self.capped_n > self.arm_n
 
 
 @dataclass(frozen=True)
@@ -130,6 +161,59 @@ class RampSpeeds:
         if to_n > crossover_n:
             seconds += (to_n - max(from_n, crossover_n)) / slow_n_per_s
         return seconds
+
+    def plan(
+        self,
+        arm_n: float,
+        predicted_n: float | None,
+        expected_low_n: float | None,
+        fast_until_fraction: float,
+        control_period_s: float,
+    ) -> RampPlan:
+        """The ramp's plan for a trial whose slip is predicted at `predicted_n` (None: no prediction).
+
+        The fast phase runs to `fast_until_fraction` of the prediction, or, where the limit binds at
+        `expected_low_n` (the low edge of the expected slip load; None: not known), up to it, less
+        what the winch reels at full speed in `APPROACH_TICKS` control ticks (it overshoots the
+        switch by about that much): the slow phase, at the limit, covers that approach.
+        """
+        switch = arm_n
+        if predicted_n is not None and math.isfinite(predicted_n):
+            switch = max(switch, fast_until_fraction * predicted_n)
+        read_ahead = self.binds_at(switch)
+        capped = self.switch_n(switch, expected_low_n) if expected_low_n is not None else arm_n
+        if capped > switch:
+            approach_n = self.n_per_rad * self.fast_rad_s * APPROACH_TICKS * control_period_s
+            switch = max(switch, capped - approach_n)
+        return RampPlan(arm_n=arm_n, switch_n=switch, capped_n=max(capped, arm_n), read_ahead=read_ahead)
+
+    def ramp_s(self, plan: RampPlan, slip_n: float) -> float:
+        """Time a ramp takes from a taut line to a slip at `slip_n` under `plan`.
+
+        Fast to the switch, then slow, with the count floor below the expected range (everywhere
+        with nothing to go on). The winch's take-up of a slack line is left out.
+        """
+        fast_s = min(plan.switch_n, slip_n) / (self.n_per_rad * self.fast_rad_s)
+        start = min(plan.switch_n, slip_n)
+        if not plan.expected:
+            return fast_s + self.slow_ramp_s(max(start, plan.arm_n), slip_n, counted=True)
+        below = self.slow_ramp_s(start, min(slip_n, plan.capped_n), counted=True)
+        return fast_s + below + self.slow_ramp_s(max(start, plan.capped_n), slip_n)
+
+    def planned_ramp_s(
+        self, arm_n: float, slip_n: float, first: bool, fast_until_fraction: float, control_period_s: float
+    ) -> float:
+        """`ramp_s` for a slip at `slip_n`, planned before the run.
+
+        The first trial has nothing to go on; the others are predicted right, with a spread of
+        `PLANNED_SPREAD_LOG`.
+        """
+        if first:
+            plan = self.plan(arm_n, None, None, fast_until_fraction, control_period_s)
+        else:
+            low = slip_n * math.exp(-BAND_Z * PLANNED_SPREAD_LOG)
+            plan = self.plan(arm_n, slip_n, low, fast_until_fraction, control_period_s)
+        return self.ramp_s(plan, slip_n)
 
     def switch_n(self, switch_n: float, expected_low_n: float | None) -> float:
         """Where the fast phase ends: `switch_n`, or higher up to `expected_low_n` if the limit binds there.
