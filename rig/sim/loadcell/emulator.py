@@ -102,6 +102,7 @@ def firmware_banner(rate_hz: float) -> bytes:
         f"period-us={round(1e6 / rate_hz)}\r\n"
     ).encode()
 
+
 _LC1_TAILS = [b"*%02X\r\n" % checksum for checksum in range(256)]  # rig-lc1 line ends by checksum
 
 
