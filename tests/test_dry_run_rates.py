@@ -83,3 +83,5 @@ def test_a_dry_run_at_10_per_s_estimates_longer_than_at_1khz(cli_json: Callable[
     )
     # 258 s against 117 s (2026-11-27): the 10/s ramp is capped below 85 N, the first trial from 2 N.
     assert slow["estimated_duration_s"] > 1.8 * default["estimated_duration_s"]
+    # One winch count of the 5000 N/m line on the 10 mm drum: the slip load's resolution.
+    assert default["slip_load_resolution_n"] == pytest.approx(5000 * 0.01 * 2 * 3.141592653589793 / 4096)

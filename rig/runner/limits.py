@@ -254,6 +254,8 @@ class PlanSummary:
     estimated_duration_s: float
     duration_assumption: str
     adaptive: tuple[AdaptivePlan, ...] = ()
+    # One winch count's tension: the finest the slip load can be read (rig.runner.ramp_speed).
+    slip_load_resolution_n: float = 0.0
 
     def as_json(self) -> dict[str, Any]:
         """The `rig run --dry-run --json` object (`adaptive` only when the protocol has such blocks)."""
@@ -267,6 +269,7 @@ class PlanSummary:
             ],
             "estimated_duration_s": self.estimated_duration_s,
             "duration_assumption": self.duration_assumption,
+            "slip_load_resolution_n": self.slip_load_resolution_n,
         }
         if self.adaptive:
             out["adaptive"] = [a.as_json() for a in self.adaptive]
@@ -304,6 +307,7 @@ def plan_summary(protocol: Protocol, config: RigConfig) -> PlanSummary:
             + (", every adaptive block's whole budget" if protocol.adaptive else "")
         ),
         adaptive=tuple(adaptive_plan(block, protocol, config) for block in protocol.adaptive),
+        slip_load_resolution_n=ramp_speeds(protocol, config).count_n,
     )
 
 
