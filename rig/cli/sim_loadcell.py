@@ -12,6 +12,8 @@ from rig.hw.loadcell.formats import FORMATS
 from rig.sim.loadcell.emulator import (
     DEFAULT_BAUD,
     DEFAULT_RATE_HZ,
+    MAX_RATE_HZ,
+    MIN_RATE_HZ,
     FaultPlan,
     LoadCellEmulator,
     SignalModel,
@@ -146,7 +148,7 @@ def build_emulator(args: argparse.Namespace, start_ns: int) -> LoadCellEmulator:
         options = cell_emulator_options(cell)
     args.rate = DEFAULT_RATE_HZ if args.rate is None else args.rate
     args.format = args.format or "rig-lc1"
-    if cell is None and args.banner:
+    if cell is None and args.banner and MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ:  # (else the rate is refused)
         options["banner"] = firmware_banner(args.rate)
     return LoadCellEmulator(
         parse_profile(args.profile, start_ns),

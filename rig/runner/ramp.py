@@ -277,14 +277,15 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
 
     # Nothing to go on, or below the expected range: the count floor. Latched off once the tension
     # has reached the range (noise about its edge would flip it).
-    counted = [True]
+    counted = True
 
     def slow_speed(force_n: float) -> float:
         # The limit holds from the end of the fast phase, the approach to `capped_n` included: a
         # slip below the expected range's low edge is read as finely as one inside it.
+        nonlocal counted
         if plan.expected and force_n >= plan.capped_n:
-            counted[0] = False
-        return speeds.slow_at(force_n, arm_n, counted=counted[0])
+            counted = False
+        return speeds.slow_at(force_n, arm_n, counted=counted)
 
     zero = ctx.winch_zero_rad
     assert zero is not None
