@@ -2,17 +2,20 @@
 
 Run (from the repository root, with the project's environment):
 
-    python benchmarks/bench_rates.py runs [--rates 10 80 320 1000] [--seeds 0 1 2]
-    python benchmarks/bench_rates.py runs --rig protocols/rigs/scenarios/compliant-10.yaml
+    python benchmarks/bench_rates.py runs [--rates 10 80 320 1000] [--seeds 0 1 2] [--trials]
+                                          [--scenario noisy-cell]
     python benchmarks/bench_rates.py quiet [--rates 10 80 320 1000] [--samples 1000000]
 
 `runs`: `rig run protocols/joint_estimation.yaml --seed S --json` on the built-in simulated rig with
-only `simulation.loadcell_rate_hz` changed (with `--rig`, on that simulated rig config at its
-rate). Per run: the outcomes of the 24 trials, k with its 99 % bounds against the true k, and the
-run's simulated time (first trial start to last trial end). From
+only `simulation.loadcell_rate_hz` changed. Per run: the outcomes of the 24 trials, k with its 99 %
+bounds against the true k, and the run's simulated time (first trial start to last trial end). From
 the log, per trial, against `sim_truth`'s first slip: the detection lag in samples (n: the detecting
 sample is the n-th taken after the true onset, its sampling time recovered from its device time),
 and the slip-load error, detected peak / true slip load − 1 (sampling and noise together).
+`--scenario NAME` runs a config of protocols/rigs/scenarios/ at each rate instead (the early
+column counts detections before the first true slip or in a trial without one: false alarms).
+`--trials` adds, after each run's row, every trial detected more than 2 samples after the onset:
+its lag, error, trigger, true slips, and the forces of the 4 samples before and after the onset.
 
 `quiet`: the protocol's detector, with the defaults for each rate (`params_for_rate`), over quiet
 samples of the emulated load cell at that rate and the default noise (5 mN): 10⁴-sample segments,
@@ -34,14 +37,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from bench_detector_sim import detections_with_sample_times  # benchmarks/ is the script's directory
 
 from model.slip_detector import detector_init, detector_run, params_for_rate
 from rig.analysis.runlog import read_parts, run_settings
 from rig.cli import main as rig_main
 from rig.hw.loadcell.formats import LineDecoder
+from rig.log import schemas
 from rig.protocol import load_protocol
-from rig.rig_config import load_rig_config, nominal_loadcell_rate_hz
 from rig.runner.ramp_speed import RampSpeeds
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.physics.article_presets import make_preset
@@ -51,15 +55,19 @@ PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
 
 
 def run_at(
-    rate_hz: float, seed: int, folder: Path, rig_text: str | None = None
+    rate_hz: float, seed: int, folder: Path, scenario: str | None = None
 ) -> tuple[int, dict[str, Any]]:
-    """`rig run` of the default protocol with the simulated cell at `rate_hz` (or on the rig config
-    `rig_text`); (exit code, report)."""
+    """`rig run` of the default protocol with the simulated cell at `rate_hz`; (exit code, report).
+
+    `scenario`: a config of protocols/rigs/scenarios/ (by name) instead of the built-in simulated rig.
+    """
+    config: dict[str, Any] = {"extends": "simulated"}
+    if scenario is not None:
+        config = yaml.safe_load((ROOT / "protocols" / "rigs" / "scenarios" / f"{scenario}.yaml").read_text())
+    config["name"] = f"rate{rate_hz:g}"
+    config.setdefault("simulation", {})["loadcell_rate_hz"] = rate_hz
     rig = folder / "rig.yaml"
-    rig.write_text(
-        rig_text
-        or f"extends: simulated\nname: rate{rate_hz:g}\nsimulation:\n  loadcell_rate_hz: {rate_hz:g}\n"
-    )
+    rig.write_text(yaml.safe_dump(config))
     argv = ["run", str(PROTOCOL), "--rig", str(rig), "--seed", str(seed), "--json", "--out", str(folder)]
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
@@ -67,8 +75,13 @@ def run_at(
     return code, json.loads(out.getvalue())
 
 
-def score(report: dict[str, Any], rate_hz: float) -> tuple[list[int], list[float], int]:
-    """(detection lags [samples], slip-load errors [relative], early detections) of a run's trials."""
+def score(
+    report: dict[str, Any], rate_hz: float, late: list[str] | None = None
+) -> tuple[list[int], list[float], int]:
+    """(detection lags [samples], slip-load errors [relative], early detections) of a run's trials.
+
+    `late`: if given, a line is appended per trial detected more than 2 samples after the onset.
+    """
     parts = read_parts(report["log"])
     settings = run_settings(parts, [])
     assert settings.truth is not None, "the log has no sim_truth"
@@ -81,9 +94,12 @@ def score(report: dict[str, Any], rate_hz: float) -> tuple[list[int], list[float
     lags: list[int] = []
     errors: list[float] = []
     early = 0
-    for trial, start, end in zip(trials, starts, starts[1:], strict=False):
+    for number, (trial, start, end) in enumerate(zip(trials, starts, starts[1:], strict=False), 1):
         mine = [(e, sampled) for e, sampled in events if start <= e.detection_time_ns < end]
-        if not mine or not trial["slip_events"]:
+        if not mine:
+            continue
+        if not trial["slip_events"]:
+            early += 1  # a detection where nothing slipped
             continue
         event, sampled_ns = mine[0]
         first = trial["slip_events"][0]
@@ -92,10 +108,32 @@ def score(report: dict[str, Any], rate_hz: float) -> tuple[list[int], list[float
             continue
         lags.append(math.ceil((sampled_ns - first["onset_time_ns"]) / period_ns))
         errors.append(event.peak_force_n / first["load_n"] - 1.0)
+        if late is not None and lags[-1] > 2:
+            late.append(
+                f"  trial {number}: lag {lags[-1]}, error {errors[-1] * 100:+.3f} %, "
+                f"trigger {event.trigger}, {len(trial['slip_events'])} true slips, "
+                f"slip load {first['load_n']:.3f} N; forces around the onset: "
+                f"{_around(parts, offset, first['onset_time_ns'])}"
+            )
     return lags, errors, early
 
 
-def runs(rates: list[float], seeds: list[int], rig_text: str | None = None) -> None:
+def _around(parts: list[Any], offset_ns: int, onset_ns: int) -> str:
+    """The logged forces of the 4 samples before and the 4 after a true time ('|' marks it)."""
+    for part in parts:
+        cell = part.log.topic(schemas.LOADCELL)
+        sampled = cell["device_time_us"].to_numpy() * 1000 + offset_ns
+        i = int(np.searchsorted(sampled, onset_ns))
+        if 0 < i < len(sampled):
+            forces = cell["force_n"].to_numpy()
+            before = " ".join(f"{f:.3f}" for f in forces[max(0, i - 4) : i])
+            return before + " | " + " ".join(f"{f:.3f}" for f in forces[i : i + 4])
+    return "-"
+
+
+def runs(
+    rates: list[float], seeds: list[int], show_trials: bool = False, scenario: str | None = None
+) -> None:
     print(
         "| rate [/s] | seed | exit | outcomes | k [99 % bounds] | true k | inside | lag <= 2 "
         "| lag max [samples] | slip-load error mean, max abs [%] | error < 0.5 % | early | run time [s] |"
@@ -104,8 +142,9 @@ def runs(rates: list[float], seeds: list[int], rig_text: str | None = None) -> N
     for rate in rates:
         for seed in seeds:
             with tempfile.TemporaryDirectory() as folder:
-                code, report = run_at(rate, seed, Path(folder), rig_text)
-                lags, errors, early = score(report, rate)
+                code, report = run_at(rate, seed, Path(folder), scenario)
+                late: list[str] | None = [] if show_trials else None
+                lags, errors, early = score(report, rate, late)
             estimate = report.get("estimate") or {}
             ci = estimate.get("k_ci")
             k_true = report["truth"]["k"]
@@ -124,6 +163,8 @@ def runs(rates: list[float], seeds: list[int], rig_text: str | None = None) -> N
                 f"| {early} | {span_s:.1f} |",
                 flush=True,
             )
+            for line in late or []:
+                print(line, flush=True)
 
 
 def quiet_alarms(rate_hz: float, samples: int, seed: int) -> tuple[int, int]:
@@ -182,12 +223,15 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--samples", type=int, default=1_000_000, help="quiet: samples per rate")
     parser.add_argument("--seed", type=int, default=0, help="quiet")
-    parser.add_argument("--rig", type=Path, help="runs: this simulated rig config, at its rate (not --rates)")
+    parser.add_argument(
+        "--scenario", help="runs: a protocols/rigs/scenarios/ config (e.g. noisy-cell) at each rate"
+    )
+    parser.add_argument(
+        "--trials", action="store_true", help="runs: the trials detected late, with their forces"
+    )
     args = parser.parse_args()
-    if args.mode == "runs" and args.rig is not None:
-        runs([nominal_loadcell_rate_hz(load_rig_config(args.rig))], args.seeds, args.rig.read_text())
-    elif args.mode == "runs":
-        runs(args.rates, args.seeds)
+    if args.mode == "runs":
+        runs(args.rates, args.seeds, args.trials, args.scenario)
     else:
         quiet(args.rates, args.samples, args.seed)
 

@@ -13,7 +13,7 @@ Detector (docs/model.md §7):
    * `drop`: high is `drop_fraction` of the spike-robust peak (decaying at `drop_leak_n_per_s`)
      and `min_drop_n` below it;
    * `slope`: the least-squares slope over the last `slope_window_s` is <= −`slope_n_per_s`;
-   * `cusum`: a one-sided CUSUM of force decrements, `g ← max(g + (f[k−1] − f[k]) − drift, 0)`,
+   * `cusum`: a one-sided CUSUM of force decrements, `g ← max(g + (f[k−1] − f[k]) − drift·Δt, 0)`,
      exceeds `cusum_threshold_n`; its onset is the last sample at which g was 0;
    * `noise`: high is `noise_k`·σ below the spike-robust peak decaying at `peak_leak_n_per_s`;
    * `creep`: a CUSUM of the fall relative to the ramp trend and the fall of high below the
@@ -25,8 +25,9 @@ Detector (docs/model.md §7):
    re-arming right at the arm threshold would let load-cell noise around it arm the detector on the
    unloading ramp after a slip, and that (real) decline would fire a second event.
 6. **Count further drops while latched** (stick-slip): a fall of `train_k`·σ below the highest
-   spike-robust level of the last `_TRAIN_SAMPLES` samples, after those samples held steady or rose
-   (a sag that goes on, as creep does, falls as much before as in its last samples: not a drop).
+   spike-robust level of the last `train_window_s` (at least `TRAIN_MIN_SAMPLES` samples), after
+   those samples held steady or rose (a sag that goes on, as creep does, falls as much before as
+   in its last samples: not a drop).
    The latch starts the count at 0; each counted drop restarts the window. `further_drops` steps
    the detector over the hold after an event and returns the count: the runner and replay both
    classify a stick-slip train with it. The count changes no event.
@@ -55,14 +56,15 @@ from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from typing import Any, NamedTuple
 
-from model.field_spec import Declared, FieldSpec, declared_fields, number
+from model.field_spec import Bounds, Declared, FieldSpec, FieldType, declared_fields, number
 
 _NONE_WORDS = frozenset({"none", "null", "off", "disabled", ""})
 
 
-# Every field the detector had before the noise and creep triggers. A mapping naming exactly these
-# is the logged parameter set of an older run: `from_mapping` keeps that run's detector (no noise or
-# creep trigger, the single-sample percentage drop), so its replay finds the events it logged.
+# Every field the detector had before the noise and creep triggers (by the names logged then: the
+# drift was `cusum_drift_n`, N per sample). A mapping naming exactly these is the logged parameter
+# set of an older run: `from_mapping` keeps that run's detector (no noise or creep trigger, the
+# single-sample percentage drop), so its replay finds the events it logged.
 _LEGACY_FIELDS = frozenset(
     {"arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
      "cusum_threshold_n", "cusum_drift_n", "rearm_below_n"}
@@ -96,7 +98,10 @@ class DetectorParams:
         slope_n_per_s: fire when the slope over the window is <= −this, (0, 1e9] N/s; None: off.
         slope_window_s: the window of the slope fit, (0, 10] s.
         cusum_threshold_n: fire when the CUSUM of decrements exceeds this, (0, 1e6] N; None: off.
-        cusum_drift_n: per-sample drift subtracted in the CUSUM, [0, 1e6] N.
+        cusum_drift_n_per_s: the CUSUM's drift allowance, subtracted at this rate (a fall slower
+            than this is ignored), [0, 1e9] N/s. Before 2026-11-27 it was `cusum_drift_n`, N per
+            sample; that name is still read, as N per sample of a 1000/s cell (× 1000 N/s), and
+            at the cell's rate where the protocol set it (`params_for_rate`).
         rearm_below_n: after firing, wait until the force is below this before arming again,
             (0, 1e6] N; None: half the arm threshold (a hysteresis band against noise).
         noise_k: fire when the force is this many noise σ below the leaky peak, (0, 1e3]; None: off.
@@ -117,13 +122,23 @@ class DetectorParams:
             slow drift on a noisy cell is not a drop, [0, 1e9] N/s; 0: it never decays (as before
             the train rule).
         drop_ramp_s: the percentage drop's peak is carried on along the running ramp rate for up to
-            this long after the peak, and the newer sample of the pair need only be half the drop
-            below it, so that the line's re-tension between samples does not hide a drop at a low
-            rate, [0, 100] s; None: neither (as before 2026-11-27; the default at 1000 samples/s
+            this long after the peak (by at most half the drop), and the newer sample of the pair
+            need only be half the drop below it, so that the line's re-tension between samples does
+            not hide a drop at a low rate; the spike guard is ramp-aware: a single-sample peak
+            whose rise is at most twice the rise before it is a peak, and when the older sample of
+            the pair has already fallen (4 σ, or min_drop_n), the newer alone is the level,
+            [0, 100] s; None: none of these (as before 2026-11-27; the default at 1000 samples/s
             and above, `rate_defaults` sets 3 sample periods below).
         train_k: after an event, a sudden fall of this many noise σ counts as a further drop of a
             stick-slip train (`further_drops`), (0, 1e3]; None: off (no train is counted). It
             changes no event, only how the runner classifies the trial.
+        warmup_s: the running ramp and noise estimates average their first increments with equal
+            weights for this long, and over at least `WARMUP_MIN_INCREMENTS` increments; the
+            noise-scaled triggers wait for it, [0, 100] s; 0: the increments only (16 ms at
+            1000/s, as before). A longer default was measured worse: a 16 ms warm-up at 2000/s
+            (32 increments) takes in the ramp's start, its σ grows 10×, and a 3 % drop is missed.
+        train_window_s: latched, a further drop is a fall below the highest level of this long
+            before it, and at least `TRAIN_MIN_SAMPLES` samples, [0, 100] s.
     """
 
     arm_threshold_n: float = field(default=1.0, metadata=number(0.0, 1e6, lo_open=True, unit="N"))
@@ -138,7 +153,7 @@ class DetectorParams:
     cusum_threshold_n: float | None = field(
         default=None, metadata=number(0.0, 1e6, lo_open=True, unit="N", optional=True)
     )
-    cusum_drift_n: float = field(default=0.05, metadata=number(0.0, 1e6, unit="N"))
+    cusum_drift_n_per_s: float = field(default=50.0, metadata=number(0.0, 1e9, unit="N/s"))
     rearm_below_n: float | None = field(
         default=None,
         metadata=number(0.0, 1e6, lo_open=True, unit="N", optional=True, default_doc="none (= arm/2)"),
@@ -163,6 +178,8 @@ class DetectorParams:
         default=None,
         metadata=number(0.0, 100.0, unit="s", optional=True, default_doc="none (3 samples below 1 kHz)"),
     )
+    warmup_s: float = field(default=0.0, metadata=number(0.0, 100.0, unit="s"))
+    train_window_s: float = field(default=0.008, metadata=number(0.0, 100.0, unit="s"))
 
     def __post_init__(self) -> None:
         """Validate every field (a direct construction is checked like `from_mapping`)."""
@@ -195,7 +212,7 @@ class DetectorParams:
         values: dict[str, Any] = {}
         for key, raw in mapping.items():
             name = str(key)
-            declared = _BY_NAME.get(name)
+            declared = _ALIAS_SPEC if name == CUSUM_DRIFT_ALIAS else _BY_NAME.get(name)
             if declared is None:
                 raise ValueError(
                     f"{source}: unknown field {name!r}{_suggestion(name)}; allowed: {_field_list()}"
@@ -204,6 +221,14 @@ class DetectorParams:
         for names, defaults in _VINTAGES:
             if set(values) == names:
                 values.update(defaults)
+        if CUSUM_DRIFT_ALIAS in values:
+            if "cusum_drift_n_per_s" in values:
+                raise ValueError(
+                    f"{source}: {CUSUM_DRIFT_ALIAS} (N per sample, before 2026-11-27) and "
+                    "cusum_drift_n_per_s both given; allowed: cusum_drift_n_per_s only"
+                )
+            per_sample_n = values.pop(CUSUM_DRIFT_ALIAS)
+            values["cusum_drift_n_per_s"] = per_sample_n * TUNED_RATE_HZ
         try:
             return cls(**values)
         except ValueError as exc:
@@ -217,6 +242,8 @@ class DetectorParams:
             key, sep, value = assignment.partition("=")
             if not sep:
                 raise ValueError(f"{source}: {assignment!r}: allowed: key=value, e.g. drop_fraction=0.2")
+            if key.strip() == CUSUM_DRIFT_ALIAS:
+                mapping.pop("cusum_drift_n_per_s", None)  # the older name replaces the newer
             mapping[key.strip()] = value.strip()
         return DetectorParams.from_mapping(mapping, source=source)
 
@@ -276,16 +303,25 @@ def rate_defaults(rate_hz: float) -> dict[str, float | None]:
 def params_for_rate(params: DetectorParams, given: Iterable[str], rate_hz: float) -> DetectorParams:
     """`params` with each rate-dependent field not in `given` at its default for `rate_hz`.
 
-    `given`: the fields the protocol set. Unchanged at `TUNED_RATE_HZ` and above.
+    `given`: the fields the protocol set. Unchanged at `TUNED_RATE_HZ` and above, except that a
+    drift given by its older per-sample name (`CUSUM_DRIFT_ALIAS`) is per sample of this cell.
     """
     chosen = set(given)
     updates = {name: value for name, value in rate_defaults(rate_hz).items() if name not in chosen}
+    if CUSUM_DRIFT_ALIAS in chosen and rate_hz != TUNED_RATE_HZ:
+        # The protocol gave the drift per sample: per sample of this cell.
+        updates["cusum_drift_n_per_s"] = params.cusum_drift_n_per_s / TUNED_RATE_HZ * rate_hz
     return DetectorParams.from_mapping({**params.to_mapping(), **updates}) if updates else params
 
 
 # The fields and their bounds, as declared above (`model.field_spec`).
 _FIELDS = declared_fields(DetectorParams)
 _BY_NAME = {declared.name: declared for declared in _FIELDS}
+# The CUSUM drift's name before 2026-11-27, in N per sample: still read (`from_mapping`).
+CUSUM_DRIFT_ALIAS = "cusum_drift_n"
+_ALIAS_SPEC = Declared(
+    CUSUM_DRIFT_ALIAS, CUSUM_DRIFT_ALIAS, FieldSpec(FieldType.NUMBER, Bounds(0.0, 1e6), "N"), 0.05
+)
 
 
 def _field_list() -> str:
@@ -351,7 +387,7 @@ class DetectorState(NamedTuple):
     cusum_onset_ns: int = 0
     window_times_ns: tuple[int, ...] = ()
     window_forces_n: tuple[float, ...] = ()
-    increments: int = 0  # sample-to-sample increments seen so far (capped at the warm-up count)
+    increments: int = 0  # sample-to-sample increments seen so far (counted during the warm-up)
     rate_n: float = 0.0  # running ramp increment per sample [N]
     scale_n: float = 0.0  # running mean |increment − ramp increment| [N]
     robust_peak_n: float = 0.0  # peak of min(f[k−1], f[k]): single-sample spikes do not set it
@@ -362,6 +398,12 @@ class DetectorState(NamedTuple):
     train_levels_n: tuple[float, ...] = ()  # latched: min(f[k−1], f[k]) of the last samples
     train_drops: int = 0  # latched: further drops counted since the latch
     drop_peak_n: float = 0.0  # the percentage drop's peak: robust_peak_n decaying at drop_leak_n_per_s
+    # Kept only with drop_ramp_s set (which sends every sample to the plain step): f[k−2] and
+    # f[k−2] − f[k−3], for the ramp-aware spike guard of the percentage drop.
+    older_force_n: float = 0.0
+    older_rise_n: float = 0.0
+    first_time_ns: int = 0  # the first sample's time (the warm-up's start)
+    warmed: bool = False  # the warm-up is over (`warmup_s` and `WARMUP_MIN_INCREMENTS`)
 
 
 @dataclass(frozen=True, slots=True)
@@ -391,19 +433,25 @@ class SlipEvent:
     kind: SlipEventKind = SlipEventKind.DROP
 
 
-# Increments averaged with equal weights before the running estimates switch to their time constants.
-_WARMUP_INCREMENTS = 16
+# Increments averaged with equal weights before the running estimates switch to their time
+# constants: at least this many (a σ from fewer makes the 10σ triggers fire on noise), and at
+# least `warmup_s` (default 0: this many at every rate; 16 ms at 1000/s).
+WARMUP_MIN_INCREMENTS = 16
 # Residuals beyond this many mean |residuals| are clipped in the running estimates (a slip or a
 # spike must not inflate the noise estimate or drag the ramp rate).
 _CLIP = 4.0
-# Latched: a further drop is a fall of the level below the highest of the last this many spike-robust
-# levels; the window also makes the count wait that long after the latch (the tail of the first drop).
-_TRAIN_SAMPLES = 8
+# Latched: a further drop is a fall of the level below the highest of the spike-robust levels of
+# `train_window_s` (8 ms) and at least this many samples (the steadiness test below reads six of
+# them); the window also makes the count wait that long after the latch (the first drop's tail).
+TRAIN_MIN_SAMPLES = 8
 # ... and the samples before it must have held or risen: the mean of the window's first three levels
 # is at most this share of the fall (or of the threshold) above the mean of the three before the
 # newest. A steady sag falls as much across the window as in its last samples, so it never counts.
 _TRAIN_STEADY = 0.25
 _TRAIN_STEADY_FLOOR = 0.15
+# With drop_ramp_s set: an older sample of the pair this many noise σ below the one before it has
+# begun to fall (the difference of two samples of pure noise, σ·√2, exceeds 4σ once in about 400).
+_FALLING_SIGMA = 4.0
 # E|x| / σ for x ~ N(0, 2σ²), the difference of two independent noise samples: 2/√π.
 _MEAN_ABS_DIFF_PER_SIGMA = 2.0 / math.sqrt(math.pi)
 
@@ -425,7 +473,7 @@ QUIET_STRETCH_FIELDS: dict[str, QuietUse] = {
     "slope_n_per_s": QuietUse.GATE,  # the slope window is kept per sample: no fast path
     "slope_window_s": QuietUse.PLAIN_ONLY,  # read only with the slope trigger on
     "cusum_threshold_n": QuietUse.MIRRORED,
-    "cusum_drift_n": QuietUse.MIRRORED,
+    "cusum_drift_n_per_s": QuietUse.MIRRORED,
     "rearm_below_n": QuietUse.PLAIN_ONLY,  # latched
     "noise_k": QuietUse.MIRRORED,
     "noise_floor_n": QuietUse.MIRRORED,
@@ -439,6 +487,8 @@ QUIET_STRETCH_FIELDS: dict[str, QuietUse] = {
     "train_k": QuietUse.PLAIN_ONLY,  # latched
     "drop_leak_n_per_s": QuietUse.MIRRORED,
     "drop_ramp_s": QuietUse.GATE,  # set below 1 kHz only: the plain step, sample by sample
+    "warmup_s": QuietUse.PLAIN_ONLY,  # the fast path starts after the warm-up
+    "train_window_s": QuietUse.PLAIN_ONLY,  # latched
 }
 _QUIET_GATES = tuple(name for name, use in QUIET_STRETCH_FIELDS.items() if use is QuietUse.GATE)
 
@@ -474,29 +524,33 @@ def noise_sigma_n(params: DetectorParams, state: DetectorState) -> float:
 
 
 def _estimates(
-    params: DetectorParams, state: DetectorState, dt_s: float, force_n: float
-) -> tuple[int, float, float, float]:
-    """Updated (increments, rate, scale) and this sample's residual about the ramp trend.
+    params: DetectorParams, state: DetectorState, time_ns: int, dt_s: float, force_n: float
+) -> tuple[int, bool, float, float, float]:
+    """Updated (increments, warmed, rate, scale) and this sample's residual about the ramp trend.
 
     The ramp increment per sample and the mean |residual| are running means (equal weights while
     warming up, then exponential with the configured time constants), fed residuals clipped at
     `_CLIP` mean |residuals|: a robust running estimate of trend and noise from the increments.
     """
     if state.last_time_ns is None:
-        return 0, 0.0, 0.0, 0.0
+        return 0, False, 0.0, 0.0, 0.0
     increment = force_n - state.previous_force_n
     residual = increment - state.rate_n
     count = state.increments
-    if count < _WARMUP_INCREMENTS:
+    if not state.warmed:
         count += 1
         rate = state.rate_n + residual / count
         scale = state.scale_n + (abs(residual) - state.scale_n) / count
-        return count, rate, scale, residual
+        # Over once warmup_s has passed to within half a sample period (so sample times a few µs
+        # early do not add a sample: at 1000/s, exactly the 16 increments of the count before).
+        elapsed_ns = time_ns - state.first_time_ns
+        warmed = count >= WARMUP_MIN_INCREMENTS and elapsed_ns + 0.5 * dt_s * 1e9 >= params.warmup_s * 1e9
+        return count, warmed, rate, scale, residual
     limit = _CLIP * state.scale_n
     clipped = min(max(residual, -limit), limit)
     rate = state.rate_n + min(dt_s / params.trend_window_s, 1.0) * clipped
     scale = state.scale_n + min(dt_s / params.noise_window_s, 1.0) * (abs(clipped) - state.scale_n)
-    return count, rate, scale, residual
+    return count, True, rate, scale, residual
 
 
 def detector_step(
@@ -525,9 +579,10 @@ def detector_step(
         window_f = (*window_f[start:], force_n)
 
     dt_s = 0.0 if last is None else (time_ns - last) * 1e-9
-    increments, rate, scale, residual = _estimates(params, state, dt_s, force_n)
+    increments, warmed, rate, scale, residual = _estimates(params, state, time_ns, dt_s, force_n)
     low2 = force_n if last is None else min(force_n, state.previous_force_n)
     high2 = force_n if last is None else max(force_n, state.previous_force_n)
+    ramp_aware = params.drop_ramp_s is not None
     idle = DetectorState(
         DetectorPhase.IDLE,
         time_ns,
@@ -537,7 +592,16 @@ def detector_step(
         increments=increments,
         rate_n=rate,
         scale_n=scale,
+        first_time_ns=time_ns if last is None else state.first_time_ns,
+        warmed=warmed,
     )
+    if ramp_aware:
+        older, rise = (
+            (force_n, 0.0)
+            if last is None
+            else (state.previous_force_n, state.previous_force_n - state.older_force_n)
+        )
+        idle = idle._replace(older_force_n=older, older_rise_n=rise)
 
     phase = state.phase
     if phase is DetectorPhase.IDLE:
@@ -558,7 +622,7 @@ def detector_step(
     if phase is DetectorPhase.LATCHED:
         if force_n < params.rearm_level_n:
             return idle, None
-        return _latched_step(params, state, idle, low2, high2), None
+        return _latched_step(params, state, idle, low2, high2, dt_s), None
 
     # Armed.
     peak_force = state.peak_force_n
@@ -568,7 +632,7 @@ def detector_step(
         peak_time = time_ns
     drop_n = peak_force - force_n
 
-    cusum = state.cusum_n + (state.previous_force_n - force_n) - params.cusum_drift_n
+    cusum = state.cusum_n + (state.previous_force_n - force_n) - params.cusum_drift_n_per_s * dt_s
     cusum_onset = state.cusum_onset_ns
     if cusum <= 0.0:
         cusum = 0.0
@@ -596,17 +660,33 @@ def detector_step(
     # of min(f[k−1], f[k])): one spike up and one down no longer make a drop. The peak decays at
     # drop_leak_n_per_s: noise maxima on the high side of a slow drift and the low side later, on a
     # cell with 10x the noise, made a percentage "drop" of a quiet hold.
+    if ramp_aware and params.spike_samples == 2.0 and _ramp_predicted_peak(state):
+        drop_peak = max(drop_peak, state.previous_force_n)
     level_peak, level = (drop_peak, high2) if params.spike_samples == 2.0 else (peak_force, force_n)
     if params.drop_ramp_s is not None and last is not None and time_ns > last and level < level_peak:
         # Where the ramp would have taken the peak since (the rate before this sample: a drop's own
         # samples must not lower it), for at most drop_ramp_s: at a low rate the line re-tensions
         # between two samples by a good share of a small drop.
         carried_ns = min(time_ns - peak_time, params.drop_ramp_s * 1e9)
-        level_peak += max(state.rate_n, 0.0) * carried_ns / (time_ns - last)
+        carried_n = max(state.rate_n, 0.0) * carried_ns / (time_ns - last)
+        if params.drop_fraction is not None:
+            # At most half the drop: the carry alone never makes one. While warming up, the rate is
+            # the plain mean increment since the start, the fast phase's steps included, and the
+            # line resting after the fast phase would fall short of that carried peak by a "drop".
+            carried_n = min(carried_n, 0.5 * params.drop_fraction * level_peak)
+        level_peak += carried_n
         if params.spike_samples == 2.0 and params.drop_fraction is not None:
             # ... and the newer sample of the pair need only be half the drop below the peak: the
             # winch takes the line up again after a slip, by a good part of it in one sample period.
             level = max(state.previous_force_n, force_n - 0.5 * params.drop_fraction * level_peak)
+            # ... or, when the older sample had already fallen clearly below the one before it (a
+            # slide caught part-way, or a fall that began just before that sample), the newer alone:
+            # a single low spike follows no fall. The fall counts from 4 noise σ, or from min_drop_n
+            # where that is less: a fast phase seen while warming up inflates σ for a noise window
+            # (10 s at 10/s).
+            older_fall = state.older_force_n - state.previous_force_n
+            if older_fall > 0.0 and older_fall >= min(_FALLING_SIGMA * sigma, params.min_drop_n):
+                level = min(level, force_n)
     robust_drop = level_peak - level
     if (
         params.drop_fraction is not None
@@ -627,7 +707,7 @@ def detector_step(
             onset = min(onset, cusum_onset)
     # The noise-scaled triggers wait for a rise since arming: a detector re-armed part-way down a
     # drop (a re-arm level above the arm threshold) must not fire again on the rest of that drop.
-    warm = increments >= _WARMUP_INCREMENTS and robust_peak - state.armed_at_n >= 2.0 * sigma
+    warm = warmed and robust_peak - state.armed_at_n >= 2.0 * sigma
     if warm and params.noise_k is not None and leaky_peak - high2 >= params.noise_k * sigma:
         triggers.append("noise")
         onset = min(onset, peak_time)
@@ -674,22 +754,46 @@ def detector_step(
         trend_onset,
         state.armed_at_n,
         drop_peak_n=drop_peak,
+        older_force_n=idle.older_force_n,
+        older_rise_n=idle.older_rise_n,
+        first_time_ns=idle.first_time_ns,
+        warmed=warmed,
     ), None
 
 
+def _ramp_predicted_peak(state: DetectorState) -> bool:
+    """Whether f[k−1], a sample above f[k−2], is where the ramp took the line rather than a spike.
+
+    Its rise is at most twice the rise before it (the winch may speed up between two samples; a
+    spike on a ramp rises many times the ramp's step). At a low rate the fast phase can take the
+    line onto the slip load in one sample, so the peak is a single sample: the two-sample guard
+    alone would see no drop, and wait for the next slip.
+    """
+    rise = state.previous_force_n - state.older_force_n
+    return state.older_rise_n > 0.0 and 0.0 < rise <= 2.0 * state.older_rise_n
+
+
+def _train_samples(params: DetectorParams, dt_s: float) -> int:
+    """The stick-slip window in samples: `train_window_s` at this sample's period, at least the minimum."""
+    if dt_s <= 0.0:
+        return TRAIN_MIN_SAMPLES
+    return max(TRAIN_MIN_SAMPLES, round(params.train_window_s / dt_s))
+
+
 def _latched_step(
-    params: DetectorParams, state: DetectorState, idle: DetectorState, low2: float, high2: float
+    params: DetectorParams, state: DetectorState, idle: DetectorState, low2: float, high2: float, dt_s: float
 ) -> DetectorState:
     """The latched detector's next state: it counts a further drop (a stick-slip) when it sees one."""
-    levels = state.train_levels_n
+    window = _train_samples(params, dt_s)
+    levels = state.train_levels_n[-window:]
     drops = state.train_drops
-    if params.train_k is not None and len(levels) == _TRAIN_SAMPLES:
+    if params.train_k is not None and len(levels) == window:
         threshold = params.train_k * max(state.scale_n / _MEAN_ABS_DIFF_PER_SIGMA, params.noise_floor_n)
         fall = max(levels) - high2
         sag = (levels[0] + levels[1] + levels[2] - levels[-4] - levels[-3] - levels[-2]) / 3.0
         if fall >= threshold and sag <= max(_TRAIN_STEADY * fall, _TRAIN_STEADY_FLOOR * threshold):
             return idle._replace(phase=DetectorPhase.LATCHED, train_drops=drops + 1)
-    levels = (*levels[1:], low2) if len(levels) == _TRAIN_SAMPLES else (*levels, low2)
+    levels = (*levels[1:], low2) if len(levels) == window else (*levels, low2)
     return idle._replace(phase=DetectorPhase.LATCHED, train_levels_n=levels, train_drops=drops)
 
 
@@ -723,7 +827,7 @@ def detector_run(
             quiet_ok
             and state.phase is not DetectorPhase.LATCHED
             and state.last_time_ns is not None
-            and state.increments >= _WARMUP_INCREMENTS
+            and state.warmed
         ):
             state, i = _quiet_stretch(params, state, times_ns, forces_n, i)
             if i >= count:
@@ -756,7 +860,7 @@ def _quiet_stretch(
     trend, trend_onset, armed_at = state.trend_cusum_n, state.trend_onset_ns, state.armed_at_n
     arm_n = params.arm_threshold_n
     trend_window, noise_window = params.trend_window_s, params.noise_window_s
-    cusum_drift, cusum_threshold = params.cusum_drift_n, params.cusum_threshold_n
+    cusum_drift, cusum_threshold = params.cusum_drift_n_per_s, params.cusum_threshold_n
     peak_leak, drop_leak = params.peak_leak_n_per_s, params.drop_leak_n_per_s
     creep_drift = params.creep_drift_n_per_s
     floor, noise_k, creep_k = params.noise_floor_n, params.noise_k, params.creep_k
@@ -785,7 +889,7 @@ def _quiet_stretch(
             continue
         new_peak_f, new_peak_t = (f, t) if f >= peak_f else (peak_f, peak_t)
         drop_n = new_peak_f - f
-        new_cusum = cusum + (prev - f) - cusum_drift
+        new_cusum = cusum + (prev - f) - cusum_drift * dt_s
         new_cusum_onset = cusum_onset
         if new_cusum <= 0.0:
             new_cusum, new_cusum_onset = 0.0, t
@@ -860,6 +964,8 @@ def _quiet_stretch(
             trend_onset,
             armed_at,
             drop_peak_n=drop_peak,
+            first_time_ns=state.first_time_ns,
+            warmed=True,
         )
     else:
         out = DetectorState(
@@ -871,6 +977,8 @@ def _quiet_stretch(
             increments=state.increments,
             rate_n=rate,
             scale_n=scale,
+            first_time_ns=state.first_time_ns,
+            warmed=True,
         )
     return out, i
 

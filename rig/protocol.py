@@ -82,7 +82,7 @@ _STEPS = custom(
 class FixedBlockFields:
     """A joint-estimation block with `design: fixed` (the default): distances x repeats."""
 
-    kind: str = field(metadata=choice(tuple(TrialKind)))
+    kind: TrialKind = field(metadata=choice(TrialKind))
     design: str = field(
         default="fixed",
         metadata=choice(
@@ -103,7 +103,7 @@ class FixedBlockFields:
 class AdaptiveBlockFields:
     """A joint-estimation block with `design: adaptive`: the planner chooses every distance."""
 
-    kind: str = field(metadata=choice(tuple(TrialKind)))
+    kind: TrialKind = field(metadata=choice(TrialKind))
     design: str = field(metadata=choice(DESIGNS))
     joint: int = field(default=1, metadata=_JOINT)
     distance_range_m: tuple[float, float] = field(
@@ -157,7 +157,7 @@ class AdaptiveBlockFields:
 class LinkValidationBlockFields:
     """A link-validation block: configurations x repeats, each trial predicted before it runs."""
 
-    kind: str = field(metadata=choice(tuple(TrialKind)))
+    kind: TrialKind = field(metadata=choice(TrialKind))
     configurations_deg: tuple[tuple[float, ...], ...] = field(
         metadata=custom(allowed_doc=f"1-{MAX_ITEMS} lists of J joint angles about y, each in [−90, 90]°")
     )

@@ -23,22 +23,38 @@ from model.field_spec import (
     section,
 )
 from rig.validate import Section, read_field, read_fields, reject_undeclared
-from rig.vocabulary import SlipKind
+from rig.vocabulary import (
+    FaultDevice,
+    FaultKind,
+    HostFaultKind,
+    LoadCellFaultKind,
+    LoggerFaultKind,
+    ServoFaultKind,
+    SlipKind,
+)
 
 SIM_PRESETS = ("link1", "link2")
 
 # Which faults each simulated device can be given (`simulation.faults:`, docs in protocols/README.md).
-SERVO_FAULT_KINDS = ("drop", "corrupt", "delay", "silent", "disconnect", "overload")
-FAULT_KINDS: dict[str, tuple[str, ...]] = {
-    "servos": SERVO_FAULT_KINDS,
-    "winch": SERVO_FAULT_KINDS,
-    "bender": SERVO_FAULT_KINDS,
-    "loadcell": ("garble", "checksum", "gap", "silent", "disconnect"),
-    "logger": ("write_error",),
-    "host": ("pause",),
+FaultKindEnum = type[ServoFaultKind] | type[LoadCellFaultKind] | type[LoggerFaultKind] | type[HostFaultKind]
+FAULT_KINDS: dict[FaultDevice, FaultKindEnum] = {
+    FaultDevice.SERVOS: ServoFaultKind,
+    FaultDevice.WINCH: ServoFaultKind,
+    FaultDevice.BENDER: ServoFaultKind,
+    FaultDevice.LOADCELL: LoadCellFaultKind,
+    FaultDevice.LOGGER: LoggerFaultKind,
+    FaultDevice.HOST: HostFaultKind,
 }
 # Kinds that happen per reply or per line with a probability (`rate`); the others happen at a time.
-RATE_FAULT_KINDS = frozenset({"drop", "corrupt", "delay", "garble", "checksum"})
+RATE_FAULT_KINDS: frozenset[FaultKind] = frozenset(
+    {
+        ServoFaultKind.DROP,
+        ServoFaultKind.CORRUPT,
+        ServoFaultKind.DELAY,
+        LoadCellFaultKind.GARBLE,
+        LoadCellFaultKind.CHECKSUM,
+    }
+)
 
 
 @dataclass(frozen=True)
@@ -50,8 +66,8 @@ class FaultConfig:
     Which fields an entry needs depends on its kind (`parse_fault`).
     """
 
-    device: str = field(metadata=choice(FAULT_KINDS))
-    kind: str = field(metadata=custom(doc="one of the device's fault kinds"))
+    device: FaultDevice = field(metadata=choice(FaultDevice))
+    kind: FaultKind = field(metadata=custom(doc="one of the device's fault kinds"))
     rate: float | None = field(default=None, metadata=number(0.0, 1.0))
     at_s: float | None = field(default=None, metadata=number(0.0, 1e6, unit="s"))
     duration_s: float | None = field(default=None, metadata=number(0.0, 1e6, lo_open=True, unit="s"))
@@ -480,17 +496,18 @@ def parse_fault(sec: Section) -> FaultConfig:
     """One entry of `simulation.faults`: which fields it needs depends on its kind."""
     reject_undeclared(sec, FaultConfig)
     device = read_field(sec, FaultConfig, "device")
-    kind = sec.string("kind", choices=FAULT_KINDS[device])
-    if device == "logger":
+    kinds = FAULT_KINDS[device]
+    kind: FaultKind = kinds(sec.string("kind", choices=tuple(kinds)))
+    if device == FaultDevice.LOGGER:
         return FaultConfig(
             device, kind, after_bytes=read_field(sec, FaultConfig, "after_bytes", required=True)
         )
     if kind in RATE_FAULT_KINDS:
         rate = read_field(sec, FaultConfig, "rate", required=True)
         delay = None
-        if kind == "delay":
+        if kind == ServoFaultKind.DELAY:
             delay = read_field(sec, FaultConfig, "delay_ms", default=50.0)
         return FaultConfig(device, kind, rate=rate, delay_ms=delay)
     at_s = read_field(sec, FaultConfig, "at_s", required=True)
-    duration = read_field(sec, FaultConfig, "duration_s", required=device == "host")
+    duration = read_field(sec, FaultConfig, "duration_s", required=device == FaultDevice.HOST)
     return FaultConfig(device, kind, at_s=at_s, duration_s=duration)

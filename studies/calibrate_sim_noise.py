@@ -62,7 +62,7 @@ def one_slip_mass_kg(
         world.advance_to(world.now_ns + STEP_NS)
         if world.now_ns - start_ns > 120_000_000_000:
             raise RuntimeError(f"no slip within 120 s at {distance_m} m")
-    onset_ns = world.slips[slips_before].onset_ns
+    onset_ns = world.slips[slips_before].onset.onset_ns
     world.advance_to(onset_ns + 60_000_000)  # let the drop complete
     winch.rate_rad_s = 0.0
     first_ns = max(start_ns, onset_ns - 1_500_000_000) // SAMPLE_NS * SAMPLE_NS + SAMPLE_NS

@@ -9,6 +9,9 @@ Dynamixel:
   in-process and in virtual time (shut down after the test).
   `sdk_on_emulated_bus(ids=..., coupled=True)`: the raw dynamixel-sdk on an emulated bus.
   `dxl_server(ids=..., baud=...)`: `rig sim servos` in a subprocess on a pty (always terminated).
+Hardware rig over ptys:
+  `loadcell_server(profile)`: `rig sim loadcell` in a subprocess on a pty (stopped after the test).
+  `hardware_rig(servo_link, cell_link, ...)`: a hardware rig config on them, with a calibration.
 Runs:
   `run_on_simulated_rig` (session scope): runs a protocol on the simulated rig into any directory.
   `sim_run(protocol, ...)`: the same into tmp_path/out; returns (report, SimulatedRig).
@@ -35,10 +38,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 from dynamixel_sdk import PacketHandler
 
 from rig.cli import main as cli_main
 from rig.hw.dxl.bus import DynamixelServoBus
+from rig.hw.loadcell.calibration import Calibration
 from rig.rig_config import ServoSpec
 from rig.rigs import open_simulated_rig
 from rig.runner.progress import SilentProgress
@@ -348,6 +353,102 @@ def dxl_server(tmp_path: Path) -> Iterator[Callable[..., ServoServer]]:
             return stack.enter_context(_servo_server(tmp_path / f"dxl{count}", **kwargs))
 
         yield start
+
+
+@dataclass
+class LoadCellServer:
+    """A running `rig sim loadcell` process at a constant tension, and its link."""
+
+    link: Path
+    process: subprocess.Popen[str]
+
+
+@pytest.fixture
+def loadcell_server(tmp_path: Path) -> Iterator[Callable[..., LoadCellServer]]:
+    """Factory: `loadcell_server("constant:0.5", link=None)`: `rig sim loadcell` on a pty at 200 lines/s.
+
+    rig-lc1 lines at the emulated cell's nominal gain and offset (`hardware_rig`'s calibration);
+    the link is tmp_path/cellN unless given. Every server still running is stopped after the test.
+    """
+    servers: list[LoadCellServer] = []
+
+    def start(profile: str, link: Path | None = None) -> LoadCellServer:
+        link = tmp_path / f"cell{len(servers)}" if link is None else link
+        cmd = [sys.executable, "-m", "rig.cli", "sim", "loadcell", "--link", str(link), "--rate", "200",
+               "--profile", profile]  # fmt: skip
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        servers.append(LoadCellServer(link, proc))
+        ready, _, _ = select.select([proc.stdout], [], [], 20)
+        assert ready and proc.stdout is not None and proc.stdout.readline().startswith("PTY"), "no load cell"
+        return servers[-1]
+
+    yield start
+    for server in servers:
+        if server.process.poll() is None:
+            server.process.terminate()
+        server.process.communicate(timeout=STOP_TIMEOUT_S)
+
+
+@pytest.fixture
+def hardware_rig(tmp_path: Path) -> Callable[..., Path]:
+    """Factory: `hardware_rig(servo_link, cell_link, ...)` -> tmp_path/hw.yaml, a hardware rig config.
+
+    Two XM430-W350 (1 winch, 2 bender) at 1 Mbps with a 500 ms Bus Watchdog on `servo_link`; a
+    rig-lc1 cell at 921600 baud on `cell_link` with the emulated cell's nominal calibration
+    (tmp_path/cal.json; `calibration=False`: none); a link of two 3 cm segments. The keyword
+    mappings `servos`, `loadcell`, `limits` add keys to (or replace keys of) those sections, `top`
+    to the top level.
+    """
+
+    def write(
+        servo_link: str | os.PathLike[str],
+        cell_link: str | os.PathLike[str],
+        *,
+        calibration: bool = True,
+        servos: dict[str, Any] | None = None,
+        loadcell: dict[str, Any] | None = None,
+        limits: dict[str, Any] | None = None,
+        top: dict[str, Any] | None = None,
+    ) -> Path:
+        cell: dict[str, Any] = {"port": str(cell_link), "baud": 921600, "format": "rig-lc1"}
+        if calibration:  # the emulated cell's nominal gain and offset
+            Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-23", "pty", "rig-lc1").save(
+                tmp_path / "cal.json"
+            )
+            cell["calibration"] = "cal.json"
+        config = {
+            "kind": "hardware",
+            "spool_radius_m": 0.01,
+            **(top or {}),
+            "servos": {
+                "port": str(servo_link),
+                "baud": 1_000_000,
+                "watchdog_ms": 500,
+                **(servos or {}),
+                "ids": [
+                    {"id": 1, "role": "winch", "model": "XM430-W350"},
+                    {"id": 2, "role": "bender", "model": "XM430-W350"},
+                ],
+            },
+            "loadcell": {**cell, **(loadcell or {})},
+            "article": {
+                "joint_radius_m": 0.01,
+                "segment_lengths_m": [0.03, 0.03],
+                "load": {"point_m": [0, 0, 0.03], "direction": [0, -1, 0]},
+            },
+            "limits": {
+                "force_ceiling_n": 50,
+                "winch_current_limit_a": 0.35,
+                "stale_timeout_s": 0.2,
+                "max_winch_travel_rev": 20,
+                **(limits or {}),
+            },
+        }
+        path = tmp_path / "hw.yaml"
+        path.write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+        return path
+
+    return write
 
 
 # ------------------------------------------------------------------------------------------ runs

@@ -20,12 +20,10 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from rig.hw.loadcell.calibration import Calibration
 from tests.test_hardware_path_faults import (
     PRESENT_POSITION,
     TORQUE_ENABLE,
     _read,
-    _start_loadcell,
     _wait_until_ramping,
 )
 
@@ -45,40 +43,20 @@ blocks:
 """
 
 
-def _rig(tmp_path: Path, servo_link: str, cell_link: Path, patience_s: float) -> Path:
-    Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-23", "pty", "rig-lc1").save(tmp_path / "cal.json")
-    rig = tmp_path / "hw.yaml"
-    rig.write_text(
-        f"""\
-kind: hardware
-spool_radius_m: 0.01
-# The cell reads a constant 0.5 N: no slip, so the ramp ends on its timeout, which this nominal
-# stiffness keeps short (the default 200 N/m would allow minutes).
-line_stiffness_n_per_m: 2000
-servos:
-  port: {servo_link}
-  baud: 1000000
-  watchdog_ms: 500
-  release_patience_s: {patience_s}
-  ids: [{{id: 1, role: winch, model: XM430-W350}}, {{id: 2, role: bender, model: XM430-W350}}]
-loadcell: {{port: {cell_link}, baud: 921600, format: rig-lc1, calibration: cal.json}}
-article:
-  joint_radius_m: 0.01
-  segment_lengths_m: [0.03, 0.03]
-  load: {{point_m: [0, 0, 0.03], direction: [0, -1, 0]}}
-limits: {{force_ceiling_n: 50, winch_current_limit_a: 0.35, stale_timeout_s: 0.2, max_winch_travel_rev: 20}}
-"""
-    )
-    return rig
-
-
-def _start(tmp_path: Path, dxl_server, patience_s: float):
+def _start(tmp_path: Path, dxl_server, loadcell_server, hardware_rig, patience_s: float):
     servos = dxl_server(ids=[1, 2], baud=1_000_000)
-    cell_link = tmp_path / "loadcell"
-    cell = _start_loadcell(cell_link)
+    cell_server = loadcell_server("constant:0.5")
+    cell = cell_server.process
     protocol = tmp_path / "p.yaml"
     protocol.write_text(PROTOCOL)
-    rig = _rig(tmp_path, servos.link, cell_link, patience_s)
+    # The cell reads a constant 0.5 N: no slip, so the ramp ends on its timeout, which this nominal
+    # stiffness keeps short (the default 200 N/m would allow minutes).
+    rig = hardware_rig(
+        servos.link,
+        cell_server.link,
+        servos={"release_patience_s": patience_s},
+        top={"line_stiffness_n_per_m": 2000},
+    )
     args = [
         "run",
         str(protocol),
@@ -118,8 +96,10 @@ def _notes(tmp_path: Path) -> list[str]:
         ]
 
 
-def test_a_bus_quiet_for_a_second_mid_ramp_costs_a_repeated_trial(tmp_path, dxl_server):
-    servos, cell, run = _start(tmp_path, dxl_server, patience_s=5.0)
+def test_a_bus_quiet_for_a_second_mid_ramp_costs_a_repeated_trial(
+    tmp_path, dxl_server, loadcell_server, hardware_rig
+):
+    servos, cell, run = _start(tmp_path, dxl_server, loadcell_server, hardware_rig, patience_s=5.0)
     try:
         _freeze(servos, 1.0)  # longer than the servos' Bus Watchdog (0.5 s): it trips on resuming
         out, _ = run.communicate(timeout=180)
@@ -139,9 +119,9 @@ def test_a_bus_quiet_for_a_second_mid_ramp_costs_a_repeated_trial(tmp_path, dxl_
 
 
 def test_a_host_paused_mid_ramp_finds_the_tripped_watchdog_clears_it_and_repeats_the_trial(
-    tmp_path, dxl_server
+    tmp_path, dxl_server, loadcell_server, hardware_rig
 ):
-    servos, cell, run = _start(tmp_path, dxl_server, patience_s=5.0)
+    servos, cell, run = _start(tmp_path, dxl_server, loadcell_server, hardware_rig, patience_s=5.0)
     try:
         _freeze(run, 1.5)  # the host stops (a suspend, a slow disk); the servos' watchdog (0.5 s) trips
         out, _ = run.communicate(timeout=180)
@@ -159,9 +139,9 @@ def test_a_host_paused_mid_ramp_finds_the_tripped_watchdog_clears_it_and_repeats
 
 
 def test_a_bus_silent_beyond_the_patience_ends_the_run_saying_what_state_the_winch_is_in(
-    tmp_path, dxl_server
+    tmp_path, dxl_server, loadcell_server, hardware_rig
 ):
-    servos, cell, run = _start(tmp_path, dxl_server, patience_s=1.0)
+    servos, cell, run = _start(tmp_path, dxl_server, loadcell_server, hardware_rig, patience_s=1.0)
     servos.process.send_signal(signal.SIGSTOP)
     try:
         out, _ = run.communicate(timeout=180)  # the run gives up while the bus is still frozen
@@ -179,8 +159,10 @@ def test_a_bus_silent_beyond_the_patience_ends_the_run_saying_what_state_the_win
     assert "THE LINE MAY BE LOADED" in reason
 
 
-def test_a_servo_adapter_pulled_out_is_reported_naming_its_port(tmp_path, dxl_server):
-    servos, cell, run = _start(tmp_path, dxl_server, patience_s=5.0)
+def test_a_servo_adapter_pulled_out_is_reported_naming_its_port(
+    tmp_path, dxl_server, loadcell_server, hardware_rig
+):
+    servos, cell, run = _start(tmp_path, dxl_server, loadcell_server, hardware_rig, patience_s=5.0)
     try:
         servos.process.send_signal(signal.SIGKILL)  # the pty's other end is gone: EIO, as a pulled adapter
         out, _ = run.communicate(timeout=180)

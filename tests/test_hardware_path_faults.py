@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import select
 import signal
 import subprocess
 import sys
@@ -20,8 +19,6 @@ from pathlib import Path
 
 import pytest
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
-
-from rig.hw.loadcell.calibration import Calibration
 
 pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
 
@@ -42,39 +39,6 @@ blocks:
     repeats: 1
     steps: [{tare: {settle_s: 0.2}}, ramp_until_slip, unload]
 """
-
-
-def _start_loadcell(link: Path) -> subprocess.Popen[str]:
-    cmd = [sys.executable, "-m", "rig.cli", "sim", "loadcell", "--link", str(link), "--rate", "200",
-           "--profile", "constant:0.5"]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    ready, _, _ = select.select([proc.stdout], [], [], 20)
-    assert ready and proc.stdout is not None and proc.stdout.readline().startswith("PTY"), "no load cell"
-    return proc
-
-
-def _hardware_rig(tmp_path: Path, servo_link: Path, cell_link: Path) -> Path:
-    """A hardware rig config on the two pseudo-terminals, with a calibration for the emulated cell."""
-    Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-23", "pty", "rig-lc1").save(tmp_path / "cal.json")
-    rig = tmp_path / "hw.yaml"
-    rig.write_text(
-        f"""\
-kind: hardware
-spool_radius_m: 0.01
-servos:
-  port: {servo_link}
-  baud: 1000000
-  watchdog_ms: 500
-  ids: [{{id: 1, role: winch, model: XM430-W350}}, {{id: 2, role: bender, model: XM430-W350}}]
-loadcell: {{port: {cell_link}, baud: 921600, format: rig-lc1, calibration: cal.json}}
-article:
-  joint_radius_m: 0.01
-  segment_lengths_m: [0.03, 0.03]
-  load: {{point_m: [0, 0, 0.03], direction: [0, -1, 0]}}
-limits: {{force_ceiling_n: 50, winch_current_limit_a: 0.35, stale_timeout_s: 0.2, max_winch_travel_rev: 20}}
-"""
-    )
-    return rig
 
 
 def _start_run(tmp_path: Path, rig: Path) -> subprocess.Popen[str]:
@@ -115,15 +79,15 @@ def _wait_until_ramping(run: Process, log: Path, timeout_s: float = 60.0) -> Non
 
 @contextlib.contextmanager
 def _mid_ramp(
-    tmp_path: Path, dxl_server
+    tmp_path: Path, dxl_server, loadcell_server, hardware_rig
 ) -> Iterator[tuple[Path, subprocess.Popen[str], subprocess.Popen[str]]]:
     """Servos and load cell on ptys, and `rig run` on them 4 s in: the winch reeling (no slip, the
     tension is constant). Yields (servo link, load-cell process, run process); the cell is killed after."""
     servos = dxl_server(ids=[1, 2], baud=1_000_000)
-    cell_link = tmp_path / "loadcell"
-    cell = _start_loadcell(cell_link)
+    cell_server = loadcell_server("constant:0.5")
+    cell = cell_server.process
     try:
-        run = _start_run(tmp_path, _hardware_rig(tmp_path, Path(servos.link), cell_link))
+        run = _start_run(tmp_path, hardware_rig(servos.link, cell_server.link))
         _wait_until_ramping(run, tmp_path / "out" / "hw.mcap")
         yield Path(servos.link), cell, run
     finally:
@@ -132,8 +96,10 @@ def _mid_ramp(
         cell.wait(timeout=10)
 
 
-def test_load_cell_unplugged_mid_ramp_ends_with_the_winch_released(tmp_path, dxl_server):
-    with _mid_ramp(tmp_path, dxl_server) as (link, cell, run):
+def test_load_cell_unplugged_mid_ramp_ends_with_the_winch_released(
+    tmp_path, dxl_server, loadcell_server, hardware_rig
+):
+    with _mid_ramp(tmp_path, dxl_server, loadcell_server, hardware_rig) as (link, cell, run):
         cell.send_signal(signal.SIGKILL)  # the adapter is pulled out
         out, err = run.communicate(timeout=60)
     report = json.loads(out)
@@ -143,10 +109,12 @@ def test_load_cell_unplugged_mid_ramp_ends_with_the_winch_released(tmp_path, dxl
     assert [_read(link, i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
 
 
-def test_a_host_killed_mid_ramp_leaves_a_winch_that_stops_by_itself(tmp_path, dxl_server):
+def test_a_host_killed_mid_ramp_leaves_a_winch_that_stops_by_itself(
+    tmp_path, dxl_server, loadcell_server, hardware_rig
+):
     # A power cut of the host: nothing on it runs any more. The winch's Bus Watchdog (500 ms here)
     # trips and it holds where it is; its goal was never more than a short lead ahead anyway.
-    with _mid_ramp(tmp_path, dxl_server) as (link, _, run):
+    with _mid_ramp(tmp_path, dxl_server, loadcell_server, hardware_rig) as (link, _, run):
         run.send_signal(signal.SIGKILL)
         run.communicate(timeout=30)
         time.sleep(1.0)  # the watchdog's window, and then some

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
+from rig.hw.bending import ManualBending
+from rig.rig_config import load_rig_config
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.sim.clock import VirtualClock
-from rig.testing.fakes import FakeLine, FakeLoadCell, FakeOperator, FakeServoBus, fake_session
+from rig.sim.object_devices import ObjectServoBus
+from rig.sim.object_rig import object_simulated_rig
+from rig.sim.simulated_rig import SimOperator
+from rig.testing.recording import RecordingServoBus
 from rig.vocabulary import TrialOutcome
 
 PROTOCOL = """\
@@ -30,10 +35,10 @@ blocks:
 """
 
 
-class TorqueWatchingOperator(FakeOperator):
-    """Records, at each prompt, whether the bender's torque is on, then moves the bender as a hand would."""
+class TorqueWatchingOperator(SimOperator):
+    """Records, at each prompt, whether the bender's torque is on (the simulated person then bends)."""
 
-    def __init__(self, servos: FakeServoBus, bender: int) -> None:
+    def __init__(self, servos: ObjectServoBus, bender: int) -> None:
         super().__init__()
         self.servos = servos
         self.bender = bender
@@ -45,20 +50,23 @@ class TorqueWatchingOperator(FakeOperator):
 
 
 def test_benders_are_off_while_the_operator_bends(protocol_file: Callable[..., Path], tmp_path: Path) -> None:
-    clock = VirtualClock()
-    servos = FakeServoBus(clock, [1, 2], time_constant_s=0.05)
-    line = FakeLine(servos, 1, stiffness_n_per_rad=50.0, slip_forces_n=[20.0, 15.0, 30.0], drop_fraction=0.4)
-    load_cell = FakeLoadCell(clock, line.tension_at, rate_hz=1000.0, stale_timeout_s=0.2)
-    operator = TorqueWatchingOperator(servos, bender=2)
-    session = fake_session(clock, servos, load_cell, winch_id=1, operator=operator)
+    config = load_rig_config(None)  # the default simulated rig: no forks, the link is bent by hand
+    rig = object_simulated_rig(config)
+    assert isinstance(rig.session.fixture, ManualBending)
+    winch, bender = config.servos.winch.servo_id, config.servos.benders[0].servo_id
+    servos = RecordingServoBus(rig.bus)
+    operator = TorqueWatchingOperator(rig.bus, bender)
+    session = dataclasses.replace(rig.session, servos=servos, operator=operator)
     request = RunRequest(protocol_path=protocol_file(PROTOCOL), rig_path=None, out_dir=tmp_path, seed=0)
     report = execute_run(prepare_run(request), session, SilentProgress())
     assert report.exit_code == 0, report.reason
     assert [t.outcome for t in report.trials] == [TrialOutcome.SLIP] * 3
     assert operator.torque_at_prompt == [False, False]  # given way for the bend and the reset by hand
-    torque_calls = [c.args for c in servos.calls_to("set_torque") if 2 in c.args["servo_ids"]]
+    torque_calls = [c.args for c in servos.calls_to("set_torque") if bender in c.args["servo_ids"]]
     # on at connect; off for each hand, on again to hold (the run's shutdown turns it off at the end)
     assert [c["enabled"] for c in torque_calls] == [True, False, True, False, True]
-    assert not servos.servo(2).torque_enabled
-    goals = [c.args["goals_rad"] for c in servos.calls_to("write_goal_positions") if 2 in c.args["goals_rad"]]
+    assert not rig.bus.servo(bender).torque_enabled and not rig.bus.servo(winch).torque_enabled
+    goals = [
+        c.args["goals_rad"] for c in servos.calls_to("write_goal_positions") if bender in c.args["goals_rad"]
+    ]
     assert goals, "the bender's goal is set to where the hand left it before its torque comes back"

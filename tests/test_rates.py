@@ -227,3 +227,87 @@ def test_a_cell_far_from_its_configured_rate_is_warned_about_once(tmp_path: Path
     log = read_parts(report["log"])[0].log.topic(schemas.LOG)
     warnings = [m for m in log["message"] if "measured at" in m]
     assert len(warnings) == 1 and "configured 500/s" in warnings[0]
+
+
+# ------------------------------------------------- the spike guard at low rates (issue 21, part 2)
+
+
+def _params_at(rate_hz: float) -> DetectorParams:
+    return params_for_rate(DetectorParams.from_mapping(PROTOCOL_DETECTOR), PROTOCOL_DETECTOR, rate_hz)
+
+
+def _detected_sample(rate_hz: float, forces: list[float]) -> int | None:
+    times = [1_000_000_000 + round(i * 1e9 / rate_hz) for i in range(len(forces))]
+    events = detect_slips(_params_at(rate_hz), times, forces)
+    return times.index(events[0].detection_time_ns) if events else None
+
+
+# bench_rates, 10/s, seed 0, trial 8: the fast phase (5 N a sample) reaches 12.44 N, the joint slips
+# at 13.33 N before the next sample, and the winch has slowed: a single-sample peak, 14 % above the
+# next sample. The rest at zero load before it starts the detector (its warm-up sees the fast phase).
+FAST_PHASE_OVERSHOOT = [
+    0.0002,
+    -0.0022,
+    0.0010,
+    0.0027,
+    0.0014,
+    2.3701,
+    7.4041,
+    12.4394,
+    10.6947,
+    11.0064,
+    11.3784,
+]
+
+
+def test_a_single_sample_peak_on_the_fast_phase_is_a_peak_at_10_per_s() -> None:
+    onset = FAST_PHASE_OVERSHOOT.index(10.6947)
+    detected = _detected_sample(10.0, FAST_PHASE_OVERSHOOT)
+    assert detected is not None and detected <= onset + 1
+    # The 1 kHz detector (no ramp-aware guard) keeps the two-sample peak, and sees no drop.
+    times = [i * 1_000_000 for i in range(len(FAST_PHASE_OVERSHOOT))]
+    assert detect_slips(DetectorParams.from_mapping(PROTOCOL_DETECTOR), times, FAST_PHASE_OVERSHOOT) == []
+
+
+def test_the_fast_phase_ending_on_a_plateau_is_no_drop_at_10_per_s() -> None:
+    # bench_rates, 10/s: the fast phase stops at 4.3 N; the warm-up's mean increment (0.5 N a sample)
+    # carried the peak by 2 samples made a 20 % "drop" of the resting line before the carry's cap.
+    plateau = [-0.0013, -0.0037, 0.0038, 0.0078, 3.3753, 4.2951, 4.3101, 4.2991, 4.2993, 4.3139, 4.2943]
+    assert _detected_sample(10.0, plateau + [4.30] * 20) is None
+
+
+@pytest.mark.parametrize("rate_hz", [10.0, 80.0, 320.0])
+def test_a_single_spike_up_or_down_on_the_slow_ramp_is_no_drop(rate_hz: float) -> None:
+    speeds = _speeds(rate_hz)
+    forces, force = [0.0] * 20, 2.0
+    while force < 2.6:
+        forces.append(force)
+        force += speeds.slow_at(force, 2.0) * SIM_N_PER_RAD / rate_hz
+    for index, size in ((28, 0.45), (34, -0.45)):  # over 15 % of the tension, each a single sample
+        spiked = list(forces)
+        spiked[index] += size
+        assert _detected_sample(rate_hz, spiked) is None, f"{size:+} N at {rate_hz}/s fired"
+
+
+@pytest.mark.parametrize("rate_hz", [10.0, 320.0])
+def test_a_fall_caught_part_way_is_seen_on_the_next_sample(rate_hz: float) -> None:
+    # The sample after the onset shows part of the fall (the slide takes 13 ms, or the onset came
+    # 40 us before the sample): the two-sample guard alone waited for a third sample.
+    _, forces, onset = _trace(rate_hz, 8.0, 0.2, 0)
+    forces[onset] = forces[onset - 1] - 0.06  # 0.75 %: about 10 noise σ
+    detected = _detected_sample(rate_hz, forces)
+    assert detected is not None and detected <= onset + 1
+
+
+def test_a_protocol_giving_the_drift_per_sample_still_loads_and_keeps_it_per_sample(tmp_path: Path) -> None:
+    text = (
+        "format: rig-protocol/1\nname: p\ndetector: {cusum_threshold_n: 1.0, cusum_drift_n: 0.05}\n"
+        "blocks:\n  - {kind: joint_estimation, joint: 1, distances_m: [0.1], repeats: 1}\n"
+    )
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
+    protocol = load_protocol(path)
+    assert protocol.detector.cusum_drift_n_per_s == pytest.approx(50.0)  # 0.05 N a sample at 1000/s
+    assert for_loadcell_rate(protocol, 1000.0) is protocol
+    assert for_loadcell_rate(protocol, 10.0).detector.cusum_drift_n_per_s == pytest.approx(0.5)
+    assert for_loadcell_rate(protocol, 2000.0).detector.cusum_drift_n_per_s == pytest.approx(100.0)

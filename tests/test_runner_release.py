@@ -5,14 +5,17 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, cast
 
+from rig.hw.session import RigSession
 from rig.log.writer import RunLogger
 from rig.protocol import RampSettings
+from rig.rig_config import load_rig_config
 from rig.runner.control_loop import ControlLoop
 from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.progress import SilentProgress
 from rig.runner.recorder import RunRecorder
 from rig.runner.release import LineRelease
-from rig.testing.fakes import fake_rig
+from rig.sim.object_rig import object_simulated_rig
+from rig.testing.recording import RecordingServoBus
 
 RAMP = RampSettings(
     fast_speed_rad_s=2.0,
@@ -38,9 +41,10 @@ class _Log:
         self.messages.append((topic, 0, [list(times_ns), {k: list(v) for k, v in columns.items()}]))
 
 
-def _loop_on_a_fake_rig() -> tuple[Any, ControlLoop, RunRecorder]:
-    rig = fake_rig()
-    session = rig.session
+def _loop_on_a_simulated_rig() -> tuple[RigSession, ControlLoop, RunRecorder]:
+    """The control loop on the object-level simulated rig (servo calls recorded), connected, one tick in."""
+    rig = object_simulated_rig(load_rig_config(None))
+    session = dataclasses.replace(rig.session, servos=RecordingServoBus(rig.bus))
     recorder = RunRecorder(cast(RunLogger, _Log()), session.clock, SilentProgress(), session.roles)
     loop = ControlLoop(
         session,
@@ -54,15 +58,15 @@ def _loop_on_a_fake_rig() -> tuple[Any, ControlLoop, RunRecorder]:
     session.load_cell.open()
     loop.restart_pacing()
     loop.tick()
-    return rig, loop, recorder
+    return session, loop, recorder
 
 
 def test_release_waits_from_its_own_copy_and_leaves_the_loop_alone_until_adopted():
-    rig, loop, recorder = _loop_on_a_fake_rig()
-    winch = rig.session.winch_id
+    session, loop, recorder = _loop_on_a_simulated_rig()
+    winch = session.winch_id
     start_rad = loop.states[winch].position_rad
     zero_rad = start_rad - 1.0  # the ramp reeled in one radian
-    release = LineRelease(rig.session, recorder, RAMP, control_period_s=0.01, tare_n=0.0, last=loop.reading())
+    release = LineRelease(session, recorder, RAMP, control_period_s=0.01, tare_n=0.0, last=loop.reading())
     # What a step or the ramp might do to the loop's readings after the release was made:
     loop.states = {}
     loop.tick_samples.append((0, 1e6))
@@ -81,12 +85,15 @@ def test_release_waits_from_its_own_copy_and_leaves_the_loop_alone_until_adopted
 
 
 def test_release_reboots_a_faulted_winch_from_the_state_it_was_given():
-    rig, loop, recorder = _loop_on_a_fake_rig()
-    winch = rig.session.winch_id
+    session, loop, recorder = _loop_on_a_simulated_rig()
+    winch = session.winch_id
     last = loop.reading()
     faulted = dataclasses.replace(last.states[winch], hardware_error=0x20)
     last.states[winch] = faulted
-    release = LineRelease(rig.session, recorder, RAMP, control_period_s=0.01, tare_n=0.0, last=last)
+    release = LineRelease(session, recorder, RAMP, control_period_s=0.01, tare_n=0.0, last=last)
     release.run(faulted.position_rad)
     assert release.report[0] == "winch rebooted after hardware error 0x20"
-    assert rig.winch.reboots == 1  # the fake servo had no error: only the given state said so
+    # The servo had no error: only the given state said so.
+    assert [c.args for c in cast(RecordingServoBus, session.servos).calls_to("reboot")] == [
+        {"servo_id": winch}
+    ]

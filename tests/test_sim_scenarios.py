@@ -15,7 +15,7 @@ from tests.helpers import QUICK_PROTOCOL
 SCENARIOS = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios"
 # Cells as labs have them (issue 21): tests/test_loadcell_cells.py runs them.
 CELL_NAMES = ("cell-hx711-10", "cell-hx711-80", "cell-hx717-320", "cell-gauge-12")
-# A low-rate cell on a compliant line (issue 21): tests/test_ramp_counts.py, bench_rates.py --rig.
+# A low-rate cell on a compliant line (issue 21): tests/test_ramp_counts.py, bench_rates.py --scenario.
 LINE_NAMES = ("compliant-10",)
 NAMES = ("small-drops", "creep", "stick-slip", "noisy-cell", "additive-scatter", "mixed-scatter", "mixed")
 

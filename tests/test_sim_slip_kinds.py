@@ -58,13 +58,13 @@ def test_sudden_and_small_drop_fall_by_their_fraction_within_a_few_ms() -> None:
         load_to_just_below(world, shaft, trial.slip_force_n - 0.05)
         trace = ramp(world, shaft, 0.1)
         (slip,) = world.slips
-        assert slip.kind == mix_kind(mix)
-        assert slip.end_ns is not None and slip.end_ns - slip.onset_ns <= 5 * MS
-        drop = 1 - slip.tension_after_n / slip.peak_tension_n  # type: ignore[operator]
+        assert slip.onset.kind == mix_kind(mix)
+        assert slip.end_ns is not None and slip.end_ns - slip.onset.onset_ns <= 5 * MS
+        drop = 1 - slip.tension_after_n / slip.onset.peak_tension_n  # type: ignore[operator]
         assert low - 0.005 <= drop <= high + 0.005
-        if slip.kind == "small_drop":
+        if slip.onset.kind == "small_drop":
             assert drop == pytest.approx(trial.slip.drop_fraction, abs=0.005)
-        assert trace.max() == pytest.approx(slip.peak_tension_n, abs=0.01)
+        assert trace.max() == pytest.approx(slip.onset.peak_tension_n, abs=0.01)
 
 
 def mix_kind(mix: SlipKindMix) -> str:
@@ -77,15 +77,17 @@ def test_creep_sags_slowly_over_its_duration_while_the_winch_reels() -> None:
     load_to_just_below(world, shaft, trial.slip_force_n - 0.02)
     trace = ramp(world, shaft, 1.0)
     creep = world.slips[0]
-    assert creep.kind == "creep"
-    assert creep.end_ns is not None and (creep.end_ns - creep.onset_ns) == pytest.approx(0.5 * S, abs=2 * MS)
+    assert creep.onset.kind == "creep"
+    assert creep.end_ns is not None and (creep.end_ns - creep.onset.onset_ns) == pytest.approx(
+        0.5 * S, abs=2 * MS
+    )
     onset = int(np.argmax(trace))
     sag = trace[onset : onset + 500]
     # A straight line from the peak down by 5 % over 0.5 s: never a jump, every step small.
-    expected = creep.peak_tension_n * (1 - 0.05 * np.arange(1, 501) / 500)
+    expected = creep.onset.peak_tension_n * (1 - 0.05 * np.arange(1, 501) / 500)
     assert np.abs(sag - expected).max() < 0.01
     assert np.abs(np.diff(sag)).max() < 0.01
-    assert creep.tension_after_n == pytest.approx(0.95 * creep.peak_tension_n, abs=0.01)
+    assert creep.tension_after_n == pytest.approx(0.95 * creep.onset.peak_tension_n, abs=0.01)
     # Then it sticks again: the winch re-tensions the line.
     assert trace[-1] > trace[onset + 500]
 
@@ -100,16 +102,16 @@ def test_stick_slip_is_a_train_of_drops_with_dwells() -> None:
     shaft_at = shaft.present_position_rad
     world.advance_to(world.now_ns + 300 * MS)
     assert shaft.present_position_rad == shaft_at
-    drops = [s for s in world.slips if s.trial_index == trial.index]
-    assert [s.kind for s in drops] == ["stick_slip"] * 4
+    drops = [s for s in world.slips if s.onset.trial_index == trial.index]
+    assert [s.onset.kind for s in drops] == ["stick_slip"] * 4
     fraction = trial.slip.drop_fraction
     assert fraction is not None
     for before, after in itertools.pairwise(drops):
         assert before.end_ns is not None
-        assert after.onset_ns - before.end_ns == pytest.approx(30 * MS, abs=MS)
-        assert after.peak_tension_n == pytest.approx(before.tension_after_n, abs=1e-9)
+        assert after.onset.onset_ns - before.end_ns == pytest.approx(30 * MS, abs=MS)
+        assert after.onset.peak_tension_n == pytest.approx(before.tension_after_n, abs=1e-9)
     for drop in drops:
-        assert drop.tension_after_n == pytest.approx(drop.peak_tension_n * (1 - fraction), abs=1e-3)
+        assert drop.tension_after_n == pytest.approx(drop.onset.peak_tension_n * (1 - fraction), abs=1e-3)
     truth = world.truth().to_json()["trials"][-1]
     assert [e["kind"] for e in truth["slip_events"]] == ["stick_slip"] * 4
 
@@ -125,17 +127,17 @@ def test_other_joint_slips_first_and_the_configuration_source_names_it() -> None
     world.advance_to(world.now_ns + MS)
     ramp(world, shaft, 0.02)
     (slip,) = world.slips
-    assert slip.kind == "other_joint" and slip.moved_joint == 4
-    assert slip.onset_time_ns == slip.onset_ns + 5 * S
+    assert slip.onset.kind == "other_joint" and slip.onset.moved_joint == 4
+    assert slip.onset.onset_time_ns == slip.onset.onset_ns + 5 * S
     assert world.article.planar_joint_angles() == (0.0,)  # the specimen did not move
-    drop = 1 - slip.tension_after_n / slip.peak_tension_n  # type: ignore[operator]
+    drop = 1 - slip.tension_after_n / slip.onset.peak_tension_n  # type: ignore[operator]
     assert drop == pytest.approx(trial.slip.drop_fraction, abs=1e-6)
     assert source.measure().slipped_joint == 4  # != the trial's joint 3: another joint moved
     # Reeling on, the specimen itself slips at its own load, named as the trial's joint.
     ramp(world, shaft, 4.0, rate_rad_s=0.5)
     specimen = world.slips[1]
-    assert specimen.kind == "sudden" and specimen.moved_joint == 3
-    assert specimen.peak_tension_n == pytest.approx(trial.slip_force_n, abs=0.03)
+    assert specimen.onset.kind == "sudden" and specimen.onset.moved_joint == 3
+    assert specimen.onset.peak_tension_n == pytest.approx(trial.slip_force_n, abs=0.03)
     assert source.measure().slipped_joint == 3
 
 
@@ -180,8 +182,8 @@ def test_truth_records_every_event_on_the_run_clock_and_is_json() -> None:
     events = [e for t in truth["trials"] for e in t["slip_events"]]
     assert len(events) == len(world.slips) >= 6
     for event, record in zip(events, world.slips, strict=True):
-        assert event["onset_time_ns"] == record.onset_ns + 10 * S
-        assert event["kind"] == record.kind and event["load_n"] == record.peak_tension_n
+        assert event["onset_time_ns"] == record.onset.onset_ns + 10 * S
+        assert event["kind"] == record.onset.kind and event["load_n"] == record.onset.peak_tension_n
     assert {t["slip_kind"] for t in truth["trials"]} <= set(tuple(SlipKind))
 
 

@@ -109,11 +109,13 @@ def test_first_slip_is_model_predict_slip_on_the_trial_capacities(angles, seed, 
 
     rate = 1.0
     record = ramp_until_first_slip(world, shaft, rate)
-    assert record.joint == int(prediction.first_slip_joint)
-    assert record.threshold_n == pytest.approx(float(prediction.slip_force_n), rel=1e-9)
+    assert record.onset.joint == int(prediction.first_slip_joint)
+    assert record.onset.threshold_n == pytest.approx(float(prediction.slip_force_n), rel=1e-9)
     ramp_n_per_substep = world.line.stiffness_n_per_m * preset.drum_radius_m * rate * 1e-3
-    assert prediction.slip_force_n <= record.peak_tension_n <= prediction.slip_force_n + ramp_n_per_substep
-    assert record.trial_index == trial.index
+    assert (
+        prediction.slip_force_n <= record.onset.peak_tension_n <= prediction.slip_force_n + ramp_n_per_substep
+    )
+    assert record.onset.trial_index == trial.index
 
 
 def test_stick_slip_drops_to_the_kinetic_level_then_rises_again() -> None:
@@ -125,22 +127,22 @@ def test_stick_slip_drops_to_the_kinetic_level_then_rises_again() -> None:
     first = ramp_until_first_slip(world, shaft, 0.5)
     # Reeling on at 0.5 rad/s (25 N/s) the tension regains the ~1.4 N drop in about 55 ms.
     world.advance_to(world.now_ns + 70 * MS)
-    assert first.end_ns is not None and first.end_ns >= first.onset_ns
+    assert first.end_ns is not None and first.end_ns >= first.onset.onset_ns
     # The slip relieves the line to about the kinetic ratio of the peak (geometry moves it a little).
-    assert first.tension_after_n / first.peak_tension_n == pytest.approx(preset.kinetic_ratio, abs=0.01)
+    assert first.tension_after_n / first.onset.peak_tension_n == pytest.approx(preset.kinetic_ratio, abs=0.01)
     assert first.rotation_rad > 0
     # The history holds each substep's tension before that substep's slip motion.
-    assert world.tension_at(first.onset_ns) == first.peak_tension_n
+    assert world.tension_at(first.onset.onset_ns) == first.onset.peak_tension_n
     ramp_n_per_ms = world.line.stiffness_n_per_m * world.preset.drum_radius_m * 0.5e-3
     after = world.tension_at(first.end_ns + MS)
     assert first.tension_after_n <= after <= first.tension_after_n + ramp_n_per_ms + 1e-12
     # The winch kept reeling: the tension rose again to a second slip near the static level.
     assert len(world.slips) == 2
     second = world.slips[1]
-    assert second.onset_ns > first.end_ns
-    assert second.peak_tension_n == pytest.approx(first.peak_tension_n, rel=0.02)
-    window = np.array([world.tension_at(t) for t in range(first.end_ns + MS, second.onset_ns, MS)])
-    assert window.max() <= second.peak_tension_n
+    assert second.onset.onset_ns > first.end_ns
+    assert second.onset.peak_tension_n == pytest.approx(first.onset.peak_tension_n, rel=0.02)
+    window = np.array([world.tension_at(t) for t in range(first.end_ns + MS, second.onset.onset_ns, MS)])
+    assert window.max() <= second.onset.peak_tension_n
     assert np.all(np.diff(window) >= -1e-9)  # sticking: the tension only rises between slips
 
 
@@ -152,7 +154,7 @@ def test_slip_rate_spreads_the_drop_over_substeps() -> None:
     record = ramp_until_first_slip(world, shaft, 1.0)
     world.advance_to(world.now_ns + 2 * S)
     assert record.end_ns is not None
-    duration_s = (record.end_ns - record.onset_ns) * 1e-9
+    duration_s = (record.end_ns - record.onset.onset_ns) * 1e-9
     # The drop needs about (1 - kinetic) * f / k_eff of take-up = rotation * l, at 0.5 rad/s.
     assert duration_s == pytest.approx(record.rotation_rad / 0.5, abs=2e-3)
     assert duration_s > 0.01
@@ -188,9 +190,9 @@ def test_joint_estimation_specimen_slips_at_capacity_over_distance() -> None:
         shaft.present_position_rad = 0.0
         world.advance_to(world.now_ns + MS)
         record = ramp_until_first_slip(world, shaft, 2.0)
-        assert record.setup == "specimen" and record.joint == 1
+        assert record.onset.setup == "specimen" and record.onset.joint == 1
         ramp_n_per_substep = world.line.stiffness_n_per_m * preset.drum_radius_m * 2.0 * 1e-3
-        assert trial.slip_force_n <= record.peak_tension_n <= trial.slip_force_n + ramp_n_per_substep
+        assert trial.slip_force_n <= record.onset.peak_tension_n <= trial.slip_force_n + ramp_n_per_substep
     # A named joint of the link as the specimen carries that joint's true capacity.
     trial = world.begin_trial("joint_estimation", distance_m=0.1, joint=3)
     assert trial.specimen_joint == 3
@@ -233,8 +235,8 @@ def test_torsion_weak_joint_changes_which_joint_slips_under_an_out_of_plane_load
     assert trial.slip_force_n < iso_trial.slip_force_n
     record = ramp_until_first_slip(weak, shaft, 1.0)
     weak.advance_to(weak.now_ns + 200 * MS)
-    assert record.joint == 2
-    assert record.threshold_n == pytest.approx(trial.slip_force_n)
+    assert record.onset.joint == 2
+    assert record.onset.threshold_n == pytest.approx(trial.slip_force_n)
     assert weak.article.planar_joint_angles() is None  # it twisted out of the plane
     assert weak.truth().torsion_weak_joint == 2
 

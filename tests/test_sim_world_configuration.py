@@ -69,7 +69,7 @@ def slip_report_fractions(probability: float, seed: int) -> tuple[int, int, bool
             seen += 1
             if reading.slipped_joint is not None:
                 reported += 1
-                correct &= reading.slipped_joint == world.slips[-1].joint
+                correct &= reading.slipped_joint == world.slips[-1].onset.joint
         else:
             correct &= reading.slipped_joint is None
     return seen, reported, correct

@@ -78,9 +78,9 @@ def test_emulated_winch_drives_stick_slip_at_the_predicted_load() -> None:
             break
     assert len(world.slips) >= 2
     first, second = world.slips[:2]
-    assert first.joint == trial.first_slip_joint
+    assert first.onset.joint == trial.first_slip_joint
     ramp_n_per_ms = world.line.stiffness_n_per_m * preset.drum_radius_m * 0.5e-3
-    assert trial.slip_force_n <= first.peak_tension_n <= trial.slip_force_n + 2 * ramp_n_per_ms
-    assert first.tension_after_n == pytest.approx(preset.kinetic_ratio * first.peak_tension_n, rel=0.02)
-    assert second.onset_ns > first.end_ns
-    assert math.isclose(second.peak_tension_n, first.peak_tension_n, rel_tol=0.02)
+    assert trial.slip_force_n <= first.onset.peak_tension_n <= trial.slip_force_n + 2 * ramp_n_per_ms
+    assert first.tension_after_n == pytest.approx(preset.kinetic_ratio * first.onset.peak_tension_n, rel=0.02)
+    assert second.onset.onset_ns > first.end_ns
+    assert math.isclose(second.onset.peak_tension_n, first.onset.peak_tension_n, rel_tol=0.02)

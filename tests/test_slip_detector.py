@@ -87,7 +87,7 @@ def test_ramp_and_drop_with_load_cell_noise(seed):
 def test_noise_below_the_arm_threshold_never_fires():
     times, forces = piecewise_trace([(0.0, 0.5), (20.0, 0.5)], noise_n=0.1, seed=3)
     params = DetectorParams(arm_threshold_n=1.0, drop_fraction=0.05, min_drop_n=0.0, slope_n_per_s=1.0,
-                            cusum_threshold_n=0.01, cusum_drift_n=0.0)  # fmt: skip
+                            cusum_threshold_n=0.01, cusum_drift_n_per_s=0.0)  # fmt: skip
     assert max(forces) < 1.0
     state = detector_init(params)
     for t, f in zip(times, forces, strict=True):
@@ -107,7 +107,7 @@ def test_noise_below_the_arm_threshold_never_fires():
             slope_n_per_s=50.0,
             slope_window_s=0.02,
             cusum_threshold_n=1.0,
-            cusum_drift_n=0.05,
+            cusum_drift_n_per_s=50.0,
         ),
     ],
     ids=["drop", "all-triggers"],
@@ -147,7 +147,7 @@ def test_cusum_trigger_and_its_onset():
         drop_fraction=None,
         min_drop_n=0.2,
         cusum_threshold_n=1.0,
-        cusum_drift_n=0.05,
+        cusum_drift_n_per_s=50.0,
         **LEGACY,
     )
     (event,) = detect_slips(params, times, forces)
@@ -276,9 +276,9 @@ def test_params_round_trip_through_a_mapping():
     assert DetectorParams.from_mapping(mapping) == params
     assert list(mapping) == [
         "arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
-        "cusum_threshold_n", "cusum_drift_n", "rearm_below_n", "noise_k", "noise_floor_n",
+        "cusum_threshold_n", "cusum_drift_n_per_s", "rearm_below_n", "noise_k", "noise_floor_n",
         "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k", "creep_drift_n_per_s",
-        "creep_min_s", "spike_samples", "train_k", "drop_leak_n_per_s",
+        "creep_min_s", "spike_samples", "train_k", "drop_leak_n_per_s", "warmup_s", "train_window_s",
     ]  # fmt: skip
 
 
@@ -399,8 +399,19 @@ def test_event_kind_round_trips_through_the_slip_message():
     assert SlipMessage.from_payload(payload).event.kind == "drop"
 
 
+def _logged_before_2026_11_27() -> dict[str, float | None]:
+    """The default detector's mapping as a run logged it before the drift in N/s and the windows in s."""
+    logged: dict[str, float | None] = {}
+    for name, value in DetectorParams().to_mapping().items():
+        if name == "cusum_drift_n_per_s":
+            logged["cusum_drift_n"] = 0.05
+        elif name not in ("warmup_s", "train_window_s"):
+            logged[name] = value
+    return logged
+
+
 def test_a_logged_mapping_from_before_the_new_triggers_keeps_the_old_detector():
-    old = {name: value for name, value in DetectorParams().to_mapping().items()}
+    old = _logged_before_2026_11_27()
     old = {name: old[name] for name in list(old)[:8]}  # the eight fields an older run logged
     params = DetectorParams.from_mapping(old)
     assert params.noise_k is None and params.creep_k is None and params.spike_samples == 1.0
@@ -477,11 +488,56 @@ def test_old_parameter_sets_count_no_train():
 
 def test_a_parameter_set_logged_on_2026_11_23_keeps_that_days_detector():
     logged = {
-        k: v for k, v in DetectorParams().to_mapping().items() if k not in ("train_k", "drop_leak_n_per_s")
+        k: v for k, v in _logged_before_2026_11_27().items() if k not in ("train_k", "drop_leak_n_per_s")
     }
     params = DetectorParams.from_mapping(logged)
     assert params.train_k is None and params.drop_leak_n_per_s == 0.0
     assert DetectorParams.from_mapping({**logged, "train_k": 10.0}).drop_leak_n_per_s == 1.0
+
+
+def test_a_mapping_logged_before_2026_11_27_is_todays_default_detector():
+    # The per-sample drift of a 1000/s cell, read in N/s; the windows' defaults are the old counts.
+    assert DetectorParams.from_mapping(_logged_before_2026_11_27()) == DetectorParams()
+
+
+def test_the_drift_per_sample_is_still_read_and_converted():
+    params = DetectorParams.from_mapping({"cusum_threshold_n": 1.0, "cusum_drift_n": 0.02})
+    assert params.cusum_drift_n_per_s == pytest.approx(20.0)
+    assert "cusum_drift_n" not in params.to_mapping()
+    assert params.with_overrides(["cusum_drift_n=0"]).cusum_drift_n_per_s == 0.0
+    with pytest.raises(ValueError, match="cusum_drift_n_per_s both given; allowed: cusum_drift_n_per_s only"):
+        DetectorParams.from_mapping({"cusum_drift_n": 0.02, "cusum_drift_n_per_s": 20.0})
+    with pytest.raises(ValueError, match="cusum_drift_n = -1; allowed: a number in"):
+        DetectorParams.from_mapping({"cusum_drift_n": -1})
+
+
+def test_the_cusum_drift_is_per_second_at_every_rate():
+    # A 0.3 N sag over 0.3 s, sampled at 1000/s and at 100/s: the same CUSUM at the end (1 N/s
+    # net of a 0.5 N/s drift allowance is 0.15 N), where a per-sample drift differed 10×.
+    params = DetectorParams(arm_threshold_n=0.5, drop_fraction=None, noise_k=None, creep_k=None,
+                            cusum_threshold_n=0.14, cusum_drift_n_per_s=0.5, min_drop_n=0.0)  # fmt: skip
+    for rate_hz in (1000.0, 100.0):
+        count = round(0.3 * rate_hz)
+        times = [round(i * 1e9 / rate_hz) for i in range(count + 1)]
+        forces = [2.0 - 1.0 * i / rate_hz for i in range(count + 1)]
+        events = detect_slips(params, times, forces)
+        assert events and events[0].trigger == "cusum"
+        assert times.index(events[0].detection_time_ns) == pytest.approx(0.28 * rate_hz, abs=1)
+
+
+def test_the_warm_up_and_the_train_window_are_counts_at_1khz_and_times_above() -> None:
+    warm = DetectorParams(warmup_s=0.016)
+    for rate_hz, samples in ((1000.0, 16), (2000.0, 32), (10.0, 16)):
+        state = detector_init(warm)
+        times = [round(i * 1e9 / rate_hz) + (1000 if i % 2 else 0) for i in range(40)]  # ±1 µs jitter
+        for i, t in enumerate(times):
+            state, _ = detector_step(warm, state, t, 0.001 * (i % 3))
+            assert state.warmed == (i >= samples), f"{rate_hz}/s, increment {i}"
+    assert DetectorParams().warmup_s == 0.0  # the default: 16 increments at every rate
+    from model.slip_detector import _train_samples
+
+    assert _train_samples(DetectorParams(), 1e-3) == 8 and _train_samples(DetectorParams(), 0.999e-3) == 8
+    assert _train_samples(DetectorParams(), 0.5e-3) == 16 and _train_samples(DetectorParams(), 0.1) == 8
 
 
 def test_the_percentage_drop_forgets_a_short_high_reading_over_a_slow_drift():

@@ -184,7 +184,7 @@ SAMPLERS: dict[str, Callable[[random.Random], float | None]] = {
     "slope_n_per_s": lambda r: _maybe(r, 5.0, 200.0, none_share=0.85),
     "slope_window_s": lambda r: r.uniform(0.005, 0.05),
     "cusum_threshold_n": lambda r: _maybe(r, 0.1, 2.0, none_share=0.5),
-    "cusum_drift_n": lambda r: r.uniform(0.0, 0.2),
+    "cusum_drift_n_per_s": lambda r: r.uniform(0.0, 200.0),
     "rearm_below_n": lambda r: _maybe(r, 0.1, 3.0, none_share=0.5),
     "noise_k": lambda r: _maybe(r, 3.0, 20.0),
     "noise_floor_n": lambda r: r.uniform(0.0001, 0.05),
@@ -198,6 +198,8 @@ SAMPLERS: dict[str, Callable[[random.Random], float | None]] = {
     "train_k": lambda r: _maybe(r, 3.0, 20.0),
     "drop_leak_n_per_s": lambda r: r.uniform(0.0, 5.0),
     "drop_ramp_s": lambda r: _maybe(r, 0.0, 0.3, none_share=0.5),
+    "warmup_s": lambda r: r.uniform(0.0, 0.05),
+    "train_window_s": lambda r: r.uniform(0.0, 0.03),
 }
 
 

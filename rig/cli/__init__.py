@@ -16,6 +16,9 @@ from rig import __version__
 from rig.errors import ExitCode, InputError, RigError, one_line
 from rig.runner.safety import interrupts_held, terminate_as_interrupt
 
+# What other code may use: the entry point (its command modules are private to this package).
+__all__ = ["main"]
+
 # Each module `rig.cli.<name>` (a `-` in the command is a `_` in the module) defines
 # `register(subparsers)`, which adds its parser and sets `handler=<callable(args) -> int>` as a default.
 COMMAND_MODULES: tuple[str, ...] = (

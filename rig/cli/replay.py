@@ -26,7 +26,8 @@ EPILOG = """\
 --detector KEY=VALUE ... re-detects with changed parameters (after the LOG arguments), e.g.
   rig replay logs/run.mcap --detector drop_fraction=0.2 min_drop_n=0.1
 Fields: arm_threshold_n, drop_fraction, min_drop_n, slope_n_per_s, slope_window_s,
-cusum_threshold_n, cusum_drift_n, rearm_below_n ('none' disables an optional trigger).
+cusum_threshold_n, cusum_drift_n_per_s, rearm_below_n, ... (docs/model.md §7; 'none' disables an
+optional trigger).
 
 --report DIR writes report.md, PNG figures (fit with 99 % bounds, residuals, payload per
 configuration, percentage-error histogram, estimate evolution, force traces: force_traces.png,

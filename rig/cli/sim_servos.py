@@ -10,6 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import assert_never
 
 from rig.errors import InputError, one_line
 from rig.hw.clock import SystemClock
@@ -19,6 +20,7 @@ from rig.sim.dxl.faults import FaultSpec, parse_fault
 from rig.sim.dxl.protocol1 import Protocol1Bus
 from rig.sim.dxl.pty_server import ServedBus, serve
 from rig.sim.pty_link import PtyLink, StopFlag
+from rig.vocabulary import ServoFaultFlag
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -133,23 +135,26 @@ def build_bus(args: argparse.Namespace) -> tuple[EmulatedBus, list[FaultSpec]]:
         if (
             spec.servo_id is not None
             and spec.servo_id not in ids
-            and spec.kind in ("silent", "hwerror", "baud")
+            and spec.kind in (ServoFaultFlag.SILENT, ServoFaultFlag.HWERROR, ServoFaultFlag.BAUD)
         ):
             raise InputError(
                 f"--fault {spec.kind}:{spec.servo_id}...: no servo {spec.servo_id}; ids: {args.ids}"
             )
-        if spec.kind == "drop":
-            bus.faults.drop_next(spec.count, spec.servo_id)
-        elif spec.kind == "corrupt":
-            bus.faults.corrupt_next(spec.count, spec.servo_id)
-        elif spec.kind == "delay":
-            bus.faults.delay_next(spec.count, spec.delay_ms / 1000.0, spec.servo_id)
-        elif spec.kind == "silent":
-            bus.set_silent(spec.servo_id)  # type: ignore[arg-type]
-        elif spec.kind == "hwerror":
-            bus.set_hardware_error(spec.servo_id, spec.bits)  # type: ignore[arg-type]
-        elif spec.kind == "baud":
-            bus.servo(spec.servo_id).set_baud(spec.baud)  # type: ignore[arg-type]
+        match spec.kind:
+            case ServoFaultFlag.DROP:
+                bus.faults.drop_next(spec.count, spec.servo_id)
+            case ServoFaultFlag.CORRUPT:
+                bus.faults.corrupt_next(spec.count, spec.servo_id)
+            case ServoFaultFlag.DELAY:
+                bus.faults.delay_next(spec.count, spec.delay_ms / 1000.0, spec.servo_id)
+            case ServoFaultFlag.SILENT:
+                bus.set_silent(spec.servo_id)  # type: ignore[arg-type]
+            case ServoFaultFlag.HWERROR:
+                bus.set_hardware_error(spec.servo_id, spec.bits)  # type: ignore[arg-type]
+            case ServoFaultFlag.BAUD:
+                bus.servo(spec.servo_id).set_baud(spec.baud)  # type: ignore[arg-type]
+            case _:
+                assert_never(spec.kind)
     return bus, specs
 
 

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from rig.sim_config import LoadCellArtefacts, SlipKindMix
-from rig.vocabulary import SlipKind
+from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
 
 SCATTER_SD_FORMULA = "sqrt(a^2 + (b m)^2)"
 TORSION_CRITERION = "sqrt((|N_bend|/cap)^2 + (N_torsion/(torsion_ratio*cap))^2) > 1"
@@ -33,7 +33,7 @@ def _finite_or_none(value: float) -> float | None:
 class SlipPlan:
     """The slip kind one trial drew and its parameters (None where the kind has none)."""
 
-    kind: str
+    kind: SlipKind
     drop_fraction: float | None = None  # small_drop, stick_slip (each drop), other_joint
     creep_duration_s: float | None = None
     creep_drop_fraction: float | None = None
@@ -51,7 +51,7 @@ class SlipPlan:
         return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SlipTruth:
     """One true slip event: when, which joint (1-based), the tension it happened at, how it ended.
 
@@ -59,18 +59,23 @@ class SlipTruth:
     that moved, which the configuration source names. `onset_ns`/`end_ns` are on the world's
     monotonic clock, `onset_time_ns` on the run clock (the load-cell samples' clock);
     `peak_tension_n` is the slip load. `end_ns` is None for a slip still under way.
+
+    This is the one definition of a slip's fields: the simulator's `SlipRecord`
+    (`rig.sim.physics.slips`) holds the slip's onset as one of these, with the three fields that
+    change while it is under way (`end_ns`, `tension_after_n`, `rotation_rad`) at their defaults, and
+    `dataclasses.replace`s them when it is read. The field order is the JSON's (`to_json`).
     """
 
     trial_index: int | None
-    setup: str  # "link" or "specimen"
+    setup: ArticleSetup
     joint: int
     onset_ns: int
     peak_tension_n: float  # recorded tension at the onset substep (the maximum before the drop)
     threshold_n: float  # the exact static slip load of the configuration at onset
-    end_ns: int | None
-    tension_after_n: float | None
-    rotation_rad: float
-    kind: str
+    end_ns: int | None = None
+    tension_after_n: float | None = None
+    rotation_rad: float = 0.0
+    kind: SlipKind
     moved_joint: int
     onset_time_ns: int | None
 
@@ -95,7 +100,7 @@ class TrialTruth:
     """What was true for one trial: its capacities, its slip kind and the exact slip load at its start."""
 
     index: int  # 1-based, in begin_trial order
-    kind: str
+    kind: TrialKind
     distance_m: float | None
     specimen_joint: int | None  # joint estimation: the link joint used as the specimen (None: nominal)
     start_ns: int
@@ -104,7 +109,7 @@ class TrialTruth:
     slip_force_n: float  # static slip load of the configuration at begin_trial (inf: cannot slip)
     slip_mass_kg: float
     first_slip_joint: int  # 1-based, 0 if nothing can slip
-    slip: SlipPlan = SlipPlan("sudden")
+    slip: SlipPlan = SlipPlan(SlipKind.SUDDEN)
     capacity_relative_sds: tuple[float, ...] = ()  # s of each capacity factor 1 + s·z
 
     def to_json(self) -> dict[str, Any]:

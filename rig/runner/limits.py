@@ -16,7 +16,7 @@ from rig.errors import InputError
 from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
 from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
 from rig.runner.ramp_speed import RampSpeeds
-from rig.vocabulary import StepKind
+from rig.vocabulary import RigKind, StepKind, TrialKind
 
 
 @dataclass(frozen=True)
@@ -170,13 +170,13 @@ class PlannedTrial:
     """One trial as the dry run shows it."""
 
     trial_id: int
-    kind: str
+    kind: TrialKind
     repeat: int
     joint: int | None
     distance_m: float | None
     configuration_index: int | None
     joint_angles_deg: tuple[float, ...] | None  # rounded to 0.001°
-    steps: tuple[str, ...]
+    steps: tuple[StepKind, ...]
 
     @classmethod
     def of(cls, trial: TrialPlan) -> PlannedTrial:
@@ -248,7 +248,7 @@ class PlanSummary:
 
     protocol: str
     rig: str
-    rig_kind: str
+    rig_kind: RigKind
     trials: tuple[PlannedTrial, ...]  # an adaptive block's start-up trials among them
     limit_checks: tuple[LimitCheck, ...]
     estimated_duration_s: float

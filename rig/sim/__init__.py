@@ -1,1 +1,10 @@
 """Simulation: the virtual clock, the simulated world and the byte-level device emulators."""
+
+# The modules other packages may import; the others are private to this package
+# (import-linter contract "private modules stay private", pyproject.toml).
+__all__ = [
+    "clock",
+    "object_rig",
+    "pty_link",
+    "simulated_rig",
+]

@@ -22,12 +22,22 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import assert_never
 
 from rig.rig_config import RigConfig
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator
 from rig.sim_config import FaultConfig
+from rig.vocabulary import (
+    FaultDevice,
+    HostFaultKind,
+    LoadCellFaultKind,
+    LoggerFaultKind,
+    ReplyFaultKind,
+    ServoFaultKind,
+    ServoRole,
+)
 
 OVERLOAD_BIT = 0x20
 _FOREVER_S = 1e9
@@ -35,14 +45,14 @@ _FOREVER_S = 1e9
 
 def loadcell_rate_faults(faults: tuple[FaultConfig, ...]) -> FaultPlan:
     """The load cell's per-line faults (built into the emulator when it is made)."""
-    garbage = sum(f.rate or 0.0 for f in faults if f.device == "loadcell" and f.kind == "garble")
-    checksum = sum(f.rate or 0.0 for f in faults if f.device == "loadcell" and f.kind == "checksum")
+    garbage = sum(f.rate or 0.0 for f in faults if f.kind is LoadCellFaultKind.GARBLE)
+    checksum = sum(f.rate or 0.0 for f in faults if f.kind is LoadCellFaultKind.CHECKSUM)
     return FaultPlan(garbage_per_line=min(garbage, 1.0), bad_checksum_per_line=min(checksum, 1.0))
 
 
 def log_limit_bytes(faults: tuple[FaultConfig, ...]) -> int | None:
     """The log-file cap of a `logger` `write_error` fault (the smallest if several)."""
-    limits = [f.after_bytes for f in faults if f.device == "logger" and f.after_bytes is not None]
+    limits = [f.after_bytes for f in faults if f.device is FaultDevice.LOGGER and f.after_bytes is not None]
     return min(limits) if limits else None
 
 
@@ -99,22 +109,28 @@ def apply_faults(
     schedule = FaultSchedule()
     bus.faults.rng.seed(seed)
     for fault in faults:
-        if fault.device == "loadcell":
-            _loadcell_fault(fault, loadcell, schedule, start_ns)
-        elif fault.device == "host":
-            _host_pause(fault, clock, schedule, start_ns)
-        elif fault.device != "logger":
-            for servo_id in _servo_ids(config, fault.device):
-                _servo_fault(fault, servo_id, bus, schedule, start_ns)
+        match fault.kind:
+            case ServoFaultKind():
+                for servo_id in _servo_ids(config, fault.device):
+                    _servo_fault(fault, fault.kind, servo_id, bus, schedule, start_ns)
+            case LoadCellFaultKind():
+                _loadcell_fault(fault, fault.kind, loadcell, schedule, start_ns)
+            case HostFaultKind.PAUSE:
+                _host_pause(fault, clock, schedule, start_ns)
+            case LoggerFaultKind.WRITE_ERROR:
+                pass  # it caps the log file (`log_limit_bytes`)
+            case _:
+                assert_never(fault.kind)
     if schedule.has_events:
         clock.on_advance(schedule.advance_to)
     return schedule
 
 
-def _servo_ids(config: RigConfig, device: str) -> list[int | None]:
-    if device == "servos":
+def _servo_ids(config: RigConfig, device: FaultDevice) -> list[int | None]:
+    if device is FaultDevice.SERVOS:
         return [None]
-    return [s.servo_id for s in config.servos.servos if s.role == device]
+    role = ServoRole(device.value)  # `winch` and `bender` name a servo role
+    return [s.servo_id for s in config.servos.servos if s.role is role]
 
 
 def _window_ns(fault: FaultConfig, start_ns: int) -> tuple[int, int | None]:
@@ -125,55 +141,90 @@ def _window_ns(fault: FaultConfig, start_ns: int) -> tuple[int, int | None]:
 
 
 def _servo_fault(
-    fault: FaultConfig, servo_id: int | None, bus: EmulatedBus, schedule: FaultSchedule, start_ns: int
+    fault: FaultConfig,
+    kind: ServoFaultKind,
+    servo_id: int | None,
+    bus: EmulatedBus,
+    schedule: FaultSchedule,
+    start_ns: int,
 ) -> None:
-    name = f"{fault.device} {fault.kind}"
+    name = f"{fault.device} {kind}"
     if fault.rate is not None:
         delay_s = (fault.delay_ms or 0.0) / 1e3
-        bus.faults.at_rate(fault.kind, fault.rate, servo_id, delay_s)
+        bus.faults.at_rate(_reply_fault(kind), fault.rate, servo_id, delay_s)
         return
     ids = bus.ids if servo_id is None else [servo_id]
     begin, end = _window_ns(fault, start_ns)
     for sid in ids:
-        start, stop = _servo_actions(fault.kind, sid, bus)
+        start, stop = _servo_actions(kind, sid, bus)
         schedule.at(begin, name, start)
         if end is not None and stop is not None:
             schedule.at(end, f"{name} ends", stop)
 
 
+def _reply_fault(kind: ServoFaultKind) -> ReplyFaultKind:
+    """The bus's reply fault of a servo fault at a rate (`parse_fault` allows a rate on these only)."""
+    match kind:
+        case ServoFaultKind.DROP:
+            return ReplyFaultKind.DROP
+        case ServoFaultKind.CORRUPT:
+            return ReplyFaultKind.CORRUPT
+        case ServoFaultKind.DELAY:
+            return ReplyFaultKind.DELAY
+        case ServoFaultKind.SILENT | ServoFaultKind.DISCONNECT | ServoFaultKind.OVERLOAD:
+            raise ValueError(f"servo fault {kind} happens at a time, not at a rate")
+        case _:
+            assert_never(kind)
+
+
 def _servo_actions(
-    kind: str, servo_id: int, bus: EmulatedBus
+    kind: ServoFaultKind, servo_id: int, bus: EmulatedBus
 ) -> tuple[Callable[[], None], Callable[[], None] | None]:
     """What starts a timed servo fault, and what ends it (None: it stays, as a latched error does)."""
-    if kind == "silent":
-        return (lambda: bus.faults.mute(servo_id)), (lambda: bus.faults.mute(servo_id, False))
-    if kind == "disconnect":
-        return (lambda: bus.set_silent(servo_id)), (lambda: bus.set_silent(servo_id, False))
-    return (lambda: bus.set_hardware_error(servo_id, OVERLOAD_BIT)), None
+    match kind:
+        case ServoFaultKind.SILENT:
+            return (lambda: bus.faults.mute(servo_id)), (lambda: bus.faults.mute(servo_id, False))
+        case ServoFaultKind.DISCONNECT:
+            return (lambda: bus.set_silent(servo_id)), (lambda: bus.set_silent(servo_id, False))
+        case ServoFaultKind.OVERLOAD:
+            return (lambda: bus.set_hardware_error(servo_id, OVERLOAD_BIT)), None
+        case ServoFaultKind.DROP | ServoFaultKind.CORRUPT | ServoFaultKind.DELAY:
+            raise ValueError(f"servo fault {kind} happens at a rate, not at a time")
+        case _:
+            assert_never(kind)
 
 
 def _loadcell_fault(
-    fault: FaultConfig, loadcell: LoadCellEmulator, schedule: FaultSchedule, start_ns: int
+    fault: FaultConfig,
+    kind: LoadCellFaultKind,
+    loadcell: LoadCellEmulator,
+    schedule: FaultSchedule,
+    start_ns: int,
 ) -> None:
     if fault.rate is not None:
         return  # built into the emulator (`loadcell_rate_faults`)
     begin, end = _window_ns(fault, start_ns)
-    name = f"loadcell {fault.kind}"
-    if fault.kind in ("gap", "silent"):
-        duration_s = _FOREVER_S if end is None else (end - begin) / 1e9
-        loadcell.inject_silence(duration_s, at_ns=begin)
-        schedule.at(begin, name, lambda: None)
-    elif fault.kind == "disconnect":
+    name = f"loadcell {kind}"
+    match kind:
+        case LoadCellFaultKind.GAP | LoadCellFaultKind.SILENT:
+            duration_s = _FOREVER_S if end is None else (end - begin) / 1e9
+            loadcell.inject_silence(duration_s, at_ns=begin)
+            schedule.at(begin, name, lambda: None)
+        case LoadCellFaultKind.DISCONNECT:
 
-        def plug(unplugged: bool) -> Callable[[], None]:
-            def act() -> None:
-                loadcell.unplugged = unplugged
+            def plug(unplugged: bool) -> Callable[[], None]:
+                def act() -> None:
+                    loadcell.unplugged = unplugged
 
-            return act
+                return act
 
-        schedule.at(begin, name, plug(True))
-        if end is not None:
-            schedule.at(end, f"{name} ends", plug(False))
+            schedule.at(begin, name, plug(True))
+            if end is not None:
+                schedule.at(end, f"{name} ends", plug(False))
+        case LoadCellFaultKind.GARBLE | LoadCellFaultKind.CHECKSUM:
+            pass  # rate kinds (`parse_fault` gives them a rate)
+        case _:
+            assert_never(kind)
 
 
 def _host_pause(fault: FaultConfig, clock: VirtualClock, schedule: FaultSchedule, start_ns: int) -> None:

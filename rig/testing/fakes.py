@@ -21,8 +21,12 @@ directly, on a shared `Clock` (a `VirtualClock` in tests):
   is skipped, as a device's counter would be); no line is ever garbled.
 * `FakeLine`: the world between them: tension = stiffness x (winch angle - line zero), never
   negative; at each of the given slip forces the link gives and the tension drops by a fraction.
-* `fake_session` and `fake_rig`: a `RigSession` built from them, with an operator that confirms at
-  once (or raises KeyboardInterrupt at a chosen trial) and a manual bending fixture.
+* `fake_rig`: a `RigSession` built from them, with an operator that confirms at once (or raises
+  KeyboardInterrupt at a chosen trial) and a manual bending fixture.
+
+Where a test needs no scripted slip forces, injected errors or a silent bus, it uses the
+object-level simulated rig (`rig.sim.object_rig`) instead, with `rig.testing.recording.RecordingServoBus`
+to see the servo calls: tests/test_manual_bending.py and tests/test_runner_release.py do.
 """
 
 from __future__ import annotations
@@ -546,31 +550,6 @@ class FakeOperator:
             raise KeyboardInterrupt
 
 
-def fake_session(
-    clock: Clock,
-    servos: FakeServoBus,
-    load_cell: FakeLoadCell,
-    *,
-    winch_id: int = 1,
-    roles: Mapping[int, ServoRole] | None = None,
-    operator: FakeOperator | None = None,
-) -> RigSession:
-    """A `RigSession` on fakes (roles default: the winch, every other servo a bender)."""
-    roles = dict(roles) if roles is not None else {sid: ServoRole.BENDER for sid in servos.servos}
-    roles[winch_id] = ServoRole.WINCH
-    return RigSession(
-        kind=RigKind.SIMULATED,
-        clock=clock,
-        servos=servos,
-        load_cell=load_cell,
-        operator=operator or FakeOperator(),
-        fixture=ManualBending(),
-        configuration=None,
-        winch_id=winch_id,
-        roles=roles,
-    )
-
-
 @dataclass
 class FakeRig:
     """A fake rig: one winch on a line to a link that slips, a load cell, an operator, the session."""
@@ -611,5 +590,15 @@ def fake_rig(
     )
     load_cell = FakeLoadCell(clock, line.tension_at, rate_hz=rate_hz, stale_timeout_s=stale_timeout_s)
     operator = FakeOperator(interrupt_at_trial)
-    session = fake_session(clock, servos, load_cell, winch_id=winch_id, operator=operator)
+    session = RigSession(
+        kind=RigKind.SIMULATED,
+        clock=clock,
+        servos=servos,
+        load_cell=load_cell,
+        operator=operator,
+        fixture=ManualBending(),
+        configuration=None,
+        winch_id=winch_id,
+        roles={winch_id: ServoRole.WINCH},
+    )
     return FakeRig(clock, servos, load_cell, line, operator, session)

@@ -4,3 +4,13 @@ Optional: it needs OpenCV (`pip install -e '.[camera]'`), imported only when a c
 (`rig.hw.camera.opencv.require_cv2`), so the rest of the rig and `rig --help` work without it.
 Formats and conventions: docs/formats.md §9.
 """
+
+# The modules other packages may import; the others are private to this package
+# (import-linter contract "private modules stay private", pyproject.toml).
+__all__ = [
+    "calibration",
+    "marker_map",
+    "measure",
+    "opencv",
+    "source",
+]

@@ -1,1 +1,14 @@
 """The emulated Dynamixel bus: Protocol 2.0 framing, servos with their control tables, transports."""
+
+# The modules other packages may import; the others are private to this package
+# (import-linter contract "private modules stay private", pyproject.toml).
+__all__ = [
+    "actuator",
+    "bus",
+    "faults",
+    "inprocess",
+    "protocol1",
+    "pty_server",
+    "servo",
+    "shaft_motion",
+]

@@ -17,14 +17,16 @@ from __future__ import annotations
 
 import random
 from dataclasses import dataclass, field
+from typing import assert_never
 
 from rig.errors import InputError
 from rig.hw.dxl.control_table import BAUD_REGISTER_BY_RATE
+from rig.vocabulary import ReplyFaultKind, ServoFaultFlag
 
 
 @dataclass(slots=True)
 class _ReplyFault:
-    kind: str  # "drop" | "corrupt" | "delay"
+    kind: ReplyFaultKind
     remaining: int
     servo_id: int | None
     delay_ns: int = 0
@@ -32,7 +34,7 @@ class _ReplyFault:
 
 @dataclass(slots=True)
 class _RateFault:
-    kind: str  # "drop" | "corrupt" | "delay"
+    kind: ReplyFaultKind
     probability: float
     servo_id: int | None
     delay_ns: int = 0
@@ -55,10 +57,10 @@ class ReplyFaults:
     delayed: int = 0
 
     def at_rate(
-        self, kind: str, probability: float, servo_id: int | None = None, delay_s: float = 0.05
+        self, kind: ReplyFaultKind, probability: float, servo_id: int | None = None, delay_s: float = 0.05
     ) -> None:
         """Drop, corrupt or delay each reply (of `servo_id` only, when given) with `probability`."""
-        if kind not in ("drop", "corrupt", "delay") or not 0.0 <= probability <= 1.0:
+        if kind not in tuple(ReplyFaultKind) or not 0.0 <= probability <= 1.0:
             raise ValueError(f"reply fault {kind!r} at rate {probability}; allowed: drop/corrupt/delay, 0-1")
         self._rates.append(_RateFault(kind, probability, servo_id, round(delay_s * 1e9)))
 
@@ -71,15 +73,15 @@ class ReplyFaults:
 
     def drop_next(self, n: int = 1, servo_id: int | None = None) -> None:
         """Drop the next `n` replies (of `servo_id` only, when given)."""
-        self._add(_ReplyFault("drop", n, servo_id))
+        self._add(_ReplyFault(ReplyFaultKind.DROP, n, servo_id))
 
     def corrupt_next(self, n: int = 1, servo_id: int | None = None) -> None:
         """Corrupt (flip one CRC bit of) the next `n` replies."""
-        self._add(_ReplyFault("corrupt", n, servo_id))
+        self._add(_ReplyFault(ReplyFaultKind.CORRUPT, n, servo_id))
 
     def delay_next(self, n: int = 1, delay_s: float = 0.05, servo_id: int | None = None) -> None:
         """Send the next `n` replies `delay_s` late."""
-        self._add(_ReplyFault("delay", n, servo_id, round(delay_s * 1e9)))
+        self._add(_ReplyFault(ReplyFaultKind.DELAY, n, servo_id, round(delay_s * 1e9)))
 
     def clear(self) -> None:
         """Forget every queued fault."""
@@ -111,22 +113,26 @@ class ReplyFaults:
                 return self._fault(fault.kind, data, fault.delay_ns)
         return data, 0
 
-    def _fault(self, kind: str, data: bytes, delay_ns: int) -> tuple[bytes | None, int]:
-        if kind == "drop":
-            self.dropped += 1
-            return None, 0
-        if kind == "corrupt":
-            self.corrupted += 1
-            return data[:-1] + bytes((data[-1] ^ 0x01,)), 0
-        self.delayed += 1
-        return data, delay_ns
+    def _fault(self, kind: ReplyFaultKind, data: bytes, delay_ns: int) -> tuple[bytes | None, int]:
+        match kind:
+            case ReplyFaultKind.DROP:
+                self.dropped += 1
+                return None, 0
+            case ReplyFaultKind.CORRUPT:
+                self.corrupted += 1
+                return data[:-1] + bytes((data[-1] ^ 0x01,)), 0
+            case ReplyFaultKind.DELAY:
+                self.delayed += 1
+                return data, delay_ns
+            case _:
+                assert_never(kind)
 
 
 @dataclass(frozen=True, slots=True)
 class FaultSpec:
     """One parsed `--fault` flag."""
 
-    kind: str
+    kind: ServoFaultFlag
     count: int = 1
     servo_id: int | None = None
     delay_ms: float = 0.0
@@ -147,15 +153,15 @@ def _int(text: str, what: str, spec: str, lo: int, hi: int) -> int:
 def parse_fault(spec: str) -> FaultSpec:
     """Parse one `--fault` spec (grammar in the module docstring); InputError naming the problem."""
     parts = spec.split(":")
-    kind = parts[0]
+    kind = ServoFaultFlag(parts[0]) if parts[0] in tuple(ServoFaultFlag) else None
     n = len(parts)
-    if kind in ("drop", "corrupt") and n in (2, 3):
+    if kind in (ServoFaultFlag.DROP, ServoFaultFlag.CORRUPT) and n in (2, 3):
         return FaultSpec(
             kind,
             count=_int(parts[1], "count", spec, 1, 1_000_000),
             servo_id=_int(parts[2], "id", spec, 0, 252) if n == 3 else None,
         )
-    if kind == "delay" and n in (3, 4):
+    if kind is ServoFaultFlag.DELAY and n in (3, 4):
         ms = _int(parts[2], "delay ms", spec, 0, 60_000)
         return FaultSpec(
             kind,
@@ -163,13 +169,13 @@ def parse_fault(spec: str) -> FaultSpec:
             delay_ms=float(ms),
             servo_id=_int(parts[3], "id", spec, 0, 252) if n == 4 else None,
         )
-    if kind == "silent" and n == 2:
+    if kind is ServoFaultFlag.SILENT and n == 2:
         return FaultSpec(kind, servo_id=_int(parts[1], "id", spec, 0, 252))
-    if kind == "hwerror" and n == 3:
+    if kind is ServoFaultFlag.HWERROR and n == 3:
         return FaultSpec(
             kind, servo_id=_int(parts[1], "id", spec, 0, 252), bits=_int(parts[2], "bits", spec, 1, 255)
         )
-    if kind == "baud" and n == 3:
+    if kind is ServoFaultFlag.BAUD and n == 3:
         rate = _int(parts[2], "rate", spec, 0, 10_000_000)
         if rate not in BAUD_REGISTER_BY_RATE:
             allowed = ", ".join(str(r) for r in BAUD_REGISTER_BY_RATE)

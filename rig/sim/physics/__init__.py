@@ -1,1 +1,9 @@
 """The simulated world: the test article, its joints and slips, the winch line and the bending fixture."""
+
+# The modules other packages may import; the others are private to this package
+# (import-linter contract "private modules stay private", pyproject.toml).
+__all__ = [
+    "article_presets",
+    "configuration_source",
+    "world",
+]

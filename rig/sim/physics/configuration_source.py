@@ -15,7 +15,7 @@ single-joint specimen during joint estimation):
   fraction of a degree, below a camera's noise, so the runner's own comparison of the noisy
   readings, used for a camera, would rarely tell);
 * on the joint-estimation specimen, `slipped_joint` names the link joint (1-based) of the most
-  recent true slip since the previous `measure()` (`SlipRecord.moved_joint`), but only with probability
+  recent true slip since the previous `measure()` (`SlipRecord.onset.moved_joint`), but only with probability
   `slipped_joint_report_probability` (else None, as when a camera cannot tell which joint moved),
   so a consumer's "unknown joint" path is exercised. In joint estimation a slip of the specimen
   names the trial's joint (`TrialPlan.joint`; 1 for the nominal specimen) and a slip of a
@@ -37,7 +37,7 @@ from rig.hw.seams import Clock, ConfigurationReading
 from rig.sim.physics.article import rotation_about_axis
 from rig.sim.physics.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
 from rig.sim.physics.world import SimWorld
-from rig.vocabulary import SlipKind
+from rig.vocabulary import ArticleSetup, SlipKind
 
 SEEN_ROTATION_RAD = 1e-9  # the simulator sees any rotation of a joint between two measurements
 
@@ -62,7 +62,7 @@ class SimConfigurationSource:
         sigma = self.sigma_meas_rad
         # On the joint-estimation specimen there is no link configuration to report: only which
         # joint moved (the specimen's own angle would not match the rig's article).
-        angles = article.planar_joint_angles() if world.setup == "link" else None
+        angles = article.planar_joint_angles() if world.setup == ArticleSetup.LINK else None
         if angles is not None:
             noisy = np.asarray(angles) + self._noise_rng.normal(0.0, sigma, article.joint_count)
             transforms = planar_transforms(noisy, np.asarray(article.transforms[:, 2, 3]))
@@ -80,7 +80,7 @@ class SimConfigurationSource:
         new_slips = world.slips[self._slips_seen :]
         self._slips_seen = len(world.slips)
         before = [world.link_before_slip.pop(i) for i in sorted(world.link_before_slip)]
-        if world.setup == "link":
+        if world.setup == ArticleSetup.LINK:
             # The simulator sees the link's true configuration: the joint that moved since the
             # first slip began is the one whose rotation changed (model.slipped_joint).
             if new_slips and before:
@@ -88,10 +88,10 @@ class SimConfigurationSource:
         elif new_slips:
             last = new_slips[-1]
             probability = self.report_probability
-            if last.kind == SlipKind.OTHER_JOINT:
+            if last.onset.kind == SlipKind.OTHER_JOINT:
                 probability = world.preset.slip_mix.other_joint_report_probability
             if self._report_rng.random() < probability:
-                slipped = last.moved_joint
+                slipped = last.onset.moved_joint
         time_ns = self._clock.time_ns() if self._clock is not None else world.now_ns
         return ConfigurationReading(
             transforms=transforms,

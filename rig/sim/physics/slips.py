@@ -22,7 +22,7 @@ hold what the slip in progress or the trial's kind needs to remember.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol, assert_never
 
 import numpy as np
@@ -35,39 +35,24 @@ from rig.vocabulary import SlipKind
 
 @dataclass(slots=True)
 class SlipRecord:
-    """One true slip event as it happens (the world fills in its end); `truth()` is its frozen copy.
+    """One true slip event as it happens: its onset, and what the world fills in until it ends.
 
-    The fields are `rig.hw.truth.SlipTruth`'s.
+    `onset` holds every field of the slip (`rig.hw.truth.SlipTruth`) as it began; the three that
+    change while the joint turns are kept here and put into the copy that `truth()` returns.
     """
 
-    trial_index: int | None
-    setup: str  # "link" or "specimen"
-    joint: int
-    onset_ns: int
-    peak_tension_n: float  # recorded tension at the onset substep (the maximum before the drop)
-    threshold_n: float  # the exact static slip load of the configuration at onset
+    onset: SlipTruth  # end_ns, tension_after_n and rotation_rad at their defaults
     end_ns: int | None = None
     tension_after_n: float | None = None
     rotation_rad: float = 0.0
-    kind: str = SlipKind.SUDDEN.value
-    moved_joint: int = 0
-    onset_time_ns: int | None = None
 
     def truth(self) -> SlipTruth:
         """The record as it stands now."""
-        return SlipTruth(
-            trial_index=self.trial_index,
-            setup=self.setup,
-            joint=self.joint,
-            onset_ns=self.onset_ns,
-            peak_tension_n=self.peak_tension_n,
-            threshold_n=self.threshold_n,
+        return replace(
+            self.onset,
             end_ns=self.end_ns,
             tension_after_n=self.tension_after_n,
             rotation_rad=self.rotation_rad,
-            kind=self.kind,
-            moved_joint=self.moved_joint,
-            onset_time_ns=self.onset_time_ns,
         )
 
 
@@ -151,7 +136,7 @@ class KineticSlide(ActiveSlip):
         """One substep of the slide."""
         record = self.record
         article = host.article
-        joint = record.joint
+        joint = record.onset.joint
         criterion = article.criterion_per_n(joint)
         kinetic = self.kinetic
         if tension * criterion > kinetic:
@@ -185,13 +170,13 @@ class CreepSlide(ActiveSlip):
         """One substep: turn just enough to keep the tension on the creep's falling line."""
         record = self.record
         progress = min(1.0, (t_ns - self.onset_ns) / self.duration_ns)
-        target_n = record.peak_tension_n * (1.0 - self.drop * progress)
+        target_n = record.onset.peak_tension_n * (1.0 - self.drop * progress)
         if tension > target_n:
             line = host.line
-            turn = _relief(host.article, record.joint, tension - target_n, line.stiffness_n_per_m)
+            turn = _relief(host.article, record.onset.joint, tension - target_n, line.stiffness_n_per_m)
             if turn is not None:
                 axis, needed_rad = turn
-                host.article.rotate_joint(record.joint, axis, needed_rad)
+                host.article.rotate_joint(record.onset.joint, axis, needed_rad)
                 record.rotation_rad += needed_rad
                 tension = line.tension_n(theta, host.line_take_up_m())
         if progress >= 1.0:
@@ -215,11 +200,11 @@ class TrainDrop(ActiveSlip):
         target_n = self.target_n
         if tension > target_n:
             line = host.line
-            turn = _relief(host.article, record.joint, tension - target_n, line.stiffness_n_per_m)
+            turn = _relief(host.article, record.onset.joint, tension - target_n, line.stiffness_n_per_m)
             if turn is not None:
                 axis, needed_rad = turn
                 step_rad = min(needed_rad, host.slip_rate_rad_s * dt_s)
-                host.article.rotate_joint(record.joint, axis, step_rad)
+                host.article.rotate_joint(record.onset.joint, axis, step_rad)
                 record.rotation_rad += step_rad
                 tension = line.tension_n(theta, host.line_take_up_m())
                 if step_rad < needed_rad:
@@ -387,7 +372,7 @@ class OtherJoint(SlipBehaviour):
 
 def behaviour_for(plan: SlipPlan, kinetic_ratio: float) -> SlipBehaviour:
     """The slip behaviour of a trial that drew `plan` (its `other_load_n`, if any, already in N)."""
-    kind = SlipKind(plan.kind)
+    kind = plan.kind
     match kind:
         case SlipKind.SUDDEN:
             return Sudden(plan, kinetic_ratio)

@@ -78,12 +78,12 @@ class TrialDraws:
 
         match slip_kind:
             case SlipKind.SUDDEN | SlipKind.NO_SLIP:
-                return SlipPlan(slip_kind.value)
+                return SlipPlan(slip_kind)
             case SlipKind.SMALL_DROP:
-                return SlipPlan(slip_kind.value, drop_fraction=uniform(mix.small_drop_fraction))
+                return SlipPlan(slip_kind, drop_fraction=uniform(mix.small_drop_fraction))
             case SlipKind.CREEP:
                 return SlipPlan(
-                    slip_kind.value,
+                    slip_kind,
                     creep_duration_s=uniform(mix.creep_duration_s),
                     creep_drop_fraction=uniform(mix.creep_drop_fraction),
                 )
@@ -91,20 +91,20 @@ class TrialDraws:
                 low, high = (int(x) for x in mix.stick_slip_drops)
                 drops = int(rng.integers(low, high + 1))
                 return SlipPlan(
-                    slip_kind.value,
+                    slip_kind,
                     drop_fraction=uniform(mix.stick_slip_drop_fraction),
                     train_drops=drops,
                     dwells_s=tuple(uniform(mix.stick_slip_dwell_s) for _ in range(drops - 1)),
                 )
             case SlipKind.OTHER_JOINT:
                 if not joint_estimation:
-                    return SlipPlan(SlipKind.SUDDEN.value)  # every joint of the link is under test
+                    return SlipPlan(SlipKind.SUDDEN)  # every joint of the link is under test
                 specimen = 1 if specimen_joint is None else specimen_joint
                 count = self.preset.joint_count
                 # The next joint out, or the one before the last (0: the clamp of a 1-joint link).
                 neighbour = specimen + 1 if specimen < count else specimen - 1
                 return SlipPlan(
-                    slip_kind.value,
+                    slip_kind,
                     other_joint=neighbour,
                     other_load_n=uniform(mix.other_joint_load_fraction),
                     drop_fraction=uniform(mix.other_joint_drop_fraction),

@@ -60,6 +60,7 @@ from rig.hw.truth import (
     NoiseTruth,
     ScatterTruth,
     SlipPlan,
+    SlipTruth,
     TrialTruth,
     WorldTruth,
 )
@@ -69,7 +70,7 @@ from rig.sim.physics.forks import ForkFixture
 from rig.sim.physics.slips import ActiveSlip, SlipBehaviour, SlipRecord, Sudden, behaviour_for
 from rig.sim.physics.trial_draws import TrialDraws
 from rig.sim.physics.winch_line import WinchLine
-from rig.vocabulary import SlipKind, TrialKind
+from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0
@@ -175,7 +176,7 @@ class SimWorld:
         # (J, 4, 4)); the configuration source takes them out as it measures.
         self.link_before_slip: dict[int, np.ndarray] = {}
         self._slip: ActiveSlip | None = None  # the slip under way
-        self._behaviour: SlipBehaviour = Sudden(SlipPlan(SlipKind.SUDDEN.value), preset.kinetic_ratio)
+        self._behaviour: SlipBehaviour = Sudden(SlipPlan(SlipKind.SUDDEN), preset.kinetic_ratio)
         self._clamp_take_up_m = 0.0  # what an other-joint slip let the line in by (this trial)
 
         self._history_len = int(history_s * 1e9 / self._substep_ns) + 16
@@ -196,9 +197,9 @@ class SimWorld:
         return self._tensions_n[-1]
 
     @property
-    def setup(self) -> str:
-        """Which article the line is hooked to: 'link' or 'specimen'."""
-        return "link" if self._article is self.link else "specimen"
+    def setup(self) -> ArticleSetup:
+        """Which article the line is hooked to: the link or the specimen."""
+        return ArticleSetup.LINK if self._article is self.link else ArticleSetup.SPECIMEN
 
     @property
     def article(self) -> ChainArticle:
@@ -384,17 +385,18 @@ class SimWorld:
         """Record the onset of a slip of `joint` (`moved_joint` None: the link joint the article's moves)."""
         if self._article is self.link:
             self.link_before_slip[len(self.slips)] = self.link.transforms  # as it was before it turns
-        record = SlipRecord(
+        onset = SlipTruth(
             trial_index=self.trials[-1].index if self.trials else None,
             setup=self.setup,
             joint=joint,
             onset_ns=t_ns,
             peak_tension_n=tension_n,
             threshold_n=threshold_n,
-            kind=kind.value,
+            kind=kind,
             moved_joint=self._moved_joint(joint) if moved_joint is None else moved_joint,
             onset_time_ns=t_ns + self.run_clock_offset_ns,
         )
+        record = SlipRecord(onset)
         self.slips.append(record)
         return record
 
@@ -508,18 +510,18 @@ class SimWorld:
         draw = self._draws.capacity_factors(nominal, self._article)
         plan = self._draws.slip_plan(kind is TrialKind.JOINT_ESTIMATION, joint)
         capacities = nominal * draw.factors
-        if plan.kind == SlipKind.NO_SLIP.value:
+        if plan.kind == SlipKind.NO_SLIP:
             capacities = capacities * preset.slip_mix.no_slip_capacity_factor
         self._article.set_capacities(capacities)
         threshold = self._article.slip_threshold_n
-        if plan.kind == SlipKind.OTHER_JOINT.value:
+        if plan.kind == SlipKind.OTHER_JOINT:
             assert plan.other_load_n is not None
             # The fraction drawn becomes a load (inf if the specimen cannot slip).
             plan = replace(plan, other_load_n=plan.other_load_n * threshold)
         self._behaviour = behaviour_for(plan, preset.kinetic_ratio)
         trial = TrialTruth(
             index=len(self.trials) + 1,
-            kind=kind.value,
+            kind=kind,
             distance_m=None if distance_m is None else float(distance_m),
             specimen_joint=joint,
             start_ns=self._now_ns,
