@@ -400,6 +400,20 @@ class SimulationConfig:
             "then its banner",
         ),
     )
+    # Appended (issue 21): series compliance, the line stiffness a low-rate cell needs to read
+    # slip loads finer than one servo count (docs/hardware.md, "Line compliance").
+    spring_stiffness_n_per_m: float | None = field(
+        default=None,
+        metadata=number(
+            1.0,
+            1e7,
+            unit="N/m",
+            optional=True,
+            default_doc="none (the preset's 5000 N/m line alone)",
+            doc="a spring in series with the simulated line; set the rig's `line_stiffness_n_per_m` "
+            "to the series stiffness",
+        ),
+    )
 
     @property
     def cell(self) -> SimulatedCell | None:

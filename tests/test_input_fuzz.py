@@ -429,6 +429,7 @@ def test_rig_sim_loadcell_options(profile):
             "noise_counts": st.one_of(st.floats(), st.just(400.0)),
             "drift_counts_per_s": st.one_of(st.floats(), st.just(5.0)),
             "banner": st.booleans(),
+            "dtr_reset_s": st.one_of(st.floats(), st.sampled_from([0.0, 1.5, 10.0])),
         }
     )
 

@@ -90,7 +90,10 @@ def test_line_stats_count_lost_lines_and_give_per_trial_deltas():
     driver.open()
     run_for(driver, clock, 0.1)
     before = driver.line_stats()
-    assert before == LoadCellLineStats(len_ok := before.lines_ok, 0, 0, 0, 0, 0) and len_ok >= 99
+    # The one information line is the emulated board's boot banner.
+    assert (
+        before == LoadCellLineStats(len_ok := before.lines_ok, 0, 0, 0, 0, 0, info_lines=1) and len_ok >= 99
+    )
     assert before.lossless
     emulator.inject_truncated(3)
     emulator.inject_bad_checksum(2)
@@ -344,10 +347,11 @@ def test_a_restart_is_logged_counted_and_mapped_afresh_not_a_sequence_gap(caplog
     restart = next(i for i, s in enumerate(samples) if s.seq == 0 and i > 0)
     assert [s.seq for s in samples[restart:]] == list(range(len(samples) - restart))
     assert samples[restart].device_time_us == 0
-    assert (stats.restarts, stats.info_lines, stats.sequence_gaps, stats.missing_samples) == (1, 1, 0, 0)
+    # Two banners: the boot's (not a restart: no sample before it) and the restart's.
+    assert (stats.restarts, stats.info_lines, stats.sequence_gaps, stats.missing_samples) == (1, 2, 0, 0)
     assert not stats.lossless and "restarted 1 times" in stats.describe()
     assert driver.stats().restarts == 1
-    assert [(i.banner, i.restart) for i in info] == [(True, True)]
+    assert [(i.banner, i.restart) for i in info] == [(True, False), (True, True)]
     assert any(r.levelname == "WARNING" and "restarted" in r.getMessage() for r in caplog.records)
     # The restarted clock is mapped afresh: sample times run on across the restart (mapped with
     # the old offset, the samples after it would be stamped a second in the past). As after open(),

@@ -15,11 +15,17 @@ from tests.helpers import QUICK_PROTOCOL
 SCENARIOS = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios"
 # Cells as labs have them (issue 21): tests/test_loadcell_cells.py runs them.
 CELL_NAMES = ("cell-hx711-10", "cell-hx711-80", "cell-hx717-320", "cell-gauge-12")
+# A low-rate cell on a compliant line (issue 21): tests/test_ramp_counts.py, bench_rates.py --scenario.
+LINE_NAMES = ("compliant-10",)
 NAMES = ("small-drops", "creep", "stick-slip", "noisy-cell", "additive-scatter", "mixed-scatter", "mixed")
 
 
 def test_every_scenario_is_shipped_and_loads() -> None:
-    assert sorted(p.stem for p in SCENARIOS.glob("*.yaml")) == sorted(NAMES + CELL_NAMES)
+    assert sorted(p.stem for p in SCENARIOS.glob("*.yaml")) == sorted(NAMES + CELL_NAMES + LINE_NAMES)
+    compliant = load_rig_config(SCENARIOS / "compliant-10.yaml")
+    assert compliant.simulation is not None and compliant.simulation.spring_stiffness_n_per_m == 1000
+    series_n_per_m = 1 / (1 / 5000 + 1 / compliant.simulation.spring_stiffness_n_per_m)
+    assert compliant.line_stiffness_n_per_m == pytest.approx(series_n_per_m, rel=1e-3)
     mixed = load_rig_config(SCENARIOS / "mixed.yaml").simulation
     assert mixed is not None and all(mixed.slips.probability(kind) > 0 for kind in tuple(SlipKind))
     noisy = load_rig_config(SCENARIOS / "noisy-cell.yaml").simulation

@@ -202,6 +202,12 @@ def _dry_run(args: argparse.Namespace) -> int:
     )
     minutes = plan.estimated_duration_s / 60
     print(f"\nestimated duration: {minutes:.1f} min of rig time ({plan.duration_assumption})")
+    resolution_n = plan.slip_load_resolution_n
+    print(
+        f"slip-load resolution: one winch count is {resolution_n * 1000:.1f} mN of tension, 0.5 % of a "
+        f"{resolution_n / 0.005:.1f} N slip; a softer line reads smaller slips finer (docs/hardware.md, "
+        '"Line compliance and the slip load\'s resolution")'
+    )
     for note in notes:
         print(f"note: {note}")
     print("dry run: nothing was moved")

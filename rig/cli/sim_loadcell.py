@@ -10,12 +10,14 @@ from typing import Any
 from rig.errors import InputError
 from rig.hw.loadcell.formats import FORMATS
 from rig.sim.loadcell.emulator import (
-    DEFAULT_BANNER,
     DEFAULT_BAUD,
     DEFAULT_RATE_HZ,
+    MAX_RATE_HZ,
+    MIN_RATE_HZ,
     FaultPlan,
     LoadCellEmulator,
     SignalModel,
+    firmware_banner,
     parse_fault,
 )
 from rig.sim.loadcell.inprocess import cell_emulator_options
@@ -107,10 +109,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="the device clock runs this fast, in ppm (negative: slow; default 0)",
     )
     parser.add_argument(
+        "--dtr-reset-s",
+        type=float,
+        default=0.0,
+        help="the board resets when a client opens the port (an Arduino's DTR): silent this long, then "
+        "its banner, seq and clock from 0 (Linux: the open is seen with inotify; default 0: no reset)",
+    )
+    parser.add_argument(
         "--banner",
         action="store_true",
-        help=f"rig-lc1: send a boot banner ({DEFAULT_BANNER.decode().strip()}) before the first line, "
-        "as firmware/ does",
+        help="rig-lc1: send a boot banner (`#BOOT fw=rig-sim/1.0.0 adc=emulated gain=A128 sps=RATE "
+        "period-us=PERIOD`) before the first line, as firmware/ does",
     )
     parser.set_defaults(handler=run)
 
@@ -129,7 +138,6 @@ def build_emulator(args: argparse.Namespace, start_ns: int) -> LoadCellEmulator:
             drift_counts_per_s=args.drift_counts_per_s,
             noise_counts=args.noise_counts,
         ),
-        "banner": DEFAULT_BANNER if args.banner else None,
     }
     cell = SIMULATED_CELLS[args.cell] if args.cell else None
     if cell is not None:
@@ -140,6 +148,8 @@ def build_emulator(args: argparse.Namespace, start_ns: int) -> LoadCellEmulator:
         options = cell_emulator_options(cell)
     args.rate = DEFAULT_RATE_HZ if args.rate is None else args.rate
     args.format = args.format or "rig-lc1"
+    if cell is None and args.banner and MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ:  # (else the rate is refused)
+        options["banner"] = firmware_banner(args.rate)
     return LoadCellEmulator(
         parse_profile(args.profile, start_ns),
         format_name=args.format,
@@ -149,6 +159,7 @@ def build_emulator(args: argparse.Namespace, start_ns: int) -> LoadCellEmulator:
         seed=args.seed,
         start_ns=start_ns,
         clock_error_ppm=args.clock_error_ppm,
+        dtr_reset_s=args.dtr_reset_s,
         **options,
     )
 

@@ -2,7 +2,8 @@
 
 `check_limits` raises `InputError` (exit 2, nothing started) when a protocol asks for more than
 the rig allows. `plan_summary` describes what a run would do: trials, the checks and their
-numbers, and an estimated duration from the ramp speeds and the nominal line stiffness.
+numbers, and an estimated duration from the ramp speeds, the nominal line stiffness and the load
+cell's nominal rate (the ramp's rate cap, `rig.runner.ramp_speed`, one definition with the run's).
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ from typing import Any, assert_never
 
 from rig.errors import InputError
 from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
-from rig.rig_config import RigConfig
+from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
+from rig.runner.ramp_speed import RampSpeeds
 from rig.vocabulary import RigKind, StepKind, TrialKind
 
 
@@ -105,17 +107,35 @@ def check_limits(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
     return checks
 
 
-def estimated_trial_s(
-    trial: TrialPlan, protocol: Protocol, config: RigConfig, typical_force_n: float
-) -> float:
-    """Rough duration of one trial: tare, ramps, unload, pauses, bending (no operator time)."""
+def ramp_speeds(protocol: Protocol, config: RigConfig) -> RampSpeeds:
+    """The ramp's speeds on this rig at its load cell's nominal rate (as `ramp_until_slip` has them)."""
     ramp = protocol.ramp
-    k_ang = config.line_stiffness_n_per_m * config.spool_radius_m  # N per rad of winch
-    fast_n = ramp.fast_until_fraction * typical_force_n
-    seconds = fast_n / (k_ang * ramp.fast_speed_rad_s) + (typical_force_n - fast_n) / (
-        k_ang * ramp.slow_speed_rad_s
+    return RampSpeeds(
+        fast_rad_s=ramp.fast_speed_rad_s,
+        slow_rad_s=ramp.slow_speed_rad_s,
+        rate_hz=nominal_loadcell_rate_hz(config),
+        n_per_rad=config.line_stiffness_n_per_m * config.spool_radius_m,
     )
-    seconds += typical_force_n / (k_ang * ramp.unload_speed_rad_s) + ramp.hold_after_slip_s
+
+
+def estimated_trial_s(
+    trial: TrialPlan, protocol: Protocol, config: RigConfig, typical_force_n: float, *, first: bool = False
+) -> float:
+    """Rough duration of one trial: tare, ramps, unload, pauses, bending (no operator time).
+
+    The ramp to `typical_force_n` is timed as `ramp_until_slip` runs it at the load cell's nominal
+    rate (`RampSpeeds.planned_ramp_s`: slower at low rates; the `first` trial has nothing to go on).
+    """
+    ramp = protocol.ramp
+    speeds = ramp_speeds(protocol, config)
+    seconds = speeds.planned_ramp_s(
+        protocol.detector.arm_threshold_n,
+        typical_force_n,
+        first,
+        ramp.fast_until_fraction,
+        protocol.control_period_s,
+    )
+    seconds += typical_force_n / (speeds.n_per_rad * ramp.unload_speed_rad_s) + ramp.hold_after_slip_s
     for step in trial.steps:
         match step.kind:
             case StepKind.PAUSE | StepKind.TARE:
@@ -234,6 +254,8 @@ class PlanSummary:
     estimated_duration_s: float
     duration_assumption: str
     adaptive: tuple[AdaptivePlan, ...] = ()
+    # One winch count's tension: the finest the slip load can be read (rig.runner.ramp_speed).
+    slip_load_resolution_n: float = 0.0
 
     def as_json(self) -> dict[str, Any]:
         """The `rig run --dry-run --json` object (`adaptive` only when the protocol has such blocks)."""
@@ -247,6 +269,7 @@ class PlanSummary:
             ],
             "estimated_duration_s": self.estimated_duration_s,
             "duration_assumption": self.duration_assumption,
+            "slip_load_resolution_n": self.slip_load_resolution_n,
         }
         if self.adaptive:
             out["adaptive"] = [a.as_json() for a in self.adaptive]
@@ -264,7 +287,9 @@ def plan_summary(protocol: Protocol, config: RigConfig) -> PlanSummary:
     shown: list[TrialPlan] = []
     for item in protocol.schedule:
         shown += startup_trials(item) if isinstance(item, AdaptiveBlock) else [item]
-    durations = [estimated_trial_s(t, protocol, config, typical) for t in protocol.trials]
+    durations = [
+        estimated_trial_s(t, protocol, config, typical, first=i == 0) for i, t in enumerate(protocol.trials)
+    ]
     for block in protocol.adaptive:
         sample = block.trial(block.first_trial_id, block.design.distance_max_m, 1)
         durations.append(block.design.max_trials * estimated_trial_s(sample, protocol, config, typical))
@@ -277,10 +302,12 @@ def plan_summary(protocol: Protocol, config: RigConfig) -> PlanSummary:
         estimated_duration_s=sum(durations),
         duration_assumption=(
             f"slip at {typical:.1f} N in every trial, nominal line stiffness "
-            f"{config.line_stiffness_n_per_m:g} N/m, no operator time"
+            f"{config.line_stiffness_n_per_m:g} N/m, the ramp at the load cell's "
+            f"{nominal_loadcell_rate_hz(config):g} samples/s, no operator time"
             + (", every adaptive block's whole budget" if protocol.adaptive else "")
         ),
         adaptive=tuple(adaptive_plan(block, protocol, config) for block in protocol.adaptive),
+        slip_load_resolution_n=ramp_speeds(protocol, config).count_n,
     )
 
 

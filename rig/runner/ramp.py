@@ -43,10 +43,10 @@ _BACKING_OFF_RAD_S = -0.05
 # A measured load-cell rate this far (relative) from the configured one is warned about, once the
 # ramp has fed samples over at least RATE_MIN_SPAN_S.
 RATE_TOLERANCE = 0.2
-# Where the sampling limit binds, the fast phase ends this many control ticks of full-speed rise
-# below the capped ramp (at 10/s the winch overshot one tick's rise by up to 3 N onto the slip load).
-APPROACH_TICKS = 3
 RATE_MIN_SPAN_S = 1.0
+# How much older than its read time a servo's position may be (the status packet's transit; a
+# bus transaction at 1 Mbps takes about a millisecond). Not verified on hardware.
+STATE_AGE_MARGIN_S = 0.003
 
 
 class WinchDrive:
@@ -72,32 +72,54 @@ class WinchDrive:
         Below one Profile Velocity unit the servo cannot be told the speed (0 would mean no limit):
         the profile is set to one unit and the goal is stepped on at `speed_rad_s`, count by count.
         """
-        # The position read is up to a control period old: the winch has gone on at the old speed
-        # since, and a stepped goal behind it would turn it back (a fall of tension, a false peak).
-        moved_rad = self.speed_rad_s * self.period_s
+        # The position was read a moment ago: the winch has gone on at the old speed since, and a
+        # stepped goal behind it would turn it back (a fall of tension, a false peak). A goal far
+        # ahead of it is as bad the other way: the winch catches up at one velocity unit, faster
+        # than the stepped speed (at 10/s, 13 counts after the fast phase when the lead was a whole
+        # control period). So the lead is the old speed over the read's age and a margin.
+        # From one stepped speed to another the ramp goes on from where the old one had taken the
+        # goal (re-anchoring at the winch, which lags its goal, turned it back and lost the counts
+        # made so far: a stall, which at 10/s the detector read as a drop).
+        state = self.loop.states[self.winch]
+        age_s = max(0.0, (self.loop.clock.time_ns() - state.time_ns) * 1e-9) + STATE_AGE_MARGIN_S
+        anchor = self.reel * state.position_rad + self.speed_rad_s * min(self.period_s, age_s)
+        if self.stepped and self.goal_rad is not None:
+            anchor = max(anchor, min(self.reel * self.limit_rad, self._stepped_target()))
         self.speed_rad_s = speed_rad_s
         self.stepped = speed_rad_s < RAD_S_PER_VELOCITY_UNIT
         profile = RAD_S_PER_VELOCITY_UNIT if self.stepped else speed_rad_s
         self.servos.set_profile(self.winch, velocity_rad_s=profile)
         self.goal_rad = None
-        self.anchor_rad = self.loop.states[self.winch].position_rad + self.reel * moved_rad
+        self.anchor_rad = self.reel * anchor
         self.anchor_ns = self.loop.clock.monotonic_ns()
         self.advance()
 
-    def advance(self) -> None:
+    def _stepped_target(self) -> float:
+        """Where the stepped speed has taken the goal since the anchor (reel-in coordinates)."""
+        elapsed_s = (self.loop.clock.monotonic_ns() - self.anchor_ns) * 1e-9
+        return self.reel * self.anchor_rad + self.speed_rad_s * elapsed_s
+
+    def advance(self, sampled: bool = True) -> None:
         """Keep the winch's goal a short way ahead of it, never the far end of its travel.
 
         The goal leads the winch by `RAMP_GOAL_LEAD_S` of motion and is moved on once the winch is
         halfway there. If the host stops talking (crash, lost link), the winch stops within that
         lead instead of reeling on to `limit_rad`. Stepped (below one velocity unit): the goal is
-        where the speed has taken it since `set_speed`, written when it has moved a count.
+        where the speed has taken it since `set_speed`, written when it has moved a count and only
+        on a tick that brought a load-cell sample (`sampled`): each step then comes right after a
+        sample and the tension's plateau before it is sampled (rig/runner/ramp_speed.py).
         """
         reel = self.reel  # in reel-in coordinates (the sign times the position) the goal only grows
         if self.stepped:
-            elapsed_s = (self.loop.clock.monotonic_ns() - self.anchor_ns) * 1e-9
-            target = min(reel * self.limit_rad, reel * self.anchor_rad + self.speed_rad_s * elapsed_s)
-            if self.goal_rad is not None and target - reel * self.goal_rad < RAD_PER_PULSE:
+            if not sampled and self.goal_rad is not None:
                 return
+            target = min(reel * self.limit_rad, self._stepped_target())
+            if self.goal_rad is not None:
+                # Whole counts from the last goal, so each step is the counts the speed has made.
+                counts = math.floor((target - reel * self.goal_rad) / RAD_PER_PULSE)
+                if counts < 1:
+                    return
+                target = reel * self.goal_rad + counts * RAD_PER_PULSE
             self.goal_rad = reel * target
             self.servos.write_goal_positions({self.winch: self.goal_rad})
             self.recorder.command(self.winch, ServoCommandName.GOAL_POSITION, self.goal_rad, "rad")
@@ -243,28 +265,27 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
     )
     predicted = predicted_force_n(ctx, trial, found)
     arm_n = ctx.detector_params.arm_threshold_n
-    switch_n = arm_n
-    if predicted is not None and math.isfinite(predicted):
-        switch_n = max(switch_n, ramp.fast_until_fraction * predicted)
-    # Where the sampling limit binds (low rates) it applies from `capped_n` on: the low edge of the
-    # expected slip load, or from the arm threshold with nothing to go on. The fast phase stops
-    # short of it by what the winch reels at full speed in `APPROACH_TICKS` control ticks (it
-    # overshoots the switch by about that much); the protocol's slow speed covers that approach.
+    # Where the sampling limit binds (low rates) the fast phase runs up to the low edge of the
+    # expected slip load (`plan.capped_n`; for joint estimation, where the estimator gives one).
     # Between samples (up to 0.1 s apart at 10/s, 5 N at full speed) the tension is read ahead
     # from the winch's travel since the last sample.
-    capped_n = arm_n
-    read_ahead = speeds.binds_at(switch_n)
+    low_n = None
     if trial.kind == TrialKind.JOINT_ESTIMATION and trial.distance_m is not None:
-        capped_n = speeds.switch_n(
-            switch_n, ctx.estimator.joint_estimation_force_low_n(trial.distance_m, BAND_Z)
-        )
-        if capped_n > switch_n:
-            stop_s = APPROACH_TICKS * ctx.protocol.control_period_s
-            stop_n = speeds.n_per_rad * ramp.fast_speed_rad_s * stop_s
-            switch_n = max(switch_n, capped_n - stop_n)
+        low_n = ctx.estimator.joint_estimation_force_low_n(trial.distance_m, BAND_Z)
+    plan = speeds.plan(arm_n, predicted, low_n, ramp.fast_until_fraction, ctx.protocol.control_period_s)
+    switch_n, read_ahead = plan.switch_n, plan.read_ahead
+
+    # Nothing to go on, or below the expected range: the count floor. Latched off once the tension
+    # has reached the range (noise about its edge would flip it).
+    counted = True
 
     def slow_speed(force_n: float) -> float:
-        return ramp.slow_speed_rad_s if force_n < capped_n else speeds.slow_at(force_n, arm_n)
+        # The limit holds from the end of the fast phase, the approach to `capped_n` included: a
+        # slip below the expected range's low edge is read as finely as one inside it.
+        nonlocal counted
+        if plan.expected and force_n >= plan.capped_n:
+            counted = False
+        return speeds.slow_at(force_n, arm_n, counted=counted)
 
     zero = ctx.winch_zero_rad
     assert zero is not None
@@ -311,7 +332,7 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         elif not fast and _speed_moved(drive.speed_rad_s, slow_speed(loop.force_n)):
             drive.set_speed(slow_speed(loop.force_n))
         else:
-            drive.advance()
+            drive.advance(sampled=bool(loop.tick_samples))
         if loop.force_n >= ramp.max_force_n:
             found.outcome = TrialOutcome.NO_SLIP
             recorder.note(LogLevel.WARNING, f"trial {trial.trial_id}: no slip up to {ramp.max_force_n:.1f} N")

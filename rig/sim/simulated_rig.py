@@ -258,6 +258,8 @@ def config_preset(config: RigConfig, seed: int) -> SimPreset:
             scatter=sim.scatter,
             loadcell_artefacts=sim.loadcell,
         )
+        if sim.spring_stiffness_n_per_m is not None:
+            preset = replace(preset, spring_stiffness_n_per_m=sim.spring_stiffness_n_per_m)
         if sim.initial_tension_n > 0:  # the line starts stretched by the drum travel that loads it so
             stretch_m = sim.initial_tension_n / preset.effective_line_stiffness_n_per_m
             preset = replace(preset, winch_slack_rad=-stretch_m / preset.drum_radius_m)

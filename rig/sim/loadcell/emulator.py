@@ -78,7 +78,8 @@ GAIN_RANGE_COUNTS_PER_N = (1e-3, 1e9)  # |gain|
 COUNTS_LIMIT = 1e9  # |offset|, |drift per second|, noise
 MAX_SILENCE_S = 1e6  # start and duration of a scheduled silence
 _GARBAGE_ALPHABET = bytes(b for b in range(256) if b not in b"$\r\n")
-DEFAULT_BANNER = b"#BOOT fw=rig-sim-loadcell adc=emulated gain=A128\r\n"
+# The emulated board's firmware name and version in its banner (`firmware_banner`).
+SIM_FIRMWARE = "rig-sim/1.0.0"
 MAX_CLOCK_ERROR_PPM = 50_000.0  # 5 %: far beyond a ceramic resonator's 0.5 %
 MAX_SETTLING_S = 10.0
 MAX_DTR_RESET_S = 10.0
@@ -87,6 +88,20 @@ POLL_RESPONSE_NS = 2_000_000
 _MAX_POLL_COMMAND_BYTES = 16
 
 TensionSource = Callable[[int], float]
+
+
+def firmware_banner(rate_hz: float) -> bytes:
+    """The banner an emulated board streaming `rate_hz` sends at boot, in firmware/rig_hx711's form.
+
+    `#BOOT fw=NAME/VERSION adc=ADC gain=A128 sps=RATE period-us=PERIOD` (protocols/loadcell-formats.md,
+    "Information lines"), with the emulator's name and its nominal rate and period.
+    """
+    return (
+        f"#BOOT fw={SIM_FIRMWARE} adc=emulated gain=A128 sps={round(rate_hz)} "
+        f"period-us={round(1e6 / rate_hz)}\r\n"
+    ).encode()
+
+
 _LC1_TAILS = [b"*%02X\r\n" % checksum for checksum in range(256)]  # rig-lc1 line ends by checksum
 
 
@@ -378,7 +393,7 @@ class LoadCellEmulator:
         self._pending.gap_samples += n_samples
 
     def inject_restart(self) -> None:
-        """Restart before the next sample: the banner (`DEFAULT_BANNER` if none), seq and clock from 0."""
+        """Restart before the next sample: the banner (`firmware_banner` if none), seq and clock from 0."""
         if not self.codec.has_info_lines:
             raise InputError(f"format {self.format_name} has no information lines to announce a restart")
         self._pending.banner = self._pending.restart = True
@@ -574,7 +589,7 @@ class LoadCellEmulator:
                 self._device_time_start_us = -(elapsed_ns // 1000)
         banner = b""
         if not (self._silences_ns and self._silenced(t_ns)):  # unplugged: lost with everything else
-            banner = self.banner or DEFAULT_BANNER
+            banner = self.banner or firmware_banner(self.rate_hz)
             self.counts.banners += 1
         return banner + self._sample_line(t_ns)
 

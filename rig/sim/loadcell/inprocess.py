@@ -24,12 +24,12 @@ from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import (
     BITS_PER_BYTE,
-    DEFAULT_BANNER,
     DEFAULT_BAUD,
     FaultPlan,
     LoadCellEmulator,
     SignalModel,
     TensionSource,
+    firmware_banner,
     wrong_baud_garbage,
 )
 from rig.sim_config import SimulatedCell
@@ -251,6 +251,8 @@ def simulated_load_cell(
             cell, noise_scale=(signal or SignalModel()).noise_counts / SignalModel().noise_counts
         )
         signal = options.pop("signal")
+    elif format_name == LoadCellFormatName.RIG_LC1:
+        options["banner"] = firmware_banner(rate_hz)  # as firmware/rig_hx711 does at boot
     emulator = LoadCellEmulator(
         tension_n,
         format_name=format_name,
@@ -294,7 +296,7 @@ def cell_emulator_options(cell: SimulatedCell, noise_scale: float = 1.0) -> dict
     if cell.format == LoadCellFormatName.VALUE_UNIT:
         options["codec"] = ValueUnitCodec(cell.gauge_unit, cell.gauge_decimals)
     else:
-        options["banner"] = DEFAULT_BANNER
+        options["banner"] = firmware_banner(cell.rate_hz)
     return options
 
 
