@@ -5,6 +5,8 @@ Import as `from tests.helpers import ...`; fixtures live in tests/conftest.py.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from rig.hw.dxl.control_table import to_signed
 
 
@@ -45,3 +47,17 @@ blocks:
     repeats: 1
     steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
 """
+
+
+def write_joint_1_protocol(path: Path, name: str, ramp: str, distances_m: str) -> Path:
+    """A one-block joint-estimation protocol on joint 1 (prompt, tare, ramp until slip, unload) at `path`.
+
+    `ramp` is the protocol's ramp mapping in YAML flow style, `distances_m` the block's list of distances.
+    """
+    path.write_text(
+        f"format: rig-protocol/1\nname: {name}\ndetector: {{arm_threshold_n: 2.0, drop_fraction: 0.15}}\n"
+        f"ramp: {ramp}\nlimits: {{force_ceiling_n: 75.0}}\nblocks:\n"
+        f"  - {{kind: joint_estimation, joint: 1, distances_m: {distances_m}, repeats: 1,\n"
+        "     steps: [prompt, {tare: {settle_s: 0.3}}, ramp_until_slip, unload]}\n"
+    )
+    return path

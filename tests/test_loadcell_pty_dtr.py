@@ -25,7 +25,6 @@ import serial
 
 from rig.cli import main
 from rig.errors import StaleDataError
-from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import DEFAULT_BOOT_GRACE_S, SerialLoadCell
 from rig.hw.seams import LoadCellSample
 from rig.sim.pty_link import ClientEvent, ClientOpens
@@ -114,27 +113,10 @@ def test_each_open_resets_the_pty_board_and_the_default_boot_grace_covers_it(tmp
 
 
 def test_rig_check_on_a_hardware_config_sees_the_reset_and_the_banner(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], hardware_rig
 ) -> None:
-    Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-27", "pty", "rig-lc1").save(tmp_path / "cal.json")
     with dtr_cell(tmp_path) as link:
-        rig = tmp_path / "hw.yaml"
-        rig.write_text(
-            f"""\
-kind: hardware
-spool_radius_m: 0.01
-servos:
-  port: {tmp_path / "no-servos"}
-  baud: 1000000
-  ids: [{{id: 1, role: winch, model: XM430-W350}}]
-loadcell: {{port: {link}, baud: 115200, format: rig-lc1, rate_hz: 80, calibration: cal.json}}
-article:
-  joint_radius_m: 0.01
-  segment_lengths_m: [0.03, 0.03]
-  load: {{point_m: [0, 0, 0.03], direction: [0, -1, 0]}}
-limits: {{force_ceiling_n: 75, winch_current_limit_a: 0.52, stale_timeout_s: 0.2, max_winch_travel_rev: 20}}
-"""
-        )
+        rig = hardware_rig(tmp_path / "no-servos", link, loadcell={"baud": 115200, "rate_hz": 80})
         code = main(["check", "--rig", str(rig), "--only", "loadcell", "--json", "--window-s", "2"])
     rows = {row["check"]: row for row in json.loads(capsys.readouterr().out)["rows"]}
     assert code == 0, rows

@@ -20,6 +20,7 @@ from rig.cli import main
 from rig.hw.dxl.units import RAD_PER_PULSE, RAD_S_PER_VELOCITY_UNIT
 from rig.log import schemas
 from rig.runner.ramp_speed import SAMPLING_ERROR_FRACTION, RampSpeeds
+from tests.helpers import write_joint_1_protocol
 
 SIM_N_PER_RAD = 50.0  # the built-in simulated rig: 5000 N/m line on a 10 mm spool
 
@@ -67,13 +68,11 @@ def test_a_10_per_s_run_steps_whole_counts_after_samples_and_reads_slips_within_
 ) -> None:
     rig = tmp_path / "rig.yaml"
     rig.write_text("extends: simulated\nsimulation: {loadcell_rate_hz: 10}\n")
-    protocol = tmp_path / "p.yaml"
-    protocol.write_text(
-        "format: rig-protocol/1\nname: slow\ndetector: {arm_threshold_n: 2.0, drop_fraction: 0.15}\n"
-        "ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.08, max_force_n: 70.0}\n"
-        "limits: {force_ceiling_n: 75.0}\nblocks:\n"
-        "  - {kind: joint_estimation, joint: 1, distances_m: [0.25, 0.22, 0.25, 0.19], repeats: 1,\n"
-        "     steps: [prompt, {tare: {settle_s: 0.3}}, ramp_until_slip, unload]}\n"
+    protocol = write_joint_1_protocol(
+        tmp_path / "p.yaml",
+        "slow",
+        "{fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.08, max_force_n: 70.0}",
+        "[0.25, 0.22, 0.25, 0.19]",
     )
     argv = ["run", str(protocol), "--rig", str(rig), "--seed", "0", "--json", "--out", str(tmp_path / "o")]
     assert main(argv) == 0
@@ -116,13 +115,11 @@ def test_on_the_compliant_10_per_s_scenario_slip_loads_are_read_within_half_a_pe
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     rig = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios" / "compliant-10.yaml"
-    protocol = tmp_path / "p.yaml"
-    protocol.write_text(
-        "format: rig-protocol/1\nname: soft\ndetector: {arm_threshold_n: 2.0, drop_fraction: 0.15}\n"
-        "ramp: {fast_speed_rad_s: 4.0, slow_speed_rad_s: 0.48, max_force_n: 70.0, unload_speed_rad_s: 4.0}\n"
-        "limits: {force_ceiling_n: 75.0}\nblocks:\n"
-        "  - {kind: joint_estimation, joint: 1, distances_m: [0.25, 0.22, 0.25, 0.19], repeats: 1,\n"
-        "     steps: [prompt, {tare: {settle_s: 0.3}}, ramp_until_slip, unload]}\n"
+    protocol = write_joint_1_protocol(
+        tmp_path / "p.yaml",
+        "soft",
+        "{fast_speed_rad_s: 4.0, slow_speed_rad_s: 0.48, max_force_n: 70.0, unload_speed_rad_s: 4.0}",
+        "[0.25, 0.22, 0.25, 0.19]",
     )
     argv = ["run", str(protocol), "--rig", str(rig), "--seed", "0", "--json", "--out", str(tmp_path / "o")]
     assert main(argv) == 0

@@ -24,6 +24,7 @@ from rig.log import schemas
 from rig.protocol import for_loadcell_rate, load_protocol
 from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, load_rig_config, nominal_loadcell_rate_hz
 from rig.runner.ramp_speed import SAMPLING_ERROR_FRACTION, RampSpeeds
+from tests.helpers import write_joint_1_protocol
 
 RATES_HZ = (10.0, 80.0, 320.0, 1000.0, 2000.0)
 SIM_N_PER_RAD = 50.0  # the built-in simulated rig: 5000 N/m line on a 10 mm spool
@@ -191,13 +192,11 @@ def test_at_10_per_s_a_50ms_slide_is_a_slip_not_creep() -> None:
 def test_a_run_at_10_samples_per_s_ends_in_slips_with_the_slip_load_close(tmp_path: Path, capsys) -> None:
     rig = tmp_path / "rig.yaml"
     rig.write_text("extends: simulated\nsimulation: {loadcell_rate_hz: 10}\n")
-    protocol = tmp_path / "p.yaml"
-    protocol.write_text(
-        "format: rig-protocol/1\nname: slow\ndetector: {arm_threshold_n: 2.0, drop_fraction: 0.15}\n"
-        "ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.08, max_force_n: 70.0}\n"
-        "limits: {force_ceiling_n: 75.0}\nblocks:\n"
-        "  - {kind: joint_estimation, joint: 1, distances_m: [0.25, 0.22, 0.25], repeats: 1,\n"
-        "     steps: [prompt, {tare: {settle_s: 0.3}}, ramp_until_slip, unload]}\n"
+    protocol = write_joint_1_protocol(
+        tmp_path / "p.yaml",
+        "slow",
+        "{fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.08, max_force_n: 70.0}",
+        "[0.25, 0.22, 0.25]",
     )
     code = main(
         ["run", str(protocol), "--rig", str(rig), "--seed", "0", "--json", "--out", str(tmp_path / "o")]
