@@ -68,6 +68,21 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     ]
     if unmarked:
         raise pytest.UsageError("mark these pty and subprocess (they use dxl_server): " + ", ".join(unmarked))
+    # Under pytest-xdist (two workers, `--dist loadgroup`): the real-time tests over ptys run one at a
+    # time, on one worker, so two of them never compete for the cores; the rest spread over both.
+    for item in items:
+        if item.get_closest_marker("pty") is not None:
+            item.add_marker(pytest.mark.xdist_group("realtime"))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C as in a shell: an xdist worker ignores SIGINT, and children would inherit that.
+
+    A process started with SIGINT ignored keeps ignoring it (Python installs its handler only where
+    the signal is not ignored), so the tests that send SIGINT to `rig run` would wait in vain.
+    """
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 # ------------------------------------------------------------------------------------------ files, CLI
