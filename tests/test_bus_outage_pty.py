@@ -22,25 +22,13 @@ from mcap.reader import make_reader
 
 from tests.test_hardware_path_faults import (
     PRESENT_POSITION,
+    PROTOCOL,
     TORQUE_ENABLE,
     _read,
     _wait_until_ramping,
 )
 
 pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
-PROTOCOL = """\
-format: rig-protocol/1
-name: outage
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.5, max_force_n: 40.0}
-limits: {force_ceiling_n: 45.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12]
-    repeats: 1
-    steps: [{tare: {settle_s: 0.2}}, ramp_until_slip, unload]
-"""
 
 
 def _start(tmp_path: Path, dxl_server, loadcell_server, hardware_rig, patience_s: float):
@@ -113,9 +101,7 @@ def test_a_bus_quiet_for_a_second_mid_ramp_costs_a_repeated_trial(
     assert _journal(tmp_path)["retried_trials"][:1] == [1], "\n".join(n for n in notes if "late by" not in n)
     assert any("Bus Watchdog tripped" in n for n in notes), notes
     link = Path(servos.link)
-    assert [_read_back(link, i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
-    # The winch's zero is where it stood at connect (pulse 0 in the emulator): back there, line slack.
-    assert abs(_signed(_read_back(link, 1, PRESENT_POSITION, 4))) < 30
+    _assert_slack_and_torque_off(link)
 
 
 def test_a_host_paused_mid_ramp_finds_the_tripped_watchdog_clears_it_and_repeats_the_trial(
@@ -134,8 +120,7 @@ def test_a_host_paused_mid_ramp_finds_the_tripped_watchdog_clears_it_and_repeats
     assert any(n.startswith("control tick late by") for n in notes)
     assert _journal(tmp_path)["retried_trials"][:1] == [1]
     link = Path(servos.link)
-    assert [_read_back(link, i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
-    assert abs(_signed(_read_back(link, 1, PRESENT_POSITION, 4))) < 30
+    _assert_slack_and_torque_off(link)
 
 
 def test_a_bus_silent_beyond_the_patience_ends_the_run_saying_what_state_the_winch_is_in(
@@ -191,3 +176,12 @@ def _read_back(link: Path, servo_id: int, address: int, size: int) -> int:
 
 def _signed(raw: int) -> int:
     return raw - (1 << 32) if raw >= 1 << 31 else raw
+
+
+def _assert_slack_and_torque_off(link: Path) -> None:
+    """Read back from the emulator: both servos' torque off, the winch at its zero (line slack).
+
+    The winch's zero is where it stood at connect (pulse 0 in the emulator).
+    """
+    assert [_read_back(link, i, TORQUE_ENABLE, 1) for i in (1, 2)] == [0, 0]
+    assert abs(_signed(_read_back(link, 1, PRESENT_POSITION, 4))) < 30
