@@ -60,6 +60,10 @@ class InterlockTripped(RigError):
     """A safety interlock stopped the run; the hardware has been (or is being) made safe."""
 
 
+class WinchDirectionError(InterlockTripped):
+    """A ramp reeled the winch in without the tension rising: the reel direction is likely wrong."""
+
+
 class ZeroNotVerified(RigError):
     """At connect the load cell read beyond its zero tolerance: the line may be loaded; nothing was reeled."""
 

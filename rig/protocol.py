@@ -565,9 +565,12 @@ def _steps(block: Section, kind: TrialKind) -> tuple[StepSpec, ...]:
     names = [s.kind for s in steps]
     if names.count(StepKind.RAMP_UNTIL_SLIP) != 1:
         raise block.error("steps", "exactly one 'ramp_until_slip' step is required per trial")
-    if StepKind.UNLOAD not in names[names.index(StepKind.RAMP_UNTIL_SLIP) :]:
+    after_ramp = names[names.index(StepKind.RAMP_UNTIL_SLIP) + 1 : names.index(StepKind.RAMP_UNTIL_SLIP) + 2]
+    if after_ramp != [StepKind.UNLOAD]:
         raise block.error(
-            "steps", "an 'unload' step must follow 'ramp_until_slip' (the line must be released)"
+            "steps",
+            "an 'unload' step must come right after 'ramp_until_slip' (the line is released before "
+            "anything else: nothing waits beside a loaded line)",
         )
     return tuple(steps)
 

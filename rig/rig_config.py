@@ -219,6 +219,29 @@ class RigLimits:
             "calibrated zero (else exit 1: the line may be loaded)",
         ),
     )
+    direction_check_rev: float = field(
+        default=0.25,
+        metadata=number(
+            0.02,
+            0.5,
+            unit="rev",
+            doc="every ramp stops the run (exit 1) when the winch has reeled in this far with the tension "
+            "risen less than `zero_tolerance_n`: a winch turning the wrong way (`reel_direction`) or a "
+            "line off its drum; the nominal line stiffness must give at least 1.5 × `zero_tolerance_n` "
+            "over it",
+        ),
+    )
+    max_loaded_after_slip_s: float = field(
+        default=2.0,
+        metadata=number(
+            0.1,
+            60.0,
+            unit="s",
+            doc="after a slip the line is released before anything waits; from the slip's detection to "
+            "the cell reading the line slack should take at most this (a longer one is warned about); "
+            "`ramp.hold_after_slip_s` must be shorter",
+        ),
+    )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -7,6 +7,7 @@ default rig, the winch turning the mirror way; with the default direction it nev
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
@@ -66,11 +67,21 @@ def test_a_reversed_drum_with_direction_minus_one_mirrors_the_default_run(tmp_pa
         assert not any(servo.torque_enabled for servo in sim.devices.bus.servos)
 
 
-def test_a_reversed_drum_with_the_default_direction_never_loads_the_line(tmp_path):
-    # The control: the setting is what makes the mirrored run work (wound the other way, the
-    # default direction pays line out until every ramp times out).
-    report, sim = _run(_rig(tmp_path, "simulation:\n  winch_reversed: true\n"), tmp_path / "out")
-    assert [t.outcome for t in report.trials] == ["aborted", "aborted"]
-    assert all(t.peak_force_n is not None and t.peak_force_n < 1.0 for t in report.trials)
+def test_a_reversed_drum_with_the_default_direction_stops_within_a_quarter_turn(tmp_path):
+    # The control: the setting is what makes the mirrored run work. Wound the other way, the default
+    # direction pays line out; the first ramp sees no rise and stops the run (exit 1) once the winch
+    # has turned limits.direction_check_rev (0.25 turn), naming the fix. Before, both ramps paid out
+    # up to 7.5 turns each until their timeouts, and the run exited 0.
+    rig = _rig(tmp_path, "simulation:\n  winch_reversed: true\n")
+    report, sim = _run(rig, tmp_path / "out")
+    assert report.exit_code == 1 and report.trials == []
+    reason = report.reason or ""
+    assert reason.startswith("WinchDirectionError: trial 1: the winch reeled in")
+    assert "reel_direction (+1)" in reason and f"rig check --rig {rig} --move --write" in reason
+    assert report.safe_state_verified
+    positions = _winch_positions(tmp_path / "out")
+    turned_rev = (max(positions) - positions[0]) / (2 * math.pi)
+    assert 0.25 <= turned_rev < 0.3, turned_rev
+    assert positions[-1] == pytest.approx(positions[0], abs=0.02)  # back at its zero
     assert sim.devices.world.tension_n == 0.0
     assert not any(servo.torque_enabled for servo in sim.devices.bus.servos)

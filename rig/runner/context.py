@@ -33,6 +33,7 @@ class StepContext:
     winch_zero_rad: float | None = None
     loadcell_rate_hz: float = DEFAULT_LOADCELL_RATE_HZ  # nominal (`rig_config.nominal_loadcell_rate_hz`)
     rate_mismatch_noted: bool = False  # the run has warned once that the measured rate differs
+    reel_direction_verified: bool = False  # a ramp of this invocation saw the tension rise as it reeled in
 
     def line_release(self) -> LineRelease:
         """A release starting from a copy of what the loop saw last (`rig.runner.release`)."""

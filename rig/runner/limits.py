@@ -29,6 +29,17 @@ class LimitCheck:
     ok: bool
 
 
+# The direction check must expect a rise of this many zero tolerances at the nominal stiffness, so
+# that a line softer than its nominal stiffness still rises past one before the check ends.
+DIRECTION_CHECK_MARGIN = 1.5
+
+
+def direction_check_rise_n(config: RigConfig) -> float:
+    """The tension rise over the ramp's direction check (`limits.direction_check_rev`), nominal stiffness."""
+    travel_rad = config.limits.direction_check_rev * 2 * math.pi
+    return config.line_stiffness_n_per_m * config.spool_radius_m * travel_rad
+
+
 def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
     """Every check, passed or not."""
     limits = config.limits
@@ -69,6 +80,23 @@ def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
             f"{travel_rev:.2f} rev",
             f"{limits.max_winch_travel_rev:.2f} rev",
             travel_rev <= limits.max_winch_travel_rev,
+        )
+    )
+    checks.append(
+        LimitCheck(
+            "ramp hold after a slip < time loaded after a slip",
+            f"{ramp.hold_after_slip_s:g} s",
+            f"{limits.max_loaded_after_slip_s:g} s",
+            ramp.hold_after_slip_s < limits.max_loaded_after_slip_s,
+        )
+    )
+    direction_rise_n = direction_check_rise_n(config)
+    checks.append(
+        LimitCheck(
+            "tension rise over the direction check (nominal stiffness) >= 1.5 x zero tolerance",
+            f"{direction_rise_n:.2f} N over {limits.direction_check_rev:g} rev",
+            f"{DIRECTION_CHECK_MARGIN * limits.zero_tolerance_n:.2f} N",
+            direction_rise_n >= DIRECTION_CHECK_MARGIN * limits.zero_tolerance_n,
         )
     )
     for trial in protocol.trials:

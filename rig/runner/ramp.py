@@ -29,11 +29,13 @@ from rig.log.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcom
 from rig.protocol import TrialPlan
 from rig.runner.context import StepContext
 from rig.runner.control_loop import ControlLoop
+from rig.runner.direction_check import ReelDirectionCheck
 from rig.runner.measuring import measure_configuration
 from rig.runner.phases import Phase
 from rig.runner.ramp_speed import BAND_Z, SPEED_STEP, RampSpeeds
 from rig.runner.results import TrialMeasurements, slip_outcome
 from rig.runner.safe_state import POSITION_TOLERANCE_RAD
+from rig.runner.unloading import release_after_slip
 from rig.vocabulary import StepKind, TrialKind
 
 # How far ahead of the winch its ramp goal is kept, in seconds of motion at the ramp's speed.
@@ -252,8 +254,12 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
     The slow speed is capped so that one sample period's rise is a small share of the tension
     (`rig.runner.ramp_speed`): at low load-cell rates the ramp slows as the tension climbs towards
     the expected slip load, and reels fast up to the low edge of it.
-    Ends with the winch holding where it is: after a slip (kept `hold_after_slip_s` longer to
-    count the further drops), or with `no_slip` at the ramp's force limit or the winch's travel.
+    Until a ramp of the run has seen the tension rise, each verifies the reel direction
+    (`rig.runner.direction_check`): a winch that turns `limits.direction_check_rev` without the
+    tension rising stops the run.
+    After a slip the winch holds `hold_after_slip_s` to count the further drops and the line is then
+    released (`rig.runner.unloading`) before the configuration is measured again. At the ramp's force
+    limit or the winch's travel the trial is `no_slip`, the winch holding where it is.
     """
     ramp = ctx.protocol.ramp
     loop, recorder = ctx.loop, ctx.recorder
@@ -312,6 +318,13 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
     view = ctx.link_view
     view.ramp_started(trial, found, loop.force_n, start_ns)
     sampled_at_rad: float | None = None  # the winch's position (reel-in sense) at the newest sample
+    direction = ReelDirectionCheck(
+        ctx.config,
+        trial.trial_id,
+        reel * loop.states[ctx.session.winch_id].position_rad,
+        loop.force_n,
+        verified=ctx.reel_direction_verified,
+    )
     while feed.event is None:
         loop.tick()
         event = feed.feed(loop.tick_samples)
@@ -320,6 +333,7 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         if event is not None:
             break
         position_rad = reel * loop.states[ctx.session.winch_id].position_rad
+        ctx.reel_direction_verified = direction.update(position_rad, loop.force_n)
         if loop.tick_samples or sampled_at_rad is None:
             sampled_at_rad = position_rad
         force_n = loop.force_n
@@ -373,11 +387,17 @@ def _check_rate(ctx: StepContext, feed: DetectorFeed) -> None:
 
 
 def _record_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements, feed: DetectorFeed) -> None:
-    """After a confirmed slip: hold, count further drops, ask which joint moved, log the slip."""
+    """After a confirmed slip: hold, count further drops, release the line, ask which joint moved, log.
+
+    The line is released before the configuration is measured again: that may wait for a person
+    (which joint moved?) or a camera, and nobody waits beside a loaded line.
+    """
     event = feed.event
     assert event is not None
     found.event = event
     found.train_drops = feed.drops_in_hold(ctx.loop, ctx.protocol.ramp.hold_after_slip_s)
+    release_after_slip(ctx, trial, event.detection_time_ns)
+    found.line_released = True
     found.slipped_joint = _slipped_joint(ctx, trial, found)
     found.outcome = slip_outcome(trial, event, found.train_drops, found.slipped_joint)
     message = SlipMessage(

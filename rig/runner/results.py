@@ -32,6 +32,7 @@ class TrialMeasurements:
     train_drops: int = 0  # further drops in the hold after the event
     reason: str | None = None  # why the trial was aborted
     measured: ConfigurationReading | None = None  # the configuration measured after bending
+    line_released: bool = False  # released after the slip, before anything slow (`rig.runner.unloading`)
 
 
 def slip_outcome(
@@ -118,3 +119,37 @@ def percentage_error_stats(results: Sequence[TrialResult]) -> PayloadErrorStats 
         return None
     predicted, measured = zip(*pairs, strict=True)
     return payload_error_stats(predicted, measured)
+
+
+def nothing_measured(results: Sequence[TrialResult], max_force_n: float) -> str | None:
+    """Why a run whose trials are all done measured no slip (None when one trial slipped, or none ran).
+
+    A run that measured nothing must not end as if it had (exit 1, `rig run`): the text names what
+    the trials ended in and the most likely cause.
+    """
+    if not results or any(r.slipped for r in results):
+        return None
+    counts = {o: sum(r.outcome == o for r in results) for o in TrialOutcome}
+    tally = ", ".join(f"{n} {o}" for o, n in counts.items() if n)
+    head = f"no trial gave a usable slip ({tally} of {len(results)})"
+    if counts[TrialOutcome.ABORTED] == len(results):
+        first = next(r.reason for r in results if r.reason) if any(r.reason for r in results) else "unknown"
+        return (
+            f"{head}: every trial was aborted, the first by: {first}. If the ramps timed out, the tension "
+            "did not rise as planned: check that the line is on the drum and tied to the link, "
+            "loadcell.rate_hz and line_stiffness_n_per_m against `rig check --move`"
+        )
+    if counts[TrialOutcome.NO_SLIP] == len(results):
+        peak = max((r.peak_force_n or 0.0) for r in results)
+        return (
+            f"{head}: no joint slipped below ramp.max_force_n ({max_force_n:g} N; the highest tension "
+            f"{peak:.2f} N): the joints hold more than the protocol allows, or the winch's travel ended "
+            "first; raise ramp.max_force_n within the ceilings, or hook the line further out"
+        )
+    if counts[TrialOutcome.OTHER_JOINT] == len(results):
+        return (
+            f"{head}: every slip was of another joint than the one under test: that joint holds more "
+            "than the ones beside it at these distances (docs/model.md), or the configuration source "
+            "names joints wrongly"
+        )
+    return f"{head}: see each trial's outcome and reason in the summary"

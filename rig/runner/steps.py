@@ -23,15 +23,15 @@ from rig.runner.phases import Phase
 from rig.runner.ramp import ramp_until_slip
 from rig.runner.results import TrialMeasurements
 from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
+from rig.runner.unloading import release_before_waiting, unload_line
 from rig.vocabulary import ServoRole, StepKind
-
-_RELEASED_TENSION_N = 0.5
 
 StepUnit = Callable[[StepContext, StepSpec, TrialPlan, TrialMeasurements], None]
 
 
 def prompt(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
     """Ask the operator to do what the prompt says (the loop ticks while waiting)."""
+    release_before_waiting(ctx, trial)
     ctx.recorder.phase(Phase.PROMPTING, trial.trial_id, StepKind.PROMPT)
     ctx.session.operator.confirm(trial.prompt_text(step.text or ""), trial, ctx.loop.tick)
 
@@ -92,6 +92,7 @@ def measure(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeas
         fixture.end_bend()
         return
     target = trial.joint_angles_rad
+    release_before_waiting(ctx, trial)  # the source may be a person or a camera
     reading = measure_configuration(ctx, trial, after_slip=False, attempt=0)
     attempt = 0
     while target is not None and reading.joint_angles_rad is not None and attempt < trial.bend_corrections:
@@ -152,28 +153,13 @@ def ramp(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
 
 
 def unload(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
-    """Back the winch off to its zero-tension angle with the interlocks live.
+    """Back the winch off to its zero-tension angle with the interlocks live (`rig.runner.unloading`).
 
-    It waits until the winch is home and the load cell reads the line slack. The release after a
-    failure, which must not depend on the load cell or on replies, is `rig.runner.release`.
+    After a slip the ramp has released the line already, before anything slow: nothing is left to do.
     """
-    ctx.recorder.phase(Phase.UNLOADING, trial.trial_id, StepKind.UNLOAD)
-    loop = ctx.loop
-    winch = ctx.session.winch_id
-    zero = ctx.winch_zero_rad
-    if zero is None:
+    if found.line_released:
         return
-    speed = ctx.protocol.ramp.unload_speed_rad_s
-    ctx.session.servos.set_profile(winch, velocity_rad_s=speed)
-    ctx.session.servos.write_goal_positions({winch: zero})
-    ctx.recorder.command(winch, ServoCommandName.GOAL_POSITION, zero, "rad")
-
-    def done() -> bool:
-        home = abs(loop.states[winch].position_rad - zero) < POSITION_TOLERANCE_RAD
-        return home and loop.force_n < _RELEASED_TENSION_N + abs(loop.tare_n)
-
-    travel = loop.states[winch].position_rad - zero
-    loop.wait_until(done, move_timeout_s(travel, speed, ctx.protocol.step_timeout_margin_s), StepKind.UNLOAD)
+    unload_line(ctx, trial)
 
 
 def reset(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
@@ -199,6 +185,7 @@ def _by_hand(ctx: StepContext, trial: TrialPlan, text: str) -> None:
     Afterwards each bender holds where the operator left it (its goal set to its position before
     its torque comes back on), so the configuration stays as bent.
     """
+    release_before_waiting(ctx, trial)
     benders = [sid for sid, role in ctx.session.roles.items() if role == ServoRole.BENDER]
     servos = ctx.session.servos
     if benders:
