@@ -289,7 +289,9 @@ def test_a_run_whose_every_trial_times_out_ends_cleanly(run_on_fakes, tmp_path):
     rig = fake_rig(slip_forces_n=())
     at_prompt = slides_at(rig, 8.0)
     report = run_on_fakes(rig)
-    assert report.exit_code == 0 and report.completed == 3 and not report.aborted, report.reason
+    # Every trial done, but nothing measured: the run fails (exit 1) saying so and why.
+    assert report.exit_code == 1 and report.completed == 3 and report.aborted
+    assert (report.reason or "").startswith("no trial gave a usable slip (3 aborted of 3): every trial")
     assert [t.outcome for t in report.trials] == ["aborted"] * 3
     assert all(p < 0.5 for p in at_prompt)
     assert report.estimate is None or report.estimate.n == 0
@@ -350,7 +352,8 @@ def test_a_slip_of_another_joint_is_kept_out_of_the_fit(run_on_fakes):
     rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
     rig.session.configuration = _SaysJoint(3)
     report = run_on_fakes(rig)
-    assert report.exit_code == 0 and report.completed == 3
+    assert report.exit_code == 1 and report.completed == 3  # no usable slip: the run says so
+    assert "every slip was of another joint" in (report.reason or "")
     assert [t.outcome for t in report.trials] == ["other_joint"] * 3
     assert all(t.slipped_joint == 3 and not t.slipped for t in report.trials)
     assert report.estimate is None or report.estimate.n == 0
@@ -381,6 +384,6 @@ def test_the_joint_that_moved_is_found_from_the_configuration_before_and_after(
     rig.session.configuration = _CameraLike(moved)
     request = RunRequest(protocol_path=protocol, rig_path=None, out_dir=tmp_path / "out", seed=1, run_id="f1")
     report = execute_run(prepare_run(request), rig.session, SilentProgress())
-    assert report.exit_code == 0 and report.completed == 3
+    assert report.exit_code == (0 if outcome == "slip" else 1) and report.completed == 3  # 1: no usable slip
     assert [t.outcome for t in report.trials] == [outcome] * 3
     assert [t.slipped_joint for t in report.trials] == [moved] * 3

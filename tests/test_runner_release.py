@@ -73,7 +73,7 @@ def test_release_waits_from_its_own_copy_and_leaves_the_loop_alone_until_adopted
     loop.force_n = 1e6
 
     assert release.run(zero_rad) == zero_rad
-    assert release.verified
+    assert release.at_zero
     assert release.report[0] == "winch back at its zero-tension angle (read back)"
     assert abs(release.states[winch].position_rad - zero_rad) < 0.02
     # The loop saw none of the release's reads ...

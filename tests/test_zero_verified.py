@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from rig.errors import ConfigError
+from rig.log.reader import read_run
 from rig.rig_config import load_rig_config
 from rig.rigs import open_simulated_rig
 from rig.runner.progress import SilentProgress
@@ -49,6 +50,12 @@ def _assert_slack_and_off(sim: SimulatedRig) -> None:
     assert not any(servo.torque_enabled for servo in bus.servos)
 
 
+def _winch_goals(out: Path) -> list[float]:
+    commands = read_run(out).topic("/rig/servo/command")
+    goals = commands[(commands.servo_id == 1) & (commands.command == "goal_position")]
+    return list(goals.value)
+
+
 def test_the_simulated_line_can_start_loaded(tmp_path):
     config = load_rig_config(_rig(tmp_path, "  initial_tension_n: 30\n"))
     assert config.simulation is not None and config.simulation.initial_tension_n == 30.0
@@ -65,11 +72,17 @@ def test_a_line_loaded_at_connect_is_refused_and_left_slack(tmp_path, tension_n)
     assert report.exit_code == 1 and report.completed == 0
     reason = report.reason or ""
     assert reason.startswith("ZeroNotVerified: the load cell reads +") and "at connect" in reason
-    assert "slacken the line" in reason and "limits.zero_tolerance_n (2 N)" in reason
-    assert report.safe_state_verified
+    assert "limits.zero_tolerance_n (2 N)" in reason and "in small steps, the tension falling" in reason
+    assert "if the line is slack now, start the run again" in reason
+    assert report.safe_state_verified  # the winch holds where the cell read the line slack
     _assert_slack_and_off(sim)
-    # It only paid line out (reeling in is positive): the winch ends below where it started.
-    assert sim.devices.bus.servo(1).present_position_rad < start_rad
+    # It only paid line out (reeling in is positive), in small steps: the winch ends below where it
+    # started, and every goal it was given lies between there and where it ends.
+    end_rad = sim.devices.bus.servo(1).present_position_rad
+    assert end_rad < start_rad
+    goals = _winch_goals(tmp_path / "out")
+    assert len(goals) >= 3 and all(end_rad - 0.03 <= g <= start_rad for g in goals)
+    assert max(abs(b - a) for a, b in zip([start_rad, *goals], goals, strict=False)) < 0.05
     assert sim.devices.world.trials == []  # no trial began
 
 
@@ -90,7 +103,9 @@ def test_a_tare_beyond_the_tolerance_is_an_interlock(tmp_path):
     assert (
         reason.startswith("InterlockTripped: trial 2: tare +") and "limits.zero_tolerance_n (2 N)" in reason
     )
-    assert report.safe_state_verified
+    # The line is slack, but the drifted cell cannot say so: "safe" is what the sensors confirm.
+    assert not report.safe_state_verified
+    assert "the load cell reads +" in reason and "with the winch at its zero-tension angle" in reason
     _assert_slack_and_off(sim)
 
 
@@ -100,3 +115,22 @@ def test_the_default_tolerance_lets_every_shipped_tare_through(tmp_path):
     assert report.exit_code == 0, report.reason
     assert all(abs(t.tare_n) <= 2.0 for t in report.trials)
     _assert_slack_and_off(sim)
+
+
+def test_a_loaded_line_on_a_reversed_winch_is_paid_out_the_way_the_cell_confirms(tmp_path):
+    # The drum is wound the other way and the config does not know it: the first small step "out"
+    # reels in. The cell sees the rise; the winch goes back and pays out the other way instead,
+    # step by step, and the run stops saying that reel_direction is probably wrong.
+    # 10 N: below the first trial's slip load, so the link holds while the winch steps.
+    rig = _rig(tmp_path, "  initial_tension_n: 10\n  winch_reversed: true\n")
+    report, sim, start_rad = _run(rig, tmp_path / "out")
+    assert report.exit_code == 1 and report.completed == 0
+    reason = report.reason or ""
+    assert "reel_direction is probably wrong" in reason and "--move --write" in reason
+    assert report.safe_state_verified
+    _assert_slack_and_off(sim)
+    # With the config's reel_direction +1, paying out lowers the position; on this reversed drum that
+    # reels in. It reeled in by one small step at most and ended paying out the other way (above).
+    goals = _winch_goals(tmp_path / "out")
+    assert start_rad - min(goals) < 0.05
+    assert sim.devices.bus.servo(1).present_position_rad > start_rad

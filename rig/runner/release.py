@@ -34,6 +34,9 @@ from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
 # The safe state waits this long beyond the winch's travel time: interlocks are off by then, and
 # the load cell may be what failed, so arrival at the zero-tension angle is all it waits for.
 SAFE_STATE_MARGIN_S = 2.0
+# Once the winch is back, the load cell has this long to read the line slack (a line relaxing, a
+# slow cell's next sample) before the safe state is reported not verified.
+SLACK_SETTLE_S = 1.0
 
 
 class LineRelease:
@@ -60,10 +63,12 @@ class LineRelease:
         self.states = dict(last.states)
         self.tick_samples = list(last.tick_samples)
         self.force_n = last.force_n
+        self._cell_answered = bool(last.tick_samples)  # any sample in the release (or the tick before)
         self.patience_s = patience_s
         self.port = port
         self.report: list[str] = []  # what the release did and verified
-        self.verified = False  # the winch's position was read back at its zero-tension angle
+        self.at_zero = False  # the winch's position was read back at its zero-tension angle
+        self.slack_confirmed = False  # ... and the load cell read the line slack there (or is gone, said)
 
     def reading(self) -> Reading:
         """What the release read last."""
@@ -126,12 +131,50 @@ class LineRelease:
                     move_timeout_s(travel, speed, SAFE_STATE_MARGIN_S) * 1e9
                 )
             if abs(self.states[winch].position_rad - zero_rad) < POSITION_TOLERANCE_RAD:
-                self.verified = True
+                self.at_zero = True
                 report.append("winch back at its zero-tension angle (read back)")
-                if self.tick_samples:  # the load cell, when it still works, says what is left
-                    report.append(f"tension {self.force_n:+.2f} N (load cell)")
                 return zero_rad
         raise StepTimeoutError("winch did not return to zero tension within its timeout")
+
+    def confirm_slack(self, tolerance_n: float) -> bool:
+        """With the winch at its zero: does the load cell read the line slack? Recorded in `report`.
+
+        Waits up to `SLACK_SETTLE_S` for a sample within `tolerance_n` of the cell's zero (tare
+        corrected), taken at or after the winch's arrival. A cell that gives no sample at all in the
+        release is gone: the release is taken on the winch's position alone, and the report says the
+        tension was not measured. A cell reading beyond the tolerance is not slack: not verified.
+        """
+        if not self.at_zero:
+            return False
+        deadline = self.clock.monotonic_ns() + round(SLACK_SETTLE_S * 1e9)
+        fresh = bool(self.tick_samples)  # the arrival's tick brought a sample
+        while not (fresh and abs(self.force_n) <= tolerance_n):
+            if self.clock.monotonic_ns() >= deadline:
+                break
+            try:
+                self._tick_without_interlocks()
+            except RigError:
+                break  # the servo bus stopped answering: the cell's last word stands
+            fresh = fresh or bool(self.tick_samples)
+        if not fresh:
+            self.slack_confirmed = True
+            last = f" (it last read {self.force_n:+.2f} N)" if self._cell_answered else ""
+            self.report.append(
+                f"the load cell gave no reading once the winch was back{last}: the tension was not measured"
+            )
+        elif abs(self.force_n) <= tolerance_n:
+            self.slack_confirmed = True
+            self.report.append(
+                f"tension {self.force_n:+.2f} N (load cell, within limits.zero_tolerance_n {tolerance_n:g} N)"
+            )
+        else:
+            self.report.append(
+                f"the load cell reads {self.force_n:+.2f} N with the winch at its zero-tension angle, beyond "
+                f"limits.zero_tolerance_n ({tolerance_n:g} N): the line may still be loaded (a winch turned "
+                "the wrong way, a line wound round the drum the other way) or the cell's zero moved "
+                "(not verified)"
+            )
+        return self.slack_confirmed
 
     def _send_goal(self, zero_rad: float) -> None:
         """The zero-tension goal by broadcast (no reply needed); a port that fails is reported, not raised."""
@@ -201,4 +244,5 @@ class LineRelease:
         self.tick_samples = tare_corrected(samples, self.tare_n)
         if samples:
             self.force_n = self.tick_samples[-1][1]
+            self._cell_answered = True
         self.recorder.tick_rows(samples, self.tick_samples, self.states)

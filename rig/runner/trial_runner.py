@@ -15,7 +15,6 @@ interrupt, then the log is finished and the journal saved. The stages of the saf
 
 from __future__ import annotations
 
-import math
 import traceback
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -47,20 +46,18 @@ from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.journal import RunJournal
 from rig.runner.link_counts import TrialLinkCounter
 from rig.runner.link_view import LinkView
+from rig.runner.loaded_at_connect import PayoutVerdict, pay_out_verified
 from rig.runner.phases import Phase
 from rig.runner.progress import ProgressReporter
 from rig.runner.recorder import RunRecorder
 from rig.runner.recovery import MAX_TRIAL_RETRIES, is_device_fault, recover
 from rig.runner.release import LineRelease
-from rig.runner.results import TrialMeasurements, trial_result
+from rig.runner.results import TrialMeasurements, nothing_measured, trial_result
 from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held
 from rig.runner.steps import STEPS
 from rig.vocabulary import ServoRole, TrialKind
 
-# A line loaded at connect is paid out by this multiple of the travel that would release the reading
-# at the nominal line stiffness (a real line is often softer than its nominal stiffness).
-_ZERO_PAYOUT_FACTOR = 3.0
 LINE_MAY_BE_LOADED = (
     "THE LINE MAY BE LOADED: switch off the servos' power before touching the link, then release the "
     "winch by hand"
@@ -174,6 +171,13 @@ class TrialRunner:
                     )
                 if late:
                     note(LogLevel.WARNING, "Ctrl-C/SIGTERM in the safe state: held until it ended")
+        if outcome.exit_code == ExitCode.OK:  # every trial done: did the run measure anything?
+            nothing = nothing_measured(self.journal.completed, self.protocol.ramp.max_force_n)
+            if nothing is not None:
+                note(LogLevel.ERROR, f"run measured nothing: {nothing}")
+                outcome = RunOutcome(
+                    ExitCode.FAULT, "completed", nothing, outcome.new_results, outcome.safe_state_verified
+                )
         return outcome
 
     def announce(self, text: str, warning: bool = False) -> None:
@@ -221,31 +225,44 @@ class TrialRunner:
     def _verify_zero(self) -> None:
         """Refuse to take a loaded line as zero: the cell must read within the tolerance of its zero.
 
-        Called at connect, after the first samples and before anything has moved (the winch holds
-        where it stands). Beyond the tolerance the line may be loaded (a stop that could not release
-        it) or the calibration's zero is off; either way the run stops (exit 1) with the reading. The
-        winch's zero-tension angle is moved out by the travel that would release that reading
-        (`_ZERO_PAYOUT_FACTOR` x, at the nominal stiffness, within the travel limit), so the safe
-        state pays line out, never in, and then turns torque off.
+        Called at connect, after the first samples and before anything has moved. Beyond the
+        tolerance the line may be loaded (a stop that could not release it) or the calibration's
+        zero is off; either way the run stops (exit 1) with the reading. A positive reading is paid
+        out in small steps, each checked on the cell (`rig.runner.loaded_at_connect`): never by a
+        travel in a direction nobody has verified yet. The winch's zero-tension angle becomes where
+        that left it, so the safe state does not move it again; the safe state's load-cell check then
+        says whether the line ended slack.
         """
         samples = [f for _, f in self.loop.tick_samples]
         reading_n = sum(samples) / len(samples)
         limits = self.config.limits
         if abs(reading_n) <= limits.zero_tolerance_n:
             return
-        assert self.ctx.winch_zero_rad is not None
-        n_per_rad = self.ctx.line_stiffness_n_per_m * self.config.spool_radius_m
-        payout_rad = min(
-            _ZERO_PAYOUT_FACTOR * abs(reading_n) / n_per_rad, limits.max_winch_travel_rev * 2 * math.pi
-        )
-        self.ctx.winch_zero_rad -= self.config.reel_direction * payout_rad  # pay out, never in
-        raise ZeroNotVerified(
+        beyond = (
             f"the load cell reads {reading_n:+.2f} N at connect, beyond limits.zero_tolerance_n "
-            f"({limits.zero_tolerance_n:g} N) of its calibrated zero, so the line may be loaded; nothing was "
-            f"reeled in, the winch pays out {payout_rad:.2f} rad and its torque goes off: slacken the line "
-            "by hand (or, if it is slack, recalibrate the load cell with `rig calibrate`) and start the run "
-            "again"
+            f"({limits.zero_tolerance_n:g} N) of its calibrated zero"
         )
+        if reading_n < 0:  # a line cannot push: the cell's zero is off, and nothing needs to move
+            raise ZeroNotVerified(
+                f"{beyond}; a line cannot push, so the cell's zero is off: nothing moved. Recalibrate the "
+                "load cell with `rig calibrate` and start the run again"
+            )
+        payout = pay_out_verified(self.ctx, reading_n)
+        self.ctx.winch_zero_rad = payout.position_rad
+        if payout.verdict == PayoutVerdict.SLACK and payout.reversed:
+            fix = (
+                f"on the now slack line run `rig check --rig {self.config.source} --move --write` to "
+                "measure reel_direction, then start the run again"
+            )
+        elif payout.verdict == PayoutVerdict.SLACK:
+            fix = "if the line is slack now, start the run again"
+        else:
+            fix = (
+                "slacken the line by hand (servo power off), check reel_direction with `rig check --move` "
+                "on the slack line, and start the run again (if the line is slack, recalibrate the load cell "
+                "with `rig calibrate`)"
+            )
+        raise ZeroNotVerified(f"{beyond}, so the line may be loaded: {payout.describe()}; {fix}")
 
     # ------------------------------------------------------------------ trial
 
@@ -345,8 +362,9 @@ class TrialRunner:
         """Release the line, then torque off every servo, then close; an error text, or None if verified.
 
         Says what was verified, never what was only attempted: the release is verified when the
-        winch's position was read back at its zero-tension angle, the torque-off when every servo
-        confirmed it.
+        winch's position was read back at its zero-tension angle and the load cell read the line
+        slack there (or gave no reading at all, which the report says), the torque-off when every
+        servo confirmed it.
         """
         zero = self.ctx.winch_zero_rad
         never_loaded = not self.connected or zero is None
@@ -359,13 +377,14 @@ class TrialRunner:
             releases.append(self.ctx.line_release())
             try:
                 releases[0].run(zero)
+                releases[0].confirm_slack(self.config.limits.zero_tolerance_n)
             finally:
                 self.loop.adopt(releases[0].reading())
 
         with self.recorder.best_effort():
             errors = enter_safe_state(self.session, release)
             done = "; ".join(releases[0].report if releases else [])
-            verified = never_loaded or (bool(releases) and releases[0].verified)
+            verified = never_loaded or (bool(releases) and releases[0].slack_confirmed)
             if not errors and verified:
                 self.recorder.note(
                     LogLevel.INFO, "safe state: " + (done + "; " if done else "") + "torque off (confirmed)"
