@@ -24,6 +24,7 @@ from tests.test_hardware_path_faults import (
     PRESENT_POSITION,
     PROTOCOL,
     TORQUE_ENABLE,
+    UNCOUPLED_LIMITS,
     _read,
     _wait_until_ramping,
 )
@@ -37,13 +38,15 @@ def _start(tmp_path: Path, dxl_server, loadcell_server, hardware_rig, patience_s
     cell = cell_server.process
     protocol = tmp_path / "p.yaml"
     protocol.write_text(PROTOCOL)
-    # The cell reads a constant 0.5 N: no slip, so the ramp ends on its timeout, which this nominal
-    # stiffness keeps short (the default 200 N/m would allow minutes).
+    # The cell reads a constant 0.5 N: no slip and no rise, so a ramp ends on the reel-direction
+    # check (half a turn, about 8 s at 0.4 rad/s) and the run measured nothing (exit 1). This nominal
+    # stiffness keeps the ramp's timeout short (the default 200 N/m would allow minutes).
     rig = hardware_rig(
         servos.link,
         cell_server.link,
         servos={"release_patience_s": patience_s},
         top={"line_stiffness_n_per_m": 2000},
+        limits=UNCOUPLED_LIMITS,
     )
     args = [
         "run",
@@ -95,7 +98,10 @@ def test_a_bus_quiet_for_a_second_mid_ramp_costs_a_repeated_trial(
         cell.kill()
     report = json.loads(out)
     notes = _notes(tmp_path)
-    assert run.returncode == 0, "\n".join([str(report["reason"]), *(n for n in notes if "late by" not in n)])
+    # The repeated trial's ramp meets the constant cell again: the reel-direction check ends the run.
+    assert run.returncode == 1 and "WinchDirectionError" in str(report["reason"]), "\n".join(
+        [str(report["reason"]), *(n for n in notes if "late by" not in n)]
+    )
     assert report["safe_state_verified"] is True
     # Repeated (a host stalled beyond the watchdog by a loaded machine may void it once more).
     assert _journal(tmp_path)["retried_trials"][:1] == [1], "\n".join(n for n in notes if "late by" not in n)
@@ -115,7 +121,10 @@ def test_a_host_paused_mid_ramp_finds_the_tripped_watchdog_clears_it_and_repeats
         cell.kill()
     report = json.loads(out)
     notes = _notes(tmp_path)
-    assert run.returncode == 0, "\n".join([str(report["reason"]), *(n for n in notes if "late by" not in n)])
+    # The repeated trial's ramp meets the constant cell again: the reel-direction check ends the run.
+    assert run.returncode == 1 and "WinchDirectionError" in str(report["reason"]), "\n".join(
+        [str(report["reason"]), *(n for n in notes if "late by" not in n)]
+    )
     assert any("servo 1 (winch): Bus Watchdog tripped" in n and "cleared and re-armed" in n for n in notes)
     assert any(n.startswith("control tick late by") for n in notes)
     assert _journal(tmp_path)["retried_trials"][:1] == [1]
