@@ -210,6 +210,8 @@ def _dry_run(args: argparse.Namespace) -> int:
     )
     for note in notes:
         print(f"note: {note}")
+    for warning in plan.warnings:
+        print(f"warning: {warning}")
     print("dry run: nothing was moved")
     return 0
 
