@@ -154,6 +154,7 @@ def test_missing_servo_fails_with_scan_advice() -> None:
     (row,) = rows
     assert row.verdict is Verdict.FAIL and "missing" in row.measured
     assert "rig scan" in row.fix and "Wizard" in row.fix
+    assert "`rig setup-servos --rig " in row.fix  # the rig's own tool first (docs/hardware.md §4)
 
 
 def _set_winch(**attributes: Any) -> Callable[[SimulatedRig], None]:
@@ -337,6 +338,8 @@ def test_wrong_model_fails_the_handshake(write_file: Callable[[str, str], Path])
     )
     (row,) = _check_sim(config, only=("servos",))
     assert row.verdict is Verdict.FAIL and "wrong model" in row.measured and "XL430-W250" in row.measured
+    # The fix is the config's model (or another servo), not a scan for servos that did answer.
+    assert f"set servos.ids[1].model: XM430-W350 in {config}" in row.fix and "rig scan" not in row.fix
 
 
 def test_nominal_stiffness_far_from_the_line_warns_and_is_written(
