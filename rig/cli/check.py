@@ -134,7 +134,10 @@ def run(args: argparse.Namespace) -> int:
     # Parsed without the tension-cap refusal of `load_rig_config`: here the cap is a row of its own.
     config = parse_rig_config(parse_yaml(text, str(path)), source=str(path), text=text, base_dir=path.parent)
     protocols = tuple(
-        load_protocol(p, seed=args.seed, joint_count=config.article.joint_count) for p in args.protocol
+        load_protocol(
+            p, seed=args.seed, joint_count=config.article.joint_count, joints_from=config.joints_from
+        )
+        for p in args.protocol
     )
     ctx = CheckContext(
         config,
