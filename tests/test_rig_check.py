@@ -7,7 +7,9 @@ standing in for a port and its latency timer.
 
 from __future__ import annotations
 
+import io
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -310,6 +312,30 @@ def test_reversed_winch_is_found_and_written(
     assert "wrote reel_direction: -1" in result.out
     assert load_rig_config(config).reel_direction == -1
     assert run_cli("check", "--rig", config, "--move", "--only", "move").code == 0
+
+
+def test_at_a_terminal_the_measurement_is_shown_before_the_question_and_a_rerun_asked_for_after(
+    write_file: Callable[[str, str], Path], run_cli: Callable[..., Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    config = _sim_config(write_file, "name: reversed\nsimulation: {winch_reversed: true}\n")
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    def answer_yes(question: str) -> str:
+        print(f"<asked: {question}>")
+        return "y"
+
+    monkeypatch.setattr(sys, "stdin", Terminal())
+    monkeypatch.setattr("builtins.input", answer_yes)
+    result = run_cli("check", "--rig", config, "--move", "--only", "move")
+    asked = result.out.index("<asked: Write what the jog measured (reel_direction: -1)")
+    assert result.out.index("set reel_direction: -1") < asked  # the row with the measurement came first
+    assert load_rig_config(config).reel_direction == -1
+    after = result.out[asked:]
+    assert "wrote reel_direction: -1" in after and "NOT ready" in after
+    assert f"run `rig check --rig {config} --move` again" in after
 
 
 def test_config_edit_keeps_comments_and_replaces_in_place() -> None:
