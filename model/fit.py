@@ -18,6 +18,12 @@ R² when SST = 0 (all masses equal): R² is undefined (MATLAB's `1 − SSE/0` gi
 this module returns NaN and does not raise, because k̂, SSE, RMSE and the bounds are still well
 defined and an online fit may legitimately see two equal masses first. JSON shows it as null.
 R² can be negative: a fit through the origin can be worse than the constant mean (as in MATLAB).
+
+Degenerate fits. The numbers above stay MATLAB's whatever the data; `degenerate_reasons` says when
+they describe nothing about the law m = k/l (every slip at one distance, or masses that do not fall
+with distance: R² < 0), and `nonnegative_bounds` is how bounds on k, the capacity or μs·δ0 are shown:
+the t interval intersected with [0, ∞), since none of them can be negative (the intersection keeps
+the interval's coverage, the true value being in [0, ∞)). docs/model.md §4, "Degenerate fits".
 """
 
 from __future__ import annotations
@@ -361,3 +367,31 @@ def fit_summary(fit: InverseFit, capacity: CapacityEstimate) -> FitSummary:
 def _plain_pair(pair: Iterable[float]) -> tuple[float, float]:
     lo, hi = pair
     return float(lo), float(hi)
+
+
+def degenerate_reasons(slip_distances_m: Iterable[float], fit: FitSummary) -> tuple[str, ...]:
+    """Why a fit of the slips at `slip_distances_m` says nothing about m = k/l (empty: a sound fit).
+
+    `fit` is the paper's fit of those slips (its R² is cftool's, about the mean mass).
+    """
+    distinct = sorted(set(slip_distances_m))
+    if len(distinct) == 1:
+        return (
+            f"every slip is at one distance ({distinct[0]:g} m): the fit cannot test m = k/l, k is only "
+            "the mean of m·l and R² is 0 (or undefined) by construction; hang the load at several distances",
+        )
+    if fit.k <= 0.0:
+        return ("every slip mass is 0: there is no load to fit",)
+    if fit.r2 < 0.0 or (math.isnan(fit.r2) and fit.sse > 0.0):
+        return (
+            "the slip masses do not fall with distance as 1/l: a constant mass fits them better than k/l "
+            f"(R² {'undefined, all masses equal' if math.isnan(fit.r2) else f'{fit.r2:.3g} < 0'}); check the "
+            "distances and that the joint under test is the one that slipped",
+        )
+    return ()
+
+
+def nonnegative_bounds(bounds: tuple[float, float]) -> tuple[float, float]:
+    """Bounds on a quantity that cannot be negative (k, a capacity, μs·δ0): the interval ∩ [0, ∞)."""
+    lo, hi = bounds
+    return max(lo, 0.0), max(hi, 0.0)

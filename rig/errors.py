@@ -37,7 +37,22 @@ class NotConnectedError(RigError, ConnectionError):
 
 
 class HandshakeError(NotConnectedError):
-    """Connected, but the devices found do not match the configuration."""
+    """Connected, but the devices found do not match the configuration.
+
+    `missing_ids`: configured servos that did not answer; `wrong_models`: (servo id, the model name
+    found) of those that answered as another model. Both empty when the mismatch is of another kind.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        missing_ids: tuple[int, ...] = (),
+        wrong_models: tuple[tuple[int, str], ...] = (),
+    ) -> None:
+        super().__init__(message)
+        self.missing_ids = missing_ids
+        self.wrong_models = wrong_models
 
 
 class CommunicationError(RigError, IOError):

@@ -400,8 +400,14 @@ class Protocol:
         }
 
 
-def load_protocol(path: str | Path, *, seed: int = 0, joint_count: int | None = None) -> Protocol:
-    """Load, validate and expand a protocol file; `seed` drives shuffling."""
+def load_protocol(
+    path: str | Path, *, seed: int = 0, joint_count: int | None = None, joints_from: str = ""
+) -> Protocol:
+    """Load, validate and expand a protocol file; `seed` drives shuffling.
+
+    `joint_count`: the link's joints, which every configuration must list; `joints_from` names where
+    that count comes from (the rig config's article), for the error when one does not.
+    """
     p = Path(path)
     text = read_text_file(p, what="a protocol YAML file")
     return parse_protocol(
@@ -410,6 +416,7 @@ def load_protocol(path: str | Path, *, seed: int = 0, joint_count: int | None = 
         text=text,
         seed=seed,
         joint_count=joint_count,
+        joints_from=joints_from,
         base_dir=p.parent,
     )
 
@@ -421,6 +428,7 @@ def parse_protocol(
     text: str = "",
     seed: int = 0,
     joint_count: int | None = None,
+    joints_from: str = "",
     base_dir: Path | None = None,
 ) -> Protocol:
     """Validate a parsed protocol mapping and expand its blocks into trials."""
@@ -472,7 +480,7 @@ def parse_protocol(
             case TrialKind.JOINT_ESTIMATION:
                 new = _joint_estimation_block(block, b, used, rng, joint_count)
             case TrialKind.LINK_VALIDATION:
-                new = _link_validation_block(block, b, used, joint_count)
+                new = _link_validation_block(block, b, used, joint_count, joints_from)
             case _:
                 assert_never(kind)
         if used + len(new) > MAX_TRIALS:
@@ -676,7 +684,9 @@ def _adaptive_block(
     )
 
 
-def _link_validation_block(block: Section, b: int, offset: int, joint_count: int | None) -> list[TrialPlan]:
+def _link_validation_block(
+    block: Section, b: int, offset: int, joint_count: int | None, joints_from: str
+) -> list[TrialPlan]:
     reject_undeclared(block, LinkValidationBlockFields)
     repeats = read_field(block, LinkValidationBlockFields, "repeats")
     tolerance_rad = math.radians(read_field(block, LinkValidationBlockFields, "bend_tolerance_deg"))
@@ -686,6 +696,12 @@ def _link_validation_block(block: Section, b: int, offset: int, joint_count: int
     angles: list[tuple[float, ...]] = []
     for c, raw in enumerate(configs):
         entry = Section({"angles": raw}, block.source, f"{block.field('configurations_deg')}[{c}]")
+        if joints_from and joint_count is not None and isinstance(raw, list) and len(raw) != joint_count:
+            raise entry.error(
+                "angles",
+                f"expected {joint_count} numbers, one per joint of the link in {joints_from}, got "
+                f"{len(raw)}: this protocol is for another link; use a rig config whose article is that link",
+            )
         values = entry.numbers(
             "angles", length=joint_count, max_length=MAX_JOINTS, min_value=-90.0, max_value=90.0
         )

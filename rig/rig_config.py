@@ -377,6 +377,11 @@ class RigConfig:
         limits = self.limits
         return stall_tension_n(self.servos.winch.model, limits.winch_current_limit_a, self.spool_radius_m)
 
+    @property
+    def joints_from(self) -> str:
+        """Where the link's joint count comes from, for a protocol that lists another count."""
+        return f"{self.source} (article.segment_lengths_m: {self.article.joint_count} segments)"
+
     def as_metadata(self) -> dict[str, str]:
         """A flat str->str summary for the MCAP `rig` metadata record."""
         return {

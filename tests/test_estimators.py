@@ -236,6 +236,18 @@ def test_protocol_estimator_is_validated():
         parse_protocol({**base, "estimator": "paperr"}, source="p.yaml")
 
 
+def test_the_progress_line_of_a_two_slip_estimate_shows_no_negative_capacity_bound():
+    article = load_rig_config(DEFAULT_RIG_CONFIG).article
+    run = RunEstimator(article, estimator="auto")
+    for d, m in [(0.12, 1.34), (0.2, 0.75)]:  # two slips: t(0.995, 1) = 63.7, the t interval crosses 0
+        run.update_joint_estimation(d, m)
+    estimate = run.estimate(2)
+    assert estimate.fit is not None and estimate.fit.capacity_ci_nm[0] < 0  # as computed and logged
+    assert estimate.paper_capacity_ci_nm is not None and estimate.paper_capacity_ci_nm[0] < 0
+    text = estimate.text()
+    assert "[-" not in text and text.count("[0.000, ") == 2, text
+
+
 def test_estimate_payload_carries_both_and_old_payloads_decode():
     article = load_rig_config(DEFAULT_RIG_CONFIG).article
     run = RunEstimator(article, estimator="auto")

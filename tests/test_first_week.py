@@ -49,6 +49,15 @@ def test_template_dry_runs_pass(protocol: Path, run_cli: Callable[..., Any], tmp
     assert "does not exist yet" in result.out  # the calibration is made after the plan, and said so
 
 
+def test_link2_protocol_on_the_link1_template_says_the_count_is_the_rig_configs(
+    run_cli: Callable[..., Any],
+) -> None:
+    result = run_cli("run", REPO / "protocols" / "link_validation_link2.yaml", "--rig", TEMPLATE, "--dry-run")
+    assert result.code == 2 and result.err.count("\n") == 1  # one line, no traceback
+    assert "configurations_deg[0].angles: expected 8 numbers" in result.err
+    assert f"{TEMPLATE} (article.segment_lengths_m: 8 segments), got 10" in result.err
+
+
 def test_template_dry_run_json_carries_the_note(cli_json: Callable[..., Any]) -> None:
     out = cli_json("run", REPO / "protocols" / "smoke.yaml", "--rig", TEMPLATE, "--dry-run", "--json")
     assert all(check["ok"] for check in out["limit_checks"])

@@ -257,3 +257,61 @@ def test_subprocess_bad_input_has_no_traceback(write_file):
     )
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.startswith("rig: error: ") and proc.stderr.count("\n") == 1
+
+
+# Degenerate fits (docs/model.md §4, "Degenerate fits"): the JSON numbers stay cftool's, the result
+# says why the fit is degenerate, and no bound is printed below 0.
+FLAT = "distance_m,mass_kg\n0.05,2.0\n0.10,2.0\n0.20,2.00001\n"  # R² = -4e10: no fall with distance
+ONE_DISTANCE = "distance_m,mass_kg\n0.1,1.6\n0.1,1.7\n0.1,1.5\n"
+TWO_POINTS = "distance_m,mass_kg\n0.1,1.6\n0.2,0.7\n"  # sound, but t(0.995, 1) = 63.7
+
+
+def _bounds_cells(out):
+    """Every bounds cell '[lo, hi]' of the tables, as the two texts."""
+    cells = [line[line.index("[") + 1 : line.index("]")] for line in out.splitlines() if "[" in line]
+    return [part.strip() for cell in cells for part in cell.split(",")]
+
+
+@pytest.mark.parametrize(
+    ("text", "reason"),
+    [(FLAT, "do not fall with distance as 1/l"), (ONE_DISTANCE, "every slip is at one distance (0.1 m)")],
+)
+def test_a_degenerate_fit_says_so(write_file, cli_json, capsys, text, reason):
+    path = write_file(text, "data.csv")
+    summary = cli_json("fit", path, "--radius-m", "0.01", "--estimator", "paper", "--json", quiet=True)
+    (said,) = summary["degenerate"]
+    assert reason in said
+    assert main(["fit", str(path), "--radius-m", "0.01", "--estimator", "paper"]) == 0
+    out = capsys.readouterr().out
+    assert f"DEGENERATE FIT: {said}" in out
+    assert all(not cell.startswith("-") for cell in _bounds_cells(out)), out
+
+
+def test_flat_masses_keep_cftools_numbers_in_json_but_print_no_negative_bound(write_file, cli_json, capsys):
+    path = write_file(FLAT, "data.csv")
+    summary = cli_json("fit", path, "--radius-m", "0.01", "--estimator", "paper", "--json", quiet=True)
+    assert summary["r2"] == pytest.approx(-4.00004e10, rel=1e-5)  # cftool's R², as computed
+    assert summary["capacity_ci_nm"][0] < 0  # the t interval as computed (the JSON contract)
+    assert main(["fit", str(path), "--radius-m", "0.01"]) == 0  # the default estimator, auto
+    out = capsys.readouterr().out
+    assert "(degenerate)" in next(line for line in out.splitlines() if line.startswith("R²"))
+    assert all(not cell.startswith("-") for cell in _bounds_cells(out)), out
+
+
+def test_two_points_show_bounds_cut_at_zero_with_a_note(write_file, cli_json, capsys):
+    path = write_file(TWO_POINTS, "data.csv")
+    summary = cli_json("fit", path, "--radius-m", "0.01", "--json", quiet=True)
+    assert summary["degenerate"] == [] and summary["paper"]["capacity_ci_nm"][0] < 0
+    assert main(["fit", str(path), "--radius-m", "0.01", "--estimator", "paper"]) == 0
+    out = capsys.readouterr().out
+    capacity = next(line for line in out.splitlines() if line.startswith("capacity N_max"))
+    assert "[0*, " in capacity and "DEGENERATE" not in out
+    assert "* the 99 % t interval on k reaches below 0 (its lower end -0.353254 kg·m, dfe = 1)" in out
+
+
+def test_a_sound_fit_prints_as_before(capsys, cli_json):
+    data = REPO / "protocols" / "example_fit.csv"
+    assert cli_json("fit", data, "--radius-m", "0.01", "--json", quiet=True)["degenerate"] == []
+    assert main(["fit", str(data), "--radius-m", "0.01"]) == 0
+    out = capsys.readouterr().out
+    assert "DEGENERATE" not in out and "*" not in out

@@ -250,7 +250,7 @@ def test_rig_calibrate_interrupted_writes_nothing(tmp_path, monkeypatch):
     monkeypatch.setattr("builtins.input", interrupted)
     monkeypatch.setattr("sys.stdin.isatty", lambda: True, raising=False)
     with pytest.raises(KeyboardInterrupt):
-        cli(["--sim", "--reference-kg", "1", "--out", str(out)])
+        cli(["--sim", "--reference-kg", "1", "--out", str(out), "--force"])
     assert out.read_text() == "previous calibration"
     assert [p.name for p in tmp_path.iterdir()] == ["cal.json"]
 
@@ -262,3 +262,38 @@ def test_rig_calibrate_stdin_closed_without_yes(tmp_path, monkeypatch):
     monkeypatch.setattr("builtins.input", closed)
     with pytest.raises(CalibrationError, match="use --yes"):
         cli(["--port", "loop://", "--reference-kg", "1", "--out", str(tmp_path / "c.json")])
+
+
+def _existing_calibration(tmp_path):
+    out = tmp_path / "cal.json"
+    out.write_text("the calibration of last week")
+    return out
+
+
+def test_rig_calibrate_keeps_an_existing_calibration_without_a_terminal(tmp_path, run_cli, monkeypatch):
+    out = _existing_calibration(tmp_path)
+    monkeypatch.setattr("sys.stdin.isatty", lambda: False, raising=False)
+    result = run_cli("calibrate", "--sim", "--yes", "--reference-kg", "1", "--out", out)
+    assert result.code == 2 and result.err.count("\n") == 1 and "Traceback" not in result.err
+    assert f"--out {out}: a calibration exists there and was kept; --force overwrites it" in result.err
+    assert out.read_text() == "the calibration of last week"
+    assert run_cli("calibrate", "--sim", "--yes", "--reference-kg", "1", "--out", out, "--force").code == 0
+    assert Calibration.load(out).reference_mass_kg == 1.0
+
+
+@pytest.mark.parametrize(("answer", "code"), [("n", 2), ("", 2), ("y", 0)])
+def test_rig_calibrate_asks_before_overwriting_at_a_terminal(tmp_path, run_cli, monkeypatch, answer, code):
+    out = _existing_calibration(tmp_path)
+    questions = []
+
+    def reply(prompt=""):
+        questions.append(prompt)
+        return answer
+
+    monkeypatch.setattr("builtins.input", reply)
+    monkeypatch.setattr("sys.stdin.isatty", lambda: True, raising=False)
+    result = run_cli("calibrate", "--sim", "--yes", "--reference-kg", "1", "--out", out)
+    assert result.code == code, result.err
+    assert questions == [f"{out} holds a calibration already; overwrite it with the new one? [y/N] "]
+    kept = out.read_text() == "the calibration of last week"
+    assert kept == (code == 2)

@@ -7,7 +7,9 @@ standing in for a port and its latency timer.
 
 from __future__ import annotations
 
+import io
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -154,6 +156,7 @@ def test_missing_servo_fails_with_scan_advice() -> None:
     (row,) = rows
     assert row.verdict is Verdict.FAIL and "missing" in row.measured
     assert "rig scan" in row.fix and "Wizard" in row.fix
+    assert "`rig setup-servos --rig " in row.fix  # the rig's own tool first (docs/hardware.md §4)
 
 
 def _set_winch(**attributes: Any) -> Callable[[SimulatedRig], None]:
@@ -311,6 +314,30 @@ def test_reversed_winch_is_found_and_written(
     assert run_cli("check", "--rig", config, "--move", "--only", "move").code == 0
 
 
+def test_at_a_terminal_the_measurement_is_shown_before_the_question_and_a_rerun_asked_for_after(
+    write_file: Callable[[str, str], Path], run_cli: Callable[..., Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    config = _sim_config(write_file, "name: reversed\nsimulation: {winch_reversed: true}\n")
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    def answer_yes(question: str) -> str:
+        print(f"<asked: {question}>")
+        return "y"
+
+    monkeypatch.setattr(sys, "stdin", Terminal())
+    monkeypatch.setattr("builtins.input", answer_yes)
+    result = run_cli("check", "--rig", config, "--move", "--only", "move")
+    asked = result.out.index("<asked: Write what the jog measured (reel_direction: -1)")
+    assert result.out.index("set reel_direction: -1") < asked  # the row with the measurement came first
+    assert load_rig_config(config).reel_direction == -1
+    after = result.out[asked:]
+    assert "wrote reel_direction: -1" in after and "NOT ready" in after
+    assert f"run `rig check --rig {config} --move` again" in after
+
+
 def test_config_edit_keeps_comments_and_replaces_in_place() -> None:
     text = "name: x\nspool_radius_m: 0.01   # drum\nreel_direction: 1   # which way\nkind: hardware\n"
     new = updated_text(text, {"reel_direction": "-1", "line_stiffness_n_per_m": "212"})
@@ -337,6 +364,8 @@ def test_wrong_model_fails_the_handshake(write_file: Callable[[str, str], Path])
     )
     (row,) = _check_sim(config, only=("servos",))
     assert row.verdict is Verdict.FAIL and "wrong model" in row.measured and "XL430-W250" in row.measured
+    # The fix is the config's model (or another servo), not a scan for servos that did answer.
+    assert f"set servos.ids[1].model: XM430-W350 in {config}" in row.fix and "rig scan" not in row.fix
 
 
 def test_nominal_stiffness_far_from_the_line_warns_and_is_written(

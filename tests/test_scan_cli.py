@@ -64,6 +64,23 @@ def test_scan_with_nothing_answering(dxl_server, capsys):
 @pytest.mark.slow
 @pytest.mark.pty
 @pytest.mark.subprocess
+def test_scan_with_nothing_answering_says_where_else_to_look(dxl_server, capsys):
+    server = dxl_server(ids=[1], baud=57_600)
+    args = ["scan", "--port", server.link, "--baud", "1000000", "--protocol1-max-id", "2"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "no servos answered at 1000000 baud" in out
+    assert "servo supply on?" in out
+    assert "--baud 57600" in out and "--baud 1000000" not in out  # the rates not scanned
+    assert "searched at IDs 0-2: --protocol1-max-id 252" in out
+    # Following the hint finds the servo.
+    assert main(["scan", "--port", server.link, "--baud", "57600", "--protocol1-max-id", "-1"]) == 0
+    assert "1 servo(s) at 57600 baud" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+@pytest.mark.pty
+@pytest.mark.subprocess
 def test_scan_names_a_protocol_1_servo_and_how_to_switch_it(dxl_server, capsys):
     # An XM430-W350 switched to Protocol 1.0 (Protocol Type 1): a 2.0 ping does not find it.
     server = dxl_server(ids=[4], baud=57_600, extra_args=["--protocol", "1.0"])

@@ -104,6 +104,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     parser.add_argument("--seed", type=int, default=0, help="with --sim: random seed (default 0)")
     parser.add_argument("--yes", action="store_true", help="do not wait for confirmations")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite an existing calibration file without asking (without it: asked at a terminal, "
+        "refused otherwise)",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
     parser.set_defaults(handler=run)
 
@@ -165,6 +171,22 @@ def validate_args(args: argparse.Namespace) -> None:
     out = Path(args.out)
     if out.is_dir():
         raise InputError(f"--out {out}: is a directory; allowed: a file path")
+    if out.exists() and not args.force:
+        _confirm_overwrite(out, ask=sys.stdin is not None and sys.stdin.isatty() and not args.json)
+
+
+def _confirm_overwrite(out: Path, *, ask: bool) -> None:
+    """Keep an existing calibration unless the operator says to replace it (at a terminal only)."""
+    if ask:
+        try:
+            answer = input(f"{out} holds a calibration already; overwrite it with the new one? [y/N] ")
+        except EOFError:
+            answer = ""
+        if answer.strip().lower() in ("y", "yes"):
+            return
+    raise InputError(
+        f"--out {out}: a calibration exists there and was kept; --force overwrites it, or give another --out"
+    )
 
 
 def operator_prompt(auto_confirm: bool, log: Callable[[str], None]) -> PromptFn:

@@ -134,7 +134,10 @@ def run(args: argparse.Namespace) -> int:
     # Parsed without the tension-cap refusal of `load_rig_config`: here the cap is a row of its own.
     config = parse_rig_config(parse_yaml(text, str(path)), source=str(path), text=text, base_dir=path.parent)
     protocols = tuple(
-        load_protocol(p, seed=args.seed, joint_count=config.article.joint_count) for p in args.protocol
+        load_protocol(
+            p, seed=args.seed, joint_count=config.article.joint_count, joints_from=config.joints_from
+        )
+        for p in args.protocol
     )
     ctx = CheckContext(
         config,
@@ -148,6 +151,8 @@ def run(args: argparse.Namespace) -> int:
         lambda: check_devices(config, seed=args.seed),
     )
     rows = run_sections(ctx, args.only or ())
+    if not args.json:
+        print(_text(rows))  # what was measured, before any question about writing it
     written = _offer_to_write(args, ctx, path == DEFAULT_RIG_CONFIG)
     code = exit_code(rows)
     counts = {v.value: sum(r.verdict is v for r in rows) for v in Verdict}
@@ -162,12 +167,16 @@ def run(args: argparse.Namespace) -> int:
             }
         )
         return code
-    print(_text(rows))
     for line in written:
         print(f"wrote {line} into {path}")
     summary = ", ".join(f"{n} {name}" for name, n in counts.items())
     verdict = "ready" if code == ExitCode.OK else "NOT ready"
     print(f"\n{config.name} ({config.kind.value}): {summary}: {verdict}")
+    if written:
+        again = f"rig check --rig {path}" + (" --move" if args.move else "")
+        print(
+            f"the rows above are of the config before the write; run `{again}` again to check it as written"
+        )
     return code
 
 
@@ -205,7 +214,7 @@ def _offer_to_write(args: argparse.Namespace, ctx: CheckContext, built_in: bool)
                 f"rig check: not written ({wanted}): no terminal to ask; --write writes it", file=sys.stderr
             )
             return []
-        answer = input(f"Write {wanted} into {ctx.config.source}? [y/N] ")
+        answer = input(f"Write what the jog measured ({wanted}) into {ctx.config.source}? [y/N] ")
         if answer.strip().lower() not in ("y", "yes"):
             return []
     return write_changes(ctx.config, changes)

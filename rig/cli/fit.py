@@ -13,7 +13,7 @@ from typing import Any
 
 from model.estimate_summary import EstimateSummary, summarize_estimate
 from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, check_estimator
-from model.fit import DEFAULT_LEVEL, FitSummary
+from model.fit import DEFAULT_LEVEL, FitSummary, degenerate_reasons, nonnegative_bounds
 from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, resolve_constant
 from rig.cli.output import emit_json, format_table
@@ -71,8 +71,11 @@ c changes mu_s·delta0 only; the capacity k·g does not depend on it.
 
 JSON (--json): n, k, k_ci, sse, sst, r2, rmse, dfe, se, level, constant, c, radius_m,
 mu_delta0_pa, mu_delta0_ci_pa, capacity_nm, capacity_ci_nm (the chosen estimator's), then
-estimator, scatter_model, n_censored, n_excluded, note, scatter_a_kg, scatter_b, diagnostic, and
-paper (the paper's fit, same keys). r2 is null when all masses are equal. docs/formats.md §4.
+estimator, scatter_model, n_censored, n_excluded, note, scatter_a_kg, scatter_b, diagnostic,
+paper (the paper's fit, same keys) and degenerate (why the fit says nothing about m = k/l; empty
+for a sound fit). r2 is null when all masses are equal. The JSON bounds are the t intervals as
+computed (cftool's for paper), below 0 too; the table shows them cut at 0 (marked *), as k, the
+capacity and mu_s·delta0 cannot be negative. docs/formats.md §4.
 Exit codes: 0 done, 2 invalid input (one line on stderr naming the file, row and column).
 """
 
@@ -287,11 +290,26 @@ def read_fit_csv(path: str | Path, g: float = PAPER_G_M_S2) -> FitData:
 
 
 def _bounds(pair: tuple[float, float]) -> str:
-    return f"[{pair[0]:.6g}, {pair[1]:.6g}]"
+    """Bounds as shown: never below 0 (`nonnegative_bounds`), a clipped end marked with *."""
+    lo, hi = nonnegative_bounds(pair)
+    return f"[{lo:.6g}{'*' if lo != pair[0] else ''}, {hi:.6g}{'*' if hi != pair[1] else ''}]"
+
+
+def _clipped_note(fit: FitSummary) -> list[str]:
+    """The footnote for bounds shown as 0 because the t interval reaches below it."""
+    if fit.k_ci[0] >= 0.0:
+        return []
+    return [
+        f"* the {100 * fit.level:g} % t interval on k reaches below 0 (its lower end {fit.k_ci[0]:.6g} "
+        f"kg·m, dfe = {fit.dfe}); k, the capacity and mu_s·delta0 cannot be negative, so 0 is shown: "
+        "the data do not bound them away from 0 (more slips narrow the interval)"
+    ]
 
 
 def _fit_rows(fit: FitSummary, t_value: float | None) -> list[list[Any]]:
     r2 = "undefined (all masses equal)" if math.isnan(fit.r2) else f"{fit.r2:.6g}"
+    if fit.r2 < 0.0:
+        r2 += " (degenerate)"
     rows: list[list[Any]] = [
         ["k", fit.k, _bounds(fit.k_ci), "kg·m"],
         ["SSE", fit.sse, "", "kg²"],
@@ -318,6 +336,8 @@ def human_report(path: Path, data: FitData, summary: EstimateSummary, g: float) 
     censored = f", {est.n_censored} censored (no slip: lower bounds)" if any(data.censored) else ""
     header = ["quantity", "value", f"{level_pct} bounds", "unit"]
     lines = [f"{path}: {len(data.masses_kg)} points{censored}{source}; fit m = k / l", ""]
+    degenerate = degenerate_fit(data, summary)
+    lines += [f"DEGENERATE FIT: {reason}" for reason in degenerate] + ([""] if degenerate else [])
     if est.estimator != "paper":
         lines += [
             f"estimator {est.estimator}: scatter sd(m)² = a² + (b·m)², a = {est.scatter_a_kg:.4g} kg, "
@@ -333,7 +353,7 @@ def human_report(path: Path, data: FitData, summary: EstimateSummary, g: float) 
             )
         if est.n_censored:
             lines.append(f"  {est.n_censored} censored point(s) enter as lower bounds (Tobit likelihood)")
-        lines += ["", format_table(header, _fit_rows(fit, None)), ""]
+        lines += ["", format_table(header, _fit_rows(fit, None)), *_clipped_note(fit), ""]
         lines.append("the paper's fit (least squares through the origin, MATLAB cftool conventions):")
     else:
         lines.append("estimator paper: least squares through the origin (MATLAB cftool conventions)")
@@ -341,13 +361,19 @@ def human_report(path: Path, data: FitData, summary: EstimateSummary, g: float) 
         lines.append(f"  {est.note}")
     if paper is not None:
         t_value = (paper.k_ci[1] - paper.k) / paper.se if paper.se > 0 else math.nan
-        lines += ["", format_table(header, _fit_rows(paper, t_value))]
+        lines += ["", format_table(header, _fit_rows(paper, t_value)), *_clipped_note(paper)]
     lines += [
         "",
         f"constant c = {fit.c:.8g} ({fit.constant}); R = {fit.radius_m:g} m; g = {g:g} m/s²",
         "capacity = k·g does not depend on c; mu_s·delta0 = k·g / (c·R³) does.",
     ]
     return "\n".join(lines)
+
+
+def degenerate_fit(data: FitData, summary: EstimateSummary) -> tuple[str, ...]:
+    """Why the fit says nothing about m = k/l (empty: a sound fit), judged on the paper's fit of the slips."""
+    slips = [d for d, censored in zip(data.distances_m, data.censored or (), strict=False) if not censored]
+    return degenerate_reasons(slips or data.distances_m, summary.paper or summary.fit)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -373,7 +399,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # every input was checked above; this keeps any residue one line
         raise InputError(f"{path}: {exc}") from None
     if args.json:
-        emit_json(summary.as_json())
+        emit_json({**summary.as_json(), "degenerate": list(degenerate_fit(data, summary))})
     else:
         print(human_report(path, data, summary, g))
     return 0

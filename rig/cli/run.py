@@ -210,6 +210,8 @@ def _dry_run(args: argparse.Namespace) -> int:
     )
     for note in notes:
         print(f"note: {note}")
+    for warning in plan.warnings:
+        print(f"warning: {warning}")
     print("dry run: nothing was moved")
     return 0
 
@@ -265,6 +267,8 @@ def _request(args: argparse.Namespace) -> RunRequest:
 
 
 def _summary(report: RunReport) -> str:
+    from model.fit import nonnegative_bounds
+
     outcomes: dict[str, int] = {}
     for trial in report.trials:
         outcomes[trial.outcome.value] = outcomes.get(trial.outcome.value, 0) + 1
@@ -282,9 +286,10 @@ def _summary(report: RunReport) -> str:
             lines.append(f"STOPPED, SAFE STATE NOT VERIFIED: {report.reason}")
     est = report.estimate
     if est is not None:
-        lo, hi = est.k_ci
-        clo, chi = est.capacity_ci_nm
-        mlo, mhi = est.mu_delta0_ci_pa
+        # k, the capacity and mu_s·delta0 cannot be negative: bounds shown cut at 0 (model.fit)
+        lo, hi = nonnegative_bounds(est.k_ci)
+        clo, chi = nonnegative_bounds(est.capacity_ci_nm)
+        mlo, mhi = nonnegative_bounds(est.mu_delta0_ci_pa)
         lines.append(
             format_table(
                 ["quantity", "estimate", f"{est.level * 100:g} % bounds", "unit"],
@@ -319,11 +324,13 @@ def _summary(report: RunReport) -> str:
 
 def _paper_rows(report: RunReport) -> list[list[Any]]:
     """The paper's k and capacity as extra rows when the run's estimator is another one."""
+    from model.fit import nonnegative_bounds
+
     detail = report.estimate_detail
     if detail is None or detail.estimate.estimator == "paper" or detail.paper is None:
         return []
     paper = detail.paper
-    (lo, hi), (clo, chi) = paper.k_ci, paper.capacity_ci_nm
+    (lo, hi), (clo, chi) = nonnegative_bounds(paper.k_ci), nonnegative_bounds(paper.capacity_ci_nm)
     return [
         ["k (paper's fit)", paper.k, f"[{lo:.5g}, {hi:.5g}]", "kg·m"],
         ["capacity (paper's fit)", paper.capacity_nm, f"[{clo:.5g}, {chi:.5g}]", "N·m"],

@@ -10,6 +10,7 @@ from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.hw.dxl.control_table import SDK_BAUDS
 from rig.hw.dxl.scan import scan_port
+from rig.hw.dxl.setup import SETTABLE_BAUDS
 
 DEFAULT_BAUDS = (57_600, 1_000_000)
 DEFAULT_PROTOCOL1_MAX_ID = 31
@@ -28,6 +29,8 @@ found is named with how to switch it to Protocol 2.0, which the rig speaks.
 EPILOG = """\
 JSON (--json): {"port": PORT, "servos": [{"id", "model_number", "model", "firmware", "baud",
 "protocol": 2.0 or 1.0, "switch": how to switch a 1.0 servo to 2.0 (1.0 servos only)}, ...]}.
+When nothing answers, the text output says where else to look (the servo supply, the U2D2 port,
+the baud rates not scanned, Protocol 1.0 IDs beyond --protocol1-max-id).
 Exit codes: 0 done (also when nothing answered); 1 the port could not be used; 2 invalid input
 (e.g. the port does not exist, or a baud rate the SDK cannot set).
 """
@@ -97,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
     scanned = ", ".join(str(b) for b in bauds)
     if not servos:
         print(f"{port}: no servos answered at {scanned} baud ({elapsed_s:.1f} s)")
+        for hint in _nothing_answered_hints(bauds, max_id):
+            print(f"  - {hint}")
         return 0
     rows = [[s.servo_id, s.model, s.model_number, s.firmware, s.baud, f"{s.protocol:.1f}"] for s in servos]
     print(format_table(["id", "model", "model number", "firmware", "baud", "protocol"], rows))
@@ -108,3 +113,24 @@ def run(args: argparse.Namespace) -> int:
                 + s.switch_advice
             )
     return 0
+
+
+def _nothing_answered_hints(bauds: tuple[int, ...], protocol1_max_id: int) -> list[str]:
+    """Where else a servo that did not answer may be: power, the other rates, higher Protocol 1.0 IDs."""
+    hints = [
+        "is the servo supply on? The U2D2 does not power the servos, and the e-stop cuts their supply",
+        "is the cable on the U2D2 port that matches the servos: TTL (3-pin) for X-series -T models, "
+        "RS-485 (4-pin) for -R models (ROBOTIS e-manual, U2D2)?",
+    ]
+    others = [b for b in SETTABLE_BAUDS if b not in bauds]
+    if others:
+        hints.append(
+            "a servo set to another baud rate: scan those too, " + " ".join(f"--baud {b}" for b in others)
+        )
+    if protocol1_max_id < 252:
+        searched = f"IDs 0-{protocol1_max_id}" if protocol1_max_id >= 0 else "no IDs"
+        hints.append(
+            f"a Protocol 1.0 servo was searched at {searched}: --protocol1-max-id 252 searches every ID "
+            "(about 35 ms per ID and baud)"
+        )
+    return hints

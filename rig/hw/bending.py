@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from model.chain import forward_kinematics, planar_transforms
-from rig.rig_config import RigConfig
+from rig.rig_config import RigConfig, configuration_source_kind
+from rig.vocabulary import ConfigurationSourceKind
 
 
 @dataclass(frozen=True, slots=True)
@@ -161,6 +162,50 @@ class ManualBending:
 def fork_components(config: RigConfig) -> dict[int, int]:
     """Servo id -> component of every bender that names one (empty: bending is by hand)."""
     return {s.servo_id: s.component for s in config.servos.benders if s.component is not None}
+
+
+def unreached_joints(
+    forks: Mapping[int, int], target_rad: Sequence[float], tolerance_rad: float
+) -> tuple[int, ...]:
+    """The joints (1-based) a target bends beyond `tolerance_rad` that no fork reaches.
+
+    A fork's push reaches only the joints up to its own component, so the joints beyond the most
+    distal fork stay as the reset left them (straight). Without forks nothing is unreached: the
+    operator's hands reach every joint.
+    """
+    if not forks:
+        return ()
+    last = max(forks.values())
+    return tuple(j for j, angle in enumerate(target_rad, start=1) if j > last and abs(angle) > tolerance_rad)
+
+
+def unreached_warning(
+    config: RigConfig, configuration_index: int | None, target_rad: Sequence[float], tolerance_rad: float
+) -> str | None:
+    """The warning for a target that bends joints no fork of `config` reaches (None when the forks reach it).
+
+    The run goes on with those joints as they are; the text says so and what the prediction then uses.
+    """
+    forks = fork_components(config)
+    joints = unreached_joints(forks, target_rad, tolerance_rad)
+    if not joints:
+        return None
+    listed = ", ".join(str(j) for j in joints)
+    components = ", ".join(str(c) for c in sorted(forks.values()))
+    if configuration_source_kind(config) == ConfigurationSourceKind.COMMAND:
+        prediction = (
+            "nothing measures the link (configuration.source: command), so the prediction wrongly "
+            "takes them as bent"
+        )
+    else:
+        prediction = "the prediction uses the measured configuration"
+    return (
+        f"configuration {configuration_index} bends joint{'s' if len(joints) > 1 else ''} {listed}, which no "
+        f"fork of {config.source} reaches (forks on component{'s' if len(forks) > 1 else ''} {components}): "
+        f"they are left as they are (straight after the reset) and {prediction}; to bend them, put forks "
+        f"on the components up to {joints[-1]} (servos.ids[N].component), or bend by hand with a rig "
+        "config whose benders name no component (docs/bending.md)"
+    )
 
 
 def config_fixture(config: RigConfig) -> ForkBending | ManualBending:

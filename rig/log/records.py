@@ -23,7 +23,7 @@ from dataclasses import MISSING, dataclass, fields
 from enum import IntEnum, StrEnum
 from typing import Any
 
-from model.fit import SUMMARY_KEYS, FitSummary
+from model.fit import SUMMARY_KEYS, FitSummary, nonnegative_bounds
 from model.slip_detector import SlipEvent, SlipEventKind
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
@@ -468,12 +468,12 @@ class Estimate:
         s = self.fit
         if s is None:
             return "estimate: needs 2 slips"
-        lo, hi = s.capacity_ci_nm
+        lo, hi = nonnegative_bounds(s.capacity_ci_nm)  # a capacity is >= 0 (model.fit)
         line = f"k={s.k:.4f} kg·m  capacity={s.capacity_nm:.3f} N·m [{lo:.3f}, {hi:.3f}] (n={s.n}"
         line += f", {self.n_censored} censored)" if self.n_censored else ")"
         if self.estimator == "paper" or self.paper_capacity_ci_nm is None or self.paper_capacity_nm is None:
             return line
-        plo, phi = self.paper_capacity_ci_nm
+        plo, phi = nonnegative_bounds(self.paper_capacity_ci_nm)
         scatter = f" {self.scatter_model}" if self.scatter_model else ""
         paper = f"paper: {self.paper_capacity_nm:.3f} [{plo:.3f}, {phi:.3f}]"
         return f"{self.estimator}{scatter}: {line}  {paper}"

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from rig.errors import RigError
+from rig.errors import HandshakeError, RigError
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import Clock, LoadCell, LoadCellSample
 from rig.protocol import Protocol
@@ -62,6 +62,7 @@ class CheckContext:
     devices: CheckDevices | None = None
     servos_connected: bool = False
     servo_failure: str | None = None  # why the bus could not be connected, once it was tried
+    servo_handshake: HandshakeError | None = None  # servos missing or not as configured
     cell_open: bool = False
     cell_failure: str | None = None
     jog_findings: JogFindings | None = None  # set by the move section
@@ -112,6 +113,7 @@ class CheckContext:
             bus.connect()
         except (RigError, OSError) as exc:
             self.servo_failure = f"{type(exc).__name__}: {exc}"
+            self.servo_handshake = exc if isinstance(exc, HandshakeError) else None
             return None
         self.servos_connected = True
         return bus

@@ -11,12 +11,14 @@ default Temperature Limit (31); Hardware Error Status (70); and the operating mo
 
 from __future__ import annotations
 
+from rig.errors import HandshakeError
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.bus import ServoHealthReport, ServoInfo
 from rig.hw.dxl.errors import describe_hardware_error
 from rig.hw.seams import OperatingMode
 from rig.preflight.context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
+from rig.rig_config import RigConfig
 from rig.servo_ratings import BUS_WATCHDOG_MIN_FIRMWARE, INPUT_VOLTAGE_RANGE_V
 from rig.vocabulary import ServoModel, ServoRole
 
@@ -40,17 +42,39 @@ def servo_rows(ctx: CheckContext) -> list[CheckRow]:
     ids = ", ".join(str(s.servo_id) for s in config.servos.servos)
     where = f"{config.servos.port} at {config.servos.baud} baud"
     if bus is None:
-        fix = (
-            f"`rig scan --port {config.servos.port}` lists the servos that answer, with their IDs, models "
-            "and baud rates; set a servo's ID and baud with DYNAMIXEL Wizard 2.0 (one servo at a time), "
-            "and check the servo supply is on (the U2D2 does not power the servos)"
-        )
+        fix = _not_found_fix(config, ctx.servo_handshake)
         return [CheckRow(SECTION, f"servos {ids} found", Verdict.FAIL, f"{where}: {ctx.servo_failure}", fix)]
     rows = [CheckRow(SECTION, f"servos {ids} found", Verdict.PASS, f"{where}: every configured ID answered")]
     health = bus.read_health()
     for servo_id, info in bus.info().items():
         rows += servo_checks(info, health[servo_id])
     return rows
+
+
+def _not_found_fix(config: RigConfig, handshake: HandshakeError | None) -> str:
+    """What to do when the bus did not connect: fix a wrong model (config or servo), else find the servos."""
+    fixes = []
+    for servo_id, found in handshake.wrong_models if handshake is not None else ():
+        index = next(i for i, s in enumerate(config.servos.servos) if s.servo_id == servo_id)
+        if found in set(ServoModel):
+            fixes.append(
+                f"servo {servo_id} answers as {found}: if that is the servo you mean, set "
+                f"servos.ids[{index}].model: {found} in {config.source}; else put a "
+                f"{config.servos.servos[index].model} on ID {servo_id}"
+            )
+        else:
+            fixes.append(
+                f"servo {servo_id} answers as a model the rig does not know ({found}); put one of "
+                f"{', '.join(ServoModel)} on ID {servo_id}"
+            )
+    if handshake is None or handshake.missing_ids or not fixes:
+        fixes.append(
+            f"`rig scan --port {config.servos.port}` lists the servos that answer, with their IDs, models "
+            f"and baud rates; `rig setup-servos --rig {config.source}` gives each servo its ID and the bus "
+            "baud, one servo at a time (or DYNAMIXEL Wizard 2.0); check that the servo supply is on (the "
+            "U2D2 does not power the servos)"
+        )
+    return "; ".join(fixes)
 
 
 def servo_checks(info: ServoInfo, health: ServoHealthReport) -> list[CheckRow]:

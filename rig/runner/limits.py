@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any, assert_never
 
 from rig.errors import InputError
+from rig.hw.bending import unreached_warning
 from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
 from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
 from rig.runner.ramp_speed import RampSpeeds
@@ -284,6 +285,8 @@ class PlanSummary:
     adaptive: tuple[AdaptivePlan, ...] = ()
     # One winch count's tension: the finest the slip load can be read (rig.runner.ramp_speed).
     slip_load_resolution_n: float = 0.0
+    # Configurations that bend joints no fork reaches, one line each (`rig.hw.bending.unreached_warning`).
+    warnings: tuple[str, ...] = ()
 
     def as_json(self) -> dict[str, Any]:
         """The `rig run --dry-run --json` object (`adaptive` only when the protocol has such blocks)."""
@@ -301,6 +304,8 @@ class PlanSummary:
         }
         if self.adaptive:
             out["adaptive"] = [a.as_json() for a in self.adaptive]
+        if self.warnings:
+            out["warnings"] = list(self.warnings)
         return out
 
 
@@ -336,7 +341,23 @@ def plan_summary(protocol: Protocol, config: RigConfig) -> PlanSummary:
         ),
         adaptive=tuple(adaptive_plan(block, protocol, config) for block in protocol.adaptive),
         slip_load_resolution_n=ramp_speeds(protocol, config).count_n,
+        warnings=fork_warnings(protocol, config),
     )
+
+
+def fork_warnings(protocol: Protocol, config: RigConfig) -> tuple[str, ...]:
+    """One warning per configuration of the protocol that bends a joint no fork of the rig reaches."""
+    out: dict[int | None, str] = {}
+    for trial in protocol.trials:
+        if trial.joint_angles_rad is None or trial.configuration_index in out:
+            continue
+        bends = any(s.kind == StepKind.BEND for s in trial.steps)
+        text = unreached_warning(
+            config, trial.configuration_index, trial.joint_angles_rad, trial.bend_tolerance_rad
+        )
+        if bends and text is not None:
+            out[trial.configuration_index] = text
+    return tuple(out.values())
 
 
 def adaptive_plan(block: AdaptiveBlock, protocol: Protocol, config: RigConfig) -> AdaptivePlan:

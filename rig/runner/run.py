@@ -152,7 +152,12 @@ def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
         with _released_on_error(lock):
             protocol, journal = _resumed_journal(request, config, run_id)
             return _prepared(request, protocol, config, journal, lock)
-    protocol = load_protocol(request.protocol_path, seed=request.seed, joint_count=config.article.joint_count)
+    protocol = load_protocol(
+        request.protocol_path,
+        seed=request.seed,
+        joint_count=config.article.joint_count,
+        joints_from=config.joints_from,
+    )
     check_limits(protocol, config)
     run_id = (
         _check_run_id(request.run_id, "--run-id") if request.run_id is not None else _new_run_id(protocol)
@@ -185,7 +190,12 @@ def _resumed_journal(request: RunRequest, config: RigConfig, run_id: str) -> tup
     journal = RunJournal.load(_in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id)))
     if journal.status == "completed":
         raise InputError(f"{journal.path}: run {run_id} is already completed; nothing to resume")
-    protocol = load_protocol(request.protocol_path, seed=journal.seed, joint_count=config.article.joint_count)
+    protocol = load_protocol(
+        request.protocol_path,
+        seed=journal.seed,
+        joint_count=config.article.joint_count,
+        joints_from=config.joints_from,
+    )
     check_limits(protocol, config)
     # By content, not path: a protocol moved or copied unchanged resumes; an edited one does not.
     if journal.protocol_hash != content_hash(protocol.text):

@@ -14,7 +14,7 @@ from types import MappingProxyType
 from typing import assert_never
 
 from rig.errors import InterlockTripped, StaleDataError
-from rig.hw.bending import BendStage
+from rig.hw.bending import BendStage, fork_components, unreached_warning
 from rig.log.records import LogLevel, ServoCommandName
 from rig.protocol import StepSpec, TrialPlan
 from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
@@ -69,8 +69,11 @@ def bend(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
     angles = trial.joint_angles_rad or ()
     fixture = ctx.session.fixture
     straight = (0.0,) * len(angles)  # a bend starts from the reset (straight) link
+    unreached = unreached_warning(ctx.config, trial.configuration_index, angles, trial.bend_tolerance_rad)
+    if unreached is not None:  # before anything moves, so that the operator can stop the run
+        ctx.recorder.note(LogLevel.WARNING, f"trial {trial.trial_id}: {unreached}")
     stages = fixture.bend_stages(angles, straight, _positions(ctx))
-    if not stages:
+    if not stages and not fork_components(ctx.config):
         degrees = ", ".join(f"{math.degrees(a):.1f}" for a in angles)
         _by_hand(ctx, trial, f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg")
         ctx.session.hand_bend(tuple(angles))

@@ -369,11 +369,14 @@ class DynamixelServoBus:
         missing: list[str] = []
         mismatched: list[str] = []
         unreadable: list[str] = []
+        missing_ids: list[int] = []
+        wrong_models: list[tuple[int, str]] = []
         for servo_id, servo in self._servos.items():
             try:
                 found = self._ping_patiently(servo_id)
             except RigTimeoutError:
                 missing.append(servo.label)
+                missing_ids.append(servo_id)
                 continue
             except CommunicationError as exc:
                 unreadable.append(f"{servo.label}: {exc}")
@@ -384,6 +387,7 @@ class DynamixelServoBus:
                     f"{servo.label} expected {servo.table.model_name} ({expected}), "
                     f"found {ct.model_name_for(found)} ({found})"
                 )
+                wrong_models.append((servo_id, ct.model_name_for(found)))
                 continue
             servo.model_number = found
             servo.firmware = self._read(servo, "Firmware Version", alerts="record")
@@ -397,7 +401,9 @@ class DynamixelServoBus:
         if problems:
             raise HandshakeError(
                 f"servo handshake on {self.port_name} at {self.baud} baud failed "
-                f"(after {1 + self._link.retries} tries per servo): " + " | ".join(problems)
+                f"(after {1 + self._link.retries} tries per servo): " + " | ".join(problems),
+                missing_ids=tuple(missing_ids),
+                wrong_models=tuple(wrong_models),
             )
         if self._fast_sync_read_option is None:
             self._use_fast_read = all(s.firmware >= ct.FAST_READ_MIN_FIRMWARE for s in self._servos.values())

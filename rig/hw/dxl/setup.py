@@ -38,9 +38,13 @@ class ServoSetup:
     new_baud: int
 
 
+# The X-series baud rates (Baud Rate(8)) that dynamixel-sdk can set on a port: where a servo may be.
+SETTABLE_BAUDS = tuple(b for b in ct.BAUD_RATES.values() if b in ct.SDK_BAUDS)
+
+
 def search_order(target_baud: int) -> list[int]:
     """Every X-series baud rate the SDK can set, the target and the factory default first."""
-    bauds = [b for b in ct.BAUD_RATES.values() if b in ct.SDK_BAUDS]
+    bauds = list(SETTABLE_BAUDS)
     first = [target_baud, FACTORY_BAUD]
     return list(dict.fromkeys([*(b for b in first if b in bauds), *bauds]))
 
