@@ -5,6 +5,10 @@ Import as `from tests.helpers import ...`; fixtures live in tests/conftest.py.
 
 from __future__ import annotations
 
+import fcntl
+import functools
+import subprocess
+import tempfile
 from pathlib import Path
 
 from rig.hw.dxl.control_table import to_signed
@@ -61,3 +65,25 @@ def write_joint_1_protocol(path: Path, name: str, ramp: str, distances_m: str) -
         "     steps: [prompt, {tare: {settle_s: 0.3}}, ramp_until_slip, unload]}\n"
     )
     return path
+
+
+FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
+_FIRMWARE_LOCK = Path(tempfile.gettempdir()) / "rig-firmware-build.lock"
+
+
+@functools.cache
+def build_firmware() -> subprocess.CompletedProcess[str]:
+    """`make -C firmware all sim`, once per test process and never two at a time.
+
+    pytest-xdist runs two workers: two fixtures building at once raced on `build/core.a` (a fresh
+    clone failed 2 of 4 runs). The build holds an exclusive lock on a file in the temporary
+    directory, so the second waits and then finds the image made (make does nothing).
+    """
+    with open(_FIRMWARE_LOCK, "w", encoding="utf-8") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            return subprocess.run(
+                ["make", "-C", str(FIRMWARE), "all", "sim"], capture_output=True, text=True, timeout=600
+            )
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)

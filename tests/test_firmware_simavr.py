@@ -21,8 +21,8 @@ import pytest
 
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.seams import LoadCellSample
+from tests.helpers import FIRMWARE, build_firmware
 
-FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
 HARNESS = FIRMWARE / "build" / "hx711-sim"
 CYCLES_PER_US = 16
 MICROS_RESOLUTION_US = 4  # Arduino micros() on a 16 MHz AVR: what the format's t-us must at least meet
@@ -48,9 +48,7 @@ def harness() -> Path:
     missing = _missing_tools()
     if missing:
         pytest.skip(f"firmware toolchain or simavr missing: {missing}")
-    build = subprocess.run(
-        ["make", "-C", str(FIRMWARE), "all", "sim"], capture_output=True, text=True, timeout=300
-    )
+    build = build_firmware()
     assert build.returncode == 0, build.stdout[-2000:] + build.stderr[-2000:]
     return HARNESS
 

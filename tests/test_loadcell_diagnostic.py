@@ -3,7 +3,6 @@ on made-up recordings for each failing row, over the pty emulator in real time, 
 under simavr."""
 
 import json
-from pathlib import Path
 
 import pytest
 
@@ -18,6 +17,7 @@ from rig.sim.loadcell.emulator import LoadCellEmulator
 from rig.sim.loadcell.inprocess import ideal_calibration, in_process_serial_factory
 from rig.sim.loadcell.profiles import ConstantTension
 from rig.vocabulary import LoadCellFormatName
+from tests.helpers import build_firmware
 from tests.test_loadcell_pty import sim_loadcell
 from tests.test_sim_scenarios import SCENARIOS
 
@@ -195,12 +195,7 @@ def test_the_firmware_under_simavr(tmp_path):
     missing = _missing_tools()
     if missing:
         pytest.skip(f"firmware toolchain or simavr missing: {missing}")
-    import subprocess
-
-    firmware = Path(__file__).resolve().parent.parent / "firmware"
-    build = subprocess.run(
-        ["make", "-C", str(firmware), "all", "sim"], capture_output=True, text=True, timeout=600
-    )
+    build = build_firmware()
     assert build.returncode == 0, build.stderr[-2000:]
     # The harness runs --fast (simulated time outpaces the host's, so the clock skew row is not
     # checked) and waits for its reader; a generous stale timeout rides out a busy machine.
