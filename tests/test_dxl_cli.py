@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 import pytest
 
 from rig.cli import sim_servos
@@ -61,3 +63,20 @@ def test_build_bus_applies_faults():
     bus, specs = sim_servos.build_bus(args)
     assert len(specs) == 3
     assert bus[2].hardware_error == 0x04 and bus[1].baud == 57600 and bus.faults.active
+
+
+def test_a_bus_of_mixed_models_serves_each_id_its_own():
+    # Two XM430-W350 and an XM430-W210 on one bus, as a lab's winch, bender and fork may be.
+    parser = argparse.ArgumentParser()
+    sim_servos.add_arguments(parser)
+    args = parser.parse_args(["--ids", "1,2,3", "--model", "XM430-W350,XM430-W350,XM430-W210", "--link", "x"])
+    bus, _ = sim_servos.build_bus(args)
+    assert [bus.servo(i).table.model_name for i in (1, 2, 3)] == ["XM430-W350", "XM430-W350", "XM430-W210"]
+    one = parser.parse_args(["--ids", "1,2", "--model", "XL430-W250", "--link", "x"])
+    assert {s.table.model_name for s in sim_servos.build_bus(one)[0].servos} == {"XL430-W250"}
+    for bad, message in (
+        ("XM430-W350,XM430-W210", "2 models for 3 --ids; allowed: one model, or one per ID"),
+        ("XM430-W350,AX-12,XM430-W210", "unknown model 'AX-12'; allowed: XM430-W350"),
+    ):
+        with pytest.raises(InputError, match=message):
+            sim_servos.build_bus(parser.parse_args(["--ids", "1,2,3", "--model", bad, "--link", "x"]))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from rig.errors import ConfigError
@@ -70,3 +72,19 @@ def test_an_xm430_w210_winch_is_a_valid_config_with_its_own_stall_tension(tmp_pa
     assert config.servos.winch.model == ServoModel.XM430_W210
     assert config.winch_stall_tension_n == pytest.approx(stall_tension_n(ServoModel.XM430_W210, 0.56, 0.01))
     assert config.winch_stall_tension_n == pytest.approx(3.0 / 2.3 * 0.56 / 0.01)
+
+
+@pytest.mark.parametrize("devices", ["byte", "object"])
+def test_the_simulated_rig_serves_every_configured_servo_its_own_model(tmp_path, cli_json, devices):
+    # A winch XM430-W350 and a bender XM430-W210 on one bus: each emulated as configured (before,
+    # every servo took the winch's model and the bender failed the handshake as the wrong model).
+    rig = tmp_path / "mixed.yaml"
+    rig.write_text(
+        "extends: simulated\nname: mixed\nservos:\n  ids:\n"
+        "    - {id: 1, role: winch, model: XM430-W350}\n"
+        "    - {id: 2, role: bender, model: XM430-W210}\n",
+        encoding="utf-8",
+    )
+    protocol = Path(__file__).resolve().parent.parent / "protocols" / "smoke.yaml"
+    out = cli_json("run", protocol, "--rig", rig, "--devices", devices, "--out", tmp_path / "o", "--json")
+    assert out["completed"] == 2 and out["reason"] is None

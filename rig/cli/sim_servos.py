@@ -43,7 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The arguments of `rig sim servos`."""
     parser.add_argument("--ids", default="1", help="comma-separated servo IDs, 0-252 (default 1)")
     parser.add_argument(
-        "--model", default="XM430-W350", help=f"servo model: {', '.join(MODELS)} (default XM430-W350)"
+        "--model",
+        default="XM430-W350",
+        help=f"servo model, or comma-separated models one per --ids entry for a mixed bus (e.g. "
+        f"--ids 1,2,3 --model XM430-W350,XM430-W350,XM430-W210): {', '.join(MODELS)} (default XM430-W350)",
     )
     parser.add_argument("--baud", type=int, default=1_000_000, help="servo baud rate (default 1000000)")
     parser.add_argument("--link", required=True, help="path of the symlink to create (e.g. /tmp/dxl)")
@@ -107,11 +110,26 @@ def parse_ids(text: str) -> list[int]:
     return ids
 
 
+def parse_models(text: str, ids: Sequence[int]) -> list[str]:
+    """'M' (every servo) or 'M1,M2,...' (one per ID) -> a model per ID; InputError otherwise."""
+    models = [m.strip() for m in text.split(",")]
+    for model in models:
+        if model not in MODELS:
+            which = "" if len(models) == 1 else f" {model!r}"
+            raise InputError(f"--model {text}: unknown model{which}; allowed: {', '.join(MODELS)}")
+    if len(models) == 1:
+        return models * len(ids)
+    if len(models) != len(ids):
+        raise InputError(
+            f"--model {text}: {len(models)} models for {len(ids)} --ids; allowed: one model, or one per ID"
+        )
+    return models
+
+
 def build_bus(args: argparse.Namespace) -> tuple[EmulatedBus, list[FaultSpec]]:
     """Validate the arguments and make the bus with its faults applied."""
     ids = parse_ids(args.ids)
-    if args.model not in MODELS:
-        raise InputError(f"--model {args.model}: unknown model; allowed: {', '.join(MODELS)}")
+    models = parse_models(args.model, ids)
     if args.baud not in BAUD_REGISTER_BY_RATE:
         allowed = ", ".join(str(r) for r in BAUD_REGISTER_BY_RATE)
         raise InputError(f"--baud {args.baud}: not a Dynamixel baud rate; allowed: {allowed}")
@@ -125,7 +143,7 @@ def build_bus(args: argparse.Namespace) -> tuple[EmulatedBus, list[FaultSpec]]:
         raise InputError(f"--temperature-c {args.temperature_c}: allowed: 0 to 255")
     specs = [parse_fault(s) for s in args.fault]
     kwargs = {} if args.firmware is None else {"firmware": args.firmware}
-    bus = EmulatedBus.with_servos(SystemClock(), ids=ids, model=args.model, baud=args.baud, **kwargs)
+    bus = EmulatedBus.with_servos(SystemClock(), ids=ids, model=models, baud=args.baud, **kwargs)
     for servo in bus.servos:
         if args.voltage_v is not None:
             servo.supply_voltage_v = args.voltage_v

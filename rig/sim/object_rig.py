@@ -63,7 +63,7 @@ def object_simulated_rig(
         )
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
-    bus = ObjectServoBus(clock, [(s.servo_id, config.servos.winch.model) for s in config.servos.servos])
+    bus = ObjectServoBus(clock, [(s.servo_id, s.model) for s in config.servos.servos])
     world = new_world(preset, config, bus, clock, seed)
     world.devices_at_rest = bus.at_rest
     load_cell = ObjectLoadCell(

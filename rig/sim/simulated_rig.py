@@ -166,10 +166,10 @@ def simulated_rig(
     sim = require_simulated(config)
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
-    winch_spec = config.servos.winch
     ids = [s.servo_id for s in config.servos.servos]
+    models = [s.model for s in config.servos.servos]  # each configured servo its own model
     bus = EmulatedBus.with_servos(
-        clock, ids=ids, model=winch_spec.model, baud=config.servos.baud, firmware=sim.servo_firmware
+        clock, ids=ids, model=models, baud=config.servos.baud, firmware=sim.servo_firmware
     )
     for servo in bus.servos:
         servo.supply_voltage_v = sim.servo_supply_v
@@ -210,7 +210,7 @@ def simulated_rig(
         operator=SimOperator(),
         fixture=bending_fixture(world, config),
         configuration=configuration_source(world, config, clock, seed),
-        winch_id=winch_spec.servo_id,
+        winch_id=config.servos.winch.servo_id,
         roles={s.servo_id: s.role for s in config.servos.servos},
         begin_trial=trial_starter(world),
         truth=SimGroundTruth(world, bus),

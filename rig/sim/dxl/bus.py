@@ -72,24 +72,33 @@ class EmulatedBus:
         cls,
         clock: Clock | None = None,
         ids: Sequence[int] = (1,),
-        model: str | int | ControlTable = "XM430-W350",
+        model: str | int | ControlTable | Sequence[str | int | ControlTable] = "XM430-W350",
         baud: int = 1_000_000,
         *,
         follow_clock: bool = False,
         **servo_kwargs: object,
     ) -> EmulatedBus:
-        """A bus at `baud` with one servo of `model` per ID, all listening at `baud`.
+        """A bus at `baud` with one servo per ID, all listening at `baud`.
+
+        `model` is every servo's model, or a sequence of them, one per ID in order (a bus of mixed
+        models, e.g. two XM430-W350 and an XM430-W210).
 
         Motion is integrated lazily whenever the bus is used, holding `external_torque_nm` constant
         since the last use. A world that changes the torque registers `clock.on_advance(bus.advance_to)`
         (or passes `follow_clock=True`, which does exactly that on a clock that has `on_advance`).
         `servo_kwargs` go to every `Servo` (firmware, motor, overload_time_s, boot_time_s, ...).
         """
-        table = model if isinstance(model, ControlTable) else table_for_model(model)
+        models = [model] * len(ids) if isinstance(model, str | int | ControlTable) else list(model)
+        if len(models) != len(ids):
+            raise ValueError(f"{len(models)} models for {len(ids)} servo ids {list(ids)}")
+        tables = [m if isinstance(m, ControlTable) else table_for_model(m) for m in models]
         if len(set(ids)) != len(ids):
             raise ValueError(f"duplicate servo ids in {list(ids)}")
         now = clock.monotonic_ns() if clock is not None else 0
-        servos = [Servo(table, i, baud=baud, now_ns=now, **servo_kwargs) for i in ids]  # type: ignore[arg-type]
+        servos = [
+            Servo(table, i, baud=baud, now_ns=now, **servo_kwargs)  # type: ignore[arg-type]
+            for table, i in zip(tables, ids, strict=True)
+        ]
         bus = cls(servos, baud=baud, clock=clock)
         if follow_clock and clock is not None and hasattr(clock, "on_advance"):
             clock.on_advance(bus.advance_to)
