@@ -14,7 +14,12 @@ from typing import Any, assert_never
 
 from rig.errors import InputError
 from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
-from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
+from rig.rig_config import (
+    MIN_STALE_SAMPLE_PERIODS,
+    RigConfig,
+    StaleTimeoutFit,
+    nominal_loadcell_rate_hz,
+)
 from rig.runner.ramp_speed import RampSpeeds
 from rig.vocabulary import RigKind, StepKind, TrialKind
 
@@ -27,6 +32,7 @@ class LimitCheck:
     value: str
     limit: str
     ok: bool
+    of_rig_alone: bool = False  # the rig config's own values: its file is named first when it fails
 
 
 def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
@@ -71,6 +77,18 @@ def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
             travel_rev <= limits.max_winch_travel_rev,
         )
     )
+    rate_hz = config.loadcell.rate_hz
+    if rate_hz is not None:  # a hardware cell of unstated rate is measured by `rig check` only
+        fit = StaleTimeoutFit(limits.stale_timeout_s, rate_hz)
+        checks.append(
+            LimitCheck(
+                f"stale timeout >= {MIN_STALE_SAMPLE_PERIODS} sample periods at loadcell.rate_hz {rate_hz:g}",
+                f"limits.stale_timeout_s {limits.stale_timeout_s:g} s ({fit.periods:.1f} periods)",
+                f"{fit.least_s:.3g} s",
+                fit.ok,
+                of_rig_alone=True,
+            )
+        )
     for trial in protocol.trials:
         if trial.joint is not None and trial.joint > config.article.joint_count:
             checks.append(
@@ -100,6 +118,8 @@ def check_limits(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
     failed = [c for c in checks if not c.ok]
     if failed:
         c = failed[0]
+        if c.of_rig_alone:
+            raise InputError(f"{config.source}: limit check failed: {c.name}: {c.value} vs limit {c.limit}")
         raise InputError(
             f"{protocol.source}: limit check failed: {c.name}: {c.value} vs limit {c.limit} "
             f"(rig {config.source})"
