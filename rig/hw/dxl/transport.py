@@ -57,7 +57,7 @@ def port_vanished(port_name: str, exc: BaseException) -> str:
     return (
         f"servo port {port_name} vanished ({detail}): the servo adapter (e.g. a U2D2) was unplugged or lost "
         "power; plug it back in, check that it is listed in /dev/serial/by-id/, and resume the run "
-        "(`rig run PROTOCOL --rig CONFIG --resume RUN_ID`)"
+        "(`rig run --resume RUN_ID`, with `--out DIR` if its logs are not in logs/)"
     )
 
 
