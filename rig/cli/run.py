@@ -14,6 +14,7 @@ from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
 from rig.files import check_out_dir
+from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 from rig.vocabulary import DeviceLevel, RigKind, StepKind
 
 if TYPE_CHECKING:
@@ -100,6 +101,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         metavar="ID",
         help="continue run ID (in the same --out) where it stopped, with the protocol and rig config it "
         "started with (given, they must have the same content)",
+    )
+    p.add_argument(
+        "--sysfs-root",
+        type=Path,
+        default=DEFAULT_SYSFS_ROOT,
+        metavar="DIR",
+        help="where a hardware rig's USB-serial latency timers are read at connect (default /sys; "
+        "`rig sim servos --sysfs-root`)",
     )
     p.add_argument(
         "--live",
@@ -271,6 +280,7 @@ def _request(args: argparse.Namespace) -> RunRequest:
         realtime=args.realtime,
         run_id=args.run_id,
         resume=args.resume,
+        sysfs_root=args.sysfs_root,
     )
 
 

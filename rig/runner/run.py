@@ -31,6 +31,7 @@ from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text, check_out_dir
 from rig.hw.session import RigSession
 from rig.hw.truth import RunTruth
+from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 from rig.log import schemas
 from rig.log.live import LivePublisher
 from rig.log.records import JointCapacity, LogLevel, LogMessage, TrialResult
@@ -70,6 +71,7 @@ class RunRequest:
     realtime: bool = False
     run_id: str | None = None
     resume: str | None = None
+    sysfs_root: Path = DEFAULT_SYSFS_ROOT  # where a hardware rig's USB latency timers are read
 
 
 @dataclass
