@@ -14,6 +14,7 @@ from rig.files import (
     read_text_file,
 )
 from rig.hw.loadcell.calibration import Calibration
+from rig.runner.runlock import RunLock
 
 
 def test_read_text_file_reads_utf8_and_drops_a_byte_order_mark(tmp_path):
@@ -173,3 +174,12 @@ def test_a_calibration_is_written_as_the_umask_says(tmp_path, umask):
     path = tmp_path / "cal.json"
     Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-23", "test", "rig-lc1").save(path)
     assert stat.S_IMODE(path.stat().st_mode) == 0o664
+
+
+def test_a_run_lock_is_made_as_the_umask_says(tmp_path, umask):
+    umask(0o002)  # a second account of the lab's group must be able to open it to resume the run
+    lock = RunLock.acquire(tmp_path / "r.lock", "r")
+    try:
+        assert stat.S_IMODE((tmp_path / "r.lock").stat().st_mode) == 0o664
+    finally:
+        lock.release()
