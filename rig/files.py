@@ -283,12 +283,37 @@ def check_out_dir(out: Path, *, must_exist: bool = False) -> None:
         raise InputError(f"--out {out}: {existing} is not writable, so it cannot be made there; {allowed}")
 
 
+def current_umask() -> int:
+    """The process's umask (read by setting it and setting it back: there is no call that only reads it)."""
+    umask = os.umask(0o077)
+    os.umask(umask)
+    return umask
+
+
+def plain_file_mode(path: str | os.PathLike[str]) -> int:
+    """The permission bits a file written at `path` should have: as a plain `open()` would make it.
+
+    An existing file keeps its mode (a rewritten config stays as shared as it was); a new one gets
+    0o666 less the umask. `mkstemp`, which the atomic writers use, makes every file 0o600 instead,
+    which a second account in a shared lab cannot read.
+    """
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except FileNotFoundError:
+        return 0o666 & ~current_umask()
+
+
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
-    """Write `text` to `path` so that readers see the old or the new file, never a partial one."""
+    """Write `text` to `path` so that readers see the old or the new file, never a partial one.
+
+    The file gets the mode a plain `open()` would give it (`plain_file_mode`).
+    """
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
+    mode = plain_file_mode(p)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
     try:
+        os.fchmod(fd, mode)
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
             f.flush()

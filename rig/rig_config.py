@@ -205,7 +205,8 @@ class RigLimits:
             10.0,
             unit="s",
             default_doc="5 sample periods of the cell's rate, at least 0.2 (0.2 without a rate)",
-            doc="without a valid load-cell sample",
+            doc="without a valid load-cell sample; at least 3 sample periods of the cell's rate "
+            "(`rig check` at the measured rate; `rig run`, also `--dry-run`, at `loadcell.rate_hz`)",
         ),
     )
     max_winch_travel_rev: float = field(default=20.0, metadata=number(0.1, 255.0, unit="rev"))
@@ -489,6 +490,52 @@ STALE_SAMPLE_PERIODS = 5
 def default_stale_timeout_s(rate_hz: float) -> float:
     """The stale timeout for a cell at `rate_hz`: five sample periods, but at least 0.2 s."""
     return max(MIN_STALE_TIMEOUT_S, STALE_SAMPLE_PERIODS / rate_hz)
+
+
+# The stale timeout must hold at least this many sample periods, or a run stops between two
+# healthy samples (a line lost or late by a period is not a dead cell). The project's choice.
+MIN_STALE_SAMPLE_PERIODS = 3
+
+
+@dataclass(frozen=True)
+class StaleTimeoutFit:
+    """How many sample periods of a cell at `rate_hz` the stale timeout holds, and whether enough.
+
+    The one rule of `rig check` (at the measured rate) and of the run's limit checks, which
+    `rig run --dry-run` prints (at the configured rate).
+    """
+
+    stale_timeout_s: float
+    rate_hz: float
+
+    @property
+    def periods(self) -> float:
+        """The stale timeout in sample periods."""
+        return self.stale_timeout_s * self.rate_hz
+
+    @property
+    def ok(self) -> bool:
+        """Whether it holds at least `MIN_STALE_SAMPLE_PERIODS` periods."""
+        return self.periods >= MIN_STALE_SAMPLE_PERIODS
+
+    @property
+    def least_s(self) -> float:
+        """The shortest stale timeout that fits this rate."""
+        return MIN_STALE_SAMPLE_PERIODS / self.rate_hz
+
+    def describe(self) -> str:
+        """E.g. "limits.stale_timeout_s 0.2 s = 2.0 sample periods at 10.0 samples/s"."""
+        return (
+            f"limits.stale_timeout_s {self.stale_timeout_s:g} s = {self.periods:.1f} sample periods at "
+            f"{self.rate_hz:.1f} samples/s"
+        )
+
+    def fix(self) -> str:
+        """What to do when it does not fit."""
+        return (
+            f"raise limits.stale_timeout_s to at least {self.least_s:.2f} s (or leave it out: it then "
+            "follows loadcell.rate_hz), or run the cell faster"
+        )
 
 
 def _loadcell_rate(

@@ -38,7 +38,7 @@ def open_session(prepared: PreparedRun, *, devices: DeviceLevel = DeviceLevel.BY
     """
     match prepared.config.kind:
         case RigKind.HARDWARE:
-            return hardware_session(prepared.config)
+            return hardware_session(prepared.config, sysfs_root=prepared.request.sysfs_root)
         case RigKind.SIMULATED:
             check_session_inputs(prepared.config)
             match DeviceLevel(devices):  # ValueError for a name that is no level

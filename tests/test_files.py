@@ -1,9 +1,20 @@
 import os
+import stat
 
 import pytest
 
 from rig.errors import InputError
-from rig.files import MAX_NESTING, MAX_YAML_BYTES, load_yaml_file, parse_json, parse_yaml, read_text_file
+from rig.files import (
+    MAX_NESTING,
+    MAX_YAML_BYTES,
+    atomic_write_text,
+    load_yaml_file,
+    parse_json,
+    parse_yaml,
+    read_text_file,
+)
+from rig.hw.loadcell.calibration import Calibration
+from rig.runner.runlock import RunLock
 
 
 def test_read_text_file_reads_utf8_and_drops_a_byte_order_mark(tmp_path):
@@ -129,3 +140,46 @@ def test_one_out_dir_rule(tmp_path):
         assert str(excinfo.value).startswith(message)
     with pytest.raises(InputError, match="no such directory; nothing to resume there"):
         check_out_dir(tmp_path / "missing", must_exist=True)
+
+
+@pytest.fixture
+def umask():
+    """Set the process's umask for one test; the old one is restored after it."""
+    old = os.umask(0o022)
+    yield os.umask
+    os.umask(old)
+
+
+@pytest.mark.parametrize(("mask", "mode"), [(0o022, 0o644), (0o002, 0o664), (0o077, 0o600)])
+def test_an_atomic_write_gives_a_new_file_the_mode_open_would(tmp_path, umask, mask, mode):
+    umask(mask)
+    path = tmp_path / "journal.json"
+    atomic_write_text(path, "{}\n")
+    assert stat.S_IMODE(path.stat().st_mode) == mode
+    assert [p.name for p in tmp_path.iterdir()] == ["journal.json"]
+
+
+def test_an_atomic_rewrite_keeps_the_files_mode(tmp_path, umask):
+    umask(0o077)
+    path = tmp_path / "rig.yaml"
+    path.write_text("name: a\n")
+    path.chmod(0o664)  # shared with the lab's group
+    atomic_write_text(path, "name: b\n")
+    assert stat.S_IMODE(path.stat().st_mode) == 0o664
+    assert path.read_text() == "name: b\n"
+
+
+def test_a_calibration_is_written_as_the_umask_says(tmp_path, umask):
+    umask(0o002)
+    path = tmp_path / "cal.json"
+    Calibration(1 / 80000, 120000, None, 9.80665, "2026-11-23", "test", "rig-lc1").save(path)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o664
+
+
+def test_a_run_lock_is_made_as_the_umask_says(tmp_path, umask):
+    umask(0o002)  # a second account of the lab's group must be able to open it to resume the run
+    lock = RunLock.acquire(tmp_path / "r.lock", "r")
+    try:
+        assert stat.S_IMODE((tmp_path / "r.lock").stat().st_mode) == 0o664
+    finally:
+        lock.release()

@@ -3,6 +3,8 @@ the line stiffness default, a run without a terminal, the calibration's wording 
 
 from __future__ import annotations
 
+import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -10,7 +12,8 @@ from typing import Any
 import pytest
 import yaml
 
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.hw.loadcell.driver import FIRMWARE_BAUD
+from rig.rig_config import DEFAULT_RIG_CONFIG, StaleTimeoutFit, load_rig_config
 
 REPO = Path(__file__).parent.parent
 TEMPLATE = REPO / "protocols" / "rigs" / "hardware.example.yaml"
@@ -127,3 +130,37 @@ def test_calibration_prompts_fit_an_inline_cell(tmp_path: Path, run_cli: Callabl
     assert result.code == 0, result.err
     assert "hang the 1 kg mass" in result.out and "reference gauge" in result.out
     assert "over the pulley" in result.out
+
+
+FIRMWARE_SKETCH = REPO / "firmware" / "rig_hx711" / "rig_hx711.ino"
+
+
+def test_template_fits_the_projects_firmware() -> None:
+    """The issue's case: the template had 921600 baud, no rate, a 0.2 s stale timeout (2 periods at 10/s)."""
+    sketch_baud = re.search(r"^#define RIG_BAUD (\d+)", FIRMWARE_SKETCH.read_text(), re.MULTILINE)
+    assert sketch_baud is not None
+    config = load_rig_config(TEMPLATE)
+    assert config.loadcell.baud == int(sketch_baud.group(1)) == FIRMWARE_BAUD
+    assert config.loadcell.rate_hz == 10.0  # an HX711 breakout's RATE pin low
+    assert StaleTimeoutFit(config.limits.stale_timeout_s, config.loadcell.rate_hz).ok
+
+
+@pytest.mark.parametrize(("stale_timeout_s", "fits"), [(0.2, False), (0.3, True)])
+def test_dry_run_and_rig_check_refuse_the_same_stale_timeout(
+    stale_timeout_s: float, fits: bool, tmp_path: Path, run_cli: Callable[..., Any]
+) -> None:
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(
+        "extends: simulated\nsimulation: {loadcell_rate_hz: 10}\n"
+        f"limits: {{stale_timeout_s: {stale_timeout_s}}}\n"
+    )
+    dry = run_cli("run", REPO / "protocols" / "smoke.yaml", "--rig", rig, "--dry-run")
+    check = run_cli("check", "--rig", rig, "--only", "loadcell", "--json")
+    rows = {row["check"]: row for row in json.loads(check.out)["rows"]}
+    verdict = rows["stale timeout holds the sample period"]["verdict"]
+    if fits:
+        assert dry.code == 0 and verdict == "pass", dry.err
+        return
+    assert dry.code == 2 and verdict == "fail"
+    assert dry.err.count("\n") == 1 and "Traceback" not in dry.err
+    assert f"{rig}: limit check failed" in dry.err and "limits.stale_timeout_s 0.2 s (2.0 periods)" in dry.err

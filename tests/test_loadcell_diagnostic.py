@@ -211,3 +211,10 @@ def test_the_firmware_under_simavr(tmp_path):
     assert rows["rate"].verdict is Verdict.PASS and rows["saturation"].verdict is Verdict.PASS
     assert rows["gaps and damaged lines"].verdict is Verdict.PASS
     assert rows["unique values"].verdict is Verdict.PASS
+
+
+def test_a_silent_cell_at_another_baud_is_told_what_the_firmware_sends() -> None:
+    silent = diagnose(listening([], baud=921600, failure="no valid sample for 3.1 s"))
+    assert (
+        "loadcell.baud (921600; the project's firmware (firmware/rig_hx711) sends at 115200)" in silent[0].fix
+    )

@@ -189,8 +189,12 @@ def test_stale_when_nothing_ever_arrives_at_the_wrong_baud():
     driver.open()
     assert run_for(driver, clock, 0.3) == []
     clock.sleep(0.02)
-    with pytest.raises(StaleDataError, match=r"no valid sample for 0\.32.*boot grace of 0\.3 s"):
+    with pytest.raises(StaleDataError, match=r"no valid sample for 0\.32.*boot grace of 0\.3 s") as raised:
         driver.poll()
+    # The lab's case: a rig-lc1 cell at a baud the project's firmware does not send.
+    assert "baud rate (460800; the project's firmware (firmware/rig_hx711) sends at 115200)" in str(
+        raised.value
+    )
     stats = driver.stats()
     assert stats.lines_ok == 0 and stats.bytes_discarded > 0
 

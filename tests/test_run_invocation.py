@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -289,6 +291,106 @@ def test_a_changed_protocol_at_another_path_is_refused(tmp_path, quick, protocol
     other = protocol_file(QUICK_PROTOCOL.replace("0.25]", "0.3]"), "other.yaml")
     with pytest.raises(InputError, match="changed since run f1 started"):
         prepare_run(request(other, out, resume="f1"))
+
+
+def _rig_file(tmp_path: Path, zero_tolerance_n: float = 2.0) -> Path:
+    rig = tmp_path / "lab" / "rig.yaml"
+    rig.parent.mkdir(exist_ok=True)
+    rig.write_text(f"extends: simulated\nname: lab\nlimits: {{zero_tolerance_n: {zero_tolerance_n:g}}}\n")
+    return rig
+
+
+def _started_on(rig: Path | None, protocol: Path, out: Path) -> None:
+    """Run f1 on the fakes with `rig`'s config and Ctrl-C it at trial 2 (as `interrupted_run`)."""
+    req = RunRequest(protocol_path=protocol, rig_path=rig, out_dir=out, seed=1, run_id="f1")
+    fake = fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2)
+    assert execute_run(prepare_run(req), fake.session, SilentProgress()).exit_code == 130
+
+
+def _resume_by_id(out: Path, rig: Path | None = None) -> RunRequest:
+    return RunRequest(protocol_path=None, rig_path=rig, out_dir=out, seed=0, resume="f1")
+
+
+@pytest.mark.parametrize("own_rig", [False, True], ids=["built-in rig", "rig file"])
+def test_resume_by_id_alone_takes_protocol_and_rig_from_the_journal(tmp_path, quick, monkeypatch, own_rig):
+    """The lab's case: `rig run --resume ID` said PROTOCOL required; without --rig, "rig config changed"."""
+    out = tmp_path / "out"
+    rig = _rig_file(tmp_path) if own_rig else None
+    _started_on(rig, quick, out)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # the journal's paths do not depend on the directory
+    prepared = prepare_run(_resume_by_id(out))
+    assert prepared.config.name == ("lab" if own_rig else "simulated")
+    report = execute_run(prepared, fake_rig(slip_forces_n=SLIP_FORCES_N).session, SilentProgress())
+    assert report.exit_code == 0 and [t.trial_id for t in report.trials] == [1, 2, 3]
+
+
+def test_resume_by_id_on_the_command_line(tmp_path, quick, run_cli):
+    out = tmp_path / "out"
+    interrupted_run(quick, out)
+    result = run_cli("run", "--resume", "f1", "--out", out, "--dry-run", "--json")
+    assert result.code == 0, result.err
+    assert [t["trial_id"] for t in json.loads(result.out)["trials"]] == [1, 2, 3]  # the plan of the run
+
+
+def test_a_run_without_protocol_or_resume_is_refused_in_one_line(tmp_path, run_cli):
+    result = run_cli("run", "--out", tmp_path / "out")
+    assert result.code == 2 and result.err.count("\n") == 1
+    assert "PROTOCOL: required" in result.err and "--resume RUN_ID" in result.err
+
+
+def test_a_changed_rig_config_is_named_with_what_changed(tmp_path, quick):
+    out = tmp_path / "out"
+    rig = _rig_file(tmp_path, zero_tolerance_n=2)
+    _started_on(rig, quick, out)
+    _rig_file(tmp_path, zero_tolerance_n=3)  # edited in place
+    with pytest.raises(
+        InputError,
+        match=r"rig\.yaml: rig config changed since run f1 started \(limits\.zero_tolerance_n: 2 -> 3\)",
+    ):
+        prepare_run(_resume_by_id(out))
+
+
+def test_a_changed_protocol_is_named_with_what_changed(tmp_path, quick):
+    out = tmp_path / "out"
+    interrupted_run(quick, out)
+    quick.write_text(QUICK_PROTOCOL.replace("0.25]", "0.3]"))
+    with pytest.raises(
+        InputError,
+        match=r"changed since run f1 started \(it used .*: blocks\[0\]\.distances_m\[\d\]: 0\.25 -> 0\.3\)",
+    ):
+        prepare_run(_resume_by_id(out))
+
+
+def test_a_journal_written_before_the_texts_were_kept_still_resumes(tmp_path, quick):
+    out = tmp_path / "out"
+    interrupted_run(quick, out)
+    path = RunJournal.path_for(out, "f1")
+    data = json.loads(path.read_text())
+    for key in ("rig_builtin", "protocol_text", "rig_text"):
+        del data[key]
+    path.write_text(json.dumps(data))
+    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), quick, out, resume="f1")
+    assert report.exit_code == 0 and report.completed == 3
+
+
+@pytest.mark.parametrize("out_given", [False, True], ids=["default --out", "--out DIR"])
+def test_the_stop_line_prints_a_resume_command_that_works(tmp_path, run_cli, monkeypatch, out_given):
+    """A run stopped by a fault with the hardware safe says how to continue; that command runs as printed."""
+    monkeypatch.chdir(tmp_path)
+    rig = ROOT / "protocols" / "rigs" / "faults" / "drifting-zero.yaml"  # trial 2's tare stops the run
+    out = ["--out", str(tmp_path / "o")] if out_given else []
+    first = run_cli("run", ROOT / "protocols" / "smoke.yaml", "--rig", rig, "--run-id", "dz", *out)
+    assert first.code == 1, first.err
+    printed = re.search(r"hardware left safe; `([^`]*)` continues", first.err)
+    assert printed is not None, first.err
+    command = shlex.split(printed.group(1))
+    assert command[:4] == ["rig", "run", "--resume", "dz"] and command[4:] == out
+    again = run_cli(*command[1:])
+    assert again.code == 0, again.err
+    journal = json.loads(RunJournal.path_for(Path(out[1]) if out else tmp_path / "logs", "dz").read_text())
+    assert journal["invocations"] == 2 and journal["status"] == "completed"
 
 
 # ------------------------------------------------------------------ 5. run ids stay inside --out

@@ -6,6 +6,7 @@ import json
 import math
 import os
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -202,6 +203,15 @@ def test_table_has_a_row_per_run_joint_and_estimator(tmp_path: Path) -> None:
     assert all(r["covered"] for r in table if r["seed"] == 0)
     assert all(r["reason"] == "ConfigError: bad" for r in table if r["seed"] == 9)
     assert os.listdir(tmp_path / "out") == [TABLE_NAME]
+
+
+def test_table_has_the_mode_open_would_give_it(tmp_path: Path) -> None:
+    old = os.umask(0o002)  # a lab group sharing the study's files
+    try:
+        path = write_table(tmp_path, [_record(0, 0.21, 0.02)], ESTIMATOR_NAMES)
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o664
 
 
 def test_table_is_written_whole_or_not_at_all(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -40,6 +40,7 @@ from rig.analysis.replay import ReplayResult
 from rig.analysis.samples import loadcell_samples
 from rig.analysis.trials import TrialRecord, slipped_rows, write_trial_table
 from rig.errors import InputError
+from rig.files import current_umask
 from rig.log.records import TrialKind
 
 DPI = 110
@@ -70,9 +71,8 @@ def write_report(result: ReplayResult, directory: str | os.PathLike[str]) -> lis
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
     try:
         names = _write_all(result, staging)
-        umask = os.umask(0)
-        os.umask(umask)
-        staging.chmod(0o777 & ~umask)  # mkdtemp makes it private; the report is an ordinary directory
+        # mkdtemp makes it private; the report is an ordinary directory
+        staging.chmod(0o777 & ~current_umask())
         if target.exists():
             target.rmdir()  # empty (checked above)
         os.rename(staging, target)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from rig.cli.output import emit_json
 from rig.errors import ExitCode, InputError
+from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 
 if TYPE_CHECKING:
     from rig.preflight.context import CheckContext
@@ -91,7 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     parser.add_argument(
         "--sysfs-root",
         type=Path,
-        default=Path("/sys"),
+        default=DEFAULT_SYSFS_ROOT,
         metavar="DIR",
         help="where USB-serial latency timers are read (default /sys; `rig sim servos --sysfs-root`)",
     )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -13,6 +14,7 @@ from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
 from rig.files import check_out_dir
+from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 from rig.vocabulary import DeviceLevel, RigKind, StepKind
 
 if TYPE_CHECKING:
@@ -49,8 +51,11 @@ examples:
   rig run protocols/link_validation.yaml --seed 3 --json
   rig run protocols/smoke.yaml --dry-run                  # plan, limit checks, duration
   rig run protocols/joint_estimation.yaml --rig protocols/rigs/my-lab.yaml
-  rig run protocols/joint_estimation.yaml --resume 20261121T101500-joint_estimation
+  rig run --resume 20261121T101500-joint_estimation    # its protocol and rig, from the journal
 """
+
+
+DEFAULT_OUT_DIR = Path("logs")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -62,9 +67,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_protocol_and_rig(p)
+    add_protocol_and_rig(p, resumable=True)
     p.add_argument(
-        "--out", type=Path, default=Path("logs"), metavar="DIR", help="where logs go (default: logs/)"
+        "--out", type=Path, default=DEFAULT_OUT_DIR, metavar="DIR", help="where logs go (default: logs/)"
     )
     p.add_argument(
         "--seed", type=int, default=0, metavar="N", help="seed for shuffling and the simulator (default 0)"
@@ -91,7 +96,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--dry-run", action="store_true", help="print the plan, limit checks and duration; move nothing"
     )
     p.add_argument(
-        "--resume", default=None, metavar="ID", help="continue run ID (in the same --out) where it stopped"
+        "--resume",
+        default=None,
+        metavar="ID",
+        help="continue run ID (in the same --out) where it stopped, with the protocol and rig config it "
+        "started with (given, they must have the same content)",
+    )
+    p.add_argument(
+        "--sysfs-root",
+        type=Path,
+        default=DEFAULT_SYSFS_ROOT,
+        metavar="DIR",
+        help="where a hardware rig's USB-serial latency timers are read at connect (default /sys; "
+        "`rig sim servos --sysfs-root`)",
     )
     p.add_argument(
         "--live",
@@ -116,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
     if args.resume is not None and args.run_id is not None:
         raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
+    if args.protocol is None and args.resume is None:
+        raise InputError("PROTOCOL: required to start a run (`rig run --resume RUN_ID` continues one)")
     check_out_dir(args.out)
     if args.dry_run:
         return _dry_run(args)
@@ -144,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             emit_json(report.as_json())
         else:
-            print(_summary(report), file=sys.stderr if report.exit_code else sys.stdout)
+            print(_summary(report, args.out), file=sys.stderr if report.exit_code else sys.stdout)
     return report.exit_code
 
 
@@ -263,10 +282,19 @@ def _request(args: argparse.Namespace) -> RunRequest:
         realtime=args.realtime,
         run_id=args.run_id,
         resume=args.resume,
+        sysfs_root=args.sysfs_root,
     )
 
 
-def _summary(report: RunReport) -> str:
+def resume_command(run_id: str, out_dir: Path) -> str:
+    """The command that continues a run, as it can be typed (`--out` when not the default)."""
+    command = f"rig run --resume {shlex.quote(run_id)}"
+    if out_dir != DEFAULT_OUT_DIR:
+        command += f" --out {shlex.quote(str(out_dir))}"
+    return command
+
+
+def _summary(report: RunReport, out_dir: Path) -> str:
     from model.fit import nonnegative_bounds
 
     outcomes: dict[str, int] = {}
@@ -278,9 +306,12 @@ def _summary(report: RunReport) -> str:
     ]
     lines += [summary.text for summary in report.design]  # adaptive blocks: where they stopped, and why
     if report.aborted:
-        if report.safe_state_verified:
+        if report.safe_state_verified and not report.resumable:  # every trial done, nothing measured
+            lines.append(f"FAILED: {report.reason} (hardware left safe)")
+        elif report.safe_state_verified:
             lines.append(
-                f"STOPPED: {report.reason} (hardware left safe; `--resume {report.run_id}` continues)"
+                f"STOPPED: {report.reason} (hardware left safe; `{resume_command(report.run_id, out_dir)}` "
+                "continues)"
             )
         else:
             lines.append(f"STOPPED, SAFE STATE NOT VERIFIED: {report.reason}")

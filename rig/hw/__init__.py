@@ -10,4 +10,5 @@ __all__ = [
     "seams",
     "session",
     "truth",
+    "usb_latency",
 ]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import select
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 from rig.errors import InputError
 from rig.hw.bending import config_fixture
@@ -19,6 +20,7 @@ from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.seams import Clock
 from rig.hw.session import RigSession
+from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, configuration_source_kind
 from rig.vocabulary import RigKind
@@ -41,8 +43,13 @@ def rig_calibration(config: RigConfig) -> Calibration | None:
     return Calibration.load(cal_path)
 
 
-def config_servo_bus(config: RigConfig, clock: Clock) -> DynamixelServoBus:
-    """The servo bus a rig config names, on its port, not yet connected."""
+def config_servo_bus(
+    config: RigConfig, clock: Clock, *, sysfs_root: Path = DEFAULT_SYSFS_ROOT
+) -> DynamixelServoBus:
+    """The servo bus a rig config names, on its port, not yet connected.
+
+    `sysfs_root`: where its USB latency timer is read at connect (`rig run --sysfs-root`).
+    """
     return DynamixelServoBus(
         config.servos.port,
         config.servos.baud,
@@ -50,6 +57,7 @@ def config_servo_bus(config: RigConfig, clock: Clock) -> DynamixelServoBus:
         clock,
         retries=config.servos.retries,
         bus_watchdog_ms=config.servos.watchdog_ms,
+        sysfs_root=sysfs_root,
     )
 
 
@@ -67,15 +75,18 @@ def config_load_cell(config: RigConfig, calibration: Calibration | None, clock: 
     )
 
 
-def hardware_session(config: RigConfig) -> RigSession:
-    """A session on the serial ports named in a `kind: hardware` rig config."""
+def hardware_session(config: RigConfig, *, sysfs_root: Path = DEFAULT_SYSFS_ROOT) -> RigSession:
+    """A session on the serial ports named in a `kind: hardware` rig config.
+
+    `sysfs_root`: where the servo port's USB latency timer is read at connect.
+    """
     if config.kind != RigKind.HARDWARE:
         raise InputError(f"{config.source}: kind: expected hardware, got {config.kind}")
     calibration = rig_calibration(config)
     cal_path = config.loadcell.calibration_path
     assert calibration is not None and cal_path is not None  # a hardware rig needs both
     clock = SystemClock()
-    servos = config_servo_bus(config, clock)
+    servos = config_servo_bus(config, clock, sysfs_root=sysfs_root)
     load_cell = config_load_cell(config, calibration, clock)
     return RigSession(
         kind=RigKind.HARDWARE,

@@ -249,6 +249,16 @@ class WatchdogTripSource(Protocol):
 
 
 @runtime_checkable
+class PortLatencySource(Protocol):
+    """A device whose USB-serial adapter's latency timer was read as its port opened (optional)."""
+
+    @property
+    def latency_timer_ms(self) -> int | None:
+        """The timer in ms; None before connecting, or for a port without one (not FTDI, a pty, a URL)."""
+        ...
+
+
+@runtime_checkable
 class ConfigurationSource(Protocol):
     """Where the measured link configuration comes from (simulator, file, operator, camera)."""
 

@@ -15,10 +15,10 @@ from pathlib import Path
 from rig.errors import HandshakeError, RigError
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import Clock, LoadCell, LoadCellSample
+from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 from rig.protocol import Protocol
 from rig.rig_config import RigConfig
 
-DEFAULT_SYSFS_ROOT = Path("/sys")
 LISTEN_POLL_S = 0.02  # how often the listening window drains the load cell (the runner's tick)
 
 

@@ -24,12 +24,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from rig.errors import NotConnectedError, StaleDataError
-from rig.hw.loadcell.driver import LoadCellStats, SerialLoadCell
+from rig.hw.loadcell.driver import LoadCellStats, SerialLoadCell, baud_and_firmware
 from rig.hw.loadcell.formats import InfoLine
 from rig.hw.seams import Clock, LoadCellSample
 from rig.preflight.context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
-from rig.rig_config import RigConfig
+from rig.rig_config import RigConfig, StaleTimeoutFit
 from rig.vocabulary import LoadCellFormatName
 
 SECTION = "loadcell"
@@ -44,8 +44,6 @@ DAMAGE_WARN = 0.001  # damaged or missing lines, as a fraction of the lines expe
 SKEW_WARN_PPM, SKEW_FAIL_PPM = 1000.0, 20_000.0  # a crystal is ~50 ppm, a ceramic resonator 0.5 %
 SKEW_SEGMENTS = 4  # the clock's rate from the lower envelope: minima of this many equal stretches
 ADC24_LIMITS = (-(1 << 23), (1 << 23) - 1)  # an HX711's saturated codes (rig-lc1 sends them raw)
-# The stale timeout must hold at least this many sample periods, or a run stops between two healthy samples.
-SAMPLE_PERIODS_PER_STALE_TIMEOUT = 3
 _NOT_ANSWERING_FIX = (
     "see docs/hardware-loadcell.md; an Arduino resets when its port opens: raise loadcell.boot_grace_s "
     "if it needs longer"
@@ -142,8 +140,8 @@ def diagnose(heard: CellListening) -> list[CheckRow]:
                 Verdict.FAIL,
                 f"{heard.port}: {reason}",
                 f"check the cable and that {heard.port} is the cell's port (`rig ports`), that loadcell.baud "
-                f"({heard.baud}) and loadcell.format ({heard.format}) match its firmware; "
-                + _NOT_ANSWERING_FIX,
+                f"({baud_and_firmware(heard.baud, heard.format)}) and loadcell.format ({heard.format}) "
+                "match its firmware; " + _NOT_ANSWERING_FIX,
             )
         ]
     rows = [_answers(heard)]
@@ -471,16 +469,11 @@ def loadcell_rows(ctx: CheckContext) -> list[CheckRow]:
 
 
 def _stale_timeout(config: RigConfig, rate_hz: float) -> CheckRow:
-    stale_s = config.limits.stale_timeout_s
-    periods = stale_s * rate_hz
-    ok = periods >= SAMPLE_PERIODS_PER_STALE_TIMEOUT
+    fit = StaleTimeoutFit(config.limits.stale_timeout_s, rate_hz)
     return CheckRow(
         SECTION,
         "stale timeout holds the sample period",
-        Verdict.PASS if ok else Verdict.FAIL,
-        f"limits.stale_timeout_s {stale_s:g} s = {periods:.1f} sample periods at {rate_hz:.1f} samples/s",
-        ""
-        if ok
-        else f"raise limits.stale_timeout_s to at least {SAMPLE_PERIODS_PER_STALE_TIMEOUT / rate_hz:.2f} s "
-        "(or leave it out: it then follows loadcell.rate_hz), or run the cell faster",
+        Verdict.PASS if fit.ok else Verdict.FAIL,
+        fit.describe(),
+        "" if fit.ok else fit.fix(),
     )

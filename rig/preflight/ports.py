@@ -16,6 +16,7 @@ import stat
 from collections.abc import Callable
 from pathlib import Path
 
+from rig.hw.usb_latency import latency_timer_path
 from rig.preflight.context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
 
@@ -106,11 +107,6 @@ def _permission_row(
         f"{shown}: {mode}, group {group}; uid {effective_uid()} cannot open it",
         fix,
     )
-
-
-def latency_timer_path(sysfs_root: Path, tty_name: str) -> Path:
-    """Where Linux shows a USB-serial adapter's latency timer (FTDI `ftdi_sio` ports have one)."""
-    return sysfs_root / "bus" / "usb-serial" / "devices" / tty_name / "latency_timer"
 
 
 def latency_row(label: str, tty_name: str, sysfs_root: Path) -> CheckRow:

@@ -8,7 +8,9 @@ when it ends (`adopt`).
 
 Two things the loop sees about time are logged, not absorbed: a tick that starts more than a
 tenth of a period after its scheduled time is late (counted per trial in `/rig/trial/links`
-`control`; one late by a whole period or more is a warning with its lateness), and a Bus
+`control`; one late by a whole period or more is a warning with its lateness and its likely
+cause: the servo port's USB latency timer when the driver read one above 1 ms at connect, else
+the host), and a Bus
 Watchdog trip that the driver found and cleared after a quiet bus (a warning; the trial is void,
 raised as `BusWatchdogTripped`, and repeated as after any device fault that clears).
 """
@@ -21,8 +23,9 @@ from dataclasses import dataclass
 from itertools import repeat
 
 from rig.errors import BusWatchdogTripped, InterlockTripped, StepTimeoutError
-from rig.hw.seams import LoadCellSample, ServoState, WatchdogTripSource
+from rig.hw.seams import LoadCellSample, PortLatencySource, ServoState, WatchdogTripSource
 from rig.hw.session import RigSession
+from rig.hw.usb_latency import is_slow, latency_timer_cause
 from rig.log.records import ControlTickStats, LogLevel
 from rig.runner.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
 from rig.runner.recorder import RunRecorder
@@ -85,6 +88,7 @@ class ControlLoop:
         self._max_lateness_ns = 0
         self._total_lateness_ns = 0
         self._late_notes = 0
+        self.slow_latency_timer_ms: int | None = None  # the servo port's, when above 1 ms (at connect)
 
     def restart_pacing(self) -> None:
         """Count the next period from now (after connecting, or after a pause outside the loop)."""
@@ -114,6 +118,30 @@ class ControlLoop:
         if interlocks:
             self.check_interlocks()
 
+    def check_port_latency(self) -> None:
+        """After the servos connect: warn once when their port's USB latency timer is above 1 ms.
+
+        A bus that reports no timer (`PortLatencySource`: its port has none) leaves late ticks
+        blamed on the host, as before.
+        """
+        servos = self.session.servos
+        latency_ms = servos.latency_timer_ms if isinstance(servos, PortLatencySource) else None
+        if latency_ms is None or not is_slow(latency_ms):
+            self.slow_latency_timer_ms = None
+            return
+        self.slow_latency_timer_ms = latency_ms
+        self.recorder.note(
+            LogLevel.WARNING,
+            f"{latency_timer_cause(latency_ms)}: every servo bus transaction may wait that long, so "
+            "control ticks will start late and replies may time out",
+        )
+
+    def lateness_cause(self) -> str:
+        """Why ticks run late, as far as the loop knows: a slow latency timer, else the host."""
+        if self.slow_latency_timer_ms is not None:
+            return latency_timer_cause(self.slow_latency_timer_ms)
+        return "the host did not run in time (load, a slow disk, a suspend)"
+
     def _late(self, lateness_ns: int) -> None:
         """Count a late tick; a tick late by a whole period or more (one was skipped) is a warning.
 
@@ -130,7 +158,7 @@ class ControlLoop:
             self.recorder.note(
                 LogLevel.WARNING,
                 f"control tick late by {lateness_ns / 1e6:.1f} ms (period {self.period_ns / 1e6:g} ms): "
-                "the host did not run in time (load, a slow disk, a suspend)",
+                + self.lateness_cause(),
             )
 
     def watchdog_trips(self) -> BusWatchdogTripped | None:

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, assert_never
 
 from rig.errors import InputError
-from rig.files import atomic_write_text, load_json_file
+from rig.files import MAX_YAML_BYTES, atomic_write_text, load_json_file
 from rig.log.records import TrialKind, TrialResult
 from rig.protocol import MAX_TRIALS
 
@@ -46,6 +46,10 @@ class RunJournal:
     status: str = "running"
     invocations: int = 0
     retried_trials: list[int] = field(default_factory=list)  # one entry per repeat after a device fault
+    # Appended (lab-safety issue, finding 6); journals written before them load without them.
+    rig_builtin: bool = False  # the run is on the built-in simulated rig (rig_path is where it was then)
+    protocol_text: str | None = None  # the files' texts at the start: a resume names what changed
+    rig_text: str | None = None
 
     @staticmethod
     def path_for(out_dir: Path, run_id: str) -> Path:
@@ -83,6 +87,9 @@ class RunJournal:
             "status": self.status,
             "invocations": self.invocations,
             "retried_trials": self.retried_trials,
+            "rig_builtin": self.rig_builtin,
+            "protocol_text": self.protocol_text,
+            "rig_text": self.rig_text,
         }
         atomic_write_text(self.path, json.dumps(payload, indent=1, allow_nan=False) + "\n")
 
@@ -111,6 +118,18 @@ class RunJournal:
         def integer(value: Any, field: str, lo: int, hi: int) -> int:
             if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
                 raise fail(field, f"expected an integer from {lo} to {hi}, got {_short(value)}")
+            return value
+
+        def flag(field: str) -> bool:
+            value = data.get(field, False)
+            if not isinstance(value, bool):
+                raise fail(field, f"expected true or false, got {_short(value)}")
+            return value
+
+        def optional_text(field: str) -> str | None:
+            value = data.get(field)
+            if value is not None and (not isinstance(value, str) or len(value) > MAX_YAML_BYTES):
+                raise fail(field, f"expected null or a file's text of at most {MAX_YAML_BYTES} characters")
             return value
 
         def items(field: str) -> list[Any]:
@@ -152,6 +171,9 @@ class RunJournal:
                 integer(t, f"retried_trials[{i}]", 1, MAX_TRIALS)
                 for i, t in enumerate(items("retried_trials") if "retried_trials" in data else [])
             ],
+            rig_builtin=flag("rig_builtin"),
+            protocol_text=optional_text("protocol_text"),
+            rig_text=optional_text("rig_text"),
         )
 
 

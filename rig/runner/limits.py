@@ -15,7 +15,12 @@ from typing import Any, assert_never
 from rig.errors import InputError
 from rig.hw.bending import unreached_warning
 from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
-from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
+from rig.rig_config import (
+    MIN_STALE_SAMPLE_PERIODS,
+    RigConfig,
+    StaleTimeoutFit,
+    nominal_loadcell_rate_hz,
+)
 from rig.runner.ramp_speed import RampSpeeds
 from rig.vocabulary import RigKind, StepKind, TrialKind
 
@@ -28,6 +33,7 @@ class LimitCheck:
     value: str
     limit: str
     ok: bool
+    of_rig_alone: bool = False  # the rig config's own values: its file is named first when it fails
 
 
 # The direction check must expect a rise of this many zero tolerances at the nominal stiffness, so
@@ -98,8 +104,21 @@ def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
             f"{direction_rise_n:.2f} N over {limits.direction_check_rev:g} rev",
             f"{DIRECTION_CHECK_MARGIN * limits.zero_tolerance_n:.2f} N",
             direction_rise_n >= DIRECTION_CHECK_MARGIN * limits.zero_tolerance_n,
+            of_rig_alone=True,
         )
     )
+    rate_hz = config.loadcell.rate_hz
+    if rate_hz is not None:  # a hardware cell of unstated rate is measured by `rig check` only
+        fit = StaleTimeoutFit(limits.stale_timeout_s, rate_hz)
+        checks.append(
+            LimitCheck(
+                f"stale timeout >= {MIN_STALE_SAMPLE_PERIODS} sample periods at loadcell.rate_hz {rate_hz:g}",
+                f"limits.stale_timeout_s {limits.stale_timeout_s:g} s ({fit.periods:.1f} periods)",
+                f"{fit.least_s:.3g} s",
+                fit.ok,
+                of_rig_alone=True,
+            )
+        )
     for trial in protocol.trials:
         if trial.joint is not None and trial.joint > config.article.joint_count:
             checks.append(
@@ -129,6 +148,8 @@ def check_limits(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
     failed = [c for c in checks if not c.ok]
     if failed:
         c = failed[0]
+        if c.of_rig_alone:
+            raise InputError(f"{config.source}: limit check failed: {c.name}: {c.value} vs limit {c.limit}")
         raise InputError(
             f"{protocol.source}: limit check failed: {c.name}: {c.value} vs limit {c.limit} "
             f"(rig {config.source})"

@@ -31,13 +31,15 @@ from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text, check_out_dir
 from rig.hw.session import RigSession
 from rig.hw.truth import RunTruth
+from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 from rig.log import schemas
 from rig.log.live import LivePublisher
 from rig.log.records import JointCapacity, LogLevel, LogMessage, TrialResult
 from rig.log.writer import LogWriteError, RunLogger
 from rig.protocol import Protocol, TrialPlan, for_loadcell_rate, load_protocol
-from rig.rig_config import RigConfig, load_rig_config, nominal_loadcell_rate_hz
+from rig.rig_config import DEFAULT_RIG_CONFIG, RigConfig, load_rig_config, nominal_loadcell_rate_hz
 from rig.runner.estimation import RunEstimator, load_estimates_file
+from rig.runner.file_changes import describe_changes
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
 from rig.runner.planning import AdaptiveSummary, TrialSchedule
@@ -62,13 +64,14 @@ _INTERRUPTED = "interrupted by the operator"
 class RunRequest:
     """What the user asked for on the command line."""
 
-    protocol_path: Path
-    rig_path: Path | None
+    protocol_path: Path | None  # None only with `resume`: the journal's
+    rig_path: Path | None  # None: the built-in simulated rig, or with `resume` the journal's rig
     out_dir: Path
     seed: int
     realtime: bool = False
     run_id: str | None = None
     resume: str | None = None
+    sysfs_root: Path = DEFAULT_SYSFS_ROOT  # where a hardware rig's USB latency timers are read
 
 
 @dataclass
@@ -89,6 +92,7 @@ class RunReport:
     joints: tuple[JointCapacity, ...] = ()
     truth: RunTruth | None = None  # simulation only
     safe_state_verified: bool = True
+    resumable: bool = False  # trials are left to run (`--resume` continues); False once all are done
     design: tuple[AdaptiveSummary, ...] = ()  # adaptive blocks: where each stands, why it stopped
     # The protocol's estimator's fit with the paper's beside it (None before 2 slips).
     estimate_detail: EstimateSummary | None = None
@@ -144,14 +148,16 @@ def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
     The lock (`OUT/RUN_ID.lock`) is held until `execute_run` returns or `PreparedRun.release()`.
     A dry run validates the same and writes nothing: no directory, no lock.
     """
-    config = load_rig_config(request.rig_path)
     if request.resume is not None:
         run_id = _check_run_id(request.resume, "--resume")
         check_out_dir(request.out_dir, must_exist=True)
         lock = None if dry_run else _lock_run(request.out_dir, run_id)
         with _released_on_error(lock):
-            protocol, journal = _resumed_journal(request, config, run_id)
+            protocol, config, journal = _resumed_journal(request, run_id)
             return _prepared(request, protocol, config, journal, lock)
+    if request.protocol_path is None:
+        raise InputError("PROTOCOL: required to start a run (`rig run --resume RUN_ID` continues one)")
+    config = load_rig_config(request.rig_path)
     protocol = load_protocol(
         request.protocol_path,
         seed=request.seed,
@@ -175,39 +181,71 @@ def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
         journal = RunJournal(
             path=path,
             run_id=run_id,
-            protocol_path=str(request.protocol_path),
+            # Absolute, so that `--resume RUN_ID` finds them from any directory.
+            protocol_path=str(request.protocol_path.absolute()),
             protocol_hash=content_hash(protocol.text),
-            rig_path=str(config.source),
+            rig_path=str(Path(config.source).absolute()),
             rig_hash=content_hash(config.text),
             seed=request.seed,
             planned_trials=protocol.planned_trial_ids,
+            rig_builtin=request.rig_path is None,
+            protocol_text=protocol.text,
+            rig_text=config.text,
         )
         return _prepared(request, protocol, config, journal, lock)
 
 
-def _resumed_journal(request: RunRequest, config: RigConfig, run_id: str) -> tuple[Protocol, RunJournal]:
-    """The journal of run `run_id` and its protocol, checked to be the same files by content."""
+def _resumed_journal(request: RunRequest, run_id: str) -> tuple[Protocol, RigConfig, RunJournal]:
+    """The journal of run `run_id`, its protocol and rig config, checked to be the same files by content.
+
+    PROTOCOL and `--rig` left out are the journal's files; given, they may be elsewhere (a copy or a
+    move) but must have the same content. A changed file is named with the values that changed.
+    """
     journal = RunJournal.load(_in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id)))
     if journal.status == "completed":
         raise InputError(f"{journal.path}: run {run_id} is already completed; nothing to resume")
+    config = load_rig_config(_resumed_file(request.rig_path, journal, "rig"))
+    protocol_path = _resumed_file(request.protocol_path, journal, "protocol")
+    assert protocol_path is not None
     protocol = load_protocol(
-        request.protocol_path,
+        protocol_path,
         seed=journal.seed,
         joint_count=config.article.joint_count,
         joints_from=config.joints_from,
     )
-    check_limits(protocol, config)
     # By content, not path: a protocol moved or copied unchanged resumes; an edited one does not.
     if journal.protocol_hash != content_hash(protocol.text):
+        changes = describe_changes(journal.protocol_text, protocol.text, str(protocol_path))
         raise InputError(
-            f"{request.protocol_path}: changed since run {run_id} started (it used {journal.protocol_path}, "
-            "whose content differs); refusing to resume"
+            f"{protocol_path}: changed since run {run_id} started (it used {journal.protocol_path}"
+            + (f": {changes}" if changes else ", whose content differs")
+            + "); refusing to resume"
         )
     if journal.rig_hash != content_hash(config.text):
+        changes = describe_changes(journal.rig_text, config.text, str(config.source))
         raise InputError(
-            f"{config.source}: rig config changed since run {run_id} started; refusing to resume"
+            f"{config.source}: rig config changed since run {run_id} started"
+            + (f" ({changes})" if changes else "")
+            + "; refusing to resume"
         )
-    return protocol, journal
+    check_limits(protocol, config)
+    return protocol, config, journal
+
+
+def _resumed_file(given: Path | None, journal: RunJournal, which: str) -> Path | None:
+    """The file a resume uses: the one given, else the journal's (None: the built-in simulated rig)."""
+    if given is not None:
+        return given
+    if which == "rig" and (journal.rig_builtin or journal.rig_path == str(DEFAULT_RIG_CONFIG)):
+        return None
+    recorded = Path(journal.rig_path if which == "rig" else journal.protocol_path)
+    if not recorded.is_file():
+        option = "--rig CONFIG" if which == "rig" else "PROTOCOL"
+        raise InputError(
+            f"{recorded}: the {which} file run {journal.run_id} started with (its journal says so) is not "
+            f"there; give {option}, a file with the same content"
+        )
+    return recorded
 
 
 def _prepared(
@@ -370,6 +408,7 @@ def _finish(
         reason=outcome.reason,
         exit_code=outcome.exit_code,
         safe_state_verified=outcome.safe_state_verified,
+        resumable=journal.status != "completed",
         estimate=summary,
         percentage_errors=percentage_error_stats(journal.completed),
         joints=joints,

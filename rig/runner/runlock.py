@@ -32,7 +32,8 @@ class RunLock:
     def acquire(cls, path: Path, run_id: str) -> RunLock:
         """Lock `path` without waiting; `RunInProgressError` if someone holds it, OSError if unwritable."""
         while True:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            # 0o666 less the umask, as open() makes a file: a lab group sharing runs can lock it too.
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:

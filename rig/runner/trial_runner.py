@@ -190,6 +190,7 @@ class TrialRunner:
         servos = self.session.servos
         servos.connect()
         self.connected = True
+        self.loop.check_port_latency()
         winch = self.session.winch_id
         servos.set_current_limit(winch, self.config.limits.winch_current_limit_a)
         servos.set_operating_mode(
@@ -349,7 +350,15 @@ class TrialRunner:
             self.recorder.note(
                 LogLevel.WARNING,
                 f"trial {links.trial_id}: {ticks.late_ticks} of {ticks.ticks} control ticks started late, "
-                f"the latest by {ticks.max_lateness_us / 1000:.1f} ms",
+                f"the latest by {ticks.max_lateness_us / 1000:.1f} ms"
+                + (f": {self.loop.lateness_cause()}" if self.loop.slow_latency_timer_ms is not None else ""),
+            )
+        bus = links.bus
+        if bus is not None and bus.timeouts and self.loop.slow_latency_timer_ms is not None:
+            self.recorder.note(
+                LogLevel.WARNING,
+                f"trial {links.trial_id}: {bus.timeouts} servo bus timeouts in {bus.operations} operations: "
+                + self.loop.lateness_cause(),
             )
         lines = links.loadcell
         if lines is not None:

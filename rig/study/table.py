@@ -19,6 +19,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from rig.files import plain_file_mode
 from rig.study.worker import RunRecord
 
 TABLE_NAME = "study.parquet"
@@ -121,7 +122,9 @@ def write_table(out_dir: Path, records: Sequence[RunRecord], estimator_names: Se
     out_dir.mkdir(parents=True, exist_ok=True)
     table = pa.Table.from_pylist(table_rows(records, estimator_names), schema=SCHEMA)
     target = out_dir / TABLE_NAME
+    mode = plain_file_mode(target)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{TABLE_NAME}.", suffix=".tmp", dir=out_dir)
+    os.fchmod(fd, mode)
     os.close(fd)
     try:
         pq.write_table(table, tmp_name)

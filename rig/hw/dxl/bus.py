@@ -39,6 +39,7 @@ import math
 import signal
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 from types import TracebackType
 from typing import Protocol
 
@@ -66,6 +67,7 @@ from rig.hw.dxl.errors import (
 from rig.hw.dxl.transport import BusStats, Transport
 from rig.hw.interrupts import signals_deferred
 from rig.hw.seams import Clock, OperatingMode, ServoState
+from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT, is_slow, latency_timer_cause, read_latency_timer_ms
 
 STATUS_RETURN_ALL = 2
 # The handshake pings each servo up to this many rounds (each with the transport's retries), pausing
@@ -197,6 +199,7 @@ class DynamixelServoBus:
         reboot_timeout_s: how long to poll a rebooting servo with pings.
         retry_settle_s: quiet time before a retry, so a late reply is discarded rather than
             taken for the answer to the retry.
+        sysfs_root: where the port's USB latency timer is read at connect (`rig.hw.usb_latency`).
 
     Use as a context manager (`with DynamixelServoBus(...) as bus:`): enter connects, exit calls
     `shutdown(release)` with the `release` given here.
@@ -217,6 +220,7 @@ class DynamixelServoBus:
         reboot_timeout_s: float = 3.0,
         retry_settle_s: float = 0.002,
         release: Callable[[], None] | None = None,
+        sysfs_root: Path = DEFAULT_SYSFS_ROOT,
     ) -> None:
         if baud not in ct.SDK_BAUDS:
             raise InputError(f"servo bus baud {baud} cannot be set by dynamixel-sdk; allowed: {ct.SDK_BAUDS}")
@@ -256,6 +260,8 @@ class DynamixelServoBus:
         self._max_reboots = max_reboots
         self._reboot_timeout_s = reboot_timeout_s
         self._release = release
+        self._sysfs_root = sysfs_root
+        self._latency_timer_ms: int | None = None
         self._connected = False
         self._shut_down = False
         self._use_fast_read = False
@@ -291,6 +297,11 @@ class DynamixelServoBus:
     def uses_fast_sync_read(self) -> bool:
         """Whether `read_states` uses Fast Sync Read (decided on connect)."""
         return self._use_fast_read
+
+    @property
+    def latency_timer_ms(self) -> int | None:
+        """The port's USB latency timer, read at connect (`PortLatencySource`); None if it has none."""
+        return self._latency_timer_ms
 
     @property
     def stats(self) -> BusStats:
@@ -344,6 +355,11 @@ class DynamixelServoBus:
         if self._shut_down:
             raise NotConnectedError(f"servo bus on {self.port_name} was shut down; make a new one")
         self._link.open(self.baud)
+        latency_ms = read_latency_timer_ms(self.port_name, self._sysfs_root)
+        self._latency_timer_ms = latency_ms
+        self._link.timeout_cause = (
+            latency_timer_cause(latency_ms) if latency_ms and is_slow(latency_ms) else ""
+        )
         try:
             self._handshake()
             self._decide_state_block()

@@ -57,7 +57,7 @@ def port_vanished(port_name: str, exc: BaseException) -> str:
     return (
         f"servo port {port_name} vanished ({detail}): the servo adapter (e.g. a U2D2) was unplugged or lost "
         "power; plug it back in, check that it is listed in /dev/serial/by-id/, and resume the run "
-        "(`rig run PROTOCOL --rig CONFIG --resume RUN_ID`)"
+        "(`rig run --resume RUN_ID`, with `--out DIR` if its logs are not in logs/)"
     )
 
 
@@ -149,6 +149,8 @@ class Transport:
         self._ph = PacketHandler(2.0)
         self._port: PortHandler | None = None
         self._busy = False
+        # Said with every timeout when set: e.g. the port's slow USB latency timer (set by the bus).
+        self.timeout_cause = ""
 
     # ------------------------------------------------------------------ the port
 
@@ -373,7 +375,7 @@ class Transport:
             f"{what} on {self.port_name} failed after {tries} tr{'y' if tries == 1 else 'ies'}: {last.detail}"
         )
         if all_timeouts:
-            raise RigTimeoutError(message)
+            raise RigTimeoutError(message + (f" ({self.timeout_cause})" if self.timeout_cause else ""))
         raise CommunicationError(message)
 
     def _check_error_number(self, servo_id: int, err: int) -> None:

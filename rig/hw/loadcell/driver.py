@@ -49,9 +49,12 @@ from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample, load_cell_sam
 from rig.rig_config import default_stale_timeout_s
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName
 
-# 115200 suits Arduino-class boards (FT232, CH340, 16U2 bridges) and carries 80 samples/s of
-# rig-lc1 with room to spare (311/s at most); faster cells need a faster baud (`max_rate_hz`).
-DEFAULT_BAUD = 115200
+# The baud rate the project's firmware sends at (RIG_BAUD in firmware/rig_hx711/rig_hx711.ino, the
+# Makefile's BAUD; tests/test_firmware_host.py checks they agree). 115200 suits Arduino-class
+# boards (FT232, CH340, 16U2 bridges) and carries 80 samples/s of rig-lc1 with room to spare (311/s
+# at most); faster cells need a faster baud (`max_rate_hz`).
+FIRMWARE_BAUD = 115200
+DEFAULT_BAUD = FIRMWARE_BAUD
 DEFAULT_STALE_TIMEOUT_S = 0.5
 DEFAULT_BOOT_GRACE_S = 3.0
 MAX_BOOT_GRACE_S = 30.0
@@ -64,6 +67,17 @@ _INFO_LINES_KEPT = 64
 logger = logging.getLogger(__name__)
 
 SerialFactory = Callable[..., Any]
+
+
+def baud_and_firmware(baud: int, format_name: str) -> str:
+    """A configured baud rate, with what the project's firmware sends for its rig-lc1 format.
+
+    E.g. "921600; the project's firmware (firmware/rig_hx711) sends at 115200", for messages about
+    a cell from which nothing valid came.
+    """
+    if format_name != LoadCellFormatName.RIG_LC1 or baud == FIRMWARE_BAUD:
+        return str(baud)
+    return f"{baud}; the project's firmware (firmware/rig_hx711) sends at {FIRMWARE_BAUD}"
 
 
 def default_serial_factory(port: str, baudrate: int, timeout: float | None) -> serial.SerialBase:
@@ -248,8 +262,8 @@ class SerialLoadCell:
                 raise StaleDataError(
                     f"load cell {self.port}: no valid sample for {age_s:.3f} s after opening the port, "
                     f"beyond the boot grace of {self.boot_grace_s:g} s ({heard}); check the baud rate "
-                    f"({self.baud}), the format ({self.format_name}) and that the device streams "
-                    "(`rig check --only loadcell`)"
+                    f"({baud_and_firmware(self.baud, self.format_name)}), the format "
+                    f"({self.format_name}) and that the device streams (`rig check --only loadcell`)"
                 )
         elif age_s > self.stale_timeout_s:
             raise StaleDataError(
