@@ -91,3 +91,13 @@ def test_a_step_between_the_ramp_and_the_unload_is_refused(tmp_path):
         InputError, match=r"p\.yaml: blocks\[0\]\.steps: an 'unload' step must come right after"
     ):
         load_protocol(path, seed=0)
+
+
+def test_the_dry_run_warns_when_a_slip_would_keep_the_line_loaded_beyond_the_bound(cli_json):
+    # The template's soft line (200 N/m on a 10 mm drum: 2 N/rad) pays a 35 N slip out in 8.75 s at
+    # 2 rad/s; the simulated rig's 5000 N/m line in 0.35 s.
+    template = ROOT / "protocols" / "rigs" / "hardware.example.yaml"
+    soft = cli_json("run", SMOKE, "--rig", template, "--dry-run", "--json")
+    assert any("would keep the line loaded about 8.9 s" in w for w in soft["warnings"]), soft.get("warnings")
+    stiff = cli_json("run", SMOKE, "--dry-run", "--json")
+    assert not any("line loaded" in w for w in stiff.get("warnings", []))

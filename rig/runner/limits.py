@@ -168,6 +168,34 @@ def ramp_speeds(protocol: Protocol, config: RigConfig) -> RampSpeeds:
     )
 
 
+def loaded_after_slip_s(protocol: Protocol, config: RigConfig, slip_force_n: float) -> float:
+    """How long a slip at `slip_force_n` keeps the line loaded: the hold, then the unload's travel.
+
+    At the nominal line stiffness, the tension falling as fast as the winch pays out at
+    `ramp.unload_speed_rad_s` (docs/design.md §6 2e).
+    """
+    ramp = protocol.ramp
+    n_per_rad = config.line_stiffness_n_per_m * config.spool_radius_m
+    return ramp.hold_after_slip_s + slip_force_n / (n_per_rad * ramp.unload_speed_rad_s)
+
+
+def loaded_after_slip_warning(protocol: Protocol, config: RigConfig, slip_force_n: float) -> str | None:
+    """A warning when a slip at `slip_force_n` would keep the line loaded beyond the rig's bound."""
+    loaded_s = loaded_after_slip_s(protocol, config, slip_force_n)
+    bound_s = config.limits.max_loaded_after_slip_s
+    if loaded_s <= bound_s:
+        return None
+    ramp = protocol.ramp
+    return (
+        f"a slip at {slip_force_n:.1f} N would keep the line loaded about {loaded_s:.1f} s "
+        f"(ramp.hold_after_slip_s {ramp.hold_after_slip_s:g} s, then {slip_force_n:.1f} N paid out at "
+        f"ramp.unload_speed_rad_s {ramp.unload_speed_rad_s:g} rad/s on a line of nominal stiffness "
+        f"{config.line_stiffness_n_per_m:g} N/m), "
+        f"beyond limits.max_loaded_after_slip_s ({bound_s:g} s): raise ramp.unload_speed_rad_s within the "
+        "winch's speed, or keep clear of the link until the line is slack (the run logs each slip's time)"
+    )
+
+
 def estimated_trial_s(
     trial: TrialPlan, protocol: Protocol, config: RigConfig, typical_force_n: float, *, first: bool = False
 ) -> float:
@@ -185,7 +213,7 @@ def estimated_trial_s(
         ramp.fast_until_fraction,
         protocol.control_period_s,
     )
-    seconds += typical_force_n / (speeds.n_per_rad * ramp.unload_speed_rad_s) + ramp.hold_after_slip_s
+    seconds += loaded_after_slip_s(protocol, config, typical_force_n)
     for step in trial.steps:
         match step.kind:
             case StepKind.PAUSE | StepKind.TARE:
@@ -362,7 +390,11 @@ def plan_summary(protocol: Protocol, config: RigConfig) -> PlanSummary:
         ),
         adaptive=tuple(adaptive_plan(block, protocol, config) for block in protocol.adaptive),
         slip_load_resolution_n=ramp_speeds(protocol, config).count_n,
-        warnings=fork_warnings(protocol, config),
+        warnings=tuple(
+            w
+            for w in (loaded_after_slip_warning(protocol, config, typical), *fork_warnings(protocol, config))
+            if w
+        ),
     )
 
 
