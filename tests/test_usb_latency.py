@@ -86,8 +86,10 @@ def test_a_16_ms_timer_is_named_at_connect_and_for_late_ticks(
 ) -> None:
     sysfs = tmp_path / "sys"
     servos = dxl_server(ids=[1, 2], extra_args=["--usb-latency-ms", "16", "--sysfs-root", str(sysfs)])
-    cell = loadcell_server("constant:0.5")  # no slip: the ramp ends on its timeout, kept short by
-    rig = hardware_rig(servos.link, cell.link, top={"line_stiffness_n_per_m": 20000})  # a stiff line
+    # A constant cell: no rise, so the first ramp ends on the reel-direction check (0.25 turn, about
+    # 1.6 s at 1 rad/s), exit 1; the timer's warnings come before it.
+    cell = loadcell_server("constant:0.5")
+    rig = hardware_rig(servos.link, cell.link, top={"line_stiffness_n_per_m": 20000})
     protocol = tmp_path / "p.yaml"
     protocol.write_text(PROTOCOL)
     run = subprocess.run(
@@ -108,7 +110,7 @@ def test_a_16_ms_timer_is_named_at_connect_and_for_late_ticks(
         text=True,
         timeout=180,
     )
-    assert run.returncode == 0, run.stderr
+    assert run.returncode == 1 and "WinchDirectionError" in run.stderr, run.stderr
     notes = run.stderr.splitlines()
     connect = [n for n in notes if "latency timer is 16 ms" in n and "every servo bus transaction" in n]
     assert len(connect) == 1, run.stderr  # warned once, at connect
