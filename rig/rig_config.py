@@ -478,6 +478,13 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
         )
     config = RigConfig(**values)
     _check_forks(top, config)
+    if simulation is not None and simulation.servo_models is not None:
+        count = len(config.servos.servos)
+        if len(simulation.servo_models) != count:
+            raise top.section("simulation").error(
+                "servo_models",
+                f"{len(simulation.servo_models)} models; allowed: one per servo of servos.ids ({count})",
+            )
     return config
 
 

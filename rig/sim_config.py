@@ -30,6 +30,7 @@ from rig.vocabulary import (
     LoadCellFaultKind,
     LoggerFaultKind,
     ServoFaultKind,
+    ServoModel,
     SlipKind,
 )
 
@@ -339,6 +340,16 @@ class SimulationConfig:
             doc="every emulated servo's Firmware Version (< 38: no Bus Watchdog; < 45: no Fast Sync Read)",
         ),
     )
+    servo_models: tuple[ServoModel, ...] | None = field(
+        default=None,
+        metadata=custom(
+            allowed_doc="one model per configured servo, in `servos.ids` order",
+            optional=True,
+            default_doc="the configured models",
+            doc="the servos actually on the emulated bus: another model at an ID than the config "
+            "names is a servo the lab mixed up (`rig check` fails its handshake, naming the fix)",
+        ),
+    )
     torsion_weak_joint: int | None = field(
         default=None,
         metadata=custom(
@@ -427,6 +438,14 @@ def parse_simulation(sec: Section, joint_count: int) -> SimulationConfig:
     weak = sec.raw("torsion_weak_joint", default=None)
     if weak is not None:
         weak = sec.integer("torsion_weak_joint", min_value=1, max_value=joint_count)
+    servo_models = None
+    if sec.has("servo_models"):
+        names = [str(m) for m in ServoModel]
+        items = sec.sequence("servo_models", min_length=1, max_length=253)
+        for i, item in enumerate(items):
+            if item not in names:
+                raise sec.error(f"servo_models[{i}]", f"{item!r}; allowed: {', '.join(names)}")
+        servo_models = tuple(ServoModel(item) for item in items)
     faults = tuple(
         parse_fault(Section(item, sec.source, sec.field("faults") + f"[{i}]"))
         for i, item in enumerate(sec.sequence("faults", default=[]))
@@ -436,6 +455,7 @@ def parse_simulation(sec: Section, joint_count: int) -> SimulationConfig:
         SimulationConfig,
         given={
             "torsion_weak_joint": weak,
+            "servo_models": servo_models,
             "faults": faults,
             "slips": parse_slips(sec.section("slips", default={})),
             "scatter": parse_scatter(sec.section("scatter", default={})),

@@ -358,9 +358,11 @@ def test_stiffness_fit() -> None:
 
 
 def test_wrong_model_fails_the_handshake(write_file: Callable[[str, str], Path]) -> None:
+    # The config names an XL430-W250 bender; the bus has an XM430-W350 at ID 2.
     config = _sim_config(
         write_file,
-        "servos:\n  ids: [{id: 1, role: winch}, {id: 2, role: bender, model: XL430-W250}]\n",
+        "servos:\n  ids: [{id: 1, role: winch}, {id: 2, role: bender, model: XL430-W250}]\n"
+        "simulation:\n  servo_models: [XM430-W350, XM430-W350]\n",
     )
     (row,) = _check_sim(config, only=("servos",))
     assert row.verdict is Verdict.FAIL and "wrong model" in row.measured and "XL430-W250" in row.measured

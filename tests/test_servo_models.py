@@ -88,3 +88,15 @@ def test_the_simulated_rig_serves_every_configured_servo_its_own_model(tmp_path,
     protocol = Path(__file__).resolve().parent.parent / "protocols" / "smoke.yaml"
     out = cli_json("run", protocol, "--rig", rig, "--devices", devices, "--out", tmp_path / "o", "--json")
     assert out["completed"] == 2 and out["reason"] is None
+
+
+def test_simulation_servo_models_are_one_per_configured_servo(tmp_path):
+    rig = tmp_path / "r.yaml"
+    rig.write_text("extends: simulated\nsimulation:\n  servo_models: [XM430-W350]\n", encoding="utf-8")
+    with pytest.raises(
+        ConfigError, match=r"r\.yaml: simulation\.servo_models: 1 models; allowed: one per servo"
+    ):
+        load_rig_config(rig)
+    rig.write_text("extends: simulated\nsimulation:\n  servo_models: [XM430-W350, AX-12]\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"simulation\.servo_models\[1\]: 'AX-12'; allowed: XM430-W350"):
+        load_rig_config(rig)

@@ -63,7 +63,8 @@ def object_simulated_rig(
         )
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
-    bus = ObjectServoBus(clock, [(s.servo_id, s.model) for s in config.servos.servos])
+    models = sim.servo_models or [s.model for s in config.servos.servos]  # as on the byte-level bus
+    bus = ObjectServoBus(clock, [(s.servo_id, m) for s, m in zip(config.servos.servos, models, strict=True)])
     world = new_world(preset, config, bus, clock, seed)
     world.devices_at_rest = bus.at_rest
     load_cell = ObjectLoadCell(

@@ -167,7 +167,8 @@ def simulated_rig(
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
     ids = [s.servo_id for s in config.servos.servos]
-    models = [s.model for s in config.servos.servos]  # each configured servo its own model
+    # Each configured servo its own model, unless the world puts other servos on the bus.
+    models = list(sim.servo_models or [s.model for s in config.servos.servos])
     bus = EmulatedBus.with_servos(
         clock, ids=ids, model=models, baud=config.servos.baud, firmware=sim.servo_firmware
     )
