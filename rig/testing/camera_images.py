@@ -5,7 +5,8 @@ exactly through the pinhole-and-distortion model: every output pixel is sampled 
 points, each point's ray (`cv2.undistortPoints`) is intersected with the target's plane and the
 target's texture is read there (bilinear), and the samples are averaged (anti-aliased edges, as a
 sensor integrates over a pixel). Targets are drawn far to near, so a nearer one hides a farther
-one. Then optional Gaussian blur, Gaussian noise and occluders (filled polygons in pixels).
+one. Then optional occluders (filled polygons in pixels), reduced contrast, an illumination
+gradient across the image, Gaussian blur and Gaussian noise.
 
 `render_link` places one marker per component of a link in a known configuration, in the
 frames of docs/model.md §1 and the marker map's marker poses; `calibration_views` renders a board
@@ -64,11 +65,18 @@ class PlaneTarget:
 
 @dataclass(frozen=True)
 class Rendering:
-    """Render settings: background grey, blur σ [px], noise σ [grey levels], occluders, seed."""
+    """Render settings: background grey, blur σ [px], noise σ [grey levels], occluders, seed.
+
+    `contrast` scales every grey about mid-grey (1: black prints black; 0.6: the darkest ink 0.2);
+    `illumination_gradient` dims the image linearly from its left edge (full light) to its right
+    edge (1 − gradient), as a lamp to one side does.
+    """
 
     background: float = 0.45
     blur_sigma_px: float = 0.0
     noise_sigma: float = 0.0
+    contrast: float = 1.0
+    illumination_gradient: float = 0.0
     supersample: int = 3
     occluders: tuple[tuple[NDArray[np.float64], float], ...] = field(
         default=()
@@ -153,6 +161,11 @@ def render(
         _draw(canvas, target, camera, rendering.supersample)
     for polygon, grey in rendering.occluders:
         cv2.fillPoly(canvas, [np.round(polygon).astype(np.int32)], float(grey), lineType=cv2.LINE_AA)
+    if rendering.contrast != 1.0:
+        canvas = np.float32(0.5) + (canvas - np.float32(0.5)) * np.float32(rendering.contrast)
+    if rendering.illumination_gradient != 0.0:
+        light = 1.0 - rendering.illumination_gradient * np.linspace(0.0, 1.0, camera.width, dtype=np.float32)
+        canvas = canvas * light[None, :]
     image = canvas * 255.0
     if rendering.blur_sigma_px > 0:
         image = cv2.GaussianBlur(image, (0, 0), rendering.blur_sigma_px)
