@@ -1,7 +1,7 @@
 """Camera configuration source: joint-angle error and sd coverage per image condition and marker size.
 
 Run: .venv/bin/python benchmarks/bench_camera.py [--scenes 8] [--seed 0] [--conditions clean moderate soft]
-     [--distances M ...] [--max-tilt-deg 8] [--occlude] [--refinement subpix|contour|apriltag|none]
+     [--distances M ...] [--max-tilt-deg 8] [--occlude] [--refinement edges|subpix|contour|apriltag|none]
      [--choice chain|best] [--repeats 0]
 
 Needs the camera extra (pip install -e '.[camera]'). Link 1 with the shipped marker map
@@ -53,7 +53,12 @@ def main() -> None:
     parser.add_argument("--distances", type=float, nargs="+", default=list(DISTANCES_M), metavar="M")
     parser.add_argument("--max-tilt-deg", type=float, default=8.0, help="camera tilt about each axis")
     parser.add_argument("--occlude", action="store_true", help="the tests' partial occlusions too")
-    parser.add_argument("--refinement", default="subpix", choices=[c.value for c in CornerRefinement])
+    parser.add_argument(
+        "--refinement",
+        default=None,
+        choices=[c.value for c in CornerRefinement],
+        help="corner refinement (default: the map's own)",
+    )
     parser.add_argument(
         "--choice",
         default="chain",
@@ -64,12 +69,14 @@ def main() -> None:
     args = parser.parse_args()
 
     marker_map = load_marker_map(ROOT / "protocols" / "link1_markers.yaml")
-    marker_map = dataclasses.replace(marker_map, corner_refinement=CornerRefinement(args.refinement))
+    if args.refinement is not None:
+        marker_map = dataclasses.replace(marker_map, corner_refinement=CornerRefinement(args.refinement))
     camera = SyntheticCamera()
     detector = MarkerDetector(marker_map, exact_calibration(camera))
     along_chain = args.choice == "chain"
     print(
-        f"link 1, 18 mm markers, corner refinement {args.refinement}, poses chosen by {args.choice}, "
+        f"link 1, 18 mm markers, corner refinement {marker_map.corner_refinement.value}, "
+        f"poses chosen by {args.choice}, "
         f"camera tilt up to {args.max_tilt_deg:g}°, {'with' if args.occlude else 'no'} occlusions, "
         f"{args.scenes} images per condition and distance"
     )

@@ -27,7 +27,7 @@ def test_the_shipped_link1_map_matches_the_link1_preset():
     assert marker_map.segment_lengths_m == preset.segment_lengths_m
     assert marker_map.joint_count == len(preset.segment_lengths_m) == 8
     assert [c.marker_id for c in marker_map.components] == list(range(9))
-    assert marker_map.corner_refinement == CornerRefinement.SUBPIX
+    assert marker_map.corner_refinement == CornerRefinement.EDGES
     # every marker faces up (+y of its component), printed x across the link
     for component in marker_map.components:
         rotation = component.pose_in_component[:3, :3]

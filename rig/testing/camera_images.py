@@ -2,9 +2,11 @@
 
 Each flat target (an ArUco marker with its white quiet zone, a chessboard, a ChArUco board) is drawn
 exactly through the pinhole-and-distortion model: every output pixel is sampled at `supersample`²
-points, each point's ray (`cv2.undistortPoints`) is intersected with the target's plane and the
-target's texture is read there (bilinear), and the samples are averaged (anti-aliased edges, as a
-sensor integrates over a pixel). Targets are drawn far to near, so a nearer one hides a farther
+points (one at a random place in each cell of an s × s grid over the pixel: a fixed grid would
+place an edge that runs along a pixel row only to the nearest 1/s px), each point's ray
+(`cv2.undistortPoints`) is intersected with the target's plane and the target's texture is read
+there (bilinear), and the samples are averaged (anti-aliased edges, as a sensor integrates over a
+pixel). Targets are drawn far to near, so a nearer one hides a farther
 one. Then optional occluders (filled polygons in pixels), reduced contrast, an illumination
 gradient across the image, Gaussian blur and Gaussian noise.
 
@@ -85,22 +87,36 @@ class Rendering:
 
 
 def _rays(
-    camera: SyntheticCamera, supersample: int, x0: int, x1: int, y0: int, y1: int
+    camera: SyntheticCamera,
+    supersample: int,
+    box: tuple[int, int, int, int],
+    rng: np.random.Generator,
 ) -> NDArray[np.float32]:
-    """((y1−y0)·s, (x1−x0)·s, 2) normalised rays (x, y; z = 1) through the sample points of a pixel box."""
+    """((y1−y0)·s, (x1−x0)·s, 2) normalised rays (x, y; z = 1) through the sample points of a pixel box.
+
+    `box` is (x0, x1, y0, y1); each sample lies at a random place in its cell of an s × s grid over
+    its pixel (stratified jitter).
+    """
     cv2 = require_cv2()
+    x0, x1, y0, y1 = box
     s = supersample
-    offsets = (np.arange(s) + 0.5) / s - 0.5
+    offsets = np.arange(s) / s - 0.5
     xs = (np.arange(x0, x1)[:, None] + offsets[None, :]).reshape(-1)
     ys = (np.arange(y0, y1)[:, None] + offsets[None, :]).reshape(-1)
     grid_x, grid_y = np.meshgrid(xs, ys)
+    grid_x = grid_x + rng.uniform(0.0, 1.0 / s, grid_x.shape)
+    grid_y = grid_y + rng.uniform(0.0, 1.0 / s, grid_y.shape)
     pixels = np.stack([grid_x.reshape(-1), grid_y.reshape(-1)], axis=1)
     normalised = cv2.undistortPoints(pixels.reshape(-1, 1, 2), camera.matrix, camera.dist)
     return np.asarray(normalised.reshape(grid_x.shape[0], grid_x.shape[1], 2), np.float32)
 
 
 def _draw(
-    canvas: NDArray[np.float32], target: PlaneTarget, camera: SyntheticCamera, supersample: int
+    canvas: NDArray[np.float32],
+    target: PlaneTarget,
+    camera: SyntheticCamera,
+    supersample: int,
+    rng: np.random.Generator,
 ) -> None:
     cv2 = require_cv2()
     rotation = target.cam_from_plane[:3, :3]
@@ -123,7 +139,7 @@ def _draw(
     if x0 >= x1 or y0 >= y1:
         return
     s = supersample
-    rays = _rays(camera, s, x0, x1, y0, y1)
+    rays = _rays(camera, s, (x0, x1, y0, y1), rng)
     ray_x, ray_y = rays[..., 0], rays[..., 1]  # z is 1
     # Elementwise rather than matrix products: (N, 3) @ (3, 3) goes through BLAS threads, which crawl
     # on a loaded machine.
@@ -157,8 +173,9 @@ def render(
     """An 8-bit grey image of `targets` (drawn far to near), blurred, occluded and noisy as set."""
     cv2 = require_cv2()
     canvas = np.full((camera.height, camera.width), rendering.background, np.float32)
+    rng = np.random.default_rng([rendering.seed, 1])  # the sample points' (the noise has its own)
     for target in sorted(targets, key=lambda t: -float(np.linalg.norm(t.cam_from_plane[:3, 3]))):
-        _draw(canvas, target, camera, rendering.supersample)
+        _draw(canvas, target, camera, rendering.supersample, rng)
     for polygon, grey in rendering.occluders:
         cv2.fillPoly(canvas, [np.round(polygon).astype(np.int32)], float(grey), lineType=cv2.LINE_AA)
     if rendering.contrast != 1.0:

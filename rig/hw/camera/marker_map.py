@@ -51,8 +51,13 @@ _COMPONENT_KEYS = ("name", "marker_id", "xyz_m", "rpy_rad")
 
 
 class CornerRefinement(StrEnum):
-    """ArUco corner refinement (cv2.aruco.CORNER_REFINE_*); `subpix` is what the accuracy figures used."""
+    """How a marker's corners are refined: `edges` (the default) or one of ArUco's own.
 
+    `edges`: lines fitted to the marker's four edges (`rig.hw.camera.edges`); the others are
+    cv2.aruco.CORNER_REFINE_* (`subpix` with a fixed 5 × 5 px window).
+    """
+
+    EDGES = "edges"
     SUBPIX = "subpix"
     CONTOUR = "contour"
     APRILTAG = "apriltag"
@@ -83,7 +88,7 @@ class MarkerMap:
     segment_lengths_m: tuple[float, ...]
     components: tuple[ComponentMarker, ...]
     planar_tolerance_rad: float = DEFAULT_PLANAR_TOLERANCE_RAD
-    corner_refinement: CornerRefinement = CornerRefinement.SUBPIX
+    corner_refinement: CornerRefinement = CornerRefinement.EDGES
 
     @property
     def joint_count(self) -> int:
@@ -133,7 +138,7 @@ def parse_marker_map(data: object, source: str) -> MarkerMap:
     )
     refinement = top.string(
         "corner_refinement",
-        default=CornerRefinement.SUBPIX.value,
+        default=CornerRefinement.EDGES.value,
         choices=[c.value for c in CornerRefinement],
     )
     return MarkerMap(

@@ -36,11 +36,13 @@ from model.joint_rotation import (
 )
 from rig.errors import InputError, RigError
 from rig.hw.camera.calibration import CameraCalibration
+from rig.hw.camera.edges import EdgeCorners, EdgeRefiner
 from rig.hw.camera.marker_map import ComponentMarker, CornerRefinement, MarkerMap
 from rig.hw.camera.opencv import require_cv2
 from rig.hw.seams import ConfigurationReading
 
 MIN_CORNER_SIGMA_PX = 0.1  # floor: the residuals of 4 corners under-report the noise of refined corners
+MISFIT_CHI2 = 5.99  # χ²(2) exceeded with probability 0.05: a marker's corners fit its square worse
 AMBIGUITY_MARGIN_PX = 1.0  # a second IPPE solution within this of the best is a candidate
 OUT_OF_PLANE_CHI2 = 23.03  # χ²(2) exceeded with probability 1e-5 (the tilt noise has heavier tails)
 REPROJECTION_PENALTY_RAD_PER_PX = 0.05  # chain choice: 1 px of extra error weighs like 2.9° of tilt
@@ -148,10 +150,11 @@ class MarkerDetector:
         self.calibration = calibration
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, marker_map.dictionary))
         parameters = cv2.aruco.DetectorParameters()
-        parameters.cornerRefinementMethod = getattr(
-            cv2.aruco, f"CORNER_REFINE_{marker_map.corner_refinement.value.upper()}"
-        )
-        if marker_map.corner_refinement == CornerRefinement.SUBPIX:
+        refinement = marker_map.corner_refinement
+        # edges: ArUco's corners unrefined, then the edge lines (rig.hw.camera.edges)
+        aruco_method = "none" if refinement == CornerRefinement.EDGES else refinement.value
+        parameters.cornerRefinementMethod = getattr(cv2.aruco, f"CORNER_REFINE_{aruco_method.upper()}")
+        if refinement == CornerRefinement.SUBPIX:
             # half-size 2 (a 5x5 window): a larger one reaches past the white margin, and anything lying
             # beside the label bends the corners (benchmarks/bench_camera.py: 0.41° to 0.15° RMS at 50 px)
             parameters.cornerRefinementWinSize = 2
@@ -159,6 +162,11 @@ class MarkerDetector:
         self._object = _object_points(marker_map.marker_length_m)
         self._matrix = np.asarray(calibration.camera_matrix, np.float64)
         self._dist = np.asarray(calibration.distortion, np.float64)
+        self._edges = (
+            EdgeRefiner(cv2, self._matrix, self._dist, int(dictionary.markerSize) + 2)
+            if refinement == CornerRefinement.EDGES
+            else None
+        )
 
     def detect(self, image: NDArray[np.uint8]) -> dict[int, FloatArray]:
         """Corners (4, 2) by marker id, for the ids seen exactly once."""
@@ -175,6 +183,15 @@ class MarkerDetector:
         for key in twice:  # seen twice: no telling which is the component's
             del found[key]
         return found
+
+    def refine(self, image: NDArray[np.uint8], corners: FloatArray) -> EdgeCorners | None:
+        """The corners from the marker's edge lines with their covariance (`edges` refinement only).
+
+        None when the refinement is another, or a side of the marker shows too little edge to fit.
+        """
+        if self._edges is None:
+            return None
+        return self._edges.refine(np.asarray(image, np.float32), corners)
 
     def candidates(self, corners: FloatArray) -> list[tuple[FloatArray, FloatArray, float]]:
         """The planar pose solutions (rvec, tvec, RMS reprojection error px) worth considering, best first."""
@@ -197,12 +214,23 @@ class MarkerDetector:
         best = solutions[0][2]
         return [s for s in solutions if s[2] - best <= AMBIGUITY_MARGIN_PX and s[1][2] > 0]
 
-    def rotation_covariance(self, rvec: FloatArray, tvec: FloatArray, sigma_px: float) -> FloatArray:
-        """σ²(JᵀJ)⁻¹ restricted to the rotation vector, J the corners' Jacobian in (rvec, tvec)."""
+    def project(self, rvec: FloatArray, tvec: FloatArray) -> FloatArray:
+        """The marker's corners (4, 2) [px] seen in pose (rvec, tvec)."""
+        projected, _ = self._cv2.projectPoints(self._object, rvec, tvec, self._matrix, self._dist)
+        return np.asarray(projected, np.float64).reshape(4, 2)
+
+    def rotation_covariance(
+        self, rvec: FloatArray, tvec: FloatArray, corner_covariance_px2: FloatArray
+    ) -> FloatArray:
+        """(JᵀC⁻¹J)⁻¹ restricted to the rotation vector.
+
+        J is the corners' Jacobian in (rvec, tvec), C the (8, 8) covariance of the corners'
+        coordinates (x0, y0, x1, ...).
+        """
         _, jacobian = self._cv2.projectPoints(self._object, rvec, tvec, self._matrix, self._dist)
         jac = np.asarray(jacobian, np.float64)[:, :6]
-        information = jac.T @ jac
-        covariance = np.linalg.pinv(information) * sigma_px**2
+        information = jac.T @ np.linalg.pinv(corner_covariance_px2) @ jac
+        covariance = np.linalg.pinv(information)
         return np.asarray(covariance[:3, :3], np.float64)
 
 
@@ -279,6 +307,8 @@ def measure_image(
             f"nothing measured ({marker_map.dictionary}, map {marker_map.source})"
         )
     corners = [seen[c.marker_id] for c in marker_map.components]
+    edges = [detector.refine(image, quad) for quad in corners]
+    corners = [quad if edge is None else edge.corners_px for quad, edge in zip(corners, edges, strict=True)]
     options = []
     for component, quad in zip(marker_map.components, corners, strict=True):
         found = detector.candidates(quad)
@@ -295,10 +325,20 @@ def measure_image(
     sigma = max(MIN_CORNER_SIGMA_PX, math.sqrt(squared / dof))
 
     markers = []
-    for component, quad, (rvec, tvec, error), options_k in zip(
-        marker_map.components, corners, chosen, options, strict=True
+    for component, quad, (rvec, tvec, error), options_k, edge in zip(
+        marker_map.components, corners, chosen, options, edges, strict=True
     ):
         sides = np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1)
+        if edge is not None:
+            # the corners' own fit to a square: beyond what their covariance allows (χ² with 2 degrees
+            # of freedom above its 95 % point), something the lines did not see bends them: widen
+            residual = (quad - detector.project(rvec, tvec)).reshape(-1)
+            misfit = float(residual @ np.linalg.pinv(edge.covariance_px2) @ residual)
+            corner_covariance = edge.covariance_px2 * max(1.0, misfit / MISFIT_CHI2)
+        else:
+            # a marker that fits its own corners worse than the image's pooled noise gets its own
+            # (one marker's 4 corners leave 2 degrees of freedom: σ_k² = 4 e_k² / 2)
+            corner_covariance = np.eye(8) * max(sigma, math.sqrt(2.0) * error) ** 2
         markers.append(
             MarkerPose(
                 component=component.component,
@@ -310,11 +350,7 @@ def measure_image(
                 side_px=float(sides.mean()),
                 candidates=len(options_k),
                 rvec=rvec,
-                # a marker that fits its own corners worse than the image's pooled noise gets its own
-                # (one marker's 4 corners leave 2 degrees of freedom: σ_k² = 4 e_k² / 2)
-                rotation_covariance=detector.rotation_covariance(
-                    rvec, tvec, max(sigma, math.sqrt(2.0) * error)
-                ),
+                rotation_covariance=detector.rotation_covariance(rvec, tvec, corner_covariance),
             )
         )
     component_rotations = np.stack(
