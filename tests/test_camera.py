@@ -193,19 +193,7 @@ def test_config_measure_prints_angles_and_json(capsys, example_png, calibration_
 def test_config_measure_of_an_image_missing_a_marker_exits_1_naming_it(
     tmp_path, capsys, marker_map, calibration_file
 ):
-    transforms = planar_transforms(np.radians(EXAMPLE_DEG), marker_map.segment_lengths_m)
-    visible = marker_map.components[:-1]  # the tip's marker is off the link
-    from dataclasses import replace
-
-    image = render_link(
-        replace(marker_map, components=visible),
-        transforms,
-        look_down_pose(0.3, (0, 0.012, 0.13)),
-        CAMERA,
-        Rendering(),
-    )
-    path = tmp_path / "no-tip.png"
-    cv2.imwrite(str(path), image)
+    path = _no_tip_png(tmp_path, marker_map)
     code = main(
         ["config", "measure", str(path), "--camera", str(calibration_file), "--markers", str(LINK1_MARKERS)]
     )
@@ -388,3 +376,42 @@ def test_choosing_poses_along_the_chain_beats_each_markers_best_reprojection(mar
 
     assert rms(rotation[True]) < 0.7 * rms(rotation[False])
     assert rms(planar[True]) <= rms(planar[False])
+
+
+def _no_tip_png(tmp_path: Path, marker_map) -> Path:
+    """The example configuration with the tip's marker off the link."""
+    from dataclasses import replace
+
+    transforms = planar_transforms(np.radians(EXAMPLE_DEG), marker_map.segment_lengths_m)
+    image = render_link(
+        replace(marker_map, components=marker_map.components[:-1]),
+        transforms,
+        look_down_pose(0.3, (0, 0.012, 0.13)),
+        CAMERA,
+        Rendering(),
+    )
+    path = tmp_path / "no-tip.png"
+    cv2.imwrite(str(path), image)
+    return path
+
+
+def test_config_measure_measures_every_image_on_its_own(
+    tmp_path, capsys, marker_map, example_png, calibration_file
+):
+    hidden = _no_tip_png(tmp_path, marker_map)
+    garbage = tmp_path / "garbage.png"
+    garbage.write_text("not an image")
+    base = ["config", "measure", "--camera", str(calibration_file), "--markers", str(LINK1_MARKERS)]
+    # one image whose marker is hidden between two good ones: both measured, exit 1 for the refused one
+    assert main([*base, str(example_png), str(hidden), str(example_png)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out.count(f"{example_png}: planar") == 2
+    assert captured.err.count("\n") == 1 and f"{hidden}: marker not seen for tip" in captured.err
+    assert main([*base, str(example_png), str(hidden), str(garbage), "--json"]) == 2  # invalid input wins
+    result = json.loads(capsys.readouterr().out)
+    first, second, third = result["measurements"]
+    assert (result["measured"], result["refused"]) == (1, 2)
+    np.testing.assert_allclose(first["joint_angles_deg"], EXAMPLE_DEG, atol=0.6)
+    assert second["source"] == str(hidden) and second["error_type"] == "MarkerNotSeenError"
+    assert "tip (component 8, marker 8)" in second["error"] and "joint_angles_deg" not in second
+    assert third["error_type"] == "InputError" and "not an image OpenCV can decode" in third["error"]
