@@ -36,9 +36,9 @@ MIN_POINTS = 6  # fewer edge points on a side: no line (the marker's corners are
 OUTLIER_SD = 3.0
 RISE_PER_SD = 2.563  # a Gaussian-blurred step rises from 10 % to 90 % over 2.563 sd
 # The sd of a line's position that its residuals cannot show, fitted on rendered images (issue 32,
-# benchmarks/bench_camera.py: errors within 2 sd in 94-100 % of joints at 44-71 px, blur σ 0-1.4 px)
+# benchmarks/bench_camera.py: errors within 2 sd in 92-99 % of joints at 44-71 px, blur σ 0-1.4 px)
 EDGE_BIAS_FLOOR_PX = 0.03  # of its offset: sampling, rendering, a label not quite flat
-BLUR_TILT_FLOOR = 0.8  # of its ends, times edge sd³ / cell²: see `blur_tilt_floor_px`
+BLUR_TILT_FLOOR = 6.0  # of its ends, times edge sd⁴ / cell³: see `blur_tilt_floor_px`
 
 
 def blur_tilt_floor_px(edge_sd_px: float, cell_px: float) -> float:
@@ -47,9 +47,9 @@ def blur_tilt_floor_px(edge_sd_px: float, cell_px: float) -> float:
     A blur that reaches from the border's edge into the next cells mixes the bit cells (black or
     white, changing along the edge) into the profile's dark end, and so shifts the edge by different
     amounts along its length: the line turns. The shift grows steeply as the blur nears the profile's
-    reach (`PROFILE_HALF_CELLS` of a cell), modelled as edge sd³ / cell².
+    reach (`PROFILE_HALF_CELLS` of a cell), modelled as edge sd⁴ / cell³.
     """
-    return BLUR_TILT_FLOOR * edge_sd_px**3 / cell_px**2
+    return BLUR_TILT_FLOOR * edge_sd_px**4 / cell_px**3
 
 
 @dataclass(frozen=True)
