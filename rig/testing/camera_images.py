@@ -17,6 +17,7 @@ from many poses. Needs OpenCV (the `camera` extra).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -296,6 +297,46 @@ def board_target(board: Board, cam_from_board: FloatArray, *, square_px: int = 6
     return PlaneTarget(texture, width, height, cam_from_board @ board_from_plane)
 
 
+def _board_extent_m(board: Board) -> NDArray[np.float64]:
+    """The span (x, y) [m] of the board's object points."""
+    if board.kind == BoardKind.CHESSBOARD:
+        return np.array([board.columns - 1, board.rows - 1]) * board.square_m
+    return np.array([board.columns, board.rows]) * board.square_m
+
+
+def _board_view(
+    board: Board, camera: SyntheticCamera, rvec: FloatArray, depth_m: float, centre_px: tuple[float, float]
+) -> tuple[FloatArray, bool]:
+    """cam_from_board for the board turned by `rvec`, its centre seen at `centre_px` `depth_m` away.
+
+    And whether the whole board lies 20 px or more inside the image.
+    """
+    cv2 = require_cv2()
+    rotation, _ = cv2.Rodrigues(np.asarray(rvec, np.float64))
+    extent = _board_extent_m(board)
+    u, v = centre_px
+    centre = np.array([(u - camera.cx_px) / camera.fx_px, (v - camera.cy_px) / camera.fy_px, 1.0]) * depth_m
+    cam_from_board = np.eye(4)
+    cam_from_board[:3, :3] = rotation
+    cam_from_board[:3, 3] = centre - rotation @ np.array([extent[0] / 2, extent[1] / 2, 0.0])
+    corners = np.array(
+        [[0, 0, 0], [extent[0], 0, 0], [extent[0], extent[1], 0], [0, extent[1], 0]], np.float64
+    )
+    projected, _ = cv2.projectPoints(corners, rvec, cam_from_board[:3, 3], camera.matrix, camera.dist)
+    p = projected.reshape(-1, 2)
+    margin = 20
+    inside = bool(
+        p[:, 0].min() >= margin
+        and p[:, 1].min() >= margin
+        and p[:, 0].max() <= camera.width - margin
+        and p[:, 1].max() <= camera.height - margin
+    )
+    return cam_from_board, inside
+
+
+CALIBRATION_RENDERING = Rendering(background=0.5, blur_sigma_px=0.6, noise_sigma=2.0)
+
+
 def calibration_views(
     board: Board,
     camera: SyntheticCamera,
@@ -305,40 +346,30 @@ def calibration_views(
     distance_m: tuple[float, float] = (0.25, 0.5),
 ) -> list[NDArray[np.uint8]]:
     """`count` images of `board` from random poses over the whole image, tilted up to about 35°, in view."""
-    cv2 = require_cv2()
     rng = np.random.default_rng(seed)
-    if board.kind == BoardKind.CHESSBOARD:
-        extent = np.array([board.columns - 1, board.rows - 1]) * board.square_m
-    else:
-        extent = np.array([board.columns, board.rows]) * board.square_m
     images: list[NDArray[np.uint8]] = []
     while len(images) < count:
         rvec = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.3, 0.3)])
-        rotation, _ = cv2.Rodrigues(rvec)
         depth = rng.uniform(*distance_m)
         # aim the board's centre at a random point of the image's inner part
         u = rng.uniform(0.15, 0.85) * camera.width
         v = rng.uniform(0.15, 0.85) * camera.height
-        centre = np.array([(u - camera.cx_px) / camera.fx_px, (v - camera.cy_px) / camera.fy_px, 1.0]) * depth
-        cam_from_board = np.eye(4)
-        cam_from_board[:3, :3] = rotation
-        cam_from_board[:3, 3] = centre - rotation @ np.array([extent[0] / 2, extent[1] / 2, 0.0])
-        corners = np.array(
-            [[0, 0, 0], [extent[0], 0, 0], [extent[0], extent[1], 0], [0, extent[1], 0]], np.float64
-        )
-        projected, _ = cv2.projectPoints(corners, rvec, cam_from_board[:3, 3], camera.matrix, camera.dist)
-        p = projected.reshape(-1, 2)
-        margin = 20
-        if p[:, 0].min() < margin or p[:, 1].min() < margin or p[:, 0].max() > camera.width - margin:
+        cam_from_board, inside = _board_view(board, camera, rvec, depth, (u, v))
+        if not inside:
             continue
-        if p[:, 1].max() > camera.height - margin:
-            continue
-        target = board_target(board, cam_from_board)
-        images.append(
-            render(
-                [target],
-                camera,
-                Rendering(background=0.5, blur_sigma_px=0.6, noise_sigma=2.0, seed=len(images)),
-            )
-        )
+        rendering = dataclasses.replace(CALIBRATION_RENDERING, seed=len(images))
+        images.append(render([board_target(board, cam_from_board)], camera, rendering))
     return images
+
+
+def tilted_view(
+    board: Board, camera: SyntheticCamera, tilt_rad: float, *, distance_m: float, blur_sigma_px: float
+) -> NDArray[np.uint8]:
+    """One image of `board` in the middle of the image, turned `tilt_rad` about its x axis."""
+    cam_from_board, inside = _board_view(
+        board, camera, np.array([tilt_rad, 0.0, 0.0]), distance_m, (camera.cx_px, camera.cy_px)
+    )
+    if not inside:
+        raise ValueError(f"the board tilted {tilt_rad:g} rad at {distance_m:g} m does not fit the image")
+    rendering = dataclasses.replace(CALIBRATION_RENDERING, blur_sigma_px=blur_sigma_px, seed=1000)
+    return render([board_target(board, cam_from_board)], camera, rendering)
