@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 cv2 = pytest.importorskip(
     "cv2", reason="OpenCV is not installed: pip install -e '.[camera]' to run the camera tests"
@@ -449,3 +450,18 @@ def test_a_bad_view_is_dropped_and_named_and_leaves_the_calibration_as_without_i
     assert none_dropped is None
     assert calibration.fx_px == pytest.approx(good.fx_px, rel=0.0005)  # the target: < 0.05 %
     assert with_dropped is not None and abs(with_dropped.fx_px / good.fx_px - 1) > 0.001  # it mattered
+
+
+def test_markers_of_different_sizes_are_measured_each_at_its_own(tmp_path, detector):
+    data = yaml.safe_load(LINK1_MARKERS.read_text())
+    data["components"][0]["marker_length_m"] = 0.024  # the base's marker is larger than the others
+    path = tmp_path / "mixed.yaml"
+    path.write_text(yaml.safe_dump(data))
+    mixed = load_marker_map(path)
+    scene = random_scene(mixed, CAMERA, 0.3, seed=5, occlude=False)
+    measured = measure_image(
+        MarkerDetector(mixed, exact_calibration(CAMERA)), scene.image, source="x", time_ns=0
+    )
+    assert measured.markers[0].side_px > 1.25 * measured.markers[1].side_px
+    assert np.abs(np.degrees(measured.planar_angles_rad - scene.angles_rad)).max() < 0.3
+    assert measured.joint_gap_m[0] < 0.001  # the base's marker placed at its own size: joint 1 where it is

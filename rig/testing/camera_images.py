@@ -228,12 +228,11 @@ def link_targets(
 ) -> list[PlaneTarget]:
     """One marker target per component of a link in configuration `transforms` ((J, 4, 4), §1)."""
     poses = forward_kinematics(transforms)  # (J+1, 4, 4): G_0 = I, G_i
-    label_m = marker_map.marker_length_m * (1 + 2 * QUIET_ZONE_FRACTION)
     return [
         PlaneTarget(
             texture=marker_texture(marker_map.dictionary, component.marker_id),
-            width_m=label_m,
-            height_m=label_m,
+            width_m=component.marker_length_m * (1 + 2 * QUIET_ZONE_FRACTION),
+            height_m=component.marker_length_m * (1 + 2 * QUIET_ZONE_FRACTION),
             cam_from_plane=cam_from_base @ poses[component.component] @ component.pose_in_component,
         )
         for component in marker_map.components
@@ -261,7 +260,7 @@ def marker_outline_px(
     """(4, 2) image corners of one component's marker (black square), for placing occluders."""
     cv2 = require_cv2()
     target = link_targets(marker_map, transforms, cam_from_base)[component]
-    h = marker_map.marker_length_m / 2
+    h = marker_map.components[component].marker_length_m / 2
     square = np.array([[-h, h, 0, 1], [h, h, 0, 1], [h, -h, 0, 1], [-h, -h, 0, 1]], np.float64)
     points = (target.cam_from_plane @ square.T).T[:, :3]
     projected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.matrix, camera.dist)

@@ -159,7 +159,7 @@ class MarkerDetector:
             # beside the label bends the corners (benchmarks/bench_camera.py: 0.41° to 0.15° RMS at 50 px)
             parameters.cornerRefinementWinSize = 2
         self.detector = cv2.aruco.ArucoDetector(dictionary, parameters)
-        self._object = _object_points(marker_map.marker_length_m)
+        self._objects = {c.marker_id: _object_points(c.marker_length_m) for c in marker_map.components}
         self._matrix = np.asarray(calibration.camera_matrix, np.float64)
         self._dist = np.asarray(calibration.distortion, np.float64)
         self._edges = (
@@ -193,11 +193,15 @@ class MarkerDetector:
             return None
         return self._edges.refine(np.asarray(image, np.float32), corners)
 
-    def candidates(self, corners: FloatArray) -> list[tuple[FloatArray, FloatArray, float]]:
+    def candidates(self, marker_id: int, corners: FloatArray) -> list[tuple[FloatArray, FloatArray, float]]:
         """The planar pose solutions (rvec, tvec, RMS reprojection error px) worth considering, best first."""
         cv2 = self._cv2
         count, rvecs, tvecs, errors = cv2.solvePnPGeneric(
-            self._object, corners.astype(np.float32), self._matrix, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
+            self._objects[marker_id],
+            corners.astype(np.float32),
+            self._matrix,
+            self._dist,
+            flags=cv2.SOLVEPNP_IPPE_SQUARE,
         )
         errs = np.asarray(errors, np.float64).reshape(-1)
         solutions = sorted(
@@ -214,20 +218,20 @@ class MarkerDetector:
         best = solutions[0][2]
         return [s for s in solutions if s[2] - best <= AMBIGUITY_MARGIN_PX and s[1][2] > 0]
 
-    def project(self, rvec: FloatArray, tvec: FloatArray) -> FloatArray:
+    def project(self, marker_id: int, rvec: FloatArray, tvec: FloatArray) -> FloatArray:
         """The marker's corners (4, 2) [px] seen in pose (rvec, tvec)."""
-        projected, _ = self._cv2.projectPoints(self._object, rvec, tvec, self._matrix, self._dist)
+        projected, _ = self._cv2.projectPoints(self._objects[marker_id], rvec, tvec, self._matrix, self._dist)
         return np.asarray(projected, np.float64).reshape(4, 2)
 
     def rotation_covariance(
-        self, rvec: FloatArray, tvec: FloatArray, corner_covariance_px2: FloatArray
+        self, marker_id: int, rvec: FloatArray, tvec: FloatArray, corner_covariance_px2: FloatArray
     ) -> FloatArray:
         """(JᵀC⁻¹J)⁻¹ restricted to the rotation vector.
 
         J is the corners' Jacobian in (rvec, tvec), C the (8, 8) covariance of the corners'
         coordinates (x0, y0, x1, ...).
         """
-        _, jacobian = self._cv2.projectPoints(self._object, rvec, tvec, self._matrix, self._dist)
+        _, jacobian = self._cv2.projectPoints(self._objects[marker_id], rvec, tvec, self._matrix, self._dist)
         jac = np.asarray(jacobian, np.float64)[:, :6]
         information = jac.T @ np.linalg.pinv(corner_covariance_px2) @ jac
         covariance = np.linalg.pinv(information)
@@ -311,7 +315,7 @@ def measure_image(
     corners = [quad if edge is None else edge.corners_px for quad, edge in zip(corners, edges, strict=True)]
     options = []
     for component, quad in zip(marker_map.components, corners, strict=True):
-        found = detector.candidates(quad)
+        found = detector.candidates(component.marker_id, quad)
         if not found:
             raise MarkerNotSeenError(
                 f"{source}: {component.name} (marker {component.marker_id}): no pose in front of the camera"
@@ -332,7 +336,7 @@ def measure_image(
         if edge is not None:
             # the corners' own fit to a square: beyond what their covariance allows (χ² with 2 degrees
             # of freedom above its 95 % point), something the lines did not see bends them: widen
-            residual = (quad - detector.project(rvec, tvec)).reshape(-1)
+            residual = (quad - detector.project(component.marker_id, rvec, tvec)).reshape(-1)
             misfit = float(residual @ np.linalg.pinv(edge.covariance_px2) @ residual)
             corner_covariance = edge.covariance_px2 * max(1.0, misfit / MISFIT_CHI2)
         else:
@@ -350,7 +354,9 @@ def measure_image(
                 side_px=float(sides.mean()),
                 candidates=len(options_k),
                 rvec=rvec,
-                rotation_covariance=detector.rotation_covariance(rvec, tvec, corner_covariance),
+                rotation_covariance=detector.rotation_covariance(
+                    component.marker_id, rvec, tvec, corner_covariance
+                ),
             )
         )
     component_rotations = np.stack(
