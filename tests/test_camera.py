@@ -220,8 +220,12 @@ def test_config_measure_of_an_image_missing_a_marker_exits_1_naming_it(
             "distortion_coefficients",
         ),
         (lambda t: t.replace("image_width: 1280", "image_width: 100"), "camera_matrix: not a pinhole matrix"),
+        (
+            lambda t: t.replace("distortion_coefficients", "dist_coeffs"),
+            "distortion_coefficients: required field is missing (the file has dist_coeffs",
+        ),
     ],
-    ids=["missing matrix", "not FileStorage", "distortion count", "principal point outside"],
+    ids=["missing matrix", "not FileStorage", "distortion count", "principal point outside", "other key"],
 )
 def test_a_bad_calibration_file_exits_2_naming_the_field(
     tmp_path, capsys, calibration_file, example_png, edit, message

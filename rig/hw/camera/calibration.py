@@ -33,6 +33,9 @@ OUTLIER_FACTOR = 5.0  # times the median view's RMS error
 OUTLIER_MIN_PX = 0.25
 FloatArray = NDArray[np.float64]
 _DISTORTION_COUNTS = (4, 5, 8, 12, 14)  # what cv2.calibrateCamera and solvePnP accept
+# Names other OpenCV tools give the distortion (opencv_interactive-calibration writes dist_coeffs):
+# refused, naming the key to use, rather than read as a second name of one field.
+OTHER_DISTORTION_KEYS = ("dist_coeffs", "distCoeffs")
 
 
 class BoardKind(StrEnum):
@@ -166,6 +169,12 @@ def parse_calibration(text: str, source: str) -> CameraCalibration:
                 f"{source}: camera_matrix: not a pinhole matrix of this image; allowed: [[fx, s, cx], "
                 f"[0, fy, cy], [0, 0, 1]] with fx, fy > 0, 0 <= cx <= image_width, 0 <= cy <= image_height"
             )
+        for other in OTHER_DISTORTION_KEYS:
+            if fs.getNode("distortion_coefficients").empty() and not fs.getNode(other).empty():
+                raise InputError(
+                    f"{source}: distortion_coefficients: required field is missing (the file has {other}, "
+                    "another tool's name for it); allowed: the key distortion_coefficients (docs §9.1)"
+                )
         dist_node = _node(fs, source, "distortion_coefficients").mat()
         dist = np.asarray(dist_node if dist_node is not None else [], dtype=np.float64).reshape(-1)
         if dist.size not in _DISTORTION_COUNTS or not np.all(np.isfinite(dist)) or np.any(np.abs(dist) > 1e4):
