@@ -38,7 +38,7 @@ RISE_PER_SD = 2.563  # a Gaussian-blurred step rises from 10 % to 90 % over 2.56
 # The sd of a line's position that its residuals cannot show, fitted on rendered images (issue 32,
 # benchmarks/bench_camera.py: errors within 2 sd in 92-99 % of joints at 44-71 px, blur σ 0-1.4 px)
 EDGE_BIAS_FLOOR_PX = 0.03  # of its offset: sampling, rendering, a label not quite flat
-BLUR_TILT_FLOOR = 6.0  # of its ends, times edge sd⁴ / cell³: see `blur_tilt_floor_px`
+BLUR_TILT_FLOOR = 5.0  # of its ends, times edge sd⁴ / cell³: see `blur_tilt_floor_px`
 
 
 def blur_tilt_floor_px(edge_sd_px: float, cell_px: float) -> float:

@@ -1,6 +1,8 @@
 """A link configuration from one camera image: ArUco markers → component poses → joint rotations.
 
-For each component's marker (`MarkerMap`): its four corners (ArUco, sub-pixel refined), its pose by
+For each component's marker (`MarkerMap`): its four corners (found by ArUco, refined by the map's
+`corner_refinement`: by default from lines fitted to the marker's edges, `rig.hw.camera.edges`), its
+pose by
 `cv2.solvePnPGeneric` with `SOLVEPNP_IPPE_SQUARE` (both planar solutions), then the component's pose
 from the marker's pose in its frame. A small or face-on marker has two solutions that reproject
 almost equally well and differ mostly in tilt; the choice is made along the chain (a Viterbi pass
@@ -8,12 +10,15 @@ over the two candidates of each marker) so that consecutive components turn abou
 axis rather than tilt, with a penalty per pixel of extra reprojection error. Joint rotations and
 planar angles follow by `model.joint_rotation` (docs/formats.md §9.3 for the conventions).
 
-Uncertainty: the corner noise σ [px] is estimated from the reprojection residuals of all markers in
-the image (2 degrees of freedom each: 8 corner coordinates, 6 pose parameters), floored at
-`MIN_CORNER_SIGMA_PX`, and raised for a marker whose own residuals are larger (a partly occluded
-label bends its refined corners); each marker's rotation covariance is σ²(JᵀJ)⁻¹ from the projection's
-Jacobian, and is carried to each planar angle by its numerical gradient. The result is a
-first-order standard deviation: it does not cover a wrong marker map or a flipped solution.
+Uncertainty: with `edges` refinement each marker's corners come with their (8, 8) covariance C from
+the edge lines (`rig.hw.camera.edges`), widened by the χ² of the corners' own fit to a square where
+that exceeds its 95 % point (something the lines did not see bent them). With ArUco's refinements
+the corner noise σ [px] is estimated from the reprojection residuals of all markers in the image (2
+degrees of freedom each: 8 corner coordinates, 6 pose parameters), floored at `MIN_CORNER_SIGMA_PX`,
+and raised for a marker whose own residuals are larger: C = σ²I. Each marker's rotation covariance
+is (JᵀC⁻¹J)⁻¹ from the projection's Jacobian, and is carried to each planar angle and to the
+out-of-plane test by numerical gradients. The result is a first-order standard deviation: it does
+not cover a wrong marker map, a wrong calibration or a flipped solution.
 
 A component whose marker is not found is `MarkerNotSeenError`, naming it: never a guessed angle.
 """
@@ -84,7 +89,7 @@ class CameraMeasurement:
     out_of_plane_rad: FloatArray  # (J,) angle of Rot_y(φ_i)ᵀ R_i
     out_of_plane_statistic: FloatArray  # (J,) vᵀΣ⁻¹v of its tilt-and-twist vector: χ² with 2 dof if planar
     joint_gap_m: FloatArray  # (J,) distance between joint i's centre as placed by components i−1 and i
-    corner_sigma_px: float  # the corner noise the uncertainty assumes
+    corner_sigma_px: float  # the corner noise the uncertainty assumes (RMS over the markers' corners)
     planar_tolerance_rad: float
 
     @property
@@ -329,6 +334,7 @@ def measure_image(
     sigma = max(MIN_CORNER_SIGMA_PX, math.sqrt(squared / dof))
 
     markers = []
+    corner_covariances: list[FloatArray] = []
     for component, quad, (rvec, tvec, error), options_k, edge in zip(
         marker_map.components, corners, chosen, options, edges, strict=True
     ):
@@ -343,6 +349,7 @@ def measure_image(
             # a marker that fits its own corners worse than the image's pooled noise gets its own
             # (one marker's 4 corners leave 2 degrees of freedom: σ_k² = 4 e_k² / 2)
             corner_covariance = np.eye(8) * max(sigma, math.sqrt(2.0) * error) ** 2
+        corner_covariances.append(corner_covariance)
         markers.append(
             MarkerPose(
                 component=component.component,
@@ -378,7 +385,7 @@ def measure_image(
         out_of_plane_rad=tilt,
         out_of_plane_statistic=tilt_statistic,
         joint_gap_m=gaps,
-        corner_sigma_px=sigma,
+        corner_sigma_px=float(np.sqrt(np.mean([np.mean(np.diag(c)) for c in corner_covariances]))),
         planar_tolerance_rad=marker_map.planar_tolerance_rad,
     )
 
