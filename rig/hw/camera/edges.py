@@ -1,24 +1,28 @@
 """A marker's corners from straight lines fitted to its four edges at sub-pixel precision, with covariance.
 
-Along each side of the black square, between one cell from either corner, the image is sampled on
-short profiles across the edge (±`PROFILE_HALF_CELLS` of a cell, bilinear); each profile's edge
-point is where it crosses the mean of its dark (inner) and bright (outer) ends. A symmetric blur
-moves neither that crossing of a straight edge nor, with the local mean, an illumination gradient,
-so the edges stay put on soft images, where a corner window (`cornerSubPix`) is drawn into the
-corner's rounded tip. The points are undistorted (the camera's model), a straight line is fitted to
-each side (total least squares, points beyond 3 robust sd dropped, refitted once on profiles
-re-centred on the line) and the corners are the intersections of neighbouring lines, distorted back
-into the image.
+Along each side of the black square, from one cell after a corner to one cell before the next, the
+image is sampled on short profiles across the edge (±`PROFILE_HALF_CELLS` of a cell, bilinear).
+Each profile's edge point is where the area under the profile puts a sharp step between its dark
+level (the darkest samples of its inner half) and its bright level (the brightest of its outer
+half). A symmetric blur moves no straight edge's area, nor does an illumination gradient or the
+pixel grid (the crossing of mid-grey would be pulled toward pixel centres on a sharp edge), so the
+edges stay put on soft images, where a corner window (`cornerSubPix`) is drawn into the corner's
+rounded tip. The points are undistorted (the camera's model), a straight line is fitted to each side
+(total least squares, points beyond 3 robust sd dropped, fitted again on profiles re-centred on the
+first line) and the corners are the intersections of neighbouring lines, distorted back into the
+image.
 
-Uncertainty: each line's offset and direction follow from its own residuals (independent points),
-plus `EDGE_BIAS_FLOOR_PX` of offset that residuals cannot see (what is left of the blur's
-asymmetry near the bit cells, the sampling of the edge, a slightly bent label); the 8 corner
-coordinates' covariance is propagated from the 8 line parameters (two per line), so corners that
-share a line are correlated as they are.
+Uncertainty: each line's offset and direction have the sd their residuals give (independent
+points), plus what residuals cannot see: `EDGE_BIAS_FLOOR_PX` on the offset, `blur_tilt_floor_px`
+on either end (a blur reaching the bit cells), and on the offset of a side whose white margin is
+darker than the marker's brightest side (something dark within the blur's reach beyond it) that
+shortfall times the profile's reach. The 8 corner coordinates' covariance is propagated from the 8
+line parameters (two per line), so corners that share a line are correlated as they are.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -34,6 +38,7 @@ END_SAMPLES = 3  # samples at each end of a profile averaged for its dark and br
 MIN_STEP_GREY = 12.0  # a profile whose bright end is not this much above its dark end shows no edge
 MIN_POINTS = 6  # fewer edge points on a side: no line (the marker's corners are kept as detected)
 OUTLIER_SD = 3.0
+MARGIN_LEVEL_ALLOWANCE = 0.03  # differences of a margin's level between sides taken as lighting, not shade
 RISE_PER_SD = 2.563  # a Gaussian-blurred step rises from 10 % to 90 % over 2.563 sd
 # The sd of a line's position that its residuals cannot show, fitted on rendered images (issue 32,
 # benchmarks/bench_camera.py: errors within 2 sd in 92-99 % of joints at 44-71 px, blur σ 0-1.4 px)
@@ -108,10 +113,11 @@ class EdgeRefiner:
 
     def _edge_points(
         self, image: NDArray[np.float32], start: FloatArray, end: FloatArray, outward: FloatArray, cell: float
-    ) -> tuple[FloatArray, FloatArray]:
-        """Edge points (N, 2) in image pixels along start→end, and each one's 10-90 % rise [px].
+    ) -> tuple[FloatArray, FloatArray, tuple[float, float]]:
+        """Edge points (N, 2) in image pixels along start→end, with each one's 10-90 % rise [px].
 
-        The profiles run along `outward`, from the dark border into the white margin.
+        The profiles run along `outward`, from the dark border into the white margin. Also the median
+        profile's (bright level, step) in grey levels.
         """
         count = max(MIN_POINTS, int(np.linalg.norm(end - start)))
         along = np.linspace(0.0, 1.0, count)
@@ -140,7 +146,10 @@ class EdgeRefiner:
         rise = np.sum((share > 0.1) & (share < 0.9), axis=1) * PROFILE_STEP_PX
         inside = np.abs(position) <= reach  # else the profile missed the edge
         points = bases[usable][inside] + position[inside, None] * outward[None, :]
-        return np.asarray(points, np.float64), np.asarray(rise[inside], np.float64)
+        levels = (
+            (float(np.median(bright[usable])), float(np.median(step[usable]))) if np.any(usable) else (0, 1)
+        )
+        return np.asarray(points, np.float64), np.asarray(rise[inside], np.float64), levels
 
     def _fit(self, points_px: FloatArray, floor_px: float, tilt_floor_px: float) -> _Line | None:
         """Total least squares line through undistorted points, outliers beyond 3 robust sd dropped.
@@ -186,6 +195,8 @@ class EdgeRefiner:
         quad = np.asarray(corners_px, np.float64)
         lines: list[_Line] = []
         edge_sds: list[float] = []
+        brightness: list[tuple[float, float]] = []  # (bright level, step) per side
+        reaches: list[float] = []
         centre = quad.mean(axis=0)
         for side in range(4):
             a, b = quad[side], quad[(side + 1) % 4]
@@ -195,13 +206,13 @@ class EdgeRefiner:
             outward = np.array([direction[1], -direction[0]])
             if outward @ ((a + b) / 2 - centre) < 0:
                 outward = -outward
-            points, _ = self._edge_points(image, a + inset, b - inset, outward, cell)
+            points, _, _ = self._edge_points(image, a + inset, b - inset, outward, cell)
             line = self._fit(points, 0.0, 0.0) if len(points) >= MIN_POINTS else None
             if line is None:
                 return None
             # second pass: profiles re-centred on the fitted line (the detected corners may be a pixel off)
             ends = self._distort(self._on_line(line, self._undistort(np.array([a + inset, b - inset]))))
-            points, rises = self._edge_points(image, ends[0], ends[1], outward, cell)
+            points, rises, levels = self._edge_points(image, ends[0], ends[1], outward, cell)
             if len(points) < MIN_POINTS:
                 return None
             edge_sd = float(np.median(rises)) / RISE_PER_SD
@@ -210,6 +221,17 @@ class EdgeRefiner:
                 return None
             lines.append(refit)
             edge_sds.append(edge_sd)
+            brightness.append(levels)
+            reaches.append(PROFILE_HALF_CELLS * cell)
+        # A side whose white margin looks darker than the others' (relative to its step) has something
+        # dark within a blur's reach beyond it: the edge moves out with the level, the whole side at
+        # once, which the corners' fit to a square cannot see (it turns the marker's tilt instead)
+        brightest = max(bright for bright, _ in brightness)
+        for k, line in enumerate(lines):
+            bright, step = brightness[k]
+            deficit = max(0.0, (brightest - bright) / step - MARGIN_LEVEL_ALLOWANCE)
+            extra_px = deficit * reaches[k]
+            lines[k] = dataclasses.replace(line, rho_sd_px=math.hypot(line.rho_sd_px, extra_px))
         params = np.array([[line.angle_rad, line.rho_px] for line in lines])
 
         def corners_from(p: FloatArray) -> FloatArray:
