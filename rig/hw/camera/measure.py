@@ -47,6 +47,7 @@ from rig.hw.camera.opencv import require_cv2
 from rig.hw.seams import ConfigurationReading
 
 MIN_CORNER_SIGMA_PX = 0.1  # floor: the residuals of 4 corners under-report the noise of refined corners
+FALLBACK_WINDOW_CELLS = 0.3  # cornerSubPix's half-window, of a cell, where a marker's edges cannot be fitted
 MISFIT_CHI2 = 5.99  # χ²(2) exceeded with probability 0.05: a marker's corners fit its square worse
 AMBIGUITY_MARGIN_PX = 1.0  # a second IPPE solution within this of the best is a candidate
 OUT_OF_PLANE_CHI2 = 23.03  # χ²(2) exceeded with probability 1e-5 (the tilt noise has heavier tails)
@@ -167,8 +168,9 @@ class MarkerDetector:
         self._objects = {c.marker_id: _object_points(c.marker_length_m) for c in marker_map.components}
         self._matrix = np.asarray(calibration.camera_matrix, np.float64)
         self._dist = np.asarray(calibration.distortion, np.float64)
+        self._cells = int(dictionary.markerSize) + 2  # across a marker, its black border included
         self._edges = (
-            EdgeRefiner(cv2, self._matrix, self._dist, int(dictionary.markerSize) + 2)
+            EdgeRefiner(cv2, self._matrix, self._dist, self._cells)
             if refinement == CornerRefinement.EDGES
             else None
         )
@@ -189,14 +191,24 @@ class MarkerDetector:
             del found[key]
         return found
 
-    def refine(self, image: NDArray[np.uint8], corners: FloatArray) -> EdgeCorners | None:
-        """The corners from the marker's edge lines with their covariance (`edges` refinement only).
+    def refine(self, image: NDArray[np.uint8], corners: FloatArray) -> tuple[FloatArray, EdgeCorners | None]:
+        """The corners refined as the map says, and their edge lines' fit (`edges` refinement only).
 
-        None when the refinement is another, or a side of the marker shows too little edge to fit.
+        With `edges`, a marker a side of which shows too little edge to fit (mostly hidden) gets
+        `cv2.cornerSubPix` instead, with a window of `FALLBACK_WINDOW_CELLS` of its cell, and no fit.
         """
         if self._edges is None:
-            return None
-        return self._edges.refine(np.asarray(image, np.float32), corners)
+            return corners, None
+        fit = self._edges.refine(np.asarray(image, np.float32), corners)
+        if fit is not None:
+            return fit.corners_px, fit
+        cell_px = float(np.mean(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1))) / self._cells
+        half = max(2, round(FALLBACK_WINDOW_CELLS * cell_px))
+        criteria = (self._cv2.TERM_CRITERIA_EPS + self._cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        refined = self._cv2.cornerSubPix(
+            image, corners.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), criteria
+        )
+        return np.asarray(refined, np.float64).reshape(4, 2), None
 
     def candidates(self, marker_id: int, corners: FloatArray) -> list[tuple[FloatArray, FloatArray, float]]:
         """The planar pose solutions (rvec, tvec, RMS reprojection error px) worth considering, best first."""
@@ -316,8 +328,9 @@ def measure_image(
             f"nothing measured ({marker_map.dictionary}, map {marker_map.source})"
         )
     corners = [seen[c.marker_id] for c in marker_map.components]
-    edges = [detector.refine(image, quad) for quad in corners]
-    corners = [quad if edge is None else edge.corners_px for quad, edge in zip(corners, edges, strict=True)]
+    refined = [detector.refine(image, quad) for quad in corners]
+    corners = [quad for quad, _ in refined]
+    edges = [edge for _, edge in refined]
     options = []
     for component, quad in zip(marker_map.components, corners, strict=True):
         found = detector.candidates(component.marker_id, quad)
