@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 cv2 = pytest.importorskip(
     "cv2", reason="OpenCV is not installed: pip install -e '.[camera]' to run the camera tests"
@@ -29,7 +30,9 @@ from rig.hw.camera.calibration import (  # noqa: E402
     Board,
     BoardKind,
     CameraCalibration,
+    board_points,
     calibrate,
+    calibrate_views,
     load_calibration,
     write_calibration,
 )
@@ -44,8 +47,9 @@ from rig.testing.camera_images import (  # noqa: E402
     look_down_pose,
     marker_outline_px,
     render_link,
+    tilted_view,
 )
-from rig.testing.camera_scenes import EXAMPLE_DEG, exact_calibration, random_scene  # noqa: E402
+from rig.testing.camera_scenes import CONDITIONS, EXAMPLE_DEG, exact_calibration, random_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 LINK1_MARKERS = ROOT / "protocols" / "link1_markers.yaml"
@@ -193,19 +197,7 @@ def test_config_measure_prints_angles_and_json(capsys, example_png, calibration_
 def test_config_measure_of_an_image_missing_a_marker_exits_1_naming_it(
     tmp_path, capsys, marker_map, calibration_file
 ):
-    transforms = planar_transforms(np.radians(EXAMPLE_DEG), marker_map.segment_lengths_m)
-    visible = marker_map.components[:-1]  # the tip's marker is off the link
-    from dataclasses import replace
-
-    image = render_link(
-        replace(marker_map, components=visible),
-        transforms,
-        look_down_pose(0.3, (0, 0.012, 0.13)),
-        CAMERA,
-        Rendering(),
-    )
-    path = tmp_path / "no-tip.png"
-    cv2.imwrite(str(path), image)
+    path = _no_tip_png(tmp_path, marker_map)
     code = main(
         ["config", "measure", str(path), "--camera", str(calibration_file), "--markers", str(LINK1_MARKERS)]
     )
@@ -228,8 +220,12 @@ def test_config_measure_of_an_image_missing_a_marker_exits_1_naming_it(
             "distortion_coefficients",
         ),
         (lambda t: t.replace("image_width: 1280", "image_width: 100"), "camera_matrix: not a pinhole matrix"),
+        (
+            lambda t: t.replace("distortion_coefficients", "dist_coeffs"),
+            "distortion_coefficients: required field is missing (the file has dist_coeffs",
+        ),
     ],
-    ids=["missing matrix", "not FileStorage", "distortion count", "principal point outside"],
+    ids=["missing matrix", "not FileStorage", "distortion count", "principal point outside", "other key"],
 )
 def test_a_bad_calibration_file_exits_2_naming_the_field(
     tmp_path, capsys, calibration_file, example_png, edit, message
@@ -324,7 +320,11 @@ def test_camera_calibrate_writes_once_and_refuses_bad_input(tmp_path, capsys):
     assert main(args) == 2  # an existing file is not replaced without --force
     assert "exists" in capsys.readouterr().err and out.read_bytes() == before
     assert main([*args, "--force", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["skipped"] == [str(blank)]
+    result = json.loads(capsys.readouterr().out)
+    assert result["skipped"] == [str(blank)] and result["dropped"] == []
+    assert [v["image"] for v in result["views"]] == list(map(str, paths))  # each view's fit, in order
+    assert all(0 < v["rms_px"] <= v["max_px"] < 1.0 and not v["dropped"] for v in result["views"])
+    assert result["with_dropped_views"] is None
     # the board in too few images: exit 2, nothing written
     other = tmp_path / "other.yaml"
     few = [
@@ -388,3 +388,145 @@ def test_choosing_poses_along_the_chain_beats_each_markers_best_reprojection(mar
 
     assert rms(rotation[True]) < 0.7 * rms(rotation[False])
     assert rms(planar[True]) <= rms(planar[False])
+
+
+def _no_tip_png(tmp_path: Path, marker_map) -> Path:
+    """The example configuration with the tip's marker off the link."""
+    from dataclasses import replace
+
+    transforms = planar_transforms(np.radians(EXAMPLE_DEG), marker_map.segment_lengths_m)
+    image = render_link(
+        replace(marker_map, components=marker_map.components[:-1]),
+        transforms,
+        look_down_pose(0.3, (0, 0.012, 0.13)),
+        CAMERA,
+        Rendering(),
+    )
+    path = tmp_path / "no-tip.png"
+    cv2.imwrite(str(path), image)
+    return path
+
+
+def test_config_measure_measures_every_image_on_its_own(
+    tmp_path, capsys, marker_map, example_png, calibration_file
+):
+    hidden = _no_tip_png(tmp_path, marker_map)
+    garbage = tmp_path / "garbage.png"
+    garbage.write_text("not an image")
+    base = ["config", "measure", "--camera", str(calibration_file), "--markers", str(LINK1_MARKERS)]
+    # one image whose marker is hidden between two good ones: both measured, exit 1 for the refused one
+    assert main([*base, str(example_png), str(hidden), str(example_png)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out.count(f"{example_png}: planar") == 2
+    assert captured.err.count("\n") == 1 and f"{hidden}: marker not seen for tip" in captured.err
+    assert main([*base, str(example_png), str(hidden), str(garbage), "--json"]) == 2  # invalid input wins
+    result = json.loads(capsys.readouterr().out)
+    first, second, third = result["measurements"]
+    assert (result["measured"], result["refused"]) == (1, 2)
+    np.testing.assert_allclose(first["joint_angles_deg"], EXAMPLE_DEG, atol=0.6)
+    assert second["source"] == str(hidden) and second["error_type"] == "MarkerNotSeenError"
+    assert "tip (component 8, marker 8)" in second["error"] and "joint_angles_deg" not in second
+    assert third["error_type"] == "InputError" and "not an image OpenCV can decode" in third["error"]
+
+
+@pytest.mark.slow
+def test_a_bad_view_is_dropped_and_named_and_leaves_the_calibration_as_without_it():
+    # 19 good views and one tilted 45° whose far corners were found off (the farthest row 2.3 px, as in
+    # issue 32; a detector's bias on a foreshortened board)
+    board = Board(BoardKind.CHESSBOARD, 9, 6, 0.02)
+    images = [
+        *calibration_views(board, SMALL_CAMERA, 19, seed=2),
+        tilted_view(board, SMALL_CAMERA, math.radians(45.0), distance_m=0.35, blur_sigma_px=0.6),
+    ]
+    views = []
+    for index, image in enumerate(images):
+        found = board_points(board, image)
+        assert found is not None
+        views.append((f"view{index}", *found))
+    name, obj, img = views[-1]
+    far = obj[:, 1] / obj[:, 1].max()
+    views[-1] = (name, obj, img + np.stack([np.zeros_like(far), 2.3 * far**4], axis=1).astype(np.float32))
+    calibration, fits, threshold, with_dropped = calibrate_views(board.describe(), (640, 480), views)
+    assert [f.image for f in fits if f.dropped] == ["view19"]
+    assert fits[-1].rms_px > threshold and fits[-1].max_px > 0.5
+    assert calibration.views == 19
+    good, _, _, none_dropped = calibrate_views(board.describe(), (640, 480), views[:-1])
+    assert none_dropped is None
+    assert calibration.fx_px == pytest.approx(good.fx_px, rel=0.0005)  # the target: < 0.05 %
+    assert with_dropped is not None and abs(with_dropped.fx_px / good.fx_px - 1) > 0.001  # it mattered
+
+
+def test_markers_of_different_sizes_are_measured_each_at_its_own(tmp_path, detector):
+    data = yaml.safe_load(LINK1_MARKERS.read_text())
+    data["components"][0]["marker_length_m"] = 0.024  # the base's marker is larger than the others
+    path = tmp_path / "mixed.yaml"
+    path.write_text(yaml.safe_dump(data))
+    mixed = load_marker_map(path)
+    scene = random_scene(mixed, CAMERA, 0.3, seed=5, occlude=False)
+    measured = measure_image(
+        MarkerDetector(mixed, exact_calibration(CAMERA)), scene.image, source="x", time_ns=0
+    )
+    assert measured.markers[0].side_px > 1.25 * measured.markers[1].side_px
+    assert np.abs(np.degrees(measured.planar_angles_rad - scene.angles_rad)).max() < 0.3
+    assert measured.joint_gap_m[0] < 0.001  # the base's marker placed at its own size: joint 1 where it is
+
+
+# issue 32's targets: every joint within 0.5° at >= 45 px on clean and moderately blurred images; on
+# soft ones (blur σ 1.4 px, noise 4, contrast 0.6, a light gradient) RMS <= 0.3° and max <= 0.6° at >= 65 px
+ACCURACY_TARGETS = {"clean": (0.4, 0.5, 0.5), "moderate": (0.4, 0.5, 0.5), "soft": (0.27, 0.3, 0.6)}
+
+
+@pytest.mark.parametrize("condition", list(ACCURACY_TARGETS))
+def test_joint_angles_meet_the_targets_on_sharp_and_soft_images(marker_map, detector, condition):
+    distance_m, rms_max_deg, max_deg = ACCURACY_TARGETS[condition]
+    errors, sides = [], []
+    for seed in range(4):
+        scene = random_scene(
+            marker_map, CAMERA, distance_m, 200 + seed, occlude=False, condition=CONDITIONS[condition]
+        )
+        measured = measure_image(detector, scene.image, source=f"scene {seed}", time_ns=0)
+        assert measured.planar
+        errors.extend(np.degrees(measured.planar_angles_rad - scene.angles_rad))
+        sides.extend(m.side_px for m in measured.markers)
+    assert np.mean(sides) > (43 if condition != "soft" else 64), np.mean(sides)  # mean marker side [px]
+    rms = float(np.sqrt(np.mean(np.square(errors))))
+    assert rms <= rms_max_deg and np.abs(errors).max() <= max_deg, (rms, np.abs(errors).max())
+
+
+def test_the_angle_sd_covers_the_errors_in_every_image_condition(marker_map, detector):
+    # 96 joints at 50 px, 32 per condition: ~95 % within 2 sd if the sd is right
+    z_scores = []
+    for condition in CONDITIONS.values():
+        for seed in range(4):
+            scene = random_scene(marker_map, CAMERA, 0.35, 300 + seed, occlude=False, condition=condition)
+            measured = measure_image(detector, scene.image, source=f"scene {seed}", time_ns=0)
+            assert measured.planar, (condition.name, seed, measured.out_of_plane_statistic)
+            z_scores.extend((measured.planar_angles_rad - scene.angles_rad) / measured.planar_angle_sd_rad)
+    z = np.abs(z_scores)
+    assert np.mean(z <= 2.0) >= 0.88 and 0.6 < np.sqrt(np.mean(z**2)) < 1.3, (
+        np.mean(z <= 2),
+        np.sqrt(np.mean(z**2)),
+    )
+
+
+def test_a_shaded_margin_on_a_soft_image_does_not_tilt_the_link_out_of_plane(marker_map, detector):
+    # the tests' occlusions on soft images at 51 px: a dark strip over the outer half of a marker's white
+    # margin, within the blur's reach, moves the whole edge out; seen as a tilt, these three were called
+    # non-planar (out-of-plane statistics 24-40 against 23.03) before the sides' margin levels were compared
+    for seed in (0, 3, 7):
+        scene = random_scene(marker_map, CAMERA, 0.35, seed, condition=CONDITIONS["soft"])
+        measured = measure_image(detector, scene.image, source=f"scene {seed}", time_ns=0)
+        assert measured.planar, (seed, measured.out_of_plane_statistic)
+
+
+def test_a_marker_whose_edges_cannot_be_fitted_is_refined_by_its_corners(monkeypatch, marker_map, detector):
+    from rig.hw.camera.edges import EdgeRefiner
+
+    monkeypatch.setattr(EdgeRefiner, "refine", lambda self, image, corners: None)  # every side hidden
+    errors = []
+    for seed in range(3):
+        scene = random_scene(marker_map, CAMERA, 0.3, 400 + seed, occlude=False)
+        measured = measure_image(detector, scene.image, source=f"scene {seed}", time_ns=0)
+        errors.extend(np.degrees(measured.planar_angles_rad - scene.angles_rad))
+    # ArUco's unrefined corners alone are up to a pixel out: 0.55° RMS here
+    assert float(np.sqrt(np.mean(np.square(errors)))) < 0.3

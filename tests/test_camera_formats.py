@@ -27,7 +27,7 @@ def test_the_shipped_link1_map_matches_the_link1_preset():
     assert marker_map.segment_lengths_m == preset.segment_lengths_m
     assert marker_map.joint_count == len(preset.segment_lengths_m) == 8
     assert [c.marker_id for c in marker_map.components] == list(range(9))
-    assert marker_map.corner_refinement == CornerRefinement.SUBPIX
+    assert marker_map.corner_refinement == CornerRefinement.EDGES
     # every marker faces up (+y of its component), printed x across the link
     for component in marker_map.components:
         rotation = component.pose_in_component[:3, :3]
@@ -55,6 +55,7 @@ def _valid() -> dict:
         (lambda d: d["components"][1].update(marker_id=50), "components[1].marker_id", "49"),
         (lambda d: d["components"][2].pop("rpy_rad"), "components[2].rpy_rad", "missing"),
         (lambda d: d["components"][2].update(colour="red"), "components[2].colour", "unknown field"),
+        (lambda d: d["components"][4].update(marker_length_m=0.6), "components[4].marker_length_m", "0.5"),
         (lambda d: d.update(planar_tolerance_rad=1.0), "planar_tolerance_rad", "0.5"),
         (lambda d: d.update(corner_refinement="best"), "corner_refinement", "subpix"),
         (lambda d: d.update(segment_lengths_m=[0.03] * 7 + [float("nan")]), "segment_lengths_m[7]", "1.0"),
@@ -70,6 +71,14 @@ def test_a_bad_marker_map_names_the_file_and_field(tmp_path, change, field, allo
     assert message.startswith(f"{path}: {field}"), message
     assert allowed in message
     assert "\n" not in message
+
+
+def test_a_component_may_give_its_own_marker_length(tmp_path):
+    data = _valid()
+    data["components"][0]["marker_length_m"] = 0.03  # a larger marker on the clamped base
+    marker_map = load_marker_map(_write(tmp_path, data))
+    assert [c.marker_length_m for c in marker_map.components] == [0.03] + [0.018] * 8
+    assert marker_map.marker_length_m == 0.018
 
 
 def test_dictionary_sizes_cover_the_named_dictionaries():

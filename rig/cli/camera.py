@@ -27,9 +27,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description=(
             "Find the board in each image, calibrate the camera (cv2.calibrateCamera) and write its "
             "matrix and distortion to --out as OpenCV FileStorage YAML (docs/formats.md §9.1), atomically: "
-            "an interrupted run leaves no file. Images without the board are skipped and named; at least "
-            "3 must show it (15-25 views, tilted up to about 35 degrees and spread over the whole image, "
-            "give a good calibration)."
+            "an interrupted run leaves no file. Images without the board are skipped and named; a view "
+            "whose RMS reprojection error is above 5 times the median view's (and 0.25 px) is dropped "
+            "and named, and the calibration with it shown too; at least 3 must show the board "
+            "(15-25 views, tilted up to about 35 degrees and spread over the whole image, give a good "
+            "calibration)."
         ),
     )
     calib.add_argument("images", nargs="+", metavar="IMAGE", help="images of the board (same size)")
@@ -81,6 +83,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     write_calibration(result.calibration, args.out, overwrite=args.force)
     cal = result.calibration
     cx, cy = cal.principal_point_px
+    everything = result.with_dropped
     if args.json:
         emit_json(
             {
@@ -93,6 +96,19 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 "reprojection_error_px": cal.reprojection_error_px,
                 "used": list(result.used),
                 "skipped": list(result.skipped),
+                "dropped": list(result.dropped),
+                "outlier_threshold_px": result.outlier_threshold_px,
+                "views": [
+                    {"image": v.image, "rms_px": v.rms_px, "max_px": v.max_px, "dropped": v.dropped}
+                    for v in result.views
+                ],
+                "with_dropped_views": None
+                if everything is None
+                else {
+                    "camera_matrix": everything.camera_matrix,
+                    "distortion_coefficients": everything.distortion,
+                    "reprojection_error_px": everything.reprojection_error_px,
+                },
             }
         )
         return 0
@@ -101,9 +117,32 @@ def run_calibrate(args: argparse.Namespace) -> int:
         ["cx, cy [px]", f"{cx:.2f}, {cy:.2f}"],
         ["distortion", " ".join(f"{d:.5g}" for d in cal.distortion)],
         ["reprojection error [px]", f"{cal.reprojection_error_px:.3f} (RMS)"],
-        ["views", f"{len(result.used)} used, {len(result.skipped)} without the board"],
+        [
+            "views",
+            f"{len(result.used)} used, {len(result.dropped)} dropped as outliers, "
+            f"{len(result.skipped)} without the board",
+        ],
     ]
+    if everything is not None:
+        ecx, ecy = everything.principal_point_px
+        rows += [
+            ["with the dropped views: fx, fy", f"{everything.fx_px:.2f}, {everything.fy_px:.2f}"],
+            ["with the dropped views: cx, cy", f"{ecx:.2f}, {ecy:.2f}"],
+            ["with the dropped views: error", f"{everything.reprojection_error_px:.3f} (RMS)"],
+        ]
     print(format_table(["calibration", f"{cal.image_width}x{cal.image_height} px, {cal.board}"], rows))
+    views = [
+        [v.image, f"{v.rms_px:.3f}", f"{v.max_px:.3f}", "dropped" if v.dropped else "used"]
+        for v in result.views
+    ]
+    print(format_table(["view", "RMS error [px]", "max [px]", ""], views))
+    for view in result.views:
+        if view.dropped:
+            print(
+                f"dropped (RMS reprojection error {view.rms_px:.3f} px, above "
+                f"{result.outlier_threshold_px:.3f} px): {view.image}",
+                file=sys.stderr,
+            )
     for name in result.skipped:
         print(f"skipped (board not found): {name}", file=sys.stderr)
     print(f"wrote {args.out}")

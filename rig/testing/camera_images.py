@@ -2,10 +2,13 @@
 
 Each flat target (an ArUco marker with its white quiet zone, a chessboard, a ChArUco board) is drawn
 exactly through the pinhole-and-distortion model: every output pixel is sampled at `supersample`²
-points, each point's ray (`cv2.undistortPoints`) is intersected with the target's plane and the
-target's texture is read there (bilinear), and the samples are averaged (anti-aliased edges, as a
-sensor integrates over a pixel). Targets are drawn far to near, so a nearer one hides a farther
-one. Then optional Gaussian blur, Gaussian noise and occluders (filled polygons in pixels).
+points (one at a random place in each cell of an s × s grid over the pixel: a fixed grid would
+place an edge that runs along a pixel row only to the nearest 1/s px), each point's ray
+(`cv2.undistortPoints`) is intersected with the target's plane and the target's texture is read
+there (bilinear), and the samples are averaged (anti-aliased edges, as a sensor integrates over a
+pixel). Targets are drawn far to near, so a nearer one hides a farther
+one. Then optional occluders (filled polygons in pixels), reduced contrast, an illumination
+gradient across the image, Gaussian blur and Gaussian noise.
 
 `render_link` places one marker per component of a link in a known configuration, in the
 frames of docs/model.md §1 and the marker map's marker poses; `calibration_views` renders a board
@@ -14,6 +17,7 @@ from many poses. Needs OpenCV (the `camera` extra).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -64,11 +68,18 @@ class PlaneTarget:
 
 @dataclass(frozen=True)
 class Rendering:
-    """Render settings: background grey, blur σ [px], noise σ [grey levels], occluders, seed."""
+    """Render settings: background grey, blur σ [px], noise σ [grey levels], occluders, seed.
+
+    `contrast` scales every grey about mid-grey (1: black prints black; 0.6: the darkest ink 0.2);
+    `illumination_gradient` dims the image linearly from its left edge (full light) to its right
+    edge (1 − gradient), as a lamp to one side does.
+    """
 
     background: float = 0.45
     blur_sigma_px: float = 0.0
     noise_sigma: float = 0.0
+    contrast: float = 1.0
+    illumination_gradient: float = 0.0
     supersample: int = 3
     occluders: tuple[tuple[NDArray[np.float64], float], ...] = field(
         default=()
@@ -77,22 +88,36 @@ class Rendering:
 
 
 def _rays(
-    camera: SyntheticCamera, supersample: int, x0: int, x1: int, y0: int, y1: int
+    camera: SyntheticCamera,
+    supersample: int,
+    box: tuple[int, int, int, int],
+    rng: np.random.Generator,
 ) -> NDArray[np.float32]:
-    """((y1−y0)·s, (x1−x0)·s, 2) normalised rays (x, y; z = 1) through the sample points of a pixel box."""
+    """((y1−y0)·s, (x1−x0)·s, 2) normalised rays (x, y; z = 1) through the sample points of a pixel box.
+
+    `box` is (x0, x1, y0, y1); each sample lies at a random place in its cell of an s × s grid over
+    its pixel (stratified jitter).
+    """
     cv2 = require_cv2()
+    x0, x1, y0, y1 = box
     s = supersample
-    offsets = (np.arange(s) + 0.5) / s - 0.5
+    offsets = np.arange(s) / s - 0.5
     xs = (np.arange(x0, x1)[:, None] + offsets[None, :]).reshape(-1)
     ys = (np.arange(y0, y1)[:, None] + offsets[None, :]).reshape(-1)
     grid_x, grid_y = np.meshgrid(xs, ys)
+    grid_x = grid_x + rng.uniform(0.0, 1.0 / s, grid_x.shape)
+    grid_y = grid_y + rng.uniform(0.0, 1.0 / s, grid_y.shape)
     pixels = np.stack([grid_x.reshape(-1), grid_y.reshape(-1)], axis=1)
     normalised = cv2.undistortPoints(pixels.reshape(-1, 1, 2), camera.matrix, camera.dist)
     return np.asarray(normalised.reshape(grid_x.shape[0], grid_x.shape[1], 2), np.float32)
 
 
 def _draw(
-    canvas: NDArray[np.float32], target: PlaneTarget, camera: SyntheticCamera, supersample: int
+    canvas: NDArray[np.float32],
+    target: PlaneTarget,
+    camera: SyntheticCamera,
+    supersample: int,
+    rng: np.random.Generator,
 ) -> None:
     cv2 = require_cv2()
     rotation = target.cam_from_plane[:3, :3]
@@ -115,7 +140,7 @@ def _draw(
     if x0 >= x1 or y0 >= y1:
         return
     s = supersample
-    rays = _rays(camera, s, x0, x1, y0, y1)
+    rays = _rays(camera, s, (x0, x1, y0, y1), rng)
     ray_x, ray_y = rays[..., 0], rays[..., 1]  # z is 1
     # Elementwise rather than matrix products: (N, 3) @ (3, 3) goes through BLAS threads, which crawl
     # on a loaded machine.
@@ -149,10 +174,16 @@ def render(
     """An 8-bit grey image of `targets` (drawn far to near), blurred, occluded and noisy as set."""
     cv2 = require_cv2()
     canvas = np.full((camera.height, camera.width), rendering.background, np.float32)
+    rng = np.random.default_rng([rendering.seed, 1])  # the sample points' (the noise has its own)
     for target in sorted(targets, key=lambda t: -float(np.linalg.norm(t.cam_from_plane[:3, 3]))):
-        _draw(canvas, target, camera, rendering.supersample)
+        _draw(canvas, target, camera, rendering.supersample, rng)
     for polygon, grey in rendering.occluders:
         cv2.fillPoly(canvas, [np.round(polygon).astype(np.int32)], float(grey), lineType=cv2.LINE_AA)
+    if rendering.contrast != 1.0:
+        canvas = np.float32(0.5) + (canvas - np.float32(0.5)) * np.float32(rendering.contrast)
+    if rendering.illumination_gradient != 0.0:
+        light = 1.0 - rendering.illumination_gradient * np.linspace(0.0, 1.0, camera.width, dtype=np.float32)
+        canvas = canvas * light[None, :]
     image = canvas * 255.0
     if rendering.blur_sigma_px > 0:
         image = cv2.GaussianBlur(image, (0, 0), rendering.blur_sigma_px)
@@ -197,12 +228,11 @@ def link_targets(
 ) -> list[PlaneTarget]:
     """One marker target per component of a link in configuration `transforms` ((J, 4, 4), §1)."""
     poses = forward_kinematics(transforms)  # (J+1, 4, 4): G_0 = I, G_i
-    label_m = marker_map.marker_length_m * (1 + 2 * QUIET_ZONE_FRACTION)
     return [
         PlaneTarget(
             texture=marker_texture(marker_map.dictionary, component.marker_id),
-            width_m=label_m,
-            height_m=label_m,
+            width_m=component.marker_length_m * (1 + 2 * QUIET_ZONE_FRACTION),
+            height_m=component.marker_length_m * (1 + 2 * QUIET_ZONE_FRACTION),
             cam_from_plane=cam_from_base @ poses[component.component] @ component.pose_in_component,
         )
         for component in marker_map.components
@@ -230,7 +260,7 @@ def marker_outline_px(
     """(4, 2) image corners of one component's marker (black square), for placing occluders."""
     cv2 = require_cv2()
     target = link_targets(marker_map, transforms, cam_from_base)[component]
-    h = marker_map.marker_length_m / 2
+    h = marker_map.components[component].marker_length_m / 2
     square = np.array([[-h, h, 0, 1], [h, h, 0, 1], [h, -h, 0, 1], [-h, -h, 0, 1]], np.float64)
     points = (target.cam_from_plane @ square.T).T[:, :3]
     projected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.matrix, camera.dist)
@@ -266,6 +296,46 @@ def board_target(board: Board, cam_from_board: FloatArray, *, square_px: int = 6
     return PlaneTarget(texture, width, height, cam_from_board @ board_from_plane)
 
 
+def _board_extent_m(board: Board) -> NDArray[np.float64]:
+    """The span (x, y) [m] of the board's object points."""
+    if board.kind == BoardKind.CHESSBOARD:
+        return np.array([board.columns - 1, board.rows - 1]) * board.square_m
+    return np.array([board.columns, board.rows]) * board.square_m
+
+
+def _board_view(
+    board: Board, camera: SyntheticCamera, rvec: FloatArray, depth_m: float, centre_px: tuple[float, float]
+) -> tuple[FloatArray, bool]:
+    """cam_from_board for the board turned by `rvec`, its centre seen at `centre_px` `depth_m` away.
+
+    And whether the whole board lies 20 px or more inside the image.
+    """
+    cv2 = require_cv2()
+    rotation, _ = cv2.Rodrigues(np.asarray(rvec, np.float64))
+    extent = _board_extent_m(board)
+    u, v = centre_px
+    centre = np.array([(u - camera.cx_px) / camera.fx_px, (v - camera.cy_px) / camera.fy_px, 1.0]) * depth_m
+    cam_from_board = np.eye(4)
+    cam_from_board[:3, :3] = rotation
+    cam_from_board[:3, 3] = centre - rotation @ np.array([extent[0] / 2, extent[1] / 2, 0.0])
+    corners = np.array(
+        [[0, 0, 0], [extent[0], 0, 0], [extent[0], extent[1], 0], [0, extent[1], 0]], np.float64
+    )
+    projected, _ = cv2.projectPoints(corners, rvec, cam_from_board[:3, 3], camera.matrix, camera.dist)
+    p = projected.reshape(-1, 2)
+    margin = 20
+    inside = bool(
+        p[:, 0].min() >= margin
+        and p[:, 1].min() >= margin
+        and p[:, 0].max() <= camera.width - margin
+        and p[:, 1].max() <= camera.height - margin
+    )
+    return cam_from_board, inside
+
+
+CALIBRATION_RENDERING = Rendering(background=0.5, blur_sigma_px=0.6, noise_sigma=2.0)
+
+
 def calibration_views(
     board: Board,
     camera: SyntheticCamera,
@@ -275,40 +345,30 @@ def calibration_views(
     distance_m: tuple[float, float] = (0.25, 0.5),
 ) -> list[NDArray[np.uint8]]:
     """`count` images of `board` from random poses over the whole image, tilted up to about 35°, in view."""
-    cv2 = require_cv2()
     rng = np.random.default_rng(seed)
-    if board.kind == BoardKind.CHESSBOARD:
-        extent = np.array([board.columns - 1, board.rows - 1]) * board.square_m
-    else:
-        extent = np.array([board.columns, board.rows]) * board.square_m
     images: list[NDArray[np.uint8]] = []
     while len(images) < count:
         rvec = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.3, 0.3)])
-        rotation, _ = cv2.Rodrigues(rvec)
         depth = rng.uniform(*distance_m)
         # aim the board's centre at a random point of the image's inner part
         u = rng.uniform(0.15, 0.85) * camera.width
         v = rng.uniform(0.15, 0.85) * camera.height
-        centre = np.array([(u - camera.cx_px) / camera.fx_px, (v - camera.cy_px) / camera.fy_px, 1.0]) * depth
-        cam_from_board = np.eye(4)
-        cam_from_board[:3, :3] = rotation
-        cam_from_board[:3, 3] = centre - rotation @ np.array([extent[0] / 2, extent[1] / 2, 0.0])
-        corners = np.array(
-            [[0, 0, 0], [extent[0], 0, 0], [extent[0], extent[1], 0], [0, extent[1], 0]], np.float64
-        )
-        projected, _ = cv2.projectPoints(corners, rvec, cam_from_board[:3, 3], camera.matrix, camera.dist)
-        p = projected.reshape(-1, 2)
-        margin = 20
-        if p[:, 0].min() < margin or p[:, 1].min() < margin or p[:, 0].max() > camera.width - margin:
+        cam_from_board, inside = _board_view(board, camera, rvec, depth, (u, v))
+        if not inside:
             continue
-        if p[:, 1].max() > camera.height - margin:
-            continue
-        target = board_target(board, cam_from_board)
-        images.append(
-            render(
-                [target],
-                camera,
-                Rendering(background=0.5, blur_sigma_px=0.6, noise_sigma=2.0, seed=len(images)),
-            )
-        )
+        rendering = dataclasses.replace(CALIBRATION_RENDERING, seed=len(images))
+        images.append(render([board_target(board, cam_from_board)], camera, rendering))
     return images
+
+
+def tilted_view(
+    board: Board, camera: SyntheticCamera, tilt_rad: float, *, distance_m: float, blur_sigma_px: float
+) -> NDArray[np.uint8]:
+    """One image of `board` in the middle of the image, turned `tilt_rad` about its x axis."""
+    cam_from_board, inside = _board_view(
+        board, camera, np.array([tilt_rad, 0.0, 0.0]), distance_m, (camera.cx_px, camera.cy_px)
+    )
+    if not inside:
+        raise ValueError(f"the board tilted {tilt_rad:g} rad at {distance_m:g} m does not fit the image")
+    rendering = dataclasses.replace(CALIBRATION_RENDERING, blur_sigma_px=blur_sigma_px, seed=1000)
+    return render([board_target(board, cam_from_board)], camera, rendering)

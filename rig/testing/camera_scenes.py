@@ -24,6 +24,26 @@ FloatArray = NDArray[np.float64]
 EXAMPLE_DEG = (-11.1, 9.5, 7.1, 15.7, -16.5, -3.1, -18.8, -11.3)
 
 
+@dataclass(frozen=True)
+class ImageCondition:
+    """How sharp and clean an image is: blur σ [px], noise σ [grey levels], contrast, light gradient."""
+
+    name: str
+    blur_sigma_px: float
+    noise_sigma: float
+    contrast: float = 1.0
+    illumination_gradient: float = 0.0
+
+
+# The conditions of issue 32. Moderate is the tests' own; soft is a webcam at the edge of its depth of
+# field or a slightly misfocused lens: twice the blur and noise, ink 0.2 grey rather than black, paper
+# 0.8 rather than white, and 30 % less light at one side of the image than at the other.
+CLEAN = ImageCondition("clean", blur_sigma_px=0.0, noise_sigma=1.0)
+MODERATE = ImageCondition("moderate", blur_sigma_px=0.7, noise_sigma=2.0)
+SOFT = ImageCondition("soft", blur_sigma_px=1.4, noise_sigma=4.0, contrast=0.6, illumination_gradient=0.3)
+CONDITIONS = {c.name: c for c in (CLEAN, MODERATE, SOFT)}
+
+
 def exact_calibration(camera: SyntheticCamera) -> CameraCalibration:
     """The calibration a perfect `rig camera calibrate` would give for `camera`."""
     return CameraCalibration(camera.width, camera.height, camera.matrix, camera.dist, 0.0)
@@ -69,12 +89,15 @@ def random_scene(
     occlude: bool = True,
     transforms: FloatArray | None = None,
     max_angle_rad: float = math.radians(20.0),
+    condition: ImageCondition = MODERATE,
+    max_camera_tilt_rad: float = 0.14,
 ) -> Scene:
     """A link rendered bent within ±`max_angle_rad` per joint (or as `transforms`), with artefacts.
 
-    Seen from `distance_m` above its middle by a camera tilted up to ±8°, with blur (σ 0.7 px), noise
-    (σ 2 grey levels) and, if `occlude`, partial occlusions: the outer half of the white margin along
-    one edge of three markers, and part of one inner bit cell of a fourth.
+    Seen from `distance_m` above its middle by a camera tilted up to ±`max_camera_tilt_rad` (8°) about
+    each of its axes, in `condition` (blur σ 0.7 px and noise σ 2 grey levels unless told) and, if
+    `occlude`, with partial occlusions: the outer half of the white margin along one edge of three
+    markers, and part of one inner bit cell of a fourth.
     """
     rng = np.random.default_rng(seed)
     joints = marker_map.joint_count
@@ -85,7 +108,7 @@ def random_scene(
         angles = np.arctan2(transforms[:, 0, 2], transforms[:, 2, 2])
     origins = forward_kinematics(transforms)[:, :3, 3]
     centre = (origins.min(axis=0) + origins.max(axis=0)) / 2 + np.array([0.0, 0.012, 0.0])
-    tilt = rng.uniform(-0.14, 0.14, 2)
+    tilt = rng.uniform(-max_camera_tilt_rad, max_camera_tilt_rad, 2)
     pose = look_down_pose(distance_m, centre, tilt_rad=(float(tilt[0]), float(tilt[1])))
     occluders: list[tuple[FloatArray, float]] = []
     if occlude and len(marker_map.components) >= 4:
@@ -96,5 +119,12 @@ def random_scene(
         outline = marker_outline_px(marker_map, transforms, pose, camera, int(picked[3]))
         u, v = (int(x) for x in rng.integers(1, 5, 2))
         occluders.append((cell_blob(outline, u, v), float(rng.uniform(0.3, 0.7))))
-    rendering = Rendering(blur_sigma_px=0.7, noise_sigma=2.0, occluders=tuple(occluders), seed=seed)
+    rendering = Rendering(
+        blur_sigma_px=condition.blur_sigma_px,
+        noise_sigma=condition.noise_sigma,
+        contrast=condition.contrast,
+        illumination_gradient=condition.illumination_gradient,
+        occluders=tuple(occluders),
+        seed=seed,
+    )
     return Scene(angles, transforms, render_link(marker_map, transforms, pose, camera, rendering))

@@ -3,7 +3,8 @@
 The file (docs/formats.md §9.1) holds `image_width`, `image_height`, `camera_matrix` (3×3),
 `distortion_coefficients` (OpenCV's k1 k2 p1 p2 [k3 ...]) and `avg_reprojection_error` [px], the
 names OpenCV's own calibration sample writes, plus how it was made (`board`, `views`). It is written
-atomically (a temporary file renamed into place), so a reader never sees half of one.
+atomically (a temporary file renamed into place), so a reader never sees half of one. A view that
+fits the calibration far worse than the others (`outlier_threshold_px`) is dropped and named.
 """
 
 from __future__ import annotations
@@ -26,7 +27,15 @@ from rig.hw.camera.opencv import require_cv2
 
 IMAGE_SIDE_RANGE_PX = (16, 20000)
 MIN_VIEWS = 3
+# A view is an outlier when its RMS reprojection error is above both of these (`outlier_threshold_px`):
+# on rendered views the good ones spread 0.025-0.19 px about a median of 0.06 px (tests/test_camera.py).
+OUTLIER_FACTOR = 5.0  # times the median view's RMS error
+OUTLIER_MIN_PX = 0.25
+FloatArray = NDArray[np.float64]
 _DISTORTION_COUNTS = (4, 5, 8, 12, 14)  # what cv2.calibrateCamera and solvePnP accept
+# Names other OpenCV tools give the distortion (opencv_interactive-calibration writes dist_coeffs):
+# refused, naming the key to use, rather than read as a second name of one field.
+OTHER_DISTORTION_KEYS = ("dist_coeffs", "distCoeffs")
 
 
 class BoardKind(StrEnum):
@@ -160,6 +169,12 @@ def parse_calibration(text: str, source: str) -> CameraCalibration:
                 f"{source}: camera_matrix: not a pinhole matrix of this image; allowed: [[fx, s, cx], "
                 f"[0, fy, cy], [0, 0, 1]] with fx, fy > 0, 0 <= cx <= image_width, 0 <= cy <= image_height"
             )
+        for other in OTHER_DISTORTION_KEYS:
+            if fs.getNode("distortion_coefficients").empty() and not fs.getNode(other).empty():
+                raise InputError(
+                    f"{source}: distortion_coefficients: required field is missing (the file has {other}, "
+                    "another tool's name for it); allowed: the key distortion_coefficients (docs §9.1)"
+                )
         dist_node = _node(fs, source, "distortion_coefficients").mat()
         dist = np.asarray(dist_node if dist_node is not None else [], dtype=np.float64).reshape(-1)
         if dist.size not in _DISTORTION_COUNTS or not np.all(np.isfinite(dist)) or np.any(np.abs(dist) > 1e4):
@@ -234,24 +249,115 @@ def board_points(
 
 
 @dataclass(frozen=True)
+class ViewFit:
+    """How well one view's board corners fit the calibration that used them (or that it was dropped from)."""
+
+    image: str
+    rms_px: float  # RMS reprojection error over the view's corners
+    max_px: float  # the largest corner's
+    dropped: bool
+
+
+@dataclass(frozen=True)
 class CalibrationResult:
-    """A calibration and which images were used or skipped (board not found)."""
+    """A calibration, each view's fit and the images skipped (board not found).
+
+    When views were dropped as outliers, `with_dropped` is the calibration with every view, for
+    comparison.
+    """
 
     calibration: CameraCalibration
     used: tuple[str, ...]
     skipped: tuple[str, ...]
+    views: tuple[ViewFit, ...] = ()  # every view with the board, in the order given
+    outlier_threshold_px: float = 0.0
+    with_dropped: CameraCalibration | None = None  # every view kept (None: none was dropped)
+
+    @property
+    def dropped(self) -> tuple[str, ...]:
+        """The views dropped as outliers."""
+        return tuple(v.image for v in self.views if v.dropped)
+
+
+def _fit(
+    cv2: Any,
+    size: tuple[int, int],
+    object_points: Sequence[NDArray[np.float32]],
+    image_points: Sequence[NDArray[np.float32]],
+) -> tuple[float, FloatArray, FloatArray, list[tuple[float, float]]]:
+    """cv2.calibrateCamera: (RMS px, matrix, distortion, per view (RMS px, max px))."""
+    rms, matrix, dist, rvecs, tvecs = cv2.calibrateCamera(
+        list(object_points), list(image_points), size, None, None
+    )
+    errors = []
+    for obj, img, rvec, tvec in zip(object_points, image_points, rvecs, tvecs, strict=True):
+        projected, _ = cv2.projectPoints(obj, rvec, tvec, matrix, dist)
+        distance = np.linalg.norm(projected.reshape(-1, 2) - img.reshape(-1, 2), axis=1)
+        errors.append((float(np.sqrt(np.mean(distance**2))), float(distance.max())))
+    return float(rms), np.asarray(matrix, np.float64), np.asarray(dist, np.float64).reshape(-1), errors
+
+
+def outlier_threshold_px(view_rms_px: Sequence[float]) -> float:
+    """The RMS reprojection error [px] above which a view is an outlier.
+
+    `OUTLIER_FACTOR` times the median view's, and at least `OUTLIER_MIN_PX`.
+    """
+    return max(OUTLIER_MIN_PX, OUTLIER_FACTOR * float(np.median(view_rms_px)))
+
+
+def calibrate_views(
+    board: str,
+    size: tuple[int, int],
+    views: Sequence[tuple[str, NDArray[np.float32], NDArray[np.float32]]],
+) -> tuple[CameraCalibration, tuple[ViewFit, ...], float, CameraCalibration | None]:
+    """Calibrate from (image name, object points, image points) views, dropping outlier views.
+
+    The worst view is dropped while its RMS reprojection error exceeds `outlier_threshold_px` of the
+    views kept, and the camera calibrated again without it; at most a quarter of the views go, and
+    at least `MIN_VIEWS` stay. Returns (the calibration, each view's fit in the order given, the
+    threshold, the calibration with every view if any was dropped).
+    """
+    cv2 = require_cv2()
+    kept = list(range(len(views)))
+    first: CameraCalibration | None = None
+    while True:
+        rms, matrix, dist, errors = _fit(cv2, size, [views[i][1] for i in kept], [views[i][2] for i in kept])
+        calibration = CameraCalibration(size[0], size[1], matrix, dist, rms, board, len(kept))
+        if first is None:
+            first = calibration
+        threshold = outlier_threshold_px([e[0] for e in errors])
+        worst = int(np.argmax([e[0] for e in errors]))
+        room = len(kept) > max(MIN_VIEWS, len(views) - len(views) // 4)
+        if errors[worst][0] <= threshold or not room:
+            break
+        del kept[worst]
+    fits = dict(zip(kept, errors, strict=True))
+    # a dropped view's fit: its corners against the final intrinsics, with its own best pose
+    result = []
+    for index, (name, obj, img) in enumerate(views):
+        if index in fits:
+            result.append(ViewFit(name, fits[index][0], fits[index][1], dropped=False))
+            continue
+        _, rvec, tvec = cv2.solvePnP(obj, img, calibration.camera_matrix, calibration.distortion)
+        projected, _ = cv2.projectPoints(obj, rvec, tvec, calibration.camera_matrix, calibration.distortion)
+        distance = np.linalg.norm(projected.reshape(-1, 2) - img.reshape(-1, 2), axis=1)
+        result.append(
+            ViewFit(name, float(np.sqrt(np.mean(distance**2))), float(distance.max()), dropped=True)
+        )
+    with_dropped = first if len(kept) < len(views) else None
+    return calibration, tuple(result), threshold, with_dropped
 
 
 def calibrate(board: Board, images: Sequence[tuple[str, NDArray[np.uint8]]]) -> CalibrationResult:
-    """Calibrate from (name, grey image) views of `board`; InputError if too few views show it."""
-    cv2 = require_cv2()
+    """Calibrate from (name, grey image) views of `board`; InputError if too few views show it.
+
+    Views whose reprojection error marks them as outliers are dropped and named (`calibrate_views`).
+    """
     check_board(board)
     if not images:
         raise InputError("IMAGES: none given; allowed: at least 3 images of the board")
     size = images[0][1].shape[1], images[0][1].shape[0]
-    object_points: list[NDArray[np.float32]] = []
-    image_points: list[NDArray[np.float32]] = []
-    used: list[str] = []
+    views: list[tuple[str, NDArray[np.float32], NDArray[np.float32]]] = []
     skipped: list[str] = []
     for name, image in images:
         if (image.shape[1], image.shape[0]) != size:
@@ -263,22 +369,12 @@ def calibrate(board: Board, images: Sequence[tuple[str, NDArray[np.uint8]]]) -> 
         if points is None:
             skipped.append(name)
             continue
-        object_points.append(points[0])
-        image_points.append(points[1])
-        used.append(name)
-    if len(used) < MIN_VIEWS:
+        views.append((name, points[0], points[1]))
+    if len(views) < MIN_VIEWS:
         raise InputError(
-            f"the board ({board.describe()}) was found in {len(used)} of {len(images)} images; allowed: at "
+            f"the board ({board.describe()}) was found in {len(views)} of {len(images)} images; allowed: at "
             f"least {MIN_VIEWS} (check --board, --columns and --rows)"
         )
-    rms, matrix, dist, _, _ = cv2.calibrateCamera(object_points, image_points, size, None, None)
-    calibration = CameraCalibration(
-        image_width=size[0],
-        image_height=size[1],
-        camera_matrix=np.asarray(matrix, np.float64),
-        distortion=np.asarray(dist, np.float64).reshape(-1),
-        reprojection_error_px=float(rms),
-        board=board.describe(),
-        views=len(used),
-    )
-    return CalibrationResult(calibration, tuple(used), tuple(skipped))
+    calibration, fits, threshold, with_dropped = calibrate_views(board.describe(), size, views)
+    used = tuple(f.image for f in fits if not f.dropped)
+    return CalibrationResult(calibration, used, tuple(skipped), fits, threshold, with_dropped)

@@ -1,7 +1,8 @@
 """The marker map (docs/formats.md §9.2): which ArUco marker sits where on which component of the link.
 
-A YAML file, validated here without OpenCV: the dictionary, the markers' side length, one marker
-per component (base first) with its pose in the component's frame, and the link's segment lengths
+A YAML file, validated here without OpenCV: the dictionary, the markers' side length (one for the
+map, which a component may override), one marker per component (base first) with its pose in the
+component's frame, and the link's segment lengths
 (the joint centres' positions, `p_i = (0, 0, L_i)` in {i−1}, docs/model.md §1). Every problem is a
 one-line `ConfigError` naming the file, the field path and what is allowed.
 """
@@ -47,12 +48,17 @@ _TOP_KEYS = (
     "planar_tolerance_rad",
     "corner_refinement",
 )
-_COMPONENT_KEYS = ("name", "marker_id", "xyz_m", "rpy_rad")
+_COMPONENT_KEYS = ("name", "marker_id", "xyz_m", "rpy_rad", "marker_length_m")
 
 
 class CornerRefinement(StrEnum):
-    """ArUco corner refinement (cv2.aruco.CORNER_REFINE_*); `subpix` is what the accuracy figures used."""
+    """How a marker's corners are refined: `edges` (the default) or one of ArUco's own.
 
+    `edges`: lines fitted to the marker's four edges (`rig.hw.camera.edges`); the others are
+    cv2.aruco.CORNER_REFINE_* (`subpix` with a fixed 5 × 5 px window).
+    """
+
+    EDGES = "edges"
     SUBPIX = "subpix"
     CONTOUR = "contour"
     APRILTAG = "apriltag"
@@ -71,6 +77,7 @@ class ComponentMarker:
     name: str
     marker_id: int
     pose_in_component: NDArray[np.float64]  # (4, 4)
+    marker_length_m: float  # its black square's side: its own, or the map's `marker_length_m`
 
 
 @dataclass(frozen=True)
@@ -79,11 +86,11 @@ class MarkerMap:
 
     source: str
     dictionary: str
-    marker_length_m: float
+    marker_length_m: float  # the side of every marker that does not give its own
     segment_lengths_m: tuple[float, ...]
     components: tuple[ComponentMarker, ...]
     planar_tolerance_rad: float = DEFAULT_PLANAR_TOLERANCE_RAD
-    corner_refinement: CornerRefinement = CornerRefinement.SUBPIX
+    corner_refinement: CornerRefinement = CornerRefinement.EDGES
 
     @property
     def joint_count(self) -> int:
@@ -100,8 +107,8 @@ def parse_marker_map(data: object, source: str) -> MarkerMap:
     top = Section(data, source)
     top.reject_unknown(_TOP_KEYS)
     dictionary = top.string("dictionary", choices=sorted(DICTIONARY_SIZES))
-    lo, hi = MARKER_LENGTH_RANGE_M
-    length_m = top.number("marker_length_m", min_value=lo, max_value=hi)
+    length_lo, length_hi = MARKER_LENGTH_RANGE_M
+    length_m = top.number("marker_length_m", min_value=length_lo, max_value=length_hi)
     lo, hi = SEGMENT_LENGTH_RANGE_M
     segments = top.numbers("segment_lengths_m", max_length=MAX_JOINTS, min_value=lo, max_value=hi)
     items = top.sequence("components", min_length=2, max_length=MAX_JOINTS + 1)
@@ -126,14 +133,20 @@ def parse_marker_map(data: object, source: str) -> MarkerMap:
         name = sec.string("name", default="base" if index == 0 else f"component {index}")
         xyz = sec.numbers("xyz_m", length=3, min_value=-POSITION_LIMIT_M, max_value=POSITION_LIMIT_M)
         rpy = sec.numbers("rpy_rad", length=3, min_value=-ANGLE_LIMIT_RAD, max_value=ANGLE_LIMIT_RAD)
-        components.append(ComponentMarker(index, name, marker_id, pose_from_xyz_rpy(xyz, rpy)))
+        own_length_m = sec.number(
+            "marker_length_m",
+            default=length_m,
+            min_value=MARKER_LENGTH_RANGE_M[0],
+            max_value=MARKER_LENGTH_RANGE_M[1],
+        )
+        components.append(ComponentMarker(index, name, marker_id, pose_from_xyz_rpy(xyz, rpy), own_length_m))
     lo, hi = PLANAR_TOLERANCE_RANGE_RAD
     tolerance = top.number(
         "planar_tolerance_rad", default=DEFAULT_PLANAR_TOLERANCE_RAD, min_value=lo, max_value=hi
     )
     refinement = top.string(
         "corner_refinement",
-        default=CornerRefinement.SUBPIX.value,
+        default=CornerRefinement.EDGES.value,
         choices=[c.value for c in CornerRefinement],
     )
     return MarkerMap(

@@ -1,6 +1,8 @@
 """A link configuration from one camera image: ArUco markers → component poses → joint rotations.
 
-For each component's marker (`MarkerMap`): its four corners (ArUco, sub-pixel refined), its pose by
+For each component's marker (`MarkerMap`): its four corners (found by ArUco, refined by the map's
+`corner_refinement`: by default from lines fitted to the marker's edges, `rig.hw.camera.edges`), its
+pose by
 `cv2.solvePnPGeneric` with `SOLVEPNP_IPPE_SQUARE` (both planar solutions), then the component's pose
 from the marker's pose in its frame. A small or face-on marker has two solutions that reproject
 almost equally well and differ mostly in tilt; the choice is made along the chain (a Viterbi pass
@@ -8,12 +10,15 @@ over the two candidates of each marker) so that consecutive components turn abou
 axis rather than tilt, with a penalty per pixel of extra reprojection error. Joint rotations and
 planar angles follow by `model.joint_rotation` (docs/formats.md §9.3 for the conventions).
 
-Uncertainty: the corner noise σ [px] is estimated from the reprojection residuals of all markers in
-the image (2 degrees of freedom each: 8 corner coordinates, 6 pose parameters), floored at
-`MIN_CORNER_SIGMA_PX`, and raised for a marker whose own residuals are larger (a partly occluded
-label bends its refined corners); each marker's rotation covariance is σ²(JᵀJ)⁻¹ from the projection's
-Jacobian, and is carried to each planar angle by its numerical gradient. The result is a
-first-order standard deviation: it does not cover a wrong marker map or a flipped solution.
+Uncertainty: with `edges` refinement each marker's corners come with their (8, 8) covariance C from
+the edge lines (`rig.hw.camera.edges`), widened by the χ² of the corners' own fit to a square where
+that exceeds its 95 % point (something the lines did not see bent them). With ArUco's refinements
+the corner noise σ [px] is estimated from the reprojection residuals of all markers in the image (2
+degrees of freedom each: 8 corner coordinates, 6 pose parameters), floored at `MIN_CORNER_SIGMA_PX`,
+and raised for a marker whose own residuals are larger: C = σ²I. Each marker's rotation covariance
+is (JᵀC⁻¹J)⁻¹ from the projection's Jacobian, and is carried to each planar angle and to the
+out-of-plane test by numerical gradients. The result is a first-order standard deviation: it does
+not cover a wrong marker map, a wrong calibration or a flipped solution.
 
 A component whose marker is not found is `MarkerNotSeenError`, naming it: never a guessed angle.
 """
@@ -36,11 +41,14 @@ from model.joint_rotation import (
 )
 from rig.errors import InputError, RigError
 from rig.hw.camera.calibration import CameraCalibration
+from rig.hw.camera.edges import EdgeCorners, EdgeRefiner
 from rig.hw.camera.marker_map import ComponentMarker, CornerRefinement, MarkerMap
 from rig.hw.camera.opencv import require_cv2
 from rig.hw.seams import ConfigurationReading
 
 MIN_CORNER_SIGMA_PX = 0.1  # floor: the residuals of 4 corners under-report the noise of refined corners
+FALLBACK_WINDOW_CELLS = 0.3  # cornerSubPix's half-window, of a cell, where a marker's edges cannot be fitted
+MISFIT_CHI2 = 5.99  # χ²(2) exceeded with probability 0.05: a marker's corners fit its square worse
 AMBIGUITY_MARGIN_PX = 1.0  # a second IPPE solution within this of the best is a candidate
 OUT_OF_PLANE_CHI2 = 23.03  # χ²(2) exceeded with probability 1e-5 (the tilt noise has heavier tails)
 REPROJECTION_PENALTY_RAD_PER_PX = 0.05  # chain choice: 1 px of extra error weighs like 2.9° of tilt
@@ -82,7 +90,7 @@ class CameraMeasurement:
     out_of_plane_rad: FloatArray  # (J,) angle of Rot_y(φ_i)ᵀ R_i
     out_of_plane_statistic: FloatArray  # (J,) vᵀΣ⁻¹v of its tilt-and-twist vector: χ² with 2 dof if planar
     joint_gap_m: FloatArray  # (J,) distance between joint i's centre as placed by components i−1 and i
-    corner_sigma_px: float  # the corner noise the uncertainty assumes
+    corner_sigma_px: float  # the corner noise the uncertainty assumes (RMS over the markers' corners)
     planar_tolerance_rad: float
 
     @property
@@ -148,17 +156,24 @@ class MarkerDetector:
         self.calibration = calibration
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, marker_map.dictionary))
         parameters = cv2.aruco.DetectorParameters()
-        parameters.cornerRefinementMethod = getattr(
-            cv2.aruco, f"CORNER_REFINE_{marker_map.corner_refinement.value.upper()}"
-        )
-        if marker_map.corner_refinement == CornerRefinement.SUBPIX:
+        refinement = marker_map.corner_refinement
+        # edges: ArUco's corners unrefined, then the edge lines (rig.hw.camera.edges)
+        aruco_method = "none" if refinement == CornerRefinement.EDGES else refinement.value
+        parameters.cornerRefinementMethod = getattr(cv2.aruco, f"CORNER_REFINE_{aruco_method.upper()}")
+        if refinement == CornerRefinement.SUBPIX:
             # half-size 2 (a 5x5 window): a larger one reaches past the white margin, and anything lying
             # beside the label bends the corners (benchmarks/bench_camera.py: 0.41° to 0.15° RMS at 50 px)
             parameters.cornerRefinementWinSize = 2
         self.detector = cv2.aruco.ArucoDetector(dictionary, parameters)
-        self._object = _object_points(marker_map.marker_length_m)
+        self._objects = {c.marker_id: _object_points(c.marker_length_m) for c in marker_map.components}
         self._matrix = np.asarray(calibration.camera_matrix, np.float64)
         self._dist = np.asarray(calibration.distortion, np.float64)
+        self._cells = int(dictionary.markerSize) + 2  # across a marker, its black border included
+        self._edges = (
+            EdgeRefiner(cv2, self._matrix, self._dist, self._cells)
+            if refinement == CornerRefinement.EDGES
+            else None
+        )
 
     def detect(self, image: NDArray[np.uint8]) -> dict[int, FloatArray]:
         """Corners (4, 2) by marker id, for the ids seen exactly once."""
@@ -176,11 +191,34 @@ class MarkerDetector:
             del found[key]
         return found
 
-    def candidates(self, corners: FloatArray) -> list[tuple[FloatArray, FloatArray, float]]:
+    def refine(self, image: NDArray[np.uint8], corners: FloatArray) -> tuple[FloatArray, EdgeCorners | None]:
+        """The corners refined as the map says, and their edge lines' fit (`edges` refinement only).
+
+        With `edges`, a marker a side of which shows too little edge to fit (mostly hidden) gets
+        `cv2.cornerSubPix` instead, with a window of `FALLBACK_WINDOW_CELLS` of its cell, and no fit.
+        """
+        if self._edges is None:
+            return corners, None
+        fit = self._edges.refine(np.asarray(image, np.float32), corners)
+        if fit is not None:
+            return fit.corners_px, fit
+        cell_px = float(np.mean(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1))) / self._cells
+        half = max(2, round(FALLBACK_WINDOW_CELLS * cell_px))
+        criteria = (self._cv2.TERM_CRITERIA_EPS + self._cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        refined = self._cv2.cornerSubPix(
+            image, corners.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), criteria
+        )
+        return np.asarray(refined, np.float64).reshape(4, 2), None
+
+    def candidates(self, marker_id: int, corners: FloatArray) -> list[tuple[FloatArray, FloatArray, float]]:
         """The planar pose solutions (rvec, tvec, RMS reprojection error px) worth considering, best first."""
         cv2 = self._cv2
         count, rvecs, tvecs, errors = cv2.solvePnPGeneric(
-            self._object, corners.astype(np.float32), self._matrix, self._dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
+            self._objects[marker_id],
+            corners.astype(np.float32),
+            self._matrix,
+            self._dist,
+            flags=cv2.SOLVEPNP_IPPE_SQUARE,
         )
         errs = np.asarray(errors, np.float64).reshape(-1)
         solutions = sorted(
@@ -197,12 +235,23 @@ class MarkerDetector:
         best = solutions[0][2]
         return [s for s in solutions if s[2] - best <= AMBIGUITY_MARGIN_PX and s[1][2] > 0]
 
-    def rotation_covariance(self, rvec: FloatArray, tvec: FloatArray, sigma_px: float) -> FloatArray:
-        """σ²(JᵀJ)⁻¹ restricted to the rotation vector, J the corners' Jacobian in (rvec, tvec)."""
-        _, jacobian = self._cv2.projectPoints(self._object, rvec, tvec, self._matrix, self._dist)
+    def project(self, marker_id: int, rvec: FloatArray, tvec: FloatArray) -> FloatArray:
+        """The marker's corners (4, 2) [px] seen in pose (rvec, tvec)."""
+        projected, _ = self._cv2.projectPoints(self._objects[marker_id], rvec, tvec, self._matrix, self._dist)
+        return np.asarray(projected, np.float64).reshape(4, 2)
+
+    def rotation_covariance(
+        self, marker_id: int, rvec: FloatArray, tvec: FloatArray, corner_covariance_px2: FloatArray
+    ) -> FloatArray:
+        """(JᵀC⁻¹J)⁻¹ restricted to the rotation vector.
+
+        J is the corners' Jacobian in (rvec, tvec), C the (8, 8) covariance of the corners'
+        coordinates (x0, y0, x1, ...).
+        """
+        _, jacobian = self._cv2.projectPoints(self._objects[marker_id], rvec, tvec, self._matrix, self._dist)
         jac = np.asarray(jacobian, np.float64)[:, :6]
-        information = jac.T @ jac
-        covariance = np.linalg.pinv(information) * sigma_px**2
+        information = jac.T @ np.linalg.pinv(corner_covariance_px2) @ jac
+        covariance = np.linalg.pinv(information)
         return np.asarray(covariance[:3, :3], np.float64)
 
 
@@ -279,9 +328,12 @@ def measure_image(
             f"nothing measured ({marker_map.dictionary}, map {marker_map.source})"
         )
     corners = [seen[c.marker_id] for c in marker_map.components]
+    refined = [detector.refine(image, quad) for quad in corners]
+    corners = [quad for quad, _ in refined]
+    edges = [edge for _, edge in refined]
     options = []
     for component, quad in zip(marker_map.components, corners, strict=True):
-        found = detector.candidates(quad)
+        found = detector.candidates(component.marker_id, quad)
         if not found:
             raise MarkerNotSeenError(
                 f"{source}: {component.name} (marker {component.marker_id}): no pose in front of the camera"
@@ -295,10 +347,22 @@ def measure_image(
     sigma = max(MIN_CORNER_SIGMA_PX, math.sqrt(squared / dof))
 
     markers = []
-    for component, quad, (rvec, tvec, error), options_k in zip(
-        marker_map.components, corners, chosen, options, strict=True
+    corner_covariances: list[FloatArray] = []
+    for component, quad, (rvec, tvec, error), options_k, edge in zip(
+        marker_map.components, corners, chosen, options, edges, strict=True
     ):
         sides = np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1)
+        if edge is not None:
+            # the corners' own fit to a square: beyond what their covariance allows (χ² with 2 degrees
+            # of freedom above its 95 % point), something the lines did not see bends them: widen
+            residual = (quad - detector.project(component.marker_id, rvec, tvec)).reshape(-1)
+            misfit = float(residual @ np.linalg.pinv(edge.covariance_px2) @ residual)
+            corner_covariance = edge.covariance_px2 * max(1.0, misfit / MISFIT_CHI2)
+        else:
+            # a marker that fits its own corners worse than the image's pooled noise gets its own
+            # (one marker's 4 corners leave 2 degrees of freedom: σ_k² = 4 e_k² / 2)
+            corner_covariance = np.eye(8) * max(sigma, math.sqrt(2.0) * error) ** 2
+        corner_covariances.append(corner_covariance)
         markers.append(
             MarkerPose(
                 component=component.component,
@@ -310,10 +374,8 @@ def measure_image(
                 side_px=float(sides.mean()),
                 candidates=len(options_k),
                 rvec=rvec,
-                # a marker that fits its own corners worse than the image's pooled noise gets its own
-                # (one marker's 4 corners leave 2 degrees of freedom: σ_k² = 4 e_k² / 2)
                 rotation_covariance=detector.rotation_covariance(
-                    rvec, tvec, max(sigma, math.sqrt(2.0) * error)
+                    component.marker_id, rvec, tvec, corner_covariance
                 ),
             )
         )
@@ -336,7 +398,7 @@ def measure_image(
         out_of_plane_rad=tilt,
         out_of_plane_statistic=tilt_statistic,
         joint_gap_m=gaps,
-        corner_sigma_px=sigma,
+        corner_sigma_px=float(np.sqrt(np.mean([np.mean(np.diag(c)) for c in corner_covariances]))),
         planar_tolerance_rad=marker_map.planar_tolerance_rad,
     )
 
