@@ -64,6 +64,6 @@ class ReelDirectionCheck:
             f"({limits.zero_tolerance_n:g} N): the winch is probably turning the wrong way. Check "
             f"reel_direction ({config.reel_direction:+d}) in {config.source}: on a slack line, "
             f"`rig check --rig {config.source} --move --write` measures the direction and writes it. "
-            "(A line off its drum, or more slack than that travel, stops a run the same way: take the "
-            "slack up before the run)"
+            "Then start the run again: a run does not resume on a changed rig config. (A line off its "
+            "drum, or more slack than that travel, stops a run the same way: take the slack up first)"
         )
