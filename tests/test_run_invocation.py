@@ -379,7 +379,14 @@ def test_a_journal_written_before_the_texts_were_kept_still_resumes(tmp_path, qu
 def test_the_stop_line_prints_a_resume_command_that_works(tmp_path, run_cli, monkeypatch, out_given):
     """A run stopped by a fault with the hardware safe says how to continue; that command runs as printed."""
     monkeypatch.chdir(tmp_path)
-    rig = ROOT / "protocols" / "rigs" / "faults" / "drifting-zero.yaml"  # trial 2's tare stops the run
+    # A log file capped at 220 kB (a smoke run writes about 336 kB): trial 2 stops on the full disk,
+    # with the hardware verified safe; the resumed part, trial 2 alone, fits.
+    rig = tmp_path / "log-cap.yaml"
+    rig.write_text(
+        "extends: simulated\nname: log-cap\nsimulation:\n  faults:\n"
+        "    - {device: logger, kind: write_error, after_bytes: 220000}\n",
+        encoding="utf-8",
+    )
     out = ["--out", str(tmp_path / "o")] if out_given else []
     first = run_cli("run", ROOT / "protocols" / "smoke.yaml", "--rig", rig, "--run-id", "dz", *out)
     assert first.code == 1, first.err

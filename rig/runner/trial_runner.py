@@ -292,6 +292,10 @@ class TrialRunner:
                     or not is_device_fault(exc, self.loop.states)
                     or not recover(self.ctx, trial, exc)
                 ):
+                    # The run ends here: the trial's link counts (late ticks, bus timeouts) still go
+                    # in the log, as they say what the host and the bus were doing when it failed.
+                    with self.recorder.best_effort():
+                        self._log_links(links.finish(trial.trial_id))
                     raise
             self.journal.record_retry(trial.trial_id)
             self.recorder.note(
