@@ -24,6 +24,7 @@ import pandas as pd
 
 from rig.errors import InputError
 from rig.log.frames import DEFAULT_BATCH_SIZE, TopicBatches, empty_frame
+from rig.log.log_format import log_format_version
 from rig.log.mcap_scan import (
     ALL_TIMES,
     Attachment,
@@ -136,6 +137,18 @@ class RunLog:
         self._note(sink.warnings)
         return frame
 
+    @property
+    def format_versions(self) -> dict[Path, str]:
+        """Each file's log format version (`rig.log.log_format`)."""
+        return {path: log_format_version(path, meta) for path, meta in self.metadata_by_file.items()}
+
+    def read_all(self, name: str) -> pd.DataFrame:
+        """One topic's messages as `topic` has them, without keeping them.
+
+        A deferred topic is read from the files again, chunk by chunk, on every call.
+        """
+        return self.window(name, *ALL_TIMES)
+
     def last_before(
         self, name: str, time_ns: int, keep: Callable[[pd.DataFrame], pd.DataFrame] = lambda f: f
     ) -> pd.Series | None:
@@ -231,6 +244,7 @@ def read_run(
             scan_file(scan)
         if scan.counts.get(0):
             scan.warn(f"{scan.counts[0]} messages on channels whose Channel record was lost; skipped")
+        log_format_version(path, scan.metadata)  # refuses a format this rig cannot read
         scans.append(scan)
         sources.append(scan.source())
     for sink in batches.values():
