@@ -16,9 +16,9 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -39,6 +39,9 @@ from rig.log.records import (
     TrialResult,
 )
 from rig.vocabulary import MeasurementStage
+
+if TYPE_CHECKING:
+    from rig.analysis.redetect import Redetection
 
 RAMP_PHASES = (TrialPhase.RAMP_FAST.value, TrialPhase.RAMP_SLOW.value)
 UNLOADING_PHASE = TrialPhase.UNLOADING.value
@@ -87,7 +90,6 @@ class TrialRecord:
     ramp_start_ns: int | None
     unloading_ns: int | None
     slip: SlipEvent | None
-    extra: dict[str, Any] = field(default_factory=dict)
     # Further drops the runner counted after the slip; None if not logged (before the train rule).
     train_drops: int | None = None
     # The last measurement after bending (`/rig/configuration/measured`); None when none was logged.
@@ -241,11 +243,21 @@ def base_lever_arm_m(settings: RunSettings, joint_angles_rad: Sequence[float]) -
     return float(arms[0])
 
 
-def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.DataFrame:
-    """The trial table (columns `TRIAL_COLUMNS` plus one `joint_angle_<i>_rad` per joint)."""
+def trial_table(
+    records: Sequence[TrialRecord],
+    settings: RunSettings,
+    redetections: Sequence[Redetection] | None = None,
+) -> pd.DataFrame:
+    """The trial table (columns `TRIAL_COLUMNS` plus one `joint_angle_<i>_rad` per joint).
+
+    `redetections`, one per record in the same order, fill the `redetection` and `redetected_*`
+    columns (left empty without them).
+    """
+    if redetections is not None and len(redetections) != len(records):
+        raise ValueError(f"{len(redetections)} re-detections for {len(records)} trials")
     joints = max((len(r.joint_angles_rad or ()) for r in records), default=0)
     rows: list[dict[str, Any]] = []
-    for record in records:
+    for index, record in enumerate(records):
         r = record.result
         plan = settings.plans.get(record.trial_id)
         peak = r.peak_force_n
@@ -285,7 +297,8 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
             "configuration_source": record.configuration.source.value if record.configuration else None,
             "bend_corrections": record.configuration.attempt if record.configuration else None,
         }
-        row.update(record.extra)
+        if redetections is not None:
+            row.update(_redetected_columns(redetections[index], settings.g))
         for j in range(joints):
             angles = record.joint_angles_rad
             row[f"joint_angle_{j + 1}_rad"] = angles[j] if angles is not None and j < len(angles) else None
@@ -297,6 +310,17 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
         {name: _column([row.get(name) for row in rows], dtype) for name, dtype in columns.items()}
     )
     return frame.reset_index(drop=True)
+
+
+def _redetected_columns(found: Redetection, g: float) -> dict[str, Any]:
+    event = found.event
+    return {
+        "redetection": found.status,
+        "redetected_peak_force_n": event.peak_force_n if event else None,
+        "redetected_slip_mass_kg": event.peak_force_n / g if event else None,
+        "redetected_peak_time_ns": event.peak_time_ns if event else None,
+        "redetected_detection_time_ns": event.detection_time_ns if event else None,
+    }
 
 
 def _column(values: list[Any], dtype: str) -> pd.api.extensions.ExtensionArray | np.ndarray:
