@@ -224,7 +224,7 @@ class LoggedRun:
     def configurations(self) -> pd.DataFrame:
         """Measured link configurations: one row per measurement and joint (angle, its sd, commanded)."""
         rows: list[dict[str, Any]] = []
-        start = self._start_ns
+        start = self.start_time_ns
         for part in self._scanned.parts:
             for _, payload in frame_payloads(part.log.topic(schemas.CONFIGURATION_MEASURED)):
                 rows.extend(_configuration_rows(ConfigurationMeasurement.from_payload(payload), start))
@@ -282,7 +282,8 @@ class LoggedRun:
         return fit_settings(self._scanned)
 
     @cached_property
-    def _start_ns(self) -> int:
+    def start_time_ns(self) -> int:
+        """The log time (epoch ns) the tables' `time_s` counts from: the run's first message."""
         firsts = [
             report.first_log_time_ns
             for part in self._scanned.parts
@@ -300,7 +301,7 @@ class LoggedRun:
     def _part_samples(self, part: LogPart, topic: str, names: Sequence[str]) -> pd.DataFrame:
         frame = part.log.read_all(topic)
         times = frame["log_time_ns"].to_numpy(np.int64)
-        out = pd.DataFrame({"time_s": (times - self._start_ns) / 1e9})
+        out = pd.DataFrame({"time_s": (times - self.start_time_ns) / 1e9})
         for name in names:
             out[name] = frame[name].to_numpy() if name in frame.columns else None
         out["trial_id"] = _trial_ids(times, [r for r in self._scanned.records if r.part is part])
