@@ -16,6 +16,7 @@ import pytest
 
 from rig.log import schemas as S
 from rig.log.examples import example_payloads
+from rig.log.log_format import METADATA_NAME as FORMAT_RECORD
 from rig.log.reader import read_run
 from rig.log.writer import RunLogger
 
@@ -69,7 +70,8 @@ def test_finished_rig_log_reads_in_the_indexed_typescript_reader(rig_log):
     assert {topic: entry["schema"] for topic, entry in found["topics"].items()} == {
         topic: S.TOPICS[topic].schema_name for topic in S.TOPICS
     }
-    assert found["metadata"] == ["session", "protocol"] and found["attachments"] == ["protocol.yaml"]
+    assert found["metadata"] == [FORMAT_RECORD, "session", "protocol"]
+    assert found["attachments"] == ["protocol.yaml"]
     assert found["warnings"] == []
 
 
