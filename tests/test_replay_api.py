@@ -120,7 +120,7 @@ def test_refit_reproduces_the_offline_fit_and_takes_other_settings(runs):
 def test_redetect_with_the_logged_parameters_matches_and_with_others_changes(runs):
     run = open_log(runs["smoke"])
     assert set(run.redetect()["redetection"]) == {"match"}
-    hair = run.redetect(cusum_threshold_n=0.001, cusum_drift_n=0, min_drop_n=0)
+    hair = run.redetect(cusum_threshold_n=0.001, cusum_drift_n_per_s=0, min_drop_n=0)
     assert "changed" in set(hair["redetection"])
     refit = run.refit(trials=hair, masses="redetected_slip_mass_kg")
     assert refit is not None and refit.k_kg_m != run.refit().k_kg_m
@@ -165,3 +165,32 @@ def test_a_file_that_is_not_a_rig_log_raises(tmp_path):
     other.write_bytes(b"not an mcap")
     with pytest.raises(InputError):
         open_log(other)
+
+
+def test_payloads_that_do_not_decode_are_counted_in_one_warning(tmp_path, run_cli):
+    # A pre-release payload (integer times, no `start` stamp) is skipped with a warning, no traceback.
+    from rig.log.examples import EXAMPLE_TIME_NS, example_payloads
+    from rig.log.writer import RunLogger
+
+    payloads = example_payloads()
+    result = {k: v for k, v in payloads[S.TRIAL_RESULT].items() if k not in ("start", "end")}
+    result.update(start_time_ns=EXAMPLE_TIME_NS, end_time_ns=EXAMPLE_TIME_NS + 1)
+    path = tmp_path / "old.mcap"
+    with RunLogger(path, strict=False) as log:
+        for i in range(2):
+            log.log(S.TRIAL_RESULT, EXAMPLE_TIME_NS + i, result)
+        log.log(S.SLIP, EXAMPLE_TIME_NS, {k: v for k, v in payloads[S.SLIP].items() if k != "kind"})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run = open_log(path)
+    expected = [
+        "old.mcap: 1 /rig/slip message could not be decoded "
+        "(first: None is not a valid SlipEventKind); skipped",
+        "old.mcap: 2 /rig/trial/result messages could not be decoded "
+        "(first: start.sec: None is not an integer); skipped",
+    ]
+    assert [str(w.message) for w in caught if str(w.message) in expected] == expected
+    assert len(run.trials) == 0
+    done = run_cli("replay", path, "--json")
+    assert done.code == 0 and "Traceback" not in done.err
+    assert set(expected) <= set(json.loads(done.out)["warnings"])

@@ -49,9 +49,8 @@ from rig.analysis.runlog import (
     run_settings,
 )
 from rig.analysis.samples import trial_samples
-from rig.analysis.trials import TrialRecord, records_json, trial_records, trial_table
+from rig.analysis.trials import TrialRecord, decoded_messages, records_json, trial_records, trial_table
 from rig.log import schemas
-from rig.log.frames import frame_payloads
 from rig.log.records import Estimate, TrialLinkStats
 from rig.vocabulary import TrialKind
 
@@ -236,7 +235,16 @@ def scan_run(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -
         else:
             warnings.append("no detector parameters logged; re-detection uses the detector's defaults")
     records = trial_records(parts, warnings)
-    return ScannedRun(parts, settings, records, _logged_estimates(parts), _trial_links(parts), warnings)
+    estimates = [
+        e for part in parts for e in decoded_messages(part, schemas.ESTIMATE, Estimate.from_payload, warnings)
+    ]
+    links = [
+        link
+        for part in parts
+        if part.log.message_counts.get(schemas.TRIAL_LINKS)
+        for link in decoded_messages(part, schemas.TRIAL_LINKS, TrialLinkStats.from_payload, warnings)
+    ]
+    return ScannedRun(parts, settings, records, estimates, links, warnings)
 
 
 def redetect_run(run: ScannedRun, detector_overrides: Sequence[str] = ()) -> Redetected:
@@ -331,25 +339,6 @@ def replay_scanned(run: ScannedRun, detector_overrides: Sequence[str] = ()) -> R
         warnings=list(dict.fromkeys(all_warnings)),
         links=run.links,
     )
-
-
-def _logged_estimates(parts: Sequence[LogPart]) -> list[Estimate]:
-    """Every `/rig/estimate` message of the run, decoded into the runner's `Estimate`, in run order."""
-    return [
-        Estimate.from_payload(payload)
-        for part in parts
-        for _, payload in frame_payloads(part.log.topic(schemas.ESTIMATE))
-    ]
-
-
-def _trial_links(parts: Sequence[LogPart]) -> list[TrialLinkStats]:
-    """Every `/rig/trial/links` message of the run (the servo bus's and load cell's counts per trial)."""
-    return [
-        TrialLinkStats.from_payload(payload)
-        for part in parts
-        if part.log.message_counts.get(schemas.TRIAL_LINKS)
-        for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_LINKS))
-    ]
 
 
 def _run_estimator(estimates: list[Estimate], warnings: list[str]) -> EstimatorName:

@@ -8,8 +8,8 @@ the samples of one part must never be interleaved with another's. Parts are orde
 
 `RunSettings` gathers what the analysis needs from the metadata and the attachments: the test
 article's geometry and g (re-parsed from the attached rig config), the detector parameters, the
-fit settings, the expanded trial plan (re-parsed from the attached protocol with the logged seed)
-and, in simulation, the ground truth. Whatever cannot be recovered becomes a warning and a default,
+fit settings, the protocol's hold after a slip (re-parsed from the attached protocol with the logged
+seed) and, in simulation, the ground truth. Whatever cannot be recovered becomes a warning and a default,
 never an error: a damaged log still replays.
 """
 
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +28,7 @@ from rig.errors import InputError, RigError
 from rig.files import parse_json, parse_yaml
 from rig.log import schemas
 from rig.log.reader import RunLog, mcap_files, read_run
-from rig.protocol import TrialPlan, parse_protocol
+from rig.protocol import parse_protocol
 from rig.rig_config import ArticleConfig, parse_rig_config
 
 DEFAULT_CONSTANT = "paper"
@@ -64,7 +64,6 @@ class RunSettings:
     level: float = DEFAULT_LEVEL
     constant: str = DEFAULT_CONSTANT
     seed: int | None = None
-    plans: dict[int, TrialPlan] = field(default_factory=dict)
     truth: dict[str, Any] | None = None
     hold_after_slip_s: float | None = None  # the protocol's hold after a slip (the stick-slip window)
 
@@ -160,7 +159,6 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
                 seed=settings.seed or 0,
                 joint_count=joint_count,
             )
-            settings.plans = {t.trial_id: t for t in protocol.trials}
             settings.hold_after_slip_s = protocol.ramp.hold_after_slip_s
             if settings.detector is None:
                 settings.detector = protocol.detector.to_mapping()
@@ -168,7 +166,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
         except (RigError, ValueError, yaml.YAMLError) as exc:
             warnings.append(
                 f"protocol attachment {protocol_attachment.name}: unreadable ({exc}); "
-                "trial plans (joint, configuration index) unknown"
+                "the hold after a slip (the stick-slip window) unknown"
             )
 
     truth_json = metadata.get("sim_truth", {}).get("json")

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import pandas as pd
@@ -43,6 +43,7 @@ from rig.vocabulary import MeasurementStage
 if TYPE_CHECKING:
     from rig.analysis.redetect import Redetection
 
+Record = TypeVar("Record")
 RAMP_PHASES = (TrialPhase.RAMP_FAST.value, TrialPhase.RAMP_SLOW.value)
 UNLOADING_PHASE = TrialPhase.UNLOADING.value
 SLIP_LIKE_OUTCOMES = sorted(o.value for o in SLIP_LIKE)  # the `outcome` values the fit uses
@@ -130,6 +131,31 @@ def _value(row: pd.Series, name: str) -> Any:
     return value
 
 
+def decoded_messages(
+    part: LogPart, topic: str, decode: Callable[[dict[str, Any]], Record], warnings: list[str]
+) -> list[Record]:
+    """A part's messages of a topic decoded into records, in log order.
+
+    A payload that does not decode (damaged, or of a pre-release log format) is skipped; one warning
+    per part and topic counts them and quotes the first problem.
+    """
+    records: list[Record] = []
+    failed = 0
+    first = ""
+    for _, payload in frame_payloads(part.log.topic(topic)):
+        try:
+            records.append(decode(payload))
+        except (KeyError, TypeError, ValueError) as exc:
+            failed += 1
+            first = first or (f"no {exc}" if isinstance(exc, KeyError) else str(exc))
+    if failed:
+        warnings.append(
+            f"{part.name}: {failed} {topic} message{'s' if failed > 1 else ''} could not be decoded "
+            f"(first: {first}); skipped"
+        )
+    return records
+
+
 def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRecord]:
     """Every `/rig/trial/result` of the run, in part order then log time; duplicates warned and dropped."""
     records: list[TrialRecord] = []
@@ -137,16 +163,10 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
     for part in parts:
         phases = _TrialPhases(part.log.topic(schemas.TRIAL_STATE))
         slips: dict[int, list[SlipMessage]] = {}
-        for _, slip_payload in frame_payloads(part.log.topic(schemas.SLIP)):
-            slip_message = SlipMessage.from_payload(slip_payload)
+        for slip_message in decoded_messages(part, schemas.SLIP, SlipMessage.from_payload, warnings):
             slips.setdefault(slip_message.trial_id, []).append(slip_message)
         measured = _bent_measurements(part, warnings)
-        for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_RESULT)):
-            try:
-                result = TrialResult.from_payload(payload)
-            except (KeyError, TypeError, ValueError) as exc:
-                warnings.append(f"{part.name}: a /rig/trial/result could not be decoded ({exc}); skipped")
-                continue
+        for result in decoded_messages(part, schemas.TRIAL_RESULT, TrialResult.from_payload, warnings):
             trial_id = result.trial_id
             if trial_id in seen:
                 warnings.append(
@@ -174,16 +194,10 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
 
 
 def _bent_measurements(part: LogPart, warnings: list[str]) -> dict[int, ConfigurationMeasurement]:
-    """Each trial's last configuration measured after bending (logs from before it have none)."""
+    """Each trial's last configuration measured after bending (none where no source measured)."""
     out: dict[int, ConfigurationMeasurement] = {}
-    for _, payload in frame_payloads(part.log.topic(schemas.CONFIGURATION_MEASURED)):
-        try:
-            measurement = ConfigurationMeasurement.from_payload(payload)
-        except (KeyError, TypeError, ValueError) as exc:
-            warnings.append(
-                f"{part.name}: a /rig/configuration/measured could not be decoded ({exc}); skipped"
-            )
-            continue
+    decode = ConfigurationMeasurement.from_payload
+    for measurement in decoded_messages(part, schemas.CONFIGURATION_MEASURED, decode, warnings):
         if measurement.stage == MeasurementStage.BENT:
             out[measurement.trial_id] = measurement
     return out
@@ -259,7 +273,6 @@ def trial_table(
     rows: list[dict[str, Any]] = []
     for index, record in enumerate(records):
         r = record.result
-        plan = settings.plans.get(record.trial_id)
         peak = r.peak_force_n
         slip_mass = r.slip_mass_kg
         predicted = r.predicted_mass_kg
@@ -275,11 +288,8 @@ def trial_table(
             "kind": record.kind.value,
             "part": record.part.name,
             "repeat": r.repeat,
-            # logs written before the result carried them: from the protocol's plan
-            "joint": r.joint if r.joint is not None else (plan.joint if plan is not None else None),
-            "configuration_index": r.configuration_index
-            if r.configuration_index is not None
-            else (plan.configuration_index if plan is not None else None),
+            "joint": r.joint,
+            "configuration_index": r.configuration_index,
             "distance_m": r.distance_m,
             "outcome": r.outcome.value,
             "peak_force_n": peak,
@@ -382,5 +392,5 @@ def records_json(frame: pd.DataFrame) -> list[dict[str, Any]]:
 
 
 def slipped_rows(table: pd.DataFrame) -> pd.Series:
-    """Which rows of a trial table are slips of the joint under test (`SLIP_LIKE`; old logs: `slip`)."""
+    """Which rows of a trial table are slips of the joint under test (`SLIP_LIKE`)."""
     return table["outcome"].isin(SLIP_LIKE_OUTCOMES)

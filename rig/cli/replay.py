@@ -38,7 +38,7 @@ load-cell samples one trial at a time: its memory does not grow with the length 
 
 JSON (--json): files, complete, warnings, trials, estimate (offline refit, `rig fit --json` keys),
 online_estimate, online_agreement, redetected_estimate, redetection, links (per trial: the servo
-bus's and load-cell line's counts; logs from before 2026-11-27 have none); for link-validation runs also
+bus's and load-cell line's counts); for link-validation runs also
 percentage_errors, base_moments and joints; under simulation truth.
 Exit codes: 0 done (also for damaged files, with warnings); 2 invalid input (missing or non-MCAP
 file, no rig message readable, bad --detector value, unusable --report directory).
