@@ -44,7 +44,6 @@ from rig.analysis.runlog import LogPart
 from rig.analysis.trials import trial_table
 from rig.errors import InputError
 from rig.log import schemas
-from rig.log.frames import frame_payloads
 from rig.log.reader import mcap_files
 from rig.log.records import ConfigurationMeasurement
 
@@ -226,8 +225,11 @@ class LoggedRun:
         rows: list[dict[str, Any]] = []
         start = self.start_time_ns
         for part in self._scanned.parts:
-            for _, payload in frame_payloads(part.log.topic(schemas.CONFIGURATION_MEASURED)):
-                rows.extend(_configuration_rows(ConfigurationMeasurement.from_payload(payload), start))
+            measured, _, _ = part.log.records(
+                schemas.CONFIGURATION_MEASURED, ConfigurationMeasurement.from_payload
+            )
+            for measurement in measured:
+                rows.extend(_configuration_rows(measurement, start))
         integers = {"trial_id": "Int64", "configuration_index": "Int64", "attempt": "Int64", "joint": "Int64"}
         return _frame(rows, CONFIGURATION_COLUMNS, {**integers, "slipped_joint": "Int64"})
 

@@ -29,7 +29,6 @@ from model.slip_detector import SlipEvent
 from rig.analysis.runlog import LogPart, RunSettings
 from rig.errors import InputError
 from rig.log import schemas
-from rig.log.frames import frame_payloads
 from rig.log.records import (
     SLIP_LIKE,
     ConfigurationMeasurement,
@@ -134,20 +133,12 @@ def _value(row: pd.Series, name: str) -> Any:
 def decoded_messages(
     part: LogPart, topic: str, decode: Callable[[dict[str, Any]], Record], warnings: list[str]
 ) -> list[Record]:
-    """A part's messages of a topic decoded into records, in log order.
+    """A part's messages of a topic decoded into records, in log order (`RunLog.records`).
 
     A payload that does not decode (damaged, or of a pre-release log format) is skipped; one warning
     per part and topic counts them and quotes the first problem.
     """
-    records: list[Record] = []
-    failed = 0
-    first = ""
-    for _, payload in frame_payloads(part.log.topic(topic)):
-        try:
-            records.append(decode(payload))
-        except (KeyError, TypeError, ValueError) as exc:
-            failed += 1
-            first = first or (f"no {exc}" if isinstance(exc, KeyError) else str(exc))
+    records, failed, first = part.log.records(topic, decode)
     if failed:
         warnings.append(
             f"{part.name}: {failed} {topic} message{'s' if failed > 1 else ''} could not be decoded "
