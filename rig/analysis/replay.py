@@ -250,7 +250,7 @@ def scan_run(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -
 def redetect_run(run: ScannedRun, detector_overrides: Sequence[str] = ()) -> Redetected:
     """Stage re-detection: each trial's samples read alone, their gaps counted, the detector run again."""
     overrides = tuple(detector_overrides)
-    params = rd.detector_params(run.settings.detector, overrides, run.settings.detector_source)
+    params = rd.detector_params(run.settings.detector, overrides)
     gap_warnings: list[str] = []
     redetections: list[rd.Redetection] = []
     hold_s = run.settings.hold_after_slip_s
@@ -312,7 +312,7 @@ def replay_scanned(run: ScannedRun, detector_overrides: Sequence[str] = ()) -> R
     estimate = fit.refit(*joint_estimation_points(table))
     re_distances, re_masses, _ = joint_estimation_points(table, "redetected_slip_mass_kg")
     redetected_estimate = fit.refit(re_distances, re_masses)
-    agreement = compare_estimates(_json_or_none(estimate), online_estimate_json(online))
+    agreement = compare_estimates(estimate.fit if estimate else None, online.fit if online else None)
     if agreement.compared and not agreement.agree:
         warnings.append(
             "the offline refit differs from the last online estimate in "

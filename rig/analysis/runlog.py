@@ -24,6 +24,7 @@ from typing import Any
 import yaml
 
 from model.fit import DEFAULT_G, DEFAULT_LEVEL
+from model.slip_detector import DetectorParams
 from rig.errors import InputError, RigError
 from rig.files import parse_json, parse_yaml
 from rig.log import schemas
@@ -59,7 +60,7 @@ class RunSettings:
     article: ArticleConfig | None = None
     g: float = DEFAULT_G
     radius_m: float | None = None
-    detector: dict[str, Any] | None = None
+    detector: DetectorParams | None = None  # the logged parameters (None: none were logged)
     detector_source: str = "defaults"
     level: float = DEFAULT_LEVEL
     constant: str = DEFAULT_CONSTANT
@@ -145,7 +146,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
 
     detector_text = protocol_meta.get("detector")
     if detector_text:
-        settings.detector = _detector_mapping(detector_text)
+        settings.detector = logged_detector(_detector_mapping(detector_text), "protocol metadata")
         settings.detector_source = "protocol metadata"
 
     if protocol_attachment is not None:
@@ -161,7 +162,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
             )
             settings.hold_after_slip_s = protocol.ramp.hold_after_slip_s
             if settings.detector is None:
-                settings.detector = protocol.detector.to_mapping()
+                settings.detector = protocol.detector
                 settings.detector_source = "protocol attachment"
         except (RigError, ValueError, yaml.YAMLError) as exc:
             warnings.append(
@@ -188,15 +189,25 @@ def _detector_mapping(text: str) -> dict[str, Any]:
     return mapping
 
 
-def detector_from_slips(parts: list[LogPart]) -> dict[str, Any] | None:
-    """The detector mapping logged with the first `/rig/slip` event, if any."""
+def logged_detector(mapping: dict[str, Any], source: str) -> DetectorParams:
+    """Detector parameters as a log states them; InputError naming the field if they do not parse."""
+    try:
+        return DetectorParams.from_mapping(mapping, source=source)
+    except ValueError as exc:
+        raise InputError(f"logged detector parameters: {exc}") from None
+
+
+def detector_from_slips(parts: list[LogPart]) -> DetectorParams | None:
+    """The detector parameters logged with the first `/rig/slip` event, if any."""
     for part in parts:
         slips = part.log.topic(schemas.SLIP)
         if slips.empty:
             continue
         row = slips.iloc[0]
         mapping = {c.removeprefix("detector."): row[c] for c in slips.columns if c.startswith("detector.")}
-        return {k: (None if _is_missing(v) else v) for k, v in mapping.items()}
+        return logged_detector(
+            {k: (None if _is_missing(v) else v) for k, v in mapping.items()}, "slip events"
+        )
     return None
 
 
