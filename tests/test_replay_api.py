@@ -194,3 +194,17 @@ def test_payloads_that_do_not_decode_are_counted_in_one_warning(tmp_path, run_cl
     done = run_cli("replay", path, "--json")
     assert done.code == 0 and "Traceback" not in done.err
     assert set(expected) <= set(json.loads(done.out)["warnings"])
+
+
+def test_everything_rig_replay_finds_is_on_the_run(runs):
+    run = open_log(runs["link"])
+    out = run.json()
+    links = run.links
+    assert list(links["trial_id"]) == [entry["trial_id"] for entry in out["links"]]
+    assert (links["bus_operations"] > 0).all() and (links["loadcell_lines_ok"] > 0).all()
+    assert links["bus_operations"].dtype == "Int64"
+    assert run.payload_errors is not None and run.payload_errors.as_json() == out["percentage_errors"]
+    assert run.base_moments is not None and run.base_moments.as_json() == out["base_moments"]
+    assert run.online_agreement.agree and run.online_agreement.as_json() == out["online_agreement"]
+    assert run.redetection.matches == len(run.trials) and run.redetection.as_json() == out["redetection"]
+    assert run.truth == out["truth"]

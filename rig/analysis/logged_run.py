@@ -18,7 +18,7 @@ import os
 import re
 import warnings
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -30,9 +30,10 @@ from model.estimate_summary import EstimateSummary
 from model.estimators import ESTIMATOR_NAMES, EstimatorName
 from model.fit import FitSummary
 from rig.analysis import redetect as rd
-from rig.analysis.refit import joint_estimation_points
+from rig.analysis.refit import BaseMoments, EstimateAgreement, PayloadErrors, joint_estimation_points
 from rig.analysis.replay import (
     FitSettings,
+    RedetectionSummary,
     ReplayResult,
     ScannedRun,
     fit_settings,
@@ -43,9 +44,11 @@ from rig.analysis.replay import (
 from rig.analysis.runlog import LogPart
 from rig.analysis.trials import trial_table
 from rig.errors import InputError
+from rig.hw.dxl.transport import BusStats
+from rig.hw.seams import LoadCellLineStats
 from rig.log import schemas
 from rig.log.reader import mcap_files
-from rig.log.records import ConfigurationMeasurement
+from rig.log.records import ConfigurationMeasurement, ControlTickStats
 
 _PART_SUFFIX = re.compile(r"\.part[0-9]+$")  # a resumed run's later files: RUN_ID.partN.mcap
 LOADCELL_COLUMNS = ("time_s", "force_n", "trial_id", "part")
@@ -232,6 +235,49 @@ class LoggedRun:
                 rows.extend(_configuration_rows(measurement, start))
         integers = {"trial_id": "Int64", "configuration_index": "Int64", "attempt": "Int64", "joint": "Int64"}
         return _frame(rows, CONFIGURATION_COLUMNS, {**integers, "slipped_joint": "Int64"})
+
+    @property
+    def links(self) -> pd.DataFrame:
+        """Per trial, the servo bus's exchanges, the load-cell line's counts and the control ticks.
+
+        Columns `trial_id`, then `bus_<count>`, `loadcell_<count>`, `control_<count>` (docs/formats.md
+        §7.3, `/rig/trial/links`); NA where a device keeps no counts.
+        """
+        rows: list[dict[str, Any]] = []
+        columns = ["trial_id"]
+        for name, kind in (("bus", BusStats), ("loadcell", LoadCellLineStats), ("control", ControlTickStats)):
+            columns += [f"{name}_{f.name}" for f in fields(kind)]
+        for stats in self._scanned.links:
+            row: dict[str, Any] = {"trial_id": stats.trial_id}
+            for name, counts in (
+                ("bus", stats.bus),
+                ("loadcell", stats.loadcell),
+                ("control", stats.control),
+            ):
+                if counts is not None:
+                    row.update({f"{name}_{f.name}": getattr(counts, f.name) for f in fields(counts)})
+            rows.append(row)
+        return _frame(rows, columns, dict.fromkeys(columns, "Int64"))
+
+    @property
+    def payload_errors(self) -> PayloadErrors | None:
+        """Table IV: the link-validation payload errors (None without link-validation slips)."""
+        return self.replay_result.percentage_errors
+
+    @property
+    def base_moments(self) -> BaseMoments | None:
+        """Table V: the load moment about the base at slip (None without link-validation slips)."""
+        return self.replay_result.base_moments
+
+    @property
+    def online_agreement(self) -> EstimateAgreement:
+        """How far the offline refit (`refit()`) and the run's last online estimate are apart."""
+        return self.replay_result.agreement
+
+    @property
+    def redetection(self) -> RedetectionSummary:
+        """How re-detection with the detector given at opening compares with the logged events."""
+        return self.replay_result.redetection_summary()
 
     def refit(
         self,
