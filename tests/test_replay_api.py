@@ -144,7 +144,8 @@ def test_a_resumed_runs_parts_open_as_one_run(runs, tmp_path):
     # A copy of a run as a resumed run's two files: parts merge into one run (same trials twice is warned).
     shutil.copy(runs["smoke"], tmp_path / "r.mcap")
     shutil.copy(runs["smoke"], tmp_path / "r.part2.mcap")
-    logged = open_logs(tmp_path)
+    with pytest.warns(LogWarning, match="second result"):
+        logged = open_logs(tmp_path)
     assert len(logged) == 1 and len(logged[0].files) == 2
 
 
