@@ -41,7 +41,11 @@ online_estimate, online_agreement, redetected_estimate, redetection, links (per 
 bus's and load-cell line's counts); for link-validation runs also
 percentage_errors, base_moments and joints; under simulation truth.
 Exit codes: 0 done (also for damaged files, with warnings); 2 invalid input (missing or non-MCAP
-file, no rig message readable, bad --detector value, unusable --report directory).
+file, no rig message readable, a log format version this rig does not read, bad --detector value,
+unusable --report directory).
+
+The same from Python, with the run's tables as pandas DataFrames: rig.analysis.open_log
+(docs/analysis.md).
 """
 
 
