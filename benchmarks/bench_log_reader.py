@@ -6,7 +6,17 @@ each variant in a fresh subprocess, so that the RSS high-water mark (ru_maxrss) 
   bare_indexed  make_reader(f).iter_messages() (log-time order), json.loads into per-field lists
   read_run      rig.log.reader.read_run(path).topic("/rig/loadcell"): a DataFrame indexed by time
 
+With --default-run, the log is instead that of the default run (`rig run protocols/joint_estimation.yaml
+--seed 0`, 1000 load-cell samples/s, every topic), and the variants are the analysis library's:
+  bare_iterate  make_reader(f).iter_messages() over every message (no decoding)
+  bare_decode   the same, json.loads of every payload
+  open_log      rig.analysis.open_log(path): the run's settings, trials, slips, estimates (one scan)
+  trials        open_log(path).trials: the above and every trial re-detected (its samples read again)
+  loadcell      open_log(path).loadcell: the above without re-detection, and every load-cell sample
+Variants run alternately, each in a fresh process, `--repeats` times; the ratios are of medians.
+
 Run: .venv/bin/python benchmarks/bench_log_reader.py [--messages 1000000] [--repeats 2]
+     .venv/bin/python benchmarks/bench_log_reader.py --default-run --repeats 5
 """
 
 from __future__ import annotations
@@ -23,6 +33,8 @@ from pathlib import Path
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
 VARIANTS = ("bare_stream", "bare_indexed", "read_run")
+RUN_VARIANTS = ("bare_iterate", "bare_decode", "open_log", "trials", "loadcell")
+ROOT = Path(__file__).resolve().parent.parent
 # The parent stays small (stdlib only): Linux keeps ru_maxrss across fork and exec, so a child's
 # figure would otherwise start from the parent's high-water mark.
 
@@ -35,6 +47,72 @@ def generate(path: Path, n: int) -> None:
         for i in range(n):
             payload = S.loadcell_sample(raw=100_000 + (i * 37) % 5000, force_n=1.5 + (i % 997) * 1e-3, seq=i)
             log.log(S.LOADCELL, T0_NS + i * MS, payload)
+
+
+def generate_default_run(path: Path) -> None:
+    """The default run's log (seed 0) at `path`, written by this tree's `rig run`."""
+    command = [sys.executable, "-m", "rig.cli", "run", str(ROOT / "protocols" / "joint_estimation.yaml")]
+    command += ["--seed", "0", "--out", str(path.parent), "--run-id", path.stem, "--json"]
+    subprocess.run(command, check=True, capture_output=True, timeout=900)
+
+
+def run_library_variant(name: str, path: Path) -> dict[str, float]:
+    start = time.perf_counter()
+    if name in ("bare_iterate", "bare_decode"):
+        from mcap.reader import make_reader
+
+        count = 0
+        with open(path, "rb") as f:
+            for _schema, _channel, message in make_reader(f).iter_messages():
+                if name == "bare_decode":
+                    json.loads(message.data)
+                count += 1
+    else:
+        from rig.analysis import open_log
+
+        run = open_log(path)
+        if name == "trials":
+            count = len(run.trials)
+        elif name == "loadcell":
+            count = len(run.loadcell)
+        else:
+            count = len(run.files)
+    elapsed = time.perf_counter() - start
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {"seconds": elapsed, "messages": count, "peak_rss_mb": peak_mb}
+
+
+def default_run_main(repeats: int) -> None:
+    import statistics
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "bench.mcap"
+        generate_default_run(path)
+        print(f"default run log: {path.stat().st_size / 1e6:.1f} MB")
+        times: dict[str, list[float]] = {name: [] for name in RUN_VARIANTS}
+        peaks: dict[str, float] = {}
+        for _ in range(repeats):
+            for name in RUN_VARIANTS:
+                done = subprocess.run(
+                    [sys.executable, __file__, "--file", str(path), "--variant", name],
+                    capture_output=True,
+                    text=True,
+                    check=True,
+                    timeout=600,
+                )
+                result = json.loads(done.stdout)
+                times[name].append(result["seconds"])
+                peaks[name] = max(peaks.get(name, 0.0), result["peak_rss_mb"])
+    medians = {name: statistics.median(values) for name, values in times.items()}
+    print(f"median of {repeats}, variants alternating; peak RSS is the largest seen")
+    print(f"{'variant':<13} {'seconds':>8} {'/ bare_iterate':>15} {'/ bare_decode':>14} {'peak RSS MB':>12}")
+    for name in RUN_VARIANTS:
+        m = medians[name]
+        print(
+            f"{name:<13} {m:8.3f} {m / medians['bare_iterate']:14.2f}x {m / medians['bare_decode']:13.2f}x "
+            f"{peaks[name]:12.0f}"
+        )
+    print(f"open_log / bare_iterate: {medians['open_log'] / medians['bare_iterate']:.2f}x (target <= 1.5x)")
 
 
 def _columns_append(columns: dict[str, list], data: bytes) -> None:
@@ -82,7 +160,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--messages", type=int, default=1_000_000)
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--variant", choices=(*VARIANTS, "generate", "imports"), help=argparse.SUPPRESS)
+    parser.add_argument("--default-run", action="store_true", help="the default run's log, library variants")
+    parser.add_argument(
+        "--variant", choices=(*VARIANTS, *RUN_VARIANTS, "generate", "imports"), help=argparse.SUPPRESS
+    )
     parser.add_argument("--file", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.variant == "generate":
@@ -97,8 +178,14 @@ def main() -> None:
 
         print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
         return
+    if args.variant in RUN_VARIANTS:
+        print(json.dumps(run_library_variant(args.variant, args.file)))
+        return
     if args.variant:  # child process: one variant, JSON on stdout
         print(json.dumps(run_variant(args.variant, args.file)))
+        return
+    if args.default_run:
+        default_run_main(args.repeats)
         return
 
     with tempfile.TemporaryDirectory() as tmp:

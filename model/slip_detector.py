@@ -32,9 +32,6 @@ Detector (docs/model.md §7):
    the detector over the hold after an event and returns the count: the runner and replay both
    classify a stick-slip train with it. The count changes no event.
 
-Before 2026-11-23 the detector had no noise, creep or train rule; a logged parameter set naming only
-the older fields keeps them off (`from_mapping`), so old runs replay as they ran.
-
 Event times: `onset_time_ns` is the earliest onset the firing triggers point to (the peak time for
 drop, slope and noise, the CUSUM onset for cusum, the trend CUSUM's onset but not before the peak
 for creep); `detection_time_ns` is the sample that fired. `kind` is 'creep' for a slow sag, else
@@ -56,35 +53,14 @@ from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from typing import Any, NamedTuple
 
-from model.field_spec import Bounds, Declared, FieldSpec, FieldType, declared_fields, number
+from model.field_spec import Declared, FieldSpec, declared_fields, number
 
 _NONE_WORDS = frozenset({"none", "null", "off", "disabled", ""})
 
 
-# Every field the detector had before the noise and creep triggers (by the names logged then: the
-# drift was `cusum_drift_n`, N per sample). A mapping naming exactly these is the logged parameter
-# set of an older run: `from_mapping` keeps that run's detector (no noise or creep trigger, the
-# single-sample percentage drop), so its replay finds the events it logged.
-_LEGACY_FIELDS = frozenset(
-    {"arm_threshold_n", "drop_fraction", "min_drop_n", "slope_n_per_s", "slope_window_s",
-     "cusum_threshold_n", "cusum_drift_n", "rearm_below_n"}
-)  # fmt: skip
-# ... and the fields of 2026-11-23, before the train rule and the percentage drop's leaky peak.
-_FIELDS_2026_11_23 = _LEGACY_FIELDS | {
-    "noise_k", "noise_floor_n", "noise_window_s", "trend_window_s", "peak_leak_n_per_s", "creep_k",
-    "creep_drift_n_per_s", "creep_min_s", "spike_samples",
-}  # fmt: skip
-# Fields added after 2026-11-23's that `to_mapping` names only when set (None is their default and
-# the detector before them).
+# Fields that `to_mapping` names only when set (None is their default: a detector that does not use
+# them logs the mapping it did before they existed).
 _LOGGED_WHEN_SET = frozenset({"drop_ramp_s"})
-# A logged mapping naming exactly one of these field sets keeps the detector of its day.
-_VINTAGES: tuple[tuple[frozenset[str], dict[str, float | None]], ...] = (
-    (
-        _LEGACY_FIELDS,
-        {"noise_k": None, "creep_k": None, "spike_samples": 1.0, "train_k": None, "drop_leak_n_per_s": 0.0},
-    ),
-    (_FIELDS_2026_11_23, {"train_k": None, "drop_leak_n_per_s": 0.0}),
-)
 
 
 @dataclass(frozen=True)
@@ -99,9 +75,7 @@ class DetectorParams:
         slope_window_s: the window of the slope fit, (0, 10] s.
         cusum_threshold_n: fire when the CUSUM of decrements exceeds this, (0, 1e6] N; None: off.
         cusum_drift_n_per_s: the CUSUM's drift allowance, subtracted at this rate (a fall slower
-            than this is ignored), [0, 1e9] N/s. Before 2026-11-27 it was `cusum_drift_n`, N per
-            sample; that name is still read, as N per sample of a 1000/s cell (× 1000 N/s), and
-            at the cell's rate where the protocol set it (`params_for_rate`).
+            than this is ignored), [0, 1e9] N/s.
         rearm_below_n: after firing, wait until the force is below this before arming again,
             (0, 1e6] N; None: half the arm threshold (a hysteresis band against noise).
         noise_k: fire when the force is this many noise σ below the leaky peak, (0, 1e3]; None: off.
@@ -212,23 +186,12 @@ class DetectorParams:
         values: dict[str, Any] = {}
         for key, raw in mapping.items():
             name = str(key)
-            declared = _ALIAS_SPEC if name == CUSUM_DRIFT_ALIAS else _BY_NAME.get(name)
+            declared = _BY_NAME.get(name)
             if declared is None:
                 raise ValueError(
                     f"{source}: unknown field {name!r}{_suggestion(name)}; allowed: {_field_list()}"
                 )
             values[name] = _checked(declared, raw, source)
-        for names, defaults in _VINTAGES:
-            if set(values) == names:
-                values.update(defaults)
-        if CUSUM_DRIFT_ALIAS in values:
-            if "cusum_drift_n_per_s" in values:
-                raise ValueError(
-                    f"{source}: {CUSUM_DRIFT_ALIAS} (N per sample, before 2026-11-27) and "
-                    "cusum_drift_n_per_s both given; allowed: cusum_drift_n_per_s only"
-                )
-            per_sample_n = values.pop(CUSUM_DRIFT_ALIAS)
-            values["cusum_drift_n_per_s"] = per_sample_n * TUNED_RATE_HZ
         try:
             return cls(**values)
         except ValueError as exc:
@@ -242,8 +205,6 @@ class DetectorParams:
             key, sep, value = assignment.partition("=")
             if not sep:
                 raise ValueError(f"{source}: {assignment!r}: allowed: key=value, e.g. drop_fraction=0.2")
-            if key.strip() == CUSUM_DRIFT_ALIAS:
-                mapping.pop("cusum_drift_n_per_s", None)  # the older name replaces the newer
             mapping[key.strip()] = value.strip()
         return DetectorParams.from_mapping(mapping, source=source)
 
@@ -303,25 +264,16 @@ def rate_defaults(rate_hz: float) -> dict[str, float | None]:
 def params_for_rate(params: DetectorParams, given: Iterable[str], rate_hz: float) -> DetectorParams:
     """`params` with each rate-dependent field not in `given` at its default for `rate_hz`.
 
-    `given`: the fields the protocol set. Unchanged at `TUNED_RATE_HZ` and above, except that a
-    drift given by its older per-sample name (`CUSUM_DRIFT_ALIAS`) is per sample of this cell.
+    `given`: the fields the protocol set. Unchanged at `TUNED_RATE_HZ` and above.
     """
     chosen = set(given)
     updates = {name: value for name, value in rate_defaults(rate_hz).items() if name not in chosen}
-    if CUSUM_DRIFT_ALIAS in chosen and rate_hz != TUNED_RATE_HZ:
-        # The protocol gave the drift per sample: per sample of this cell.
-        updates["cusum_drift_n_per_s"] = params.cusum_drift_n_per_s / TUNED_RATE_HZ * rate_hz
     return DetectorParams.from_mapping({**params.to_mapping(), **updates}) if updates else params
 
 
 # The fields and their bounds, as declared above (`model.field_spec`).
 _FIELDS = declared_fields(DetectorParams)
 _BY_NAME = {declared.name: declared for declared in _FIELDS}
-# The CUSUM drift's name before 2026-11-27, in N per sample: still read (`from_mapping`).
-CUSUM_DRIFT_ALIAS = "cusum_drift_n"
-_ALIAS_SPEC = Declared(
-    CUSUM_DRIFT_ALIAS, CUSUM_DRIFT_ALIAS, FieldSpec(FieldType.NUMBER, Bounds(0.0, 1e6), "N"), 0.05
-)
 
 
 def _field_list() -> str:

@@ -2,7 +2,7 @@
 
 Runs `rig run PROTOCOL [--rig CONFIG] --seed S --json` for the four shipped protocols on the default
 simulated rig, every scenario and every fault config, seeds 0 and 1, and `rig replay --json` of the
-two legacy logs in tests/data, and writes one normalised JSON file per run (run ids, log paths,
+logs of the default rig's runs, and writes one normalised JSON file per run (run ids, log paths,
 wall times, the tree's own path and temporary directories removed) and its exit code. Two snapshots
 of the same behaviour are byte-identical, so a refactoring that must not change behaviour is
 checked with `diff -r`:
@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PROTOCOLS = ("joint_estimation", "link_validation", "smoke", "joint_estimation_adaptive")
 _DROPPED_KEYS = {"run_id", "log", "logs", "path"}
 _TEMP_PATH = re.compile(r"/tmp/[^\s'\"]+")
+_RUN_STAMP = re.compile(r"\b\d{8}T\d{6}-")  # the start time in a default run id (and its file names)
 
 
 def _scrub(value: Any) -> Any:
@@ -35,7 +36,7 @@ def _scrub(value: Any) -> Any:
     if isinstance(value, list):
         return [_scrub(v) for v in value]
     if isinstance(value, str):
-        return _TEMP_PATH.sub("TMP", value.replace(str(ROOT), "ROOT"))
+        return _RUN_STAMP.sub("STAMP-", _TEMP_PATH.sub("TMP", value.replace(str(ROOT), "ROOT")))
     return value
 
 
@@ -80,13 +81,14 @@ def main(argv: list[str] | None = None) -> int:
                         "--out",
                         tmp,
                     )
+                    logs = sorted(Path(tmp).glob("*.mcap")) if rig_name == "default" else []
+                    replayed = [_rig("replay", str(log), "--json") for log in logs]
                 (args.out / f"{name}.json").write_text(_normalised(done.stdout))
                 (args.out / f"{name}.rc").write_text(f"{done.returncode}\n")
                 print(f"{name}: exit {done.returncode}", file=sys.stderr)
-    for log in sorted((ROOT / "tests" / "data").glob("*.mcap")):
-        done = _rig("replay", str(log), "--json")
-        (args.out / f"replay.{log.name}.json").write_text(_normalised(done.stdout))
-        (args.out / f"replay.{log.name}.rc").write_text(f"{done.returncode}\n")
+                for part, replay in enumerate(replayed):
+                    (args.out / f"replay.{name}.{part}.json").write_text(_normalised(replay.stdout))
+                    (args.out / f"replay.{name}.{part}.rc").write_text(f"{replay.returncode}\n")
     return 0
 
 

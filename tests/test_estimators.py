@@ -248,7 +248,7 @@ def test_the_progress_line_of_a_two_slip_estimate_shows_no_negative_capacity_bou
     assert "[-" not in text and text.count("[0.000, ") == 2, text
 
 
-def test_estimate_payload_carries_both_and_old_payloads_decode():
+def test_estimate_payload_carries_both_and_decodes_back():
     article = load_rig_config(DEFAULT_RIG_CONFIG).article
     run = RunEstimator(article, estimator="auto")
     for d, m in [(0.1, 1.6), (0.2, 0.79), (0.15, 1.12), (0.25, 0.66)]:
@@ -260,10 +260,9 @@ def test_estimate_payload_carries_both_and_old_payloads_decode():
     assert payload["paper_n"] == 4 and payload["paper_k"] == run.paper_summary().k  # type: ignore[union-attr]
     assert Estimate.from_payload(payload) == estimate
     assert "paper:" in estimate.text() and "1 censored" in estimate.text()
-    new_keys = ("paper_", "scatter_", "p_", "estimator", "n_censored")
-    old = {key: value for key, value in payload.items() if not key.startswith(new_keys)}
-    decoded = Estimate.from_payload(old)
-    assert decoded.estimator == "paper" and decoded.paper_k is None and decoded.fit == estimate.fit
+    # A payload of the pre-release format (before the estimators) has no estimator: refused.
+    with pytest.raises(KeyError, match="estimator"):
+        Estimate.from_payload({key: value for key, value in payload.items() if key != "estimator"})
 
 
 def test_run_estimator_paper_choice_is_the_online_fit():

@@ -15,6 +15,8 @@ from mcap.writer import CompressionType, Writer
 
 from rig.errors import InputError
 from rig.log import schemas as S
+from rig.log.log_format import METADATA_NAME as FORMAT_RECORD
+from rig.log.log_format import format_metadata
 from rig.log.reader import read_run
 from rig.log.writer import RunLogger
 
@@ -83,7 +85,7 @@ def test_finished_log_reads_completely_through_the_index(finished_log):
     assert frame["seq"].isna().sum() == len(range(0, 3000, 7))
     assert frame.index[5] == pd.Timestamp(T0_NS + 5 * MS, unit="ns", tz="UTC")
     assert (frame["publish_time_ns"] > 0).all()
-    assert run.metadata == {"session": {"part": "0"}}
+    assert run.metadata == {FORMAT_RECORD: format_metadata(), "session": {"part": "0"}}
     (attachment,) = run.attachments
     assert (attachment.name, attachment.data, attachment.file) == ("rig.yaml", b"servos: []\n", finished_log)
 
@@ -111,7 +113,7 @@ def test_copy_cut_at_70_percent_keeps_every_complete_chunk(finished_log, tmp_pat
     assert f"recovered {len(complete)} complete chunks" in warning and "lost the tail after byte" in warning
     expected = seqs_between(complete[0][2], complete[-1][3])
     assert list(run.topic(S.LOADCELL)["raw"]) == expected
-    assert run.metadata == {"session": {"part": "0"}}
+    assert run.metadata == {FORMAT_RECORD: format_metadata(), "session": {"part": "0"}}
 
 
 def flip_bytes(path: Path, offset: int, count: int = 16) -> None:
@@ -183,7 +185,7 @@ def test_several_files_combine_into_one_run_sorted_by_time(tmp_path):
     assert list(frame["raw"]) == list(range(2500))
     assert frame.index.is_monotonic_increasing
     assert run.message_counts[S.LOADCELL] == 2500
-    assert run.metadata == {"session": {"part": "0"}}
+    assert run.metadata == {FORMAT_RECORD: format_metadata(), "session": {"part": "0"}}
     assert [m["session"]["part"] for m in run.metadata_by_file.values()] == ["0", "1000", "2000"]
     assert len(run.attachments) == 3
     assert list(read_run([later, earlier]).topic(S.SERVO_STATE)["position_rad"]) == pytest.approx(

@@ -164,17 +164,21 @@ def test_trial_result_journal_form_round_trips_and_keeps_its_key_order():
     assert TrialResult.from_json(json.loads(json.dumps(journal))) == result
 
 
-def test_trial_result_reads_payloads_written_before_the_record():
-    old = {  # a /rig/trial/result payload as logged before it carried every field
-        "trial_id": 4, "kind": "link_validation", "distance_m": None,
-        "configuration": {"joint_angles_rad": [0.1, -0.1]}, "start_time_ns": EPOCH_NS,
-        "end_time_ns": EPOCH_NS + 1, "peak_force_n": 3.0, "slip_mass_kg": 0.306,
-        "predicted_mass_kg": 0.3, "slipped_joint": None, "outcome": "slip", "repeat": 1,
-        "lever_arms_m": [0.1, 0.05],
-    }  # fmt: skip
-    result = TrialResult.from_payload(old)
-    assert result.joint_angles_rad == (0.1, -0.1) and result.lever_arms_m == (0.1, 0.05)
-    assert result.joint is None and result.configuration_index is None and result.tare_n == 0.0
+def test_payloads_of_the_pre_release_formats_are_refused_naming_what_is_missing():
+    # No shims: a /rig/trial/result with integer times and no `start` stamp, a slip without its
+    # `kind` or stamps, an estimate without its estimator (logs before 2026-11-23 / 11-27).
+    result = {k: v for k, v in sample_payloads()[S.TRIAL_RESULT].items() if k not in ("start", "end")}
+    with pytest.raises(KeyError, match="start"):
+        TrialResult.from_payload({**result, "start_time_ns": EPOCH_NS, "end_time_ns": EPOCH_NS + 1})
+    slip = sample_payloads()[S.SLIP]
+    with pytest.raises(KeyError, match="kind"):
+        SlipMessage.from_payload({k: v for k, v in slip.items() if k != "kind"})
+    with pytest.raises(KeyError, match="detection"):
+        old_slip = {k: v for k, v in slip.items() if k != "detection"}
+        SlipMessage.from_payload({**old_slip, "detection_time_ns": EPOCH_NS})
+    estimate = {k: v for k, v in sample_payloads()[S.ESTIMATE].items() if k != "estimator"}
+    with pytest.raises(KeyError, match="estimator"):
+        Estimate.from_payload(estimate)
 
 
 def test_estimate_payload_leaves_out_what_is_undefined():
@@ -204,16 +208,16 @@ def test_a_pair_with_an_undefined_bound_is_left_out_whole():
     assert decoded is not None and all(math.isnan(b) for b in decoded.capacity_ci_nm)
 
 
-def test_payloads_of_older_logs_with_nulls_still_decode():
-    # Before 2026-11-27 a missing value was logged as null; the decoders read both forms.
+def test_missing_values_read_back_from_a_table_as_none_decode():
+    # Replay reads payloads back from columns, where an absent field is None.
     state = TrialState.from_payload({"trial_id": None, "phase": "idle", "step": None})
     assert state == TrialState(None, TrialPhase.IDLE, None)
     estimate = dict(sample_payloads()[S.ESTIMATE], r2=None, scatter_model=None, paper_k_ci=[None, None])
     decoded = Estimate.from_payload(estimate)
     assert decoded.fit is not None and math.isnan(decoded.fit.r2) and decoded.scatter_model is None
     assert decoded.paper_k_ci is not None and all(math.isnan(b) for b in decoded.paper_k_ci)
-    old_empty = {"trial_id": 1, "n": 0, "k": None, "k_ci": None, "joints": []}
-    assert Estimate.from_payload(old_empty).fit is None
+    empty = {"trial_id": 1, "n": 0, "k": None, "k_ci": None, "joints": [], "estimator": "auto"}
+    assert Estimate.from_payload(empty).fit is None
     command = ServoCommand.from_payload({"servo_id": 1, "role": "winch", "command": "reboot", "value": None})
     assert command.value is None
 
@@ -299,29 +303,6 @@ def test_no_payload_integer_may_exceed_2_53_and_times_are_stamps():
         S.check_payload(S.SLIP, {**slip, "onset_time_ns": EPOCH_NS})
     with pytest.raises(ValueError, match="nsec"):
         S.check_payload(S.SLIP, {**slip, "onset": {"sec": 1, "nsec": 10**9}})
-
-
-def test_slips_and_results_of_older_logs_decode_from_their_integer_times():
-    slip = sample_payloads()[S.SLIP]
-    old_slip = {
-        **slip,
-        "onset_time_ns": EPOCH_NS,
-        "detection_time_ns": EPOCH_NS + 5,
-        "peak_time_ns": EPOCH_NS - 1,
-    }
-    for name in ("detection", "peak"):  # the oldest logs had no `peak` twin; the integers suffice
-        del old_slip[name]
-    event = SlipMessage.from_payload(old_slip).event
-    assert (event.onset_time_ns, event.detection_time_ns, event.peak_time_ns) == (
-        EPOCH_NS,
-        EPOCH_NS + 5,
-        EPOCH_NS - 1,
-    )
-    result = sample_payloads()[S.TRIAL_RESULT]
-    old_result = {k: v for k, v in result.items() if k not in ("start", "end")}
-    old_result.update(start_time_ns=EPOCH_NS + 1, end_time_ns=EPOCH_NS + 2)
-    decoded = TrialResult.from_payload(old_result)
-    assert (decoded.start_time_ns, decoded.end_time_ns) == (EPOCH_NS + 1, EPOCH_NS + 2)
 
 
 @pytest.mark.parametrize(

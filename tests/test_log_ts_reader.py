@@ -13,14 +13,15 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from mcap.writer import Writer
 
 from rig.log import schemas as S
 from rig.log.examples import example_payloads
+from rig.log.log_format import METADATA_NAME as FORMAT_RECORD
 from rig.log.reader import read_run
 from rig.log.writer import RunLogger
 
 TS_READER = Path(__file__).parent / "ts_reader"
-DATA = Path(__file__).parent / "data"
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
 
@@ -69,7 +70,8 @@ def test_finished_rig_log_reads_in_the_indexed_typescript_reader(rig_log):
     assert {topic: entry["schema"] for topic, entry in found["topics"].items()} == {
         topic: S.TOPICS[topic].schema_name for topic in S.TOPICS
     }
-    assert found["metadata"] == ["session", "protocol"] and found["attachments"] == ["protocol.yaml"]
+    assert found["metadata"] == [FORMAT_RECORD, "session", "protocol"]
+    assert found["attachments"] == ["protocol.yaml"]
     assert found["warnings"] == []
 
 
@@ -96,14 +98,18 @@ def test_a_default_run_reads_in_typescript_without_a_warning(default_run_log, mo
     assert set(found["topics"]) == set(S.TOPICS)
 
 
-def test_the_typescript_check_warns_of_integers_javascript_rounds():
-    # A log from before times became {sec, nsec} only: its epoch-ns integers exceed 2^53.
-    found = ts_read(DATA / "twins-2026-11-23.mcap")
-    assert sorted(found["warnings"]) == sorted(
-        f"{topic}: {name} holds a number beyond 2^53 (not exact in JavaScript) (3 times)"
-        for topic, names in (
-            (S.SLIP, ("onset_time_ns", "detection_time_ns", "peak_time_ns")),
-            (S.TRIAL_RESULT, ("start_time_ns", "end_time_ns")),
-        )
-        for name in names
-    )
+def test_the_typescript_check_warns_of_integers_javascript_rounds(tmp_path):
+    # Epoch-ns integers in a payload exceed 2^53 (what rig payloads avoid with {sec, nsec} times).
+    path = tmp_path / "big.mcap"
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="", library="test")
+        schema = writer.register_schema("big", "jsonschema", json.dumps({"type": "object"}).encode())
+        channel = writer.register_channel("/big", "json", schema)
+        for i in range(3):
+            payload = json.dumps({"start_time_ns": T0_NS + i, "n": i}).encode()
+            writer.add_message(channel, log_time=T0_NS, publish_time=T0_NS, data=payload)
+        writer.finish()
+    found = ts_read(path)
+    warning = "/big: start_time_ns holds a number beyond 2^53 (not exact in JavaScript) (3 times)"
+    assert found["warnings"] == [warning]

@@ -21,6 +21,8 @@ from rig.errors import RigError
 from rig.log import schemas as S
 from rig.log.examples import EXAMPLE_TIME_NS, example_payloads
 from rig.log.frames import frame_payloads
+from rig.log.log_format import METADATA_NAME as FORMAT_RECORD
+from rig.log.log_format import format_metadata
 from rig.log.reader import read_run
 from rig.log.records import SlipMessage, TrialPhase, TrialState
 from rig.log.writer import LIBRARY, LogWriteError, RunLogger
@@ -60,7 +62,8 @@ def test_round_trip_of_every_topic_with_metadata_and_attachments(tmp_path):
         }
         assert {c.message_encoding for c in summary.channels.values()} == {"json"}
         assert {m.name: m.metadata for m in reader.iter_metadata()} == {
-            "session": {"seed": "7", "clock": "virtual"}
+            FORMAT_RECORD: format_metadata(),
+            "session": {"seed": "7", "clock": "virtual"},
         }
         (attachment,) = reader.iter_attachments()
         assert (attachment.name, attachment.media_type, attachment.data) == (
@@ -80,7 +83,7 @@ def test_round_trip_of_every_topic_with_metadata_and_attachments(tmp_path):
     run = read_run(path)
     assert run.complete and run.warnings == []
     assert run.message_counts == dict.fromkeys(payloads, 1)
-    assert run.metadata == {"session": {"seed": "7", "clock": "virtual"}}
+    assert run.metadata == {FORMAT_RECORD: format_metadata(), "session": {"seed": "7", "clock": "virtual"}}
     slip = run.topic(S.SLIP).iloc[0]
     assert (slip["onset.sec"], slip["onset.nsec"]) == (1_767_225_600, 123_456_789)
     ((_, slip_payload),) = frame_payloads(run.topic(S.SLIP))
@@ -304,7 +307,7 @@ def test_a_run_killed_with_sigkill_keeps_every_flushed_message(tmp_path):
     loadcell = run.topic(S.LOADCELL)
     assert list(loadcell["seq"][:flushed]) == list(range(flushed))
     assert list(run.topic(S.TRIAL_RESULT)["trial_id"]) == [1, 2, 3, 4, 5]
-    assert run.metadata == {"session": {"seed": "3"}}
+    assert run.metadata == {FORMAT_RECORD: format_metadata(), "session": {"seed": "3"}}
     assert run.reports[0].messages == len(loadcell) + 5
     assert os.path.getsize(path) > 0
 

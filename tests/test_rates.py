@@ -20,6 +20,7 @@ from model.slip_detector import (
 )
 from rig.analysis.runlog import read_parts
 from rig.cli import main
+from rig.errors import InputError
 from rig.log import schemas
 from rig.protocol import for_loadcell_rate, load_protocol
 from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, load_rig_config, nominal_loadcell_rate_hz
@@ -298,15 +299,26 @@ def test_a_fall_caught_part_way_is_seen_on_the_next_sample(rate_hz: float) -> No
     assert detected is not None and detected <= onset + 1
 
 
-def test_a_protocol_giving_the_drift_per_sample_still_loads_and_keeps_it_per_sample(tmp_path: Path) -> None:
+def test_a_protocol_giving_the_drift_per_sample_is_refused_naming_the_field(tmp_path: Path) -> None:
+    # The pre-release name (N per sample) is gone: the detector has one set of names.
     text = (
         "format: rig-protocol/1\nname: p\ndetector: {cusum_threshold_n: 1.0, cusum_drift_n: 0.05}\n"
         "blocks:\n  - {kind: joint_estimation, joint: 1, distances_m: [0.1], repeats: 1}\n"
     )
     path = tmp_path / "p.yaml"
     path.write_text(text)
+    with pytest.raises(InputError, match=r"unknown field 'cusum_drift_n'.*cusum_drift_n_per_s"):
+        load_protocol(path)
+
+
+def test_the_drift_per_second_is_kept_at_every_rate(tmp_path: Path) -> None:
+    text = (
+        "format: rig-protocol/1\nname: p\ndetector: {cusum_threshold_n: 1.0, cusum_drift_n_per_s: 50}\n"
+        "blocks:\n  - {kind: joint_estimation, joint: 1, distances_m: [0.1], repeats: 1}\n"
+    )
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
     protocol = load_protocol(path)
-    assert protocol.detector.cusum_drift_n_per_s == pytest.approx(50.0)  # 0.05 N a sample at 1000/s
+    assert protocol.detector.cusum_drift_n_per_s == 50.0
     assert for_loadcell_rate(protocol, 1000.0) is protocol
-    assert for_loadcell_rate(protocol, 10.0).detector.cusum_drift_n_per_s == pytest.approx(0.5)
-    assert for_loadcell_rate(protocol, 2000.0).detector.cusum_drift_n_per_s == pytest.approx(100.0)
+    assert for_loadcell_rate(protocol, 10.0).detector.cusum_drift_n_per_s == 50.0

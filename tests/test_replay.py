@@ -60,7 +60,7 @@ REPORT_FILES = (
 )
 
 
-HAIR_TRIGGER = ["cusum_threshold_n=0.001", "cusum_drift_n=0", "min_drop_n=0"]
+HAIR_TRIGGER = ["cusum_threshold_n=0.001", "cusum_drift_n_per_s=0", "min_drop_n=0"]
 
 
 class _InterruptAtTrial2:

@@ -1,6 +1,7 @@
 """Slip detector: synthetic traces with known slips, noise robustness, re-arm, parameters, purity."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -301,15 +302,17 @@ def test_params_from_strings_and_overrides():
         ({"arm_threshold_n": None}, "arm_threshold_n is required"),
         ({"min_drop_n": "abc"}, "min_drop_n = 'abc' is not a number"),
         ({"slope_window_s": math.nan}, "slope_window_s = nan"),
-        ({"cusum_drift_n": True}, "cusum_drift_n = True"),
+        ({"cusum_drift_n_per_s": True}, "cusum_drift_n_per_s = True"),
+        # one set of names: the per-sample drift of the pre-release detector is no field of it
+        ({"cusum_drift_n": 0.05}, "unknown field 'cusum_drift_n' (did you mean 'cusum_drift_n_per_s'?)"),
         ({"drop_frac": 0.2}, "unknown field 'drop_frac' (did you mean 'drop_fraction'?); allowed: arm_"),
         ({"drop_fraction": None, "noise_k": None, "creep_k": "off"}, "no trigger enabled"),
         ({"noise_k": 0}, "noise_k = 0; allowed: a number in (0, 1000] or none"),
         ({"noise_floor_n": None}, "noise_floor_n is required"),
         ({"spike_samples": 1.5}, "spike_samples = 1.5; allowed: 1 or 2"),
     ],
-    ids=["drop-1", "drop-0", "arm-neg", "arm-none", "nan-str", "nan", "bool", "misspelt", "no-trigger",
-         "noise-0", "floor-none", "spikes-1.5"],
+    ids=["drop-1", "drop-0", "arm-neg", "arm-none", "nan-str", "nan", "bool", "old-name", "misspelt",
+         "no-trigger", "noise-0", "floor-none", "spikes-1.5"],
 )  # fmt: skip
 def test_params_errors_name_source_field_and_range(mapping, message):
     with pytest.raises(ValueError) as excinfo:
@@ -395,32 +398,17 @@ def test_event_kind_round_trips_through_the_slip_message():
     payload = message.to_payload()
     assert payload["kind"] == "creep"
     assert SlipMessage.from_payload(payload).event == event
-    del payload["kind"]  # a log written before events had a kind
-    assert SlipMessage.from_payload(payload).event.kind == "drop"
 
 
-def _logged_before_2026_11_27() -> dict[str, float | None]:
-    """The default detector's mapping as a run logged it before the drift in N/s and the windows in s."""
-    logged: dict[str, float | None] = {}
-    for name, value in DetectorParams().to_mapping().items():
-        if name == "cusum_drift_n_per_s":
-            logged["cusum_drift_n"] = 0.05
-        elif name not in ("warmup_s", "train_window_s"):
-            logged[name] = value
-    return logged
-
-
-def test_a_logged_mapping_from_before_the_new_triggers_keeps_the_old_detector():
-    old = _logged_before_2026_11_27()
-    old = {name: old[name] for name in list(old)[:8]}  # the eight fields an older run logged
-    params = DetectorParams.from_mapping(old)
-    assert params.noise_k is None and params.creep_k is None and params.spike_samples == 1.0
+def test_the_single_sample_drop_fires_one_sample_before_the_spike_robust_one():
+    single = DetectorParams(
+        noise_k=None, creep_k=None, spike_samples=1.0, train_k=None, drop_leak_n_per_s=0.0
+    )
+    times, forces = piecewise_trace(slip_knots())
+    (event,) = detect_slips(single, times, forces)
+    assert event.detection_time_ns == ns(3.008) and event.trigger == "drop"
     # A protocol naming only some fields gets the current defaults.
     assert DetectorParams.from_mapping({"drop_fraction": 0.15}).noise_k == 10.0
-    # The single-sample percentage drop fires one sample earlier than the spike-robust one.
-    times, forces = piecewise_trace(slip_knots())
-    (event,) = detect_slips(params, times, forces)
-    assert event.detection_time_ns == ns(3.008) and event.trigger == "drop"
 
 
 # ---- stick-slip trains: further drops counted while latched -----------------------------------
@@ -473,42 +461,21 @@ def test_a_single_drop_with_noise_and_spikes_is_no_train(seed):
     assert first_event_and_hold(DetectorParams(), times, forces, hold_s=0.4)[1] == 0
 
 
-def test_old_parameter_sets_count_no_train():
+def test_no_train_is_counted_without_train_k():
     after = [(0.001, 8.0), (0.030, 8.0), (0.031, 7.0), (0.3, 7.0)]
     _, times, forces = ramp_then(10.0, after, noise_n=0.005, seed=0)
-    logged = {  # the fields a run logged before the noise, creep and train rules
-        "arm_threshold_n": 1.0, "drop_fraction": 0.15, "min_drop_n": 0.2, "slope_n_per_s": None,
-        "slope_window_s": 0.02, "cusum_threshold_n": None, "cusum_drift_n": 0.05, "rearm_below_n": None,
-    }  # fmt: skip
-    legacy = DetectorParams.from_mapping(logged)
-    assert legacy.train_k is None
-    assert first_event_and_hold(legacy, times, forces)[1] == 0
+    off = replace(DetectorParams(), train_k=None)
+    assert first_event_and_hold(off, times, forces)[1] == 0
     assert first_event_and_hold(DetectorParams(), times, forces)[1] == 1
 
 
-def test_a_parameter_set_logged_on_2026_11_23_keeps_that_days_detector():
-    logged = {
-        k: v for k, v in _logged_before_2026_11_27().items() if k not in ("train_k", "drop_leak_n_per_s")
-    }
-    params = DetectorParams.from_mapping(logged)
-    assert params.train_k is None and params.drop_leak_n_per_s == 0.0
-    assert DetectorParams.from_mapping({**logged, "train_k": 10.0}).drop_leak_n_per_s == 1.0
-
-
-def test_a_mapping_logged_before_2026_11_27_is_todays_default_detector():
-    # The per-sample drift of a 1000/s cell, read in N/s; the windows' defaults are the old counts.
-    assert DetectorParams.from_mapping(_logged_before_2026_11_27()) == DetectorParams()
-
-
-def test_the_drift_per_sample_is_still_read_and_converted():
-    params = DetectorParams.from_mapping({"cusum_threshold_n": 1.0, "cusum_drift_n": 0.02})
-    assert params.cusum_drift_n_per_s == pytest.approx(20.0)
-    assert "cusum_drift_n" not in params.to_mapping()
-    assert params.with_overrides(["cusum_drift_n=0"]).cusum_drift_n_per_s == 0.0
-    with pytest.raises(ValueError, match="cusum_drift_n_per_s both given; allowed: cusum_drift_n_per_s only"):
-        DetectorParams.from_mapping({"cusum_drift_n": 0.02, "cusum_drift_n_per_s": 20.0})
-    with pytest.raises(ValueError, match="cusum_drift_n = -1; allowed: a number in"):
-        DetectorParams.from_mapping({"cusum_drift_n": -1})
+def test_a_mapping_of_the_pre_release_detector_is_refused_naming_the_field():
+    # Its logged mapping named the drift per sample; the detector has one set of names now.
+    old = {"arm_threshold_n": 1.0, "drop_fraction": 0.15, "cusum_drift_n": 0.05}
+    with pytest.raises(ValueError, match="unknown field 'cusum_drift_n'"):
+        DetectorParams.from_mapping(old)
+    with pytest.raises(ValueError, match="unknown field 'cusum_drift_n'"):
+        DetectorParams().with_overrides(["cusum_drift_n=0"])
 
 
 def test_the_cusum_drift_is_per_second_at_every_rate():

@@ -31,9 +31,8 @@ naming it and its allowed range.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -89,14 +88,9 @@ def validate_overrides(assignments: Sequence[str]) -> None:
         raise InputError(str(exc)) from None
 
 
-def detector_params(
-    logged: Mapping[str, Any] | None, overrides: Sequence[str], source: str
-) -> DetectorParams:
+def detector_params(logged: DetectorParams | None, overrides: Sequence[str]) -> DetectorParams:
     """The logged detector parameters (defaults if none were logged) with `overrides` applied."""
-    try:
-        base = DetectorParams.from_mapping(dict(logged or {}), source=source)
-    except ValueError as exc:
-        raise InputError(f"logged detector parameters: {exc}") from None
+    base = logged if logged is not None else DetectorParams()
     if not overrides:
         return base
     try:

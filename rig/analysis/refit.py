@@ -16,8 +16,8 @@ Each record's `as_json()` is its part of the `rig replay --json` object.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -25,7 +25,7 @@ import pandas as pd
 
 from model.estimate_summary import EstimateSummary, summarize_estimate
 from model.estimators import EstimatorName
-from model.fit import SUMMARY_KEYS
+from model.fit import FitSummary
 from model.payload_errors import PayloadErrorStats, payload_error_stats
 from rig.analysis.trials import slipped_rows
 from rig.vocabulary import TrialKind
@@ -98,12 +98,8 @@ def joint_estimation_points(
     return [p[1] for p in points], [p[2] for p in points], [p[3] for p in points]
 
 
-def _numbers(value: Any) -> list[float | None]:
-    if value is None:
-        return [None]
-    if isinstance(value, list | tuple | np.ndarray):
-        return [None if v is None else float(v) for v in value]
-    return [float(value)]
+def _numbers(value: float | tuple[float, float]) -> list[float]:
+    return [float(v) for v in value] if isinstance(value, tuple) else [float(value)]
 
 
 @dataclass(frozen=True)
@@ -125,34 +121,27 @@ class EstimateAgreement:
         }
 
 
-def compare_estimates(
-    offline: Mapping[str, Any] | None, online: Mapping[str, Any] | None
-) -> EstimateAgreement:
-    """How far two `rig fit --json` objects are apart: the largest relative difference of their numbers.
+def compare_estimates(offline: FitSummary | None, online: FitSummary | None) -> EstimateAgreement:
+    """How far two fits are apart: the largest relative difference of their numbers.
 
-    `agree` is True when every number agrees within `AGREEMENT_RTOL` (relative; NaN/null equal to
-    NaN/null) and the constant's name is the same. With either missing, `compared` is False.
+    `agree` is True when every number agrees within `AGREEMENT_RTOL` (relative; NaN equal to NaN)
+    and the constant's name is the same. With either missing (or an online fit of no trials),
+    `compared` is False. `differing` names the `rig fit --json` keys that differ.
     """
-    if not offline or not online or online.get("n") in (None, 0):
+    if offline is None or online is None or online.n == 0:
         return EstimateAgreement(compared=False)
     worst = 0.0
     differing: list[str] = []
-    for key in SUMMARY_KEYS:
+    for key in (f.name for f in fields(FitSummary)):
+        a_value, b_value = getattr(offline, key), getattr(online, key)
         if key == "constant":
-            if offline.get(key) != online.get(key):
+            if a_value != b_value:
                 differing.append(key)
                 worst = math.inf
             continue
-        a_values, b_values = _numbers(offline.get(key)), _numbers(online.get(key))
-        if len(a_values) != len(b_values):
-            differing.append(key)
-            worst = math.inf
-            continue
-        for a, b in zip(a_values, b_values, strict=True):
-            if a is None or b is None or math.isnan(a) or math.isnan(b):
-                a_missing = a is None or math.isnan(a)
-                b_missing = b is None or math.isnan(b)
-                if a_missing != b_missing:
+        for a, b in zip(_numbers(a_value), _numbers(b_value), strict=True):
+            if math.isnan(a) or math.isnan(b):
+                if math.isnan(a) != math.isnan(b):
                     differing.append(key)
                     worst = math.inf
                 continue

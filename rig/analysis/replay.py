@@ -49,9 +49,8 @@ from rig.analysis.runlog import (
     run_settings,
 )
 from rig.analysis.samples import trial_samples
-from rig.analysis.trials import TrialRecord, records_json, trial_records, trial_table
+from rig.analysis.trials import TrialRecord, decoded_messages, records_json, trial_records, trial_table
 from rig.log import schemas
-from rig.log.frames import frame_payloads
 from rig.log.records import Estimate, TrialLinkStats
 from rig.vocabulary import TrialKind
 
@@ -171,16 +170,60 @@ class ReplayResult:
         return [j.to_json() for j in self.estimates[-1].joints] if self.estimates else []
 
 
-def replay(
-    paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
-    detector_overrides: Sequence[str] = (),
-) -> ReplayResult:
-    """Replay a run's MCAP logs (files or directories); see the module docstring.
+@dataclass
+class ScannedRun:
+    """A run read from its logs, before re-detection: its parts, settings, trials and logged estimates.
 
-    Raises InputError for missing or non-MCAP files, bad detector overrides or files with no rig data.
+    `warnings` are those of reading the settings and the trials; the parts' own (`part.log.warnings`)
+    are gathered into the result at the end, when every topic the replay reads has been read.
     """
-    overrides = list(detector_overrides)
-    rd.validate_overrides(overrides)
+
+    parts: list[LogPart]
+    settings: RunSettings
+    records: list[TrialRecord]
+    estimates: list[Estimate]  # the logged /rig/estimate messages, in run order
+    links: list[TrialLinkStats]  # per trial; logs before 2026-11-27 have none
+    warnings: list[str]
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """What a refit of the run's trials uses: the online fit's settings where it logged them."""
+
+    level: float
+    constant: str
+    radius_m: float | None
+    g: float
+    estimator: EstimatorName
+
+    def refit(
+        self, distances_m: Sequence[float], masses_kg: Sequence[float], censored: Sequence[bool] | None = None
+    ) -> EstimateSummary | None:
+        """`rig.analysis.refit.refit` with these settings (None below 2 slips or without a radius)."""
+        return refit(
+            distances_m,
+            masses_kg,
+            level=self.level,
+            constant=self.constant,
+            radius_m=self.radius_m,
+            g=self.g,
+            estimator=self.estimator,
+            censored=censored,
+        )
+
+
+@dataclass(frozen=True)
+class Redetected:
+    """Every trial re-detected with one set of detector parameters, and the sample gaps seen on the way."""
+
+    params: DetectorParams
+    overrides: tuple[str, ...]
+    redetections: list[rd.Redetection]
+    gap_warnings: list[str]
+
+
+def scan_run(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> ScannedRun:
+    """Stages scan and records: the run's parts, settings and trial records (InputError without rig data)."""
     parts = read_parts(paths)
     require_some_data(parts)
     warnings: list[str] = []
@@ -191,14 +234,27 @@ def replay(
             settings.detector_source = "slip events"
         else:
             warnings.append("no detector parameters logged; re-detection uses the detector's defaults")
-    params = rd.detector_params(settings.detector, overrides, settings.detector_source)
-
     records = trial_records(parts, warnings)
-    # One trial's samples at a time: its gap count and its re-detection.
+    estimates = [
+        e for part in parts for e in decoded_messages(part, schemas.ESTIMATE, Estimate.from_payload, warnings)
+    ]
+    links = [
+        link
+        for part in parts
+        if part.log.message_counts.get(schemas.TRIAL_LINKS)
+        for link in decoded_messages(part, schemas.TRIAL_LINKS, TrialLinkStats.from_payload, warnings)
+    ]
+    return ScannedRun(parts, settings, records, estimates, links, warnings)
+
+
+def redetect_run(run: ScannedRun, detector_overrides: Sequence[str] = ()) -> Redetected:
+    """Stage re-detection: each trial's samples read alone, their gaps counted, the detector run again."""
+    overrides = tuple(detector_overrides)
+    params = rd.detector_params(run.settings.detector, overrides)
     gap_warnings: list[str] = []
     redetections: list[rd.Redetection] = []
-    hold_s = settings.hold_after_slip_s
-    for record in records:
+    hold_s = run.settings.hold_after_slip_s
+    for record in run.records:
         samples = trial_samples(record, hold_s)
         gaps = trial_gaps(record, samples)
         if gaps is not None:
@@ -207,54 +263,56 @@ def replay(
             rd.redetect_trial(record, samples, params, exact=not overrides, hold_after_slip_s=hold_s)
         )
         del samples
-    warnings.extend(gap_warnings)
-    estimates = _logged_estimates(parts)
-    online = _online_estimate(estimates)
+    return Redetected(params, overrides, redetections, gap_warnings)
+
+
+def fit_settings(run: ScannedRun) -> FitSettings:
+    """The settings of the run's last online fit, else those of its metadata; the run's estimator."""
+    online = _online_estimate(run.estimates)
     online_fit = online.fit if online is not None else None
-    level = online_fit.level if online_fit and online_fit.level else settings.level
-    constant = online_fit.constant if online_fit and online_fit.constant else settings.constant
-    radius = online_fit.radius_m if online_fit and online_fit.radius_m else settings.radius_m
-    if settings.radius_m is None and radius is None:
+    settings = run.settings
+    return FitSettings(
+        level=online_fit.level if online_fit and online_fit.level else settings.level,
+        constant=online_fit.constant if online_fit and online_fit.constant else settings.constant,
+        radius_m=online_fit.radius_m if online_fit and online_fit.radius_m else settings.radius_m,
+        g=settings.g,
+        estimator=_run_estimator(run.estimates, []),
+    )
+
+
+def replay(
+    paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    detector_overrides: Sequence[str] = (),
+) -> ReplayResult:
+    """Replay a run's MCAP logs (files or directories); see the module docstring.
+
+    Raises InputError for missing or non-MCAP files, bad detector overrides or files with no rig data.
+    """
+    rd.validate_overrides(detector_overrides)
+    return replay_scanned(scan_run(paths), detector_overrides)
+
+
+def replay_scanned(run: ScannedRun, detector_overrides: Sequence[str] = ()) -> ReplayResult:
+    """Stages re-detection and refit over a scanned run: the `ReplayResult` of `replay`."""
+    warnings = list(run.warnings)
+    redetected = redetect_run(run, detector_overrides)
+    warnings.extend(redetected.gap_warnings)
+    online = _online_estimate(run.estimates)
+    fit = fit_settings(run)
+    if run.settings.radius_m is None and fit.radius_m is None:
         warnings.append("joint radius unknown (no rig metadata): no fit")
-
-    for record, found in zip(records, redetections, strict=True):
-        event = found.event
-        record.extra = {
-            "redetection": found.status,
-            "redetected_peak_force_n": event.peak_force_n if event else None,
-            "redetected_slip_mass_kg": event.peak_force_n / settings.g if event else None,
-            "redetected_peak_time_ns": event.peak_time_ns if event else None,
-            "redetected_detection_time_ns": event.detection_time_ns if event else None,
-        }
-        if found.status == rd.MISMATCH:
-            warnings.append(
-                f"re-detection of trial {found.trial_id} does not reproduce the log: {found.detail}"
-            )
-    table = trial_table(records, settings)
-
-    estimator = _run_estimator(estimates, warnings)
-    distances, masses, censored = joint_estimation_points(table)
-    estimate = refit(
-        distances,
-        masses,
-        level=level,
-        constant=constant,
-        radius_m=radius,
-        g=settings.g,
-        estimator=estimator,
-        censored=censored,
+    warnings.extend(
+        f"re-detection of trial {found.trial_id} does not reproduce the log: {found.detail}"
+        for found in redetected.redetections
+        if found.status == rd.MISMATCH
     )
+    table = trial_table(run.records, run.settings, redetected.redetections)
+    _run_estimator(run.estimates, warnings)  # only its warning: `fit` holds the estimator
+
+    estimate = fit.refit(*joint_estimation_points(table))
     re_distances, re_masses, _ = joint_estimation_points(table, "redetected_slip_mass_kg")
-    redetected_estimate = refit(
-        re_distances,
-        re_masses,
-        level=level,
-        constant=constant,
-        radius_m=radius,
-        g=settings.g,
-        estimator=estimator,
-    )
-    agreement = compare_estimates(_json_or_none(estimate), online_estimate_json(online))
+    redetected_estimate = fit.refit(re_distances, re_masses)
+    agreement = compare_estimates(estimate.fit if estimate else None, online.fit if online else None)
     if agreement.compared and not agreement.agree:
         warnings.append(
             "the offline refit differs from the last online estimate in "
@@ -262,44 +320,25 @@ def replay(
             f"{agreement.max_relative_difference:.3g})"
         )
 
-    all_warnings = [w for part in parts for w in part.log.warnings] + warnings
+    all_warnings = [w for part in run.parts for w in part.log.warnings] + warnings
     return ReplayResult(
-        parts=parts,
-        settings=settings,
-        records=records,
+        parts=run.parts,
+        settings=run.settings,
+        records=run.records,
         table=table,
-        estimates=estimates,
+        estimates=run.estimates,
         estimate=estimate,
         online_estimate=online,
         redetected_estimate=redetected_estimate,
         agreement=agreement,
-        detector=params,
-        detector_overrides=overrides,
-        redetections=redetections,
+        detector=redetected.params,
+        detector_overrides=list(redetected.overrides),
+        redetections=redetected.redetections,
         percentage_errors=payload_errors(table),
         base_moments=base_moments(table),
         warnings=list(dict.fromkeys(all_warnings)),
-        links=_trial_links(parts),
+        links=run.links,
     )
-
-
-def _logged_estimates(parts: Sequence[LogPart]) -> list[Estimate]:
-    """Every `/rig/estimate` message of the run, decoded into the runner's `Estimate`, in run order."""
-    return [
-        Estimate.from_payload(payload)
-        for part in parts
-        for _, payload in frame_payloads(part.log.topic(schemas.ESTIMATE))
-    ]
-
-
-def _trial_links(parts: Sequence[LogPart]) -> list[TrialLinkStats]:
-    """Every `/rig/trial/links` message of the run (the servo bus's and load cell's counts per trial)."""
-    return [
-        TrialLinkStats.from_payload(payload)
-        for part in parts
-        if part.log.message_counts.get(schemas.TRIAL_LINKS)
-        for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_LINKS))
-    ]
 
 
 def _run_estimator(estimates: list[Estimate], warnings: list[str]) -> EstimatorName:

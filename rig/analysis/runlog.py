@@ -8,8 +8,8 @@ the samples of one part must never be interleaved with another's. Parts are orde
 
 `RunSettings` gathers what the analysis needs from the metadata and the attachments: the test
 article's geometry and g (re-parsed from the attached rig config), the detector parameters, the
-fit settings, the expanded trial plan (re-parsed from the attached protocol with the logged seed)
-and, in simulation, the ground truth. Whatever cannot be recovered becomes a warning and a default,
+fit settings, the protocol's hold after a slip (re-parsed from the attached protocol with the logged
+seed) and, in simulation, the ground truth. Whatever cannot be recovered becomes a warning and a default,
 never an error: a damaged log still replays.
 """
 
@@ -17,18 +17,19 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from model.fit import DEFAULT_G, DEFAULT_LEVEL
+from model.slip_detector import DetectorParams
 from rig.errors import InputError, RigError
 from rig.files import parse_json, parse_yaml
 from rig.log import schemas
 from rig.log.reader import RunLog, mcap_files, read_run
-from rig.protocol import TrialPlan, parse_protocol
+from rig.protocol import parse_protocol
 from rig.rig_config import ArticleConfig, parse_rig_config
 
 DEFAULT_CONSTANT = "paper"
@@ -59,12 +60,11 @@ class RunSettings:
     article: ArticleConfig | None = None
     g: float = DEFAULT_G
     radius_m: float | None = None
-    detector: dict[str, Any] | None = None
+    detector: DetectorParams | None = None  # the logged parameters (None: none were logged)
     detector_source: str = "defaults"
     level: float = DEFAULT_LEVEL
     constant: str = DEFAULT_CONSTANT
     seed: int | None = None
-    plans: dict[int, TrialPlan] = field(default_factory=dict)
     truth: dict[str, Any] | None = None
     hold_after_slip_s: float | None = None  # the protocol's hold after a slip (the stick-slip window)
 
@@ -146,7 +146,7 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
 
     detector_text = protocol_meta.get("detector")
     if detector_text:
-        settings.detector = _detector_mapping(detector_text)
+        settings.detector = logged_detector(_detector_mapping(detector_text), "protocol metadata")
         settings.detector_source = "protocol metadata"
 
     if protocol_attachment is not None:
@@ -160,15 +160,14 @@ def run_settings(parts: list[LogPart], warnings: list[str]) -> RunSettings:
                 seed=settings.seed or 0,
                 joint_count=joint_count,
             )
-            settings.plans = {t.trial_id: t for t in protocol.trials}
             settings.hold_after_slip_s = protocol.ramp.hold_after_slip_s
             if settings.detector is None:
-                settings.detector = protocol.detector.to_mapping()
+                settings.detector = protocol.detector
                 settings.detector_source = "protocol attachment"
         except (RigError, ValueError, yaml.YAMLError) as exc:
             warnings.append(
                 f"protocol attachment {protocol_attachment.name}: unreadable ({exc}); "
-                "trial plans (joint, configuration index) unknown"
+                "the hold after a slip (the stick-slip window) unknown"
             )
 
     truth_json = metadata.get("sim_truth", {}).get("json")
@@ -190,15 +189,25 @@ def _detector_mapping(text: str) -> dict[str, Any]:
     return mapping
 
 
-def detector_from_slips(parts: list[LogPart]) -> dict[str, Any] | None:
-    """The detector mapping logged with the first `/rig/slip` event, if any."""
+def logged_detector(mapping: dict[str, Any], source: str) -> DetectorParams:
+    """Detector parameters as a log states them; InputError naming the field if they do not parse."""
+    try:
+        return DetectorParams.from_mapping(mapping, source=source)
+    except ValueError as exc:
+        raise InputError(f"logged detector parameters: {exc}") from None
+
+
+def detector_from_slips(parts: list[LogPart]) -> DetectorParams | None:
+    """The detector parameters logged with the first `/rig/slip` event, if any."""
     for part in parts:
         slips = part.log.topic(schemas.SLIP)
         if slips.empty:
             continue
         row = slips.iloc[0]
         mapping = {c.removeprefix("detector."): row[c] for c in slips.columns if c.startswith("detector.")}
-        return {k: (None if _is_missing(v) else v) for k, v in mapping.items()}
+        return logged_detector(
+            {k: (None if _is_missing(v) else v) for k, v in mapping.items()}, "slip events"
+        )
     return None
 
 

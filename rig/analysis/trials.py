@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import pandas as pd
@@ -29,7 +29,6 @@ from model.slip_detector import SlipEvent
 from rig.analysis.runlog import LogPart, RunSettings
 from rig.errors import InputError
 from rig.log import schemas
-from rig.log.frames import frame_payloads
 from rig.log.records import (
     SLIP_LIKE,
     ConfigurationMeasurement,
@@ -40,6 +39,10 @@ from rig.log.records import (
 )
 from rig.vocabulary import MeasurementStage
 
+if TYPE_CHECKING:
+    from rig.analysis.redetect import Redetection
+
+Record = TypeVar("Record")
 RAMP_PHASES = (TrialPhase.RAMP_FAST.value, TrialPhase.RAMP_SLOW.value)
 UNLOADING_PHASE = TrialPhase.UNLOADING.value
 SLIP_LIKE_OUTCOMES = sorted(o.value for o in SLIP_LIKE)  # the `outcome` values the fit uses
@@ -87,7 +90,6 @@ class TrialRecord:
     ramp_start_ns: int | None
     unloading_ns: int | None
     slip: SlipEvent | None
-    extra: dict[str, Any] = field(default_factory=dict)
     # Further drops the runner counted after the slip; None if not logged (before the train rule).
     train_drops: int | None = None
     # The last measurement after bending (`/rig/configuration/measured`); None when none was logged.
@@ -128,6 +130,23 @@ def _value(row: pd.Series, name: str) -> Any:
     return value
 
 
+def decoded_messages(
+    part: LogPart, topic: str, decode: Callable[[dict[str, Any]], Record], warnings: list[str]
+) -> list[Record]:
+    """A part's messages of a topic decoded into records, in log order (`RunLog.records`).
+
+    A payload that does not decode (damaged, or of a pre-release log format) is skipped; one warning
+    per part and topic counts them and quotes the first problem.
+    """
+    records, failed, first = part.log.records(topic, decode)
+    if failed:
+        warnings.append(
+            f"{part.name}: {failed} {topic} message{'s' if failed > 1 else ''} could not be decoded "
+            f"(first: {first}); skipped"
+        )
+    return records
+
+
 def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRecord]:
     """Every `/rig/trial/result` of the run, in part order then log time; duplicates warned and dropped."""
     records: list[TrialRecord] = []
@@ -135,16 +154,10 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
     for part in parts:
         phases = _TrialPhases(part.log.topic(schemas.TRIAL_STATE))
         slips: dict[int, list[SlipMessage]] = {}
-        for _, slip_payload in frame_payloads(part.log.topic(schemas.SLIP)):
-            slip_message = SlipMessage.from_payload(slip_payload)
+        for slip_message in decoded_messages(part, schemas.SLIP, SlipMessage.from_payload, warnings):
             slips.setdefault(slip_message.trial_id, []).append(slip_message)
         measured = _bent_measurements(part, warnings)
-        for _, payload in frame_payloads(part.log.topic(schemas.TRIAL_RESULT)):
-            try:
-                result = TrialResult.from_payload(payload)
-            except (KeyError, TypeError, ValueError) as exc:
-                warnings.append(f"{part.name}: a /rig/trial/result could not be decoded ({exc}); skipped")
-                continue
+        for result in decoded_messages(part, schemas.TRIAL_RESULT, TrialResult.from_payload, warnings):
             trial_id = result.trial_id
             if trial_id in seen:
                 warnings.append(
@@ -172,16 +185,10 @@ def trial_records(parts: Sequence[LogPart], warnings: list[str]) -> list[TrialRe
 
 
 def _bent_measurements(part: LogPart, warnings: list[str]) -> dict[int, ConfigurationMeasurement]:
-    """Each trial's last configuration measured after bending (logs from before it have none)."""
+    """Each trial's last configuration measured after bending (none where no source measured)."""
     out: dict[int, ConfigurationMeasurement] = {}
-    for _, payload in frame_payloads(part.log.topic(schemas.CONFIGURATION_MEASURED)):
-        try:
-            measurement = ConfigurationMeasurement.from_payload(payload)
-        except (KeyError, TypeError, ValueError) as exc:
-            warnings.append(
-                f"{part.name}: a /rig/configuration/measured could not be decoded ({exc}); skipped"
-            )
-            continue
+    decode = ConfigurationMeasurement.from_payload
+    for measurement in decoded_messages(part, schemas.CONFIGURATION_MEASURED, decode, warnings):
         if measurement.stage == MeasurementStage.BENT:
             out[measurement.trial_id] = measurement
     return out
@@ -241,13 +248,22 @@ def base_lever_arm_m(settings: RunSettings, joint_angles_rad: Sequence[float]) -
     return float(arms[0])
 
 
-def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.DataFrame:
-    """The trial table (columns `TRIAL_COLUMNS` plus one `joint_angle_<i>_rad` per joint)."""
+def trial_table(
+    records: Sequence[TrialRecord],
+    settings: RunSettings,
+    redetections: Sequence[Redetection] | None = None,
+) -> pd.DataFrame:
+    """The trial table (columns `TRIAL_COLUMNS` plus one `joint_angle_<i>_rad` per joint).
+
+    `redetections`, one per record in the same order, fill the `redetection` and `redetected_*`
+    columns (left empty without them).
+    """
+    if redetections is not None and len(redetections) != len(records):
+        raise ValueError(f"{len(redetections)} re-detections for {len(records)} trials")
     joints = max((len(r.joint_angles_rad or ()) for r in records), default=0)
     rows: list[dict[str, Any]] = []
-    for record in records:
+    for index, record in enumerate(records):
         r = record.result
-        plan = settings.plans.get(record.trial_id)
         peak = r.peak_force_n
         slip_mass = r.slip_mass_kg
         predicted = r.predicted_mass_kg
@@ -263,11 +279,8 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
             "kind": record.kind.value,
             "part": record.part.name,
             "repeat": r.repeat,
-            # logs written before the result carried them: from the protocol's plan
-            "joint": r.joint if r.joint is not None else (plan.joint if plan is not None else None),
-            "configuration_index": r.configuration_index
-            if r.configuration_index is not None
-            else (plan.configuration_index if plan is not None else None),
+            "joint": r.joint,
+            "configuration_index": r.configuration_index,
             "distance_m": r.distance_m,
             "outcome": r.outcome.value,
             "peak_force_n": peak,
@@ -285,7 +298,8 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
             "configuration_source": record.configuration.source.value if record.configuration else None,
             "bend_corrections": record.configuration.attempt if record.configuration else None,
         }
-        row.update(record.extra)
+        if redetections is not None:
+            row.update(_redetected_columns(redetections[index], settings.g))
         for j in range(joints):
             angles = record.joint_angles_rad
             row[f"joint_angle_{j + 1}_rad"] = angles[j] if angles is not None and j < len(angles) else None
@@ -297,6 +311,17 @@ def trial_table(records: Sequence[TrialRecord], settings: RunSettings) -> pd.Dat
         {name: _column([row.get(name) for row in rows], dtype) for name, dtype in columns.items()}
     )
     return frame.reset_index(drop=True)
+
+
+def _redetected_columns(found: Redetection, g: float) -> dict[str, Any]:
+    event = found.event
+    return {
+        "redetection": found.status,
+        "redetected_peak_force_n": event.peak_force_n if event else None,
+        "redetected_slip_mass_kg": event.peak_force_n / g if event else None,
+        "redetected_peak_time_ns": event.peak_time_ns if event else None,
+        "redetected_detection_time_ns": event.detection_time_ns if event else None,
+    }
 
 
 def _column(values: list[Any], dtype: str) -> pd.api.extensions.ExtensionArray | np.ndarray:
@@ -358,5 +383,5 @@ def records_json(frame: pd.DataFrame) -> list[dict[str, Any]]:
 
 
 def slipped_rows(table: pd.DataFrame) -> pd.Series:
-    """Which rows of a trial table are slips of the joint under test (`SLIP_LIKE`; old logs: `slip`)."""
+    """Which rows of a trial table are slips of the joint under test (`SLIP_LIKE`)."""
     return table["outcome"].isin(SLIP_LIKE_OUTCOMES)

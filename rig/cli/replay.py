@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 from typing import TYPE_CHECKING, Any
 
 from rig.cli.live_options import add_live_address
@@ -37,10 +38,14 @@ load-cell samples one trial at a time: its memory does not grow with the length 
 
 JSON (--json): files, complete, warnings, trials, estimate (offline refit, `rig fit --json` keys),
 online_estimate, online_agreement, redetected_estimate, redetection, links (per trial: the servo
-bus's and load-cell line's counts; logs from before 2026-11-27 have none); for link-validation runs also
+bus's and load-cell line's counts); for link-validation runs also
 percentage_errors, base_moments and joints; under simulation truth.
 Exit codes: 0 done (also for damaged files, with warnings); 2 invalid input (missing or non-MCAP
-file, no rig message readable, bad --detector value, unusable --report directory).
+file, no rig message readable, a log format version this rig does not read, bad --detector value,
+unusable --report directory).
+
+The same from Python, with the run's tables as pandas DataFrames: rig.analysis.open_log
+(docs/analysis.md).
 """
 
 
@@ -79,19 +84,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def run(args: argparse.Namespace) -> int:
     if args.serve:  # no analysis: nothing of pandas and matplotlib to import
         return _serve(args)
-    # Imported here, not at the top: pandas and matplotlib cost a second that `rig --help` should not pay.
-    from rig.analysis.redetect import validate_overrides
-    from rig.analysis.replay import replay
-    from rig.analysis.report import check_report_dir, write_report
-
     """Handle `rig replay`; returns the exit code."""
+    # Imported here, not at the top: pandas and matplotlib cost a second that `rig --help` should not pay.
+    from rig.analysis import LogWarning, open_log
+    from rig.analysis.redetect import validate_overrides
+    from rig.analysis.report import check_report_dir
+
     validate_overrides(args.detector)
     if args.report is not None:
         check_report_dir(args.report)
-    result = replay(args.logs, args.detector)
-    written = write_report(result, args.report) if args.report is not None else []
+    with warnings.catch_warnings():  # the result lists them: printed below, or in the JSON
+        warnings.simplefilter("ignore", LogWarning)
+        run = open_log(*args.logs, detector=args.detector)
+    result = run.replay_result
+    written = run.report(args.report) if args.report is not None else []
     if args.json:
-        out: dict[str, Any] = result.as_json()
+        out: dict[str, Any] = run.json()
         if args.report is not None:
             out["report"] = [str(p) for p in written]
         emit_json(out)

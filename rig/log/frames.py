@@ -251,7 +251,7 @@ def _flatten(table: pa.Table) -> pa.Table:
 
 
 def nullable_integer_fields(topic: str) -> frozenset[str]:
-    """Top-level integer fields of a rig topic that may be missing: optional, or null in older logs."""
+    """Top-level integer fields of a rig topic that may be missing (not required by its schema)."""
     spec = schemas.TOPICS.get(topic)
     if spec is None:
         return frozenset()
@@ -259,7 +259,7 @@ def nullable_integer_fields(topic: str) -> frozenset[str]:
     return frozenset(
         name
         for name, sub in spec.schema["properties"].items()
-        if "integer" in (kinds := schemas.json_types(sub)) and (name not in required or "null" in kinds)
+        if "integer" in schemas.json_types(sub) and name not in required
     )
 
 

@@ -10,7 +10,8 @@ plugin (`rig.log.scene_schemas`):
 * `/rig/link/scene` (`foxglove.SceneUpdate`): one entity `link`, drawn in `base`: a sphere per joint
   (grey; the joint under test blue; the joint that slipped red), the segments as a line strip, the
   line as an orange arrow at its attachment point along its pull direction whose length grows
-  with the tension, and a text with the trial, the tension and the slip.
+  with the tension, and a text with the trial, the tension and the slip. Every field Foxglove's
+  schema requires is there (the primitive lists it does not draw, empty).
 
 A scene is a function of a `LinkScene` record: the geometry of the article, a configuration and
 the state of the trial. No I/O; the runner logs the payloads (`rig.runner.link_view`).
@@ -192,6 +193,8 @@ class LinkScene:
             "scale_invariant": False,
             "points": [_vector(o) for o in origins],
             "color": _GREY,
+            "colors": [],
+            "indices": [],
         }
         attachment = self._attachment_m(poses)
         direction = np.asarray(self.geometry.direction, dtype=float)
@@ -219,10 +222,15 @@ class LinkScene:
             "id": ENTITY_ID,
             "lifetime": {"sec": 0, "nsec": 0},
             "frame_locked": False,
+            "metadata": [],
             "arrows": [arrow],
+            "cubes": [],
             "spheres": spheres,
+            "cylinders": [],
             "lines": [segments],
+            "triangles": [],
             "texts": [label],
+            "models": [],
         }
         return {"deletions": [], "entities": [entity]}
 

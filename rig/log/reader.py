@@ -18,12 +18,14 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
 import pandas as pd
 
 from rig.errors import InputError
-from rig.log.frames import DEFAULT_BATCH_SIZE, TopicBatches, empty_frame
+from rig.log.frames import DEFAULT_BATCH_SIZE, TopicBatches, empty_frame, frame_payloads
+from rig.log.log_format import log_format_version
 from rig.log.mcap_scan import (
     ALL_TIMES,
     Attachment,
@@ -33,6 +35,8 @@ from rig.log.mcap_scan import (
     scan_file,
     scan_window,
 )
+
+Record = TypeVar("Record")
 
 
 class RunLog:
@@ -136,6 +140,38 @@ class RunLog:
         self._note(sink.warnings)
         return frame
 
+    @property
+    def format_versions(self) -> dict[Path, str]:
+        """Each file's log format version (`rig.log.log_format`)."""
+        return {path: log_format_version(path, meta) for path, meta in self.metadata_by_file.items()}
+
+    def records(
+        self, name: str, decode: Callable[[dict[str, Any]], Record]
+    ) -> tuple[list[Record], int, str | None]:
+        """One topic's messages decoded into typed records by `decode` (e.g. `TrialResult.from_payload`).
+
+        Returns the records in log order, the count of payloads that did not decode (KeyError,
+        TypeError, ValueError: damaged, or not of this log format) and the first such problem.
+        """
+        records: list[Record] = []
+        failed = 0
+        first: str | None = None
+        for _, payload in frame_payloads(self.topic(name)):
+            try:
+                records.append(decode(payload))
+            except (KeyError, TypeError, ValueError) as exc:
+                failed += 1
+                if first is None:
+                    first = f"no {exc}" if isinstance(exc, KeyError) else str(exc)
+        return records, failed, first
+
+    def read_all(self, name: str) -> pd.DataFrame:
+        """One topic's messages as `topic` has them, without keeping them.
+
+        A deferred topic is read from the files again, chunk by chunk, on every call.
+        """
+        return self.window(name, *ALL_TIMES)
+
     def last_before(
         self, name: str, time_ns: int, keep: Callable[[pd.DataFrame], pd.DataFrame] = lambda f: f
     ) -> pd.Series | None:
@@ -231,6 +267,7 @@ def read_run(
             scan_file(scan)
         if scan.counts.get(0):
             scan.warn(f"{scan.counts[0]} messages on channels whose Channel record was lost; skipped")
+        log_format_version(path, scan.metadata)  # refuses a format this rig cannot read
         scans.append(scan)
         sources.append(scan.source())
     for sink in batches.values():

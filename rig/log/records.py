@@ -10,8 +10,8 @@ Payload conventions: a record's fields appear under their own names, except that
 named without the suffix (`start_time_ns` → `start`): Foxglove's time type, and no payload integer
 beyond 2^53 for JavaScript readers. A missing value (None, a non-finite number) is an absent field,
 not null: the JSON Schema readers of Foxglove and Lichtblick accept one type per field
-(`rig.log.viewer_schema`). Decoders accept the payloads of older logs too (null for a missing value,
-the integer `*_time_ns` fields, and fields added since as None).
+(`rig.log.viewer_schema`). Decoders read the payloads of the current log format
+(`rig.log.log_format`); in a payload read back from a table, a missing value is None.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import operator
 from collections.abc import Mapping, Sequence
-from dataclasses import MISSING, dataclass, fields
+from dataclasses import dataclass, fields
 from enum import IntEnum, StrEnum
 from typing import Any
 
@@ -93,13 +93,10 @@ def stamp_name(time_field: str) -> str:
 
 
 def time_ns_from_payload(payload: Mapping[str, Any], time_field: str) -> int:
-    """An epoch-ns field from a payload: its `{sec, nsec}` stamp, or the integer older logs carry.
+    """An epoch-ns field from a payload, from its `{sec, nsec}` stamp.
 
-    KeyError if neither is there, ValueError naming the field if the value is not a timestamp.
+    KeyError if it is not there, ValueError naming the field if the value is not a timestamp.
     """
-    legacy = payload.get(time_field)
-    if legacy is not None:  # logs written before 2026-11-23 carry the exact integer
-        return integer(legacy, time_field)
     name = stamp_name(time_field)
     value = payload.get(name)
     if value is None:
@@ -265,7 +262,7 @@ class SlipMessage:
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> SlipMessage:
-        """Decode a `/rig/slip` payload back into the `SlipEvent` the detector emitted (older logs too)."""
+        """Decode a `/rig/slip` payload back into the `SlipEvent` the detector emitted."""
         event = SlipEvent(
             onset_time_ns=time_ns_from_payload(payload, "onset_time_ns"),
             detection_time_ns=time_ns_from_payload(payload, "detection_time_ns"),
@@ -274,9 +271,7 @@ class SlipMessage:
             force_after_n=float(payload["force_after_n"]),
             drop_fraction=float(payload["drop_fraction"]),
             trigger=str(payload["trigger"]),
-            kind=SlipEventKind(
-                payload.get("kind") or SlipEventKind.DROP
-            ),  # logs from before events had a kind
+            kind=SlipEventKind(payload["kind"]),
         )
         detector = payload.get("detector") or {}
         return cls(
@@ -389,19 +384,8 @@ class TrialResult:
 
     @classmethod
     def from_payload(cls, payload: Mapping[str, Any]) -> TrialResult:
-        """Decode a `/rig/trial/result` payload, also as written before the record had every field.
-
-        Logs from before carry the configuration as `configuration.joint_angles_rad` and lack
-        `joint`, `configuration_index`, `predicted_force_n`, `percentage_error` and `tare_n`
-        (None, None, None, None, 0.0 here; replay fills the plan's joint and configuration).
-        Times are `{sec, nsec}` stamps (`start`, `end`); before 2026-11-23 logs also carried
-        them as integers (`start_time_ns`, `end_time_ns`), which are used where present.
-        """
+        """Decode a `/rig/trial/result` payload (times from the `start` and `end` stamps)."""
         data = dict(payload)
-        if data.get("joint_angles_rad") is None:
-            configuration = data.get("configuration")
-            if isinstance(configuration, Mapping):
-                data["joint_angles_rad"] = configuration.get("joint_angles_rad")
         for time_field in ("start_time_ns", "end_time_ns"):
             data[time_field] = time_ns_from_payload(payload, time_field)
         return cls.from_json(data)
@@ -441,8 +425,7 @@ class Estimate:
     """The run's estimate after a trial: the joint-estimation fit (None before 2 slips) and joints.
 
     `fit` is the protocol's estimator's (`estimator`); the paper's fit is carried beside it in the
-    `paper_*` fields (equal to `fit`'s when the estimator is `paper`). Logs from before the
-    estimators decode with `estimator` "paper" (the only fit there was) and the rest None.
+    `paper_*` fields (equal to `fit`'s when the estimator is `paper`).
     """
 
     trial_id: int
@@ -509,7 +492,7 @@ class Estimate:
     def from_payload(cls, payload: Mapping[str, Any]) -> Estimate:
         """Decode a `/rig/estimate` payload (no fit when `n` is 0 or `k` is missing).
 
-        Fit values that are null (older logs) or absent become NaN.
+        Fit values that are absent (undefined) become NaN.
         """
         fit = None
         if payload.get("n") and payload.get("k") is not None:
@@ -527,7 +510,7 @@ class Estimate:
             trial_id=integer(payload["trial_id"], "trial_id"),
             fit=fit,
             joints=joints,
-            estimator=str(payload.get("estimator") or "paper"),
+            estimator=str(payload["estimator"]),
             scatter_model=None if scatter is None else str(scatter),
             n_censored=integer(payload.get("n_censored") or 0, "n_censored"),
             paper_n=None if paper_n is None else integer(paper_n, "paper_n"),
@@ -669,14 +652,7 @@ class TrialLinkStats:
             part = payload.get(name)
             if not isinstance(part, Mapping) or all(v is None for v in part.values()):
                 return None
-            # A count added later (e.g. `bus.watchdog_trips`) is absent from older logs: its default.
-            return kind(
-                **{
-                    f.name: integer(part[f.name], f"{name}.{f.name}")
-                    for f in fields(kind)
-                    if part.get(f.name) is not None or f.default is MISSING
-                }
-            )
+            return kind(**{f.name: integer(part[f.name], f"{name}.{f.name}") for f in fields(kind)})
 
         return cls(
             trial_id=integer(payload["trial_id"], "trial_id"),

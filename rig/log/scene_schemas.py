@@ -1,10 +1,13 @@
-"""JSON Schemas of Foxglove's well-known 3D messages, as far as the rig fills them.
+"""JSON Schemas of Foxglove's well-known 3D messages, field for field as Foxglove publishes them.
 
 The 3D panel of Foxglove and Lichtblick recognises a channel by its schema *name*
 (`foxglove.FrameTransforms`, `foxglove.SceneUpdate`); the schema's fields become the message
-fields the other panels show. The names and field layout follow Foxglove's published message
-reference (docs.foxglove.dev, "Schemas"); only the fields `rig.log.link_scene` writes are listed,
-and the panel fills the others with its defaults. Enums are numbers; times are `{sec, nsec}`.
+fields the other panels show. Each schema here has the properties, types and `required` lists of
+Foxglove's published JSON Schemas (the npm package `@foxglove/schemas`, `jsonschema` export, 2.1),
+so a payload that validates against ours validates against theirs: every property is required, as
+there, and `rig.log.link_scene` fills every one (empty arrays for the primitives it does not draw).
+`tests/test_log_foxglove_schemas.py` validates logged messages against the official schemas with
+Ajv and compares the `required` lists. Enums are numbers; times are `{sec, nsec}`.
 """
 
 from __future__ import annotations
@@ -35,7 +38,10 @@ _TIME = _object(
         "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
     },
 )
-_DURATION = _object("duration", {"sec": {"type": "integer"}, "nsec": {"type": "integer", "minimum": 0}})
+_DURATION = _object(
+    "duration",
+    {"sec": {"type": "integer"}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}},
+)
 _VECTOR3 = _numbers("foxglove.Vector3", "xyz")
 _POINT3 = _numbers("foxglove.Point3", "xyz")
 _QUATERNION = _numbers("foxglove.Quaternion", "xyzw")
@@ -69,7 +75,20 @@ _DELETION_TYPE = {
     "oneOf": [{"title": "MATCHING_ID", "const": 0}, {"title": "ALL", "const": 1}],
 }
 
+_INDICES = _array({"type": "integer", "minimum": 0}, "Indices into the points and colors")
+_KEY_VALUE = _object("foxglove.KeyValuePair", {"key": {"type": "string"}, "value": {"type": "string"}})
 _SPHERE = _object("foxglove.SpherePrimitive", {"pose": _POSE, "size": _VECTOR3, "color": _COLOR})
+_CUBE = _object("foxglove.CubePrimitive", {"pose": _POSE, "size": _VECTOR3, "color": _COLOR})
+_CYLINDER = _object(
+    "foxglove.CylinderPrimitive",
+    {
+        "pose": _POSE,
+        "size": _VECTOR3,
+        "bottom_scale": {"type": "number"},
+        "top_scale": {"type": "number"},
+        "color": _COLOR,
+    },
+)
 _LINE = _object(
     "foxglove.LinePrimitive",
     {
@@ -79,6 +98,30 @@ _LINE = _object(
         "scale_invariant": {"type": "boolean"},
         "points": _array(_POINT3, "Points along the line"),
         "color": _COLOR,
+        "colors": _array(_COLOR, "Per-point colors (empty: `color` for all)"),
+        "indices": _INDICES,
+    },
+)
+_TRIANGLES = _object(
+    "foxglove.TriangleListPrimitive",
+    {
+        "pose": _POSE,
+        "points": _array(_POINT3, "Vertices, three per triangle"),
+        "color": _COLOR,
+        "colors": _array(_COLOR, "Per-vertex colors (empty: `color` for all)"),
+        "indices": _INDICES,
+    },
+)
+_MODEL = _object(
+    "foxglove.ModelPrimitive",
+    {
+        "pose": _POSE,
+        "scale": _VECTOR3,
+        "color": _COLOR,
+        "override_color": {"type": "boolean"},
+        "url": {"type": "string"},
+        "media_type": {"type": "string"},
+        "data": {"type": "string", "contentEncoding": "base64"},
     },
 )
 _ARROW = _object(
@@ -111,10 +154,15 @@ _ENTITY = _object(
         "id": {"type": "string"},
         "lifetime": _DURATION,
         "frame_locked": {"type": "boolean"},
+        "metadata": _array(_KEY_VALUE, "Additional user-provided metadata"),
         "arrows": _array(_ARROW, "Arrow primitives"),
+        "cubes": _array(_CUBE, "Cube primitives"),
         "spheres": _array(_SPHERE, "Sphere primitives"),
+        "cylinders": _array(_CYLINDER, "Cylinder primitives"),
         "lines": _array(_LINE, "Line primitives"),
+        "triangles": _array(_TRIANGLES, "Triangle list primitives"),
         "texts": _array(_TEXT, "Text primitives"),
+        "models": _array(_MODEL, "Model primitives"),
     },
     "A visual element in a 3D scene",
 )

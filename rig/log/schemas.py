@@ -10,7 +10,7 @@ non-finite number) is an *absent field*, never null and never NaN, so optional f
 of `required`; every integer stays below 2**53 so that JavaScript readers see it exactly; a
 record's epoch-nanosecond field `*_time_ns` appears as a `{sec, nsec}` timestamp named without the
 suffix (Foxglove's time type). `/rig/log` is Foxglove's well-known `foxglove.Log`, kept field for
-field. Logs written before 2026-11-27 carry null for a missing value; readers accept both.
+field.
 
 `/rig/loadcell` (1 kHz) is logged as rows (`ROW_FIELDS`), not records: no object per sample.
 """

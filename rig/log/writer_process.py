@@ -38,6 +38,7 @@ from typing import Any, BinaryIO
 from mcap.writer import CompressionType, Writer
 
 from rig.log import schemas
+from rig.log.log_format import METADATA_NAME, format_metadata
 
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
@@ -74,6 +75,7 @@ class WriterProcess:
         self._file = stream
         self._writer = Writer(stream, chunk_size=chunk_size, compression=COMPRESSION[compression])
         self._writer.start(profile="", library=library)
+        self._writer.add_metadata(METADATA_NAME, format_metadata())
         self._file.flush()
         self._interval_ns = flush_interval_ns
         self._channels: dict[str, int] = {}
