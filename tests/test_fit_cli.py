@@ -315,3 +315,18 @@ def test_a_sound_fit_prints_as_before(capsys, cli_json):
     assert main(["fit", str(data), "--radius-m", "0.01"]) == 0
     out = capsys.readouterr().out
     assert "DEGENERATE" not in out and "*" not in out
+
+
+def test_a_reader_that_goes_away_leaves_no_traceback():
+    # `rig fit ... | head -1`: the pipe's reader is gone before rig writes (closed at once here).
+    example = Path(__file__).resolve().parent.parent / "protocols" / "example_fit.csv"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rig.cli", "fit", str(example), "--radius-m", "0.01"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 1
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err

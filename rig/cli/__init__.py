@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -87,6 +88,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return ExitCode.INTERRUPTED
     except RigError as exc:
         print(f"rig: {type(exc).__name__}: {one_line(str(exc))}", file=sys.stderr)
+        return ExitCode.FAULT
+    except BrokenPipeError:
+        # The reader of stdout went away (`rig fit ... | head`): no traceback, and nothing more to
+        # write there (Python flushes stdout again at exit, which would raise once more).
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
         return ExitCode.FAULT
 
 
