@@ -466,7 +466,7 @@ def parse_protocol(
         else:
             design = "fixed"
         if design == "adaptive":
-            chosen = _adaptive_block(block, b, used, ramp, joint_count, estimator)
+            chosen = _adaptive_block(block, b, used, ramp, joint_count, estimator, joints_from)
             if used + chosen.design.max_trials > MAX_TRIALS:
                 raise block.error(
                     "max_trials",
@@ -478,7 +478,7 @@ def parse_protocol(
             continue
         match kind:
             case TrialKind.JOINT_ESTIMATION:
-                new = _joint_estimation_block(block, b, used, rng, joint_count)
+                new = _joint_estimation_block(block, b, used, rng, joint_count, joints_from)
             case TrialKind.LINK_VALIDATION:
                 new = _link_validation_block(block, b, used, joint_count, joints_from)
             case _:
@@ -598,8 +598,18 @@ def _step(step: StepKind, opts: Section, kind: TrialKind) -> StepSpec:
             assert_never(step)
 
 
+def _joint(block: Section, joint_count: int | None, joints_from: str) -> int:
+    """A block's `joint`: 1..J, J the rig config's link when it is known (`joints_from` names it)."""
+    raw = block.raw("joint", default=1)
+    if joints_from and joint_count is not None and isinstance(raw, int) and raw > joint_count:
+        raise block.error(
+            "joint", f"{raw}; allowed: 1..{joint_count}, the joints of the link in {joints_from}"
+        )
+    return block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
+
+
 def _joint_estimation_block(
-    block: Section, b: int, offset: int, rng: random.Random, joint_count: int | None
+    block: Section, b: int, offset: int, rng: random.Random, joint_count: int | None, joints_from: str = ""
 ) -> list[TrialPlan]:
     for key in ADAPTIVE_KEYS:
         if block.has(key):
@@ -608,7 +618,7 @@ def _joint_estimation_block(
                 key, f"{where}only with design: adaptive; allowed here: distances_m, repeats, shuffle"
             )
     reject_undeclared(block, FixedBlockFields)
-    joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
+    joint = _joint(block, joint_count, joints_from)
     distances = read_field(block, FixedBlockFields, "distances_m")
     repeats = read_field(block, FixedBlockFields, "repeats")
     steps = _steps(block, TrialKind.JOINT_ESTIMATION)
@@ -636,6 +646,7 @@ def _adaptive_block(
     ramp: RampSettings,
     joint_count: int | None,
     protocol_estimator: EstimatorName,
+    joints_from: str = "",
 ) -> AdaptiveBlock:
     """A `design: adaptive` joint-estimation block (docs/formats.md §1), validated."""
     for key in FIXED_KEYS:
@@ -645,7 +656,7 @@ def _adaptive_block(
                 "not with design: adaptive (the planner chooses the distances); allowed: distance_range_m",
             )
     reject_undeclared(block, AdaptiveBlockFields)
-    joint = block.integer("joint", default=1, min_value=1, max_value=joint_count or MAX_JOINTS)
+    joint = _joint(block, joint_count, joints_from)
     lo, hi = read_field(block, AdaptiveBlockFields, "distance_range_m")
     if not lo < hi:
         raise block.error(

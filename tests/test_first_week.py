@@ -61,6 +61,16 @@ def test_link2_protocol_on_the_link1_template_says_the_count_is_the_rig_configs(
     assert f"{TEMPLATE} (article.segment_lengths_m: 8 segments), got 10" in result.err
 
 
+def test_a_joint_beyond_the_rig_configs_link_says_where_the_count_comes_from(
+    run_cli: Callable[..., Any], tmp_path: Path
+) -> None:
+    protocol = tmp_path / "j9.yaml"
+    protocol.write_text((REPO / "protocols" / "smoke.yaml").read_text().replace("joint: 1", "joint: 9"))
+    result = run_cli("run", protocol, "--rig", TEMPLATE, "--dry-run")
+    assert result.code == 2 and result.err.count("\n") == 1
+    assert f"blocks[0].joint: 9; allowed: 1..8, the joints of the link in {TEMPLATE} (article" in result.err
+
+
 def test_template_dry_run_json_carries_the_note(cli_json: Callable[..., Any]) -> None:
     out = cli_json("run", REPO / "protocols" / "smoke.yaml", "--rig", TEMPLATE, "--dry-run", "--json")
     assert all(check["ok"] for check in out["limit_checks"])
