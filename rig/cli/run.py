@@ -15,7 +15,7 @@ from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
 from rig.files import check_out_dir
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
-from rig.vocabulary import DeviceLevel, RigKind, StepKind
+from rig.vocabulary import ConfigurationSourceKind, DeviceLevel, RigKind, StepKind
 
 if TYPE_CHECKING:
     from model.estimate_summary import EstimateSummary
@@ -235,7 +235,8 @@ def _dry_run(args: argparse.Namespace) -> int:
     return 0
 
 
-# Steps that wait for a person on a hardware rig (bending and resetting are by hand there).
+# Steps that wait for a person on a hardware rig (bending and resetting by hand where it has no
+# forks; with `configuration.source: operator` also the measurement, and the question after a slip).
 _OPERATOR_STEPS = frozenset({StepKind.PROMPT, StepKind.BEND, StepKind.RESET})
 
 
@@ -248,7 +249,12 @@ def _require_a_terminal_for_prompts(protocol: Protocol, config: RigConfig) -> No
     if config.kind != RigKind.HARDWARE or sys.stdin is None or sys.stdin.isatty():
         return
     templates = [t.steps for t in protocol.trials] + [b.steps for b in protocol.adaptive]
-    waits = sorted({s.kind.value for steps in templates for s in steps if s.kind in _OPERATOR_STEPS})
+    # Forks bend and straighten the link themselves: only a rig without them needs hands for those.
+    forks = any(s.component is not None for s in config.servos.benders)
+    by_person = _OPERATOR_STEPS - {StepKind.BEND, StepKind.RESET} if forks else _OPERATOR_STEPS
+    if config.configuration.source == ConfigurationSourceKind.OPERATOR:
+        by_person = by_person | {StepKind.MEASURE, StepKind.RAMP_UNTIL_SLIP}  # angles; which joint moved
+    waits = sorted({s.kind.value for steps in templates for s in steps if s.kind in by_person})
     if waits:
         raise InputError(
             f"{protocol.source}: its {', '.join(waits)} steps wait for the operator to press Enter, and "
