@@ -7,4 +7,5 @@ __all__ = [
     "object_rig",
     "pty_link",
     "simulated_rig",
+    "twin",
 ]

@@ -1,0 +1,155 @@
+"""The twin over the ports (`rig sim rig`, rig/sim/twin.py) and its simulated hand (rig/sim/twin_hand.py).
+
+The fast tests build the twin without serving it and move its clock by hand; the rehearsal serves it
+on ptys in real time and runs a lab's bring-up against it with the unchanged hardware template.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pty
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rig.errors import ConfigError
+from rig.log.reader import read_run
+from rig.protocol import load_protocol
+from rig.rig_config import load_rig_config
+from rig.sim.twin import build_twin
+from rig.sim.twin_hand import SLACK_DWELL_S
+from rig.vocabulary import SlipKind, TrialKind
+
+ROOT = Path(__file__).resolve().parent.parent
+TEMPLATE = ROOT / "protocols" / "rigs" / "hardware.example.yaml"
+SMOKE = ROOT / "protocols" / "smoke.yaml"
+
+
+def _hardware_config(tmp_path: Path, simulation: str = "simulation:\n  winch_reversed: true\n") -> Path:
+    """The lab's template with its ports and calibration file in tmp_path, and a `simulation:` section."""
+    text = TEMPLATE.read_text(encoding="utf-8")
+    for old, new in (
+        ("port: /dev/ttyUSB0", f"port: {tmp_path / 'dxl'}"),
+        ("port: /dev/ttyACM0", f"port: {tmp_path / 'cell'}"),
+        ("calibration: loadcell-cal.json", "calibration: cal.json"),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    path = tmp_path / "lab-rig.yaml"
+    path.write_text(text + simulation, encoding="utf-8")
+    return path
+
+
+def _slack_for(twin, seconds: float) -> None:
+    twin.clock.advance_ns(round(seconds * 1e9))
+    assert twin.world.tension_n == 0.0
+
+
+def test_the_hand_moves_the_hook_only_after_a_slip_and_a_slack_line(tmp_path):
+    config = load_rig_config(_hardware_config(tmp_path))
+    protocol = load_protocol(SMOKE, joint_count=config.article.joint_count)
+    twin = build_twin(config, protocol=protocol)
+    world = twin.world
+    assert [(t.kind, t.distance_m, t.specimen_joint) for t in world.trials] == [
+        (TrialKind.JOINT_ESTIMATION, 0.1, 1)
+    ]
+    _slack_for(twin, 3.0)  # a slack line alone (a check, a tare) is no reason to touch the hook
+    assert len(world.trials) == 1
+    world.open_slip(1, 16.0, 16.0, SlipKind.SUDDEN, world.now_ns)  # the first trial's slip
+    _slack_for(twin, SLACK_DWELL_S / 2)
+    assert len(world.trials) == 1  # not yet: a careful person waits
+    _slack_for(twin, SLACK_DWELL_S)
+    assert [t.distance_m for t in world.trials] == [0.1, 0.2]
+    assert world.trials[1].capacity_factors != world.trials[0].capacity_factors  # a fresh draw
+
+
+def test_without_a_protocol_the_hand_sets_up_link_validation_on_the_straight_link(tmp_path):
+    twin = build_twin(load_rig_config(_hardware_config(tmp_path)))
+    assert [t.kind for t in twin.world.trials] == [TrialKind.LINK_VALIDATION]
+    assert twin.world.setup == "link"
+
+
+def test_a_fault_of_the_host_or_the_logger_is_refused_naming_it(tmp_path):
+    faults = "simulation:\n  faults:\n    - {device: host, kind: pause, at_s: 1, duration_s: 1}\n"
+    config = load_rig_config(_hardware_config(tmp_path, faults))
+    with pytest.raises(ConfigError, match=r"lab-rig.yaml: simulation.faults\[0\].device: host; allowed"):
+        build_twin(config)
+
+
+@pytest.mark.subprocess
+def test_a_port_that_is_not_a_symlink_is_refused_and_left_alone(tmp_path):
+    path = _hardware_config(tmp_path)
+    (tmp_path / "cell").write_text("a lab's file\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "rig.cli", "sim", "rig", "--rig", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and "lab-rig.yaml: loadcell.port:" in done.stderr
+    assert "not a symlink" in done.stderr
+    assert (tmp_path / "cell").read_text() == "a lab's file\n"
+    assert not (tmp_path / "dxl").exists()  # the servo link made first was removed again
+
+
+def _rig(*args: str, **kwargs) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "rig.cli", *args], capture_output=True, text=True, timeout=120, **kwargs
+    )
+
+
+@pytest.mark.pty
+@pytest.mark.subprocess
+@pytest.mark.slow
+def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_winch(tmp_path):
+    """A lab's bring-up on the twin (docs/hardware.md, "Rehearse before the rig exists"), about 45 s."""
+    path = _hardware_config(tmp_path)
+    truth_path = tmp_path / "truth.json"
+    twin = subprocess.Popen(
+        [sys.executable, "-m", "rig.cli", "sim", "rig", "--rig", str(path), "--protocol", str(SMOKE),
+         "--calibration-out", str(tmp_path / "cal.json"), "--truth-out", str(truth_path)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert twin.stdout is not None
+        assert twin.stdout.readline().startswith(f"SERVOS {tmp_path / 'dxl'} /dev/")
+        assert twin.stdout.readline().startswith(f"LOADCELL {tmp_path / 'cell'} /dev/")
+        jog = ("--move", "--jog-travel-rev", "0.3", "--window-s", "1", "--json")
+        first = _rig("check", "--rig", str(path), "--write", *jog)
+        assert first.returncode == 1, first.stderr  # the reversed winch, found by the jog
+        assert yaml.safe_load(path.read_text())["reel_direction"] == -1
+        second = _rig("check", "--rig", str(path), *jog)
+        assert second.returncode == 0 and json.loads(second.stdout)["counts"]["fail"] == 0, second.stdout
+        operator, terminal = pty.openpty()  # the person at the terminal confirms both hook placements
+        os.write(operator, b"\n\n")
+        run = _rig("run", str(SMOKE), "--rig", str(path), "--json", "--out", str(tmp_path / "out"),
+                   "--run-id", "smoke", stdin=terminal)  # fmt: skip
+        os.close(operator)
+        os.close(terminal)
+    finally:
+        twin.terminate()
+        _, err = twin.communicate(timeout=10)
+    assert twin.returncode == 0, err
+    assert not (tmp_path / "dxl").exists() and not (tmp_path / "cell").exists()
+    report = json.loads(run.stdout)
+    assert run.returncode == 0, run.stderr
+    assert report["safe_state_verified"] is True and report["completed"] == 2
+    truth = json.loads(truth_path.read_text())["world"]
+    onsets_ns = [e["onset_time_ns"] for t in truth["trials"] for e in t["slip_events"]]
+    assert [t["distance_m"] for t in truth["trials"][:2]] == [0.1, 0.2]  # the hand moved the hook
+    assert len(onsets_ns) == 2
+    for trial, true_trial in zip(report["trials"], truth["trials"], strict=False):
+        assert trial["outcome"] == "slip"
+        assert trial["peak_force_n"] == pytest.approx(true_trial["slip_force_n"], rel=0.03)
+    period_ns = 1e9 / load_rig_config(path).loadcell.rate_hz
+    slips = read_run(tmp_path / "out" / "smoke.mcap").topic("/rig/slip")
+    seconds, nanoseconds = slips["detection.sec"], slips["detection.nsec"]
+    detected_ns = [s * 10**9 + n for s, n in zip(seconds, nanoseconds, strict=True)]
+    assert len(detected_ns) == 2
+    for found, true in zip(detected_ns, onsets_ns, strict=True):
+        assert 0 <= found - true <= 2 * period_ns, (found - true) / 1e6
