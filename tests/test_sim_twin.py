@@ -97,10 +97,19 @@ def test_a_port_that_is_not_a_symlink_is_refused_and_left_alone(tmp_path):
     assert not (tmp_path / "dxl").exists()  # the servo link made first was removed again
 
 
-def _rig(*args: str, **kwargs) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "rig.cli", *args], capture_output=True, text=True, timeout=120, **kwargs
-    )
+def _rig(*args: str, stdin: int | None = None) -> subprocess.CompletedProcess[str]:
+    """`rig ARGS` to its end; one that hangs is killed after 90 s and fails with its stderr."""
+    command = [sys.executable, "-m", "rig.cli", *args]
+    with subprocess.Popen(
+        command, stdin=stdin, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    ) as proc:
+        try:
+            out, err = proc.communicate(timeout=90)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+            pytest.fail(f"rig {' '.join(args)} hung: {err[-2000:]}")
+    return subprocess.CompletedProcess(command, proc.returncode, out, err)
 
 
 @pytest.mark.pty
@@ -125,8 +134,8 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
         assert yaml.safe_load(path.read_text())["reel_direction"] == -1
         second = _rig("check", "--rig", str(path), *jog)
         assert second.returncode == 0 and json.loads(second.stdout)["counts"]["fail"] == 0, second.stdout
-        operator, terminal = pty.openpty()  # the person at the terminal confirms both hook placements
-        os.write(operator, b"\n\n")
+        operator, terminal = pty.openpty()  # the person at the terminal confirms the hook placements
+        os.write(operator, b"\n" * 4)  # both, and any prompt a recovery would add
         run = _rig("run", str(SMOKE), "--rig", str(path), "--json", "--out", str(tmp_path / "out"),
                    "--run-id", "smoke", stdin=terminal)  # fmt: skip
         os.close(operator)
@@ -145,7 +154,9 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
     assert len(onsets_ns) == 2
     for trial, true_trial in zip(report["trials"], truth["trials"], strict=False):
         assert trial["outcome"] == "slip"
-        assert trial["peak_force_n"] == pytest.approx(true_trial["slip_force_n"], rel=0.03)
+        # The peak sample comes up to one period before the slip: at 10/s on the slow ramp's 0.5 N
+        # per sample (0.1 rad/s on a 10 mm drum and a 5000 N/m line) that is up to 7 % of 7.3 N.
+        assert trial["peak_force_n"] == pytest.approx(true_trial["slip_force_n"], rel=0.1)
     period_ns = 1e9 / load_rig_config(path).loadcell.rate_hz
     slips = read_run(tmp_path / "out" / "smoke.mcap").topic("/rig/slip")
     seconds, nanoseconds = slips["detection.sec"], slips["detection.nsec"]
