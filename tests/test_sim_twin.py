@@ -6,11 +6,14 @@ on ptys in real time and runs a lab's bring-up against it with the unchanged har
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import pty
+import select
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -21,6 +24,7 @@ from rig.log.reader import read_run
 from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
 from rig.sim.twin import build_twin
+from rig.sim.twin_console import ReferenceLoad, run_console
 from rig.sim.twin_hand import SLACK_DWELL_S
 from rig.vocabulary import SlipKind, TrialKind
 
@@ -122,7 +126,7 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
     twin = subprocess.Popen(
         [sys.executable, "-m", "rig.cli", "sim", "rig", "--rig", str(path), "--protocol", str(SMOKE),
          "--calibration-out", str(tmp_path / "cal.json"), "--truth-out", str(truth_path)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
         assert twin.stdout is not None
@@ -164,3 +168,71 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
     assert len(detected_ns) == 2
     for found, true in zip(detected_ns, onsets_ns, strict=True):
         assert 0 <= found - true <= 2 * period_ns, (found - true) / 1e6
+
+
+def test_the_console_hangs_and_unhangs_a_reference_mass():
+    load = ReferenceLoad()
+    out = io.StringIO()
+    run_console(["hang 1.5\n", "\n", "hang lots\n", "hang -1\n", "jump\n"], load, out)
+    assert load.read_n() == pytest.approx(1.5 * 9.80665)
+    run_console(["unhang\n"], load, out)
+    assert load.read_n() == 0.0
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "hanging 1.5 kg: 14.710 N in the line"
+    assert lines[1:3] == [f"hang {m}: allowed: a mass in kg from 0 to 1000" for m in ("lots", "-1")]
+    assert lines[3].startswith("jump: commands: `hang KG`")
+
+
+@pytest.mark.pty
+@pytest.mark.subprocess
+@pytest.mark.slow
+def test_rig_calibrate_on_the_twin_with_a_mass_hung_at_its_console(tmp_path):
+    """`rig calibrate --rig` against the twin finds the twin's own calibration (about 10 s)."""
+    path = _hardware_config(tmp_path)
+    twin = subprocess.Popen(
+        [sys.executable, "-m", "rig.cli", "sim", "rig", "--rig", str(path),
+         "--calibration-out", str(tmp_path / "ideal.json")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    calibrate = None
+    try:
+        assert twin.stdout is not None and twin.stdin is not None
+        assert twin.stdout.readline().startswith("SERVOS") and twin.stdout.readline().startswith("LOADCELL")
+        calibrate = subprocess.Popen(
+            [sys.executable, "-m", "rig.cli", "calibrate", "--rig", str(path), "--reference-kg", "1.0"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        assert calibrate.stdin is not None and calibrate.stdout is not None
+        seen = _until(calibrate.stdout, b"Press Enter", b"")  # step 1: the line slack
+        calibrate.stdin.write(b"\n")
+        calibrate.stdin.flush()
+        seen = _until(calibrate.stdout, b"Press Enter", seen.split(b"Press Enter", 1)[1])  # step 2
+        twin.stdin.write("hang 1.0\n")
+        twin.stdin.flush()
+        time.sleep(0.5)  # the mass comes to rest
+        calibrate.stdin.write(b"\n")
+        calibrate.stdin.flush()
+        calibrate.communicate(timeout=60)
+        assert calibrate.returncode == 0
+    finally:
+        if calibrate is not None and calibrate.poll() is None:
+            calibrate.kill()
+        twin.terminate()
+        twin.communicate(timeout=10)
+    found = json.loads((tmp_path / "cal.json").read_text())
+    ideal = json.loads((tmp_path / "ideal.json").read_text())
+    assert found["factor_n_per_count"] == pytest.approx(ideal["factor_n_per_count"], rel=0.002)
+    assert found["offset_counts"] == pytest.approx(
+        ideal["offset_counts"], abs=200
+    )  # the noise, 400 counts RMS
+
+
+def _until(stream, word: bytes, seen: bytes, timeout_s: float = 30.0) -> bytes:
+    """Read `stream` until `word` is in what was read after `seen`; returns all of it."""
+    deadline = time.monotonic() + timeout_s
+    while word not in seen:
+        ready, _, _ = select.select([stream], [], [], max(0.0, deadline - time.monotonic()))
+        chunk = os.read(stream.fileno(), 4096) if ready else b""
+        assert chunk, f"no {word!r} in {seen!r}"
+        seen += chunk
+    return seen

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from pathlib import Path
 
 from rig.errors import InputError
@@ -13,6 +14,7 @@ from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
 from rig.sim.pty_link import PtyLink, StopFlag
 from rig.sim.twin import build_twin, serve_twin
+from rig.sim.twin_console import HELP, run_console
 
 MAX_SEED = 2**32 - 1
 
@@ -30,8 +32,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
             "load cell sends at the config's baud and format. Then `rig check`, `rig calibrate` and "
             "`rig run` with the unchanged config drive it as they would the rig. With --protocol the "
             "simulated hand sets each trial up (hook distance, bend) while the line is slack. Prints "
-            "`SERVOS <link> <pty>` and `LOADCELL <link> <pty>` when ready; runs until Ctrl-C or SIGTERM "
-            "(exit 0, links removed). docs/hardware.md, 'Rehearse before the rig exists'."
+            "`SERVOS <link> <pty>` and `LOADCELL <link> <pty>` when ready; `hang KG` and `unhang` "
+            "typed on its stdin hang a reference mass in the line (to rehearse `rig calibrate`). Runs "
+            "until Ctrl-C or SIGTERM (exit 0, links removed). docs/hardware.md, 'Rehearse before the "
+            "rig exists'."
         ),
     )
     parser.add_argument("--rig", type=Path, required=True, metavar="CONFIG", help="the rig config (any kind)")
@@ -87,6 +91,12 @@ def run(args: argparse.Namespace) -> int:
     def ready(servo_link: PtyLink, cell_link: PtyLink) -> None:
         print(f"SERVOS {servo_link.link_path} {servo_link.slave_name}", flush=True)
         print(f"LOADCELL {cell_link.link_path} {cell_link.slave_name}", flush=True)
+        if sys.stdin is not None:  # the person at the twin: a daemon thread, it ends with the twin
+            console = threading.Thread(target=run_console, args=(sys.stdin, twin.reference, sys.stderr))
+            console.daemon = True
+            console.start()
+            if sys.stdin.isatty():
+                print(HELP, file=sys.stderr, flush=True)
 
     try:
         serve_twin(twin, stop, ready=ready)

@@ -13,10 +13,11 @@ before every load-cell sample, and every `TICK_S` in the main thread; the world 
 1 ms substeps whatever the step. The lock keeps the world, the servos and the hand in one thread at a
 time.
 
-Trials: the runner cannot tell the world that a trial begins over the ports; the twin's hand
-(rig/sim/twin_hand.py) sets each up while the line is slack. The config's `simulation.faults` on
-the servos and the load cell are applied as in-process; a `host` or `logger` fault acts on the
-run, not on the devices, and is refused.
+The person at the twin types `hang KG` / `unhang` on its console (rig/sim/twin_console.py) to
+rehearse `rig calibrate`. Trials: the runner cannot tell the world that a trial begins over the
+ports; the twin's hand (rig/sim/twin_hand.py) sets each up while the line is slack. The config's
+`simulation.faults` on the servos and the load cell are applied as in-process; a `host` or
+`logger` fault acts on the run, not on the devices, and is refused.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.physics.world import SimWorld
 from rig.sim.pty_link import PtyLink, StopFlag
 from rig.sim.simulated_rig import config_preset, loadcell_artefacts, loadcell_signal, new_world
+from rig.sim.twin_console import ReferenceLoad
 from rig.sim.twin_hand import HandTrial, TwinHand, hand_trials
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, FaultDevice
 
@@ -83,6 +85,7 @@ class Twin:
     faults: FaultSchedule
     hand: TwinHand
     lock: threading.Lock
+    reference: ReferenceLoad  # a mass hung in the line by hand (the console's `hang`)
 
     def catch_up(self) -> None:
         """Integrate the world up to the monotonic time now."""
@@ -158,11 +161,13 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
         servo.set_temperature_c(sim.servo_temperature_c)
     world = new_world(preset, config, bus, clock, seed)
     lock = threading.Lock()
+    reference = ReferenceLoad()
 
-    def tension_n(t_ns: int) -> float:  # the cell's thread samples the world
+    def tension_n(t_ns: int) -> float:  # the cell's thread samples the world, and any mass hung by hand
         with lock:
             clock.advance_to_ns(time.monotonic_ns())
-            return world.tension_at(t_ns)
+            line_n = world.tension_at(t_ns)
+        return line_n + reference.read_n()
 
     _, emulator = simulated_load_cell(
         tension_n,
@@ -183,7 +188,7 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
     done_force_n = float("inf") if protocol is None else DONE_FORCE_FRACTION * protocol.ramp.max_force_n
     hand = TwinHand(world, trials, done_force_n=done_force_n)
     clock.on_advance(hand.advance_to)
-    return Twin(config, clock, bus, world, emulator, schedule, hand, lock)
+    return Twin(config, clock, bus, world, emulator, schedule, hand, lock, reference)
 
 
 def serve_link(path: Path, field_name: str, config: RigConfig) -> PtyLink:
