@@ -8,4 +8,5 @@ __all__ = [
     "pty_link",
     "simulated_rig",
     "twin",
+    "twin_console",
 ]
