@@ -236,3 +236,12 @@ def _until(stream, word: bytes, seen: bytes, timeout_s: float = 30.0) -> bytes:
         assert chunk, f"no {word!r} in {seen!r}"
         seen += chunk
     return seen
+
+
+def test_a_sample_older_than_the_worlds_history_reads_the_tension_now(tmp_path):
+    # The twin stopped for a while (SIGSTOP, a suspended laptop): the main thread may bring the
+    # world up to the wall clock before the cell's thread takes the samples it owes since.
+    twin = build_twin(load_rig_config(_hardware_config(tmp_path)))
+    start_ns = twin.world.now_ns
+    twin.clock.advance_ns(5_000_000_000)
+    assert twin.loadcell.tension_n(start_ns) == twin.world.tension_n

@@ -166,7 +166,10 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
     def tension_n(t_ns: int) -> float:  # the cell's thread samples the world, and any mass hung by hand
         with lock:
             clock.advance_to_ns(time.monotonic_ns())
-            line_n = world.tension_at(t_ns)
+            try:
+                line_n = world.tension_at(t_ns)
+            except ValueError:  # older than the world's history: the twin was stopped (SIGSTOP) a while
+                line_n = world.tension_n
         return line_n + reference.read_n()
 
     _, emulator = simulated_load_cell(
