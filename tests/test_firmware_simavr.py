@@ -245,3 +245,32 @@ def test_a_client_at_another_baud_gets_garbage_as_from_a_uart(harness, tmp_path)
     assert wrong and b"$LC" not in wrong and b"\n" not in wrong and all(b >= 0x80 for b in wrong)
     assert b"$LC," in right
     assert json.loads((tmp_path / "s.json").read_text())["wrong_baud_bytes"] > 0
+
+
+@pytest.mark.pty
+def test_every_open_resets_the_board_after_the_bootloaders_wait(harness, tmp_path):
+    # An Uno resets on every open of its port (DTR), and optiboot waits before the sketch starts:
+    # each client then reads the banner first and seq from 0, never a line of the previous boot.
+    import serial
+
+    link, stats = tmp_path / "board", tmp_path / "s.json"
+    argv = [str(harness), "--link", str(link), "--rate", "80", "--signal", "constant:5"]
+    proc = subprocess.Popen(
+        [*argv, "--reset-on-open", "1500", "--stats", str(stats)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("PTY ")
+        time.sleep(0.5)  # the board streams into the closed port meanwhile
+        for _ in range(2):
+            start = time.monotonic()
+            with serial.Serial(str(link), 115200, timeout=4) as port:
+                first = port.readline()
+                waited_s = time.monotonic() - start
+                port.readline()  # the #INFO line
+                sample = port.readline()
+            assert first.startswith(b"#BOOT fw=rig-hx711/") and sample.startswith(b"$LC,0,")
+            assert 1.4 <= waited_s <= 3.0
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=30)
+    assert json.loads(stats.read_text())["resets_on_open"] == 2

@@ -34,6 +34,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/inotify.h>
 #include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <termios.h>
@@ -394,6 +395,70 @@ static void sck_changed(struct avr_irq_t *irq, uint32_t value, void *param)
     }
 }
 
+/* --reset-on-open: every open(2) and close of the pty's slave by a client, whichever path it came
+ * by, as Linux inotify events on the device node (pyserial asserts DTR on open, which resets an Uno
+ * through its auto-reset capacitor). The harness's own descriptors are opened before the watch. */
+typedef struct {
+    int fd; /* -1: not watching */
+    int clients; /* clients that have the port open */
+    int open_pending; /* a client opened it and the board has not been reset for it yet */
+} open_watch_t;
+
+static open_watch_t opens = {.fd = -1};
+
+static void watch_client_opens(const char *device)
+{
+    int fd = inotify_init1(IN_NONBLOCK);
+    if (fd >= 0 && inotify_add_watch(fd, device, IN_OPEN | IN_CLOSE_WRITE | IN_CLOSE_NOWRITE) < 0) {
+        close(fd);
+        fd = -1;
+    }
+    opens.fd = fd;
+}
+
+static void poll_client_opens(void)
+{
+    char events[4096] __attribute__((aligned(__alignof__(struct inotify_event))));
+    ssize_t n;
+    while (opens.fd >= 0 && (n = read(opens.fd, events, sizeof events)) > 0) {
+        for (char *p = events; p < events + n;) {
+            const struct inotify_event *event = (const struct inotify_event *)p;
+            if (event->mask & IN_OPEN) {
+                opens.clients++;
+                opens.open_pending = 1;
+            }
+            if ((event->mask & (IN_CLOSE_WRITE | IN_CLOSE_NOWRITE)) && opens.clients > 0)
+                opens.clients--;
+            p += sizeof *event + event->len;
+        }
+    }
+}
+
+/* While nobody has the port open (or an open has not reset the board yet), what the board sends is
+ * lost, as into a USB adapter whose port is closed: no line of an old boot reaches a new client. */
+static int board_output_lost(void)
+{
+    if (opens.fd < 0)
+        return 0;
+    poll_client_opens();
+    return opens.clients == 0 || opens.open_pending;
+}
+
+/* The board resets (its RESET pin pulled low by DTR): the MCU starts again from its reset vector with
+ * its registers cleared; the HX711 is not reset by it, but its pending result is dropped and the
+ * conversion timer (cleared with simavr's cycle timers) is armed again. */
+static void reset_board(hx711_t *m)
+{
+    avr_reset(m->avr);
+    m->have_data = 0;
+    m->pulses = 0;
+    m->shifted = 0;
+    m->sck = 0;
+    m->powered = 1;
+    set_dout(m, 1);
+    avr_cycle_timer_register(m->avr, m->period_cycles, conversion_done, m);
+}
+
 /* ---- the UART: a pty for the host, and a tap that checks and times every line ---------------- */
 
 typedef struct {
@@ -464,6 +529,12 @@ static void garble_if_wrong_baud(uart_tap_t *u)
 static void flush_out(uart_tap_t *u)
 {
     size_t done = 0;
+    if (board_output_lost()) {
+        u->bytes_out += u->out_len;
+        u->pty_bytes_dropped += u->out_len;
+        u->out_len = 0;
+        return;
+    }
     garble_if_wrong_baud(u);
     while (u->master_fd >= 0 && done < u->out_len) {
         ssize_t n = write(u->master_fd, u->out + done, u->out_len - done);
@@ -705,7 +776,8 @@ static void usage(FILE *to)
     fprintf(to,
             "usage: hx711-sim [--firmware ELF] [--link PATH] [--rate 10|20|80|320] [--period-us N]\n"
             "                 [--signal constant:COUNTS | ramp:FROM:TO:STEP[:HOLD] | file:PATH | stdin]\n"
-            "                 [--fast] [--wait-open] [--seconds S] [--lines N] [--log FILE] [--stats FILE]\n"
+            "                 [--fast] [--wait-open] [--reset-on-open MS] [--seconds S] [--lines N] [--log FILE]\n"
+            "                 [--stats FILE]\n"
             "Runs the rig-lc1 HX711 firmware on simavr (ATmega328P, 16 MHz) with an HX711 model on D8/D9\n"
             "and its UART on a pty (printed as `PTY <link> <device>`). Real time unless --fast.\n"
             "  --rate        conversions per second: 10 or 80 (HX711 RATE pin), 20 or 320 (HX717) (default 80)\n"
@@ -717,6 +789,8 @@ static void usage(FILE *to)
             "A client whose baud differs from the firmware's by more than 5 %% receives garbage, as from a UART.\n"
             "  --fast        run as fast as the host allows; the pty then waits for its reader (no bytes lost)\n"
             "  --wait-open   start the board 0.2 s after a client opens the pty (as DTR resets a real one)\n"
+            "  --reset-on-open MS  reset the board on every open of the pty by a client, silent for MS ms\n"
+            "                (the bootloader's wait; optiboot on an Uno: about 1500) before the sketch starts\n"
             "  --seconds S   stop after S simulated seconds;  --lines N  stop after N data lines\n"
             "  --log FILE    one line per conversion read: `conversion ready_cycle value` (what was shifted out)\n"
             "  --stats FILE  JSON with the counts, t-us steps and latencies at exit (also on SIGTERM/SIGINT)\n");
@@ -729,6 +803,7 @@ int main(int argc, char **argv)
     double seconds = 0;
     long long line_limit = 0;
     int fast = 0, wait_open = 0;
+    long reset_on_open_ms = -1;
     static struct option options[] = {
         {"firmware", required_argument, 0, 'f'}, {"link", required_argument, 0, 'l'},
         {"rate", required_argument, 0, 'r'},     {"period-us", required_argument, 0, 'p'},
@@ -736,6 +811,7 @@ int main(int argc, char **argv)
         {"wait-open", no_argument, 0, 'w'},      {"seconds", required_argument, 0, 'S'},
         {"lines", required_argument, 0, 'n'},    {"log", required_argument, 0, 'L'},
         {"stats", required_argument, 0, 'j'},    {"help", no_argument, 0, 'h'},
+        {"reset-on-open", required_argument, 0, 'R'},
         {0, 0, 0, 0},
     };
     int opt;
@@ -757,6 +833,11 @@ int main(int argc, char **argv)
         case 's': signal_spec = optarg; break;
         case 'F': fast = 1; break;
         case 'w': wait_open = 1; break;
+        case 'R':
+            reset_on_open_ms = strtol(optarg, &end, 10);
+            if (*end || reset_on_open_ms < 0 || reset_on_open_ms > 10000)
+                die("--reset-on-open: allowed: 0-10000 (ms the bootloader waits before the sketch starts)");
+            break;
         case 'S':
             seconds = strtod(optarg, &end);
             if (*end || !(seconds > 0 && seconds < 1e7))
@@ -861,6 +942,12 @@ int main(int argc, char **argv)
         slave_fd = open(device, O_RDWR | O_NOCTTY); /* hold it: a client's close must not hang up the pty */
         tap.slave_fd = slave_fd;
     }
+    if (reset_on_open_ms >= 0) {
+        watch_client_opens(device);
+        if (opens.fd < 0)
+            die("--reset-on-open: cannot watch the pty for opens (inotify)");
+    }
+    uint64_t resets = 0;
 
     const uint64_t check_cycles = F_CPU_HZ / 1000; /* pace and poll every simulated millisecond */
     uint64_t next_check = avr->cycle + check_cycles;
@@ -875,6 +962,21 @@ int main(int argc, char **argv)
             next_check = avr->cycle + check_cycles;
             drain_host_input(tap.master_fd);
             read_live_signal(&model.signal);
+            poll_client_opens();
+            if (opens.open_pending) {
+                /* The bootloader (optiboot) holds the board silent for a while, then starts the
+                 * sketch; the pacing restarts from the wall clock so nothing comes in a burst. */
+                tap.out_len = 0; /* the rest of a line the old boot was sending */
+                tap.line_len = 0;
+                resets++;
+                struct timespec hold = {reset_on_open_ms / 1000, (reset_on_open_ms % 1000) * 1000000L};
+                nanosleep(&hold, NULL);
+                poll_client_opens(); /* an open during the hold resets a board that is resetting */
+                opens.open_pending = 0;
+                reset_board(&model);
+                wall_start = now_ns() - avr_cycles_to_nsec(avr, avr->cycle);
+                next_check = avr->cycle + check_cycles;
+            }
             if (!fast) {
                 uint64_t sim_ns = avr_cycles_to_nsec(avr, avr->cycle);
                 uint64_t wall_ns = now_ns() - wall_start;
@@ -925,7 +1027,8 @@ int main(int argc, char **argv)
              ", \"ready_step_min_us\": %.4f, \"ready_step_max_us\": %.4f, \"t_us_vs_ready_step_max_us\": %" PRId64
              ",\n"
              " \"latency_us_min\": %.3f, \"latency_us_mean\": %.3f, \"latency_us_max\": %.3f,\n"
-             " \"bytes_out\": %" PRIu64 ", \"pty_bytes_dropped\": %" PRIu64 ", \"wrong_baud_bytes\": %" PRIu64 "}\n",
+             " \"bytes_out\": %" PRIu64 ", \"pty_bytes_dropped\": %" PRIu64 ", \"wrong_baud_bytes\": %" PRIu64
+             ", \"resets_on_open\": %" PRIu64 "}\n",
              rate, period_us, signal_spec, fast ? "true" : "false", sim_s, wall_s, wall_s > 0 ? sim_s / wall_s : 0.0,
              state, model.conversions, model.reads, model.missed, model.serial_errors, model.long_high,
              model.clock_while_busy, model.power_downs, model.gain_a128, model.gain_other, tap.lines,
@@ -934,7 +1037,8 @@ int main(int argc, char **argv)
              (double)tap.ready_step_max_cycles * per_cycle_us, tap.t_vs_ready_max_us,
              (double)tap.latency_min * per_cycle_us,
              tap.latency_count ? (double)tap.latency_sum / (double)tap.latency_count * per_cycle_us : 0.0,
-             (double)tap.latency_max * per_cycle_us, tap.bytes_out, tap.pty_bytes_dropped, tap.wrong_baud_bytes);
+             (double)tap.latency_max * per_cycle_us, tap.bytes_out, tap.pty_bytes_dropped, tap.wrong_baud_bytes,
+             resets);
     if (out) {
         fputs(stats, out);
         fclose(out);
