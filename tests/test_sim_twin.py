@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from rig.errors import ConfigError
+from rig.errors import ConfigError, InputError
 from rig.log.reader import read_run
 from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
@@ -27,6 +27,7 @@ from rig.sim.twin import build_twin
 from rig.sim.twin_console import ReferenceLoad, run_console
 from rig.sim.twin_hand import SLACK_DWELL_S
 from rig.vocabulary import SlipKind, TrialKind
+from tests.helpers import build_firmware
 
 ROOT = Path(__file__).resolve().parent.parent
 TEMPLATE = ROOT / "protocols" / "rigs" / "hardware.example.yaml"
@@ -101,6 +102,17 @@ def test_a_port_that_is_not_a_symlink_is_refused_and_left_alone(tmp_path):
     assert not (tmp_path / "dxl").exists()  # the servo link made first was removed again
 
 
+def _firmware_harness() -> Path | None:
+    """The built firmware harness where the AVR toolchain and simavr are installed, else None."""
+    from tests.test_firmware_simavr import HARNESS, _missing_tools
+
+    if _missing_tools() is not None:
+        return None
+    build = build_firmware()
+    assert build.returncode == 0, build.stdout[-2000:] + build.stderr[-2000:]
+    return HARNESS
+
+
 def _rig(*args: str, stdin: int | None = None) -> subprocess.CompletedProcess[str]:
     """`rig ARGS` to its end; one that hangs is killed after 90 s and fails with its stderr."""
     command = [sys.executable, "-m", "rig.cli", *args]
@@ -120,18 +132,29 @@ def _rig(*args: str, stdin: int | None = None) -> subprocess.CompletedProcess[st
 @pytest.mark.subprocess
 @pytest.mark.slow
 def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_winch(tmp_path):
-    """A lab's bring-up on the twin (docs/hardware.md, "Rehearse before the rig exists"), about 45 s."""
-    path = _hardware_config(tmp_path)
+    """A lab's bring-up on the twin (docs/hardware.md, "Rehearse before the rig exists"), 25-50 s.
+
+    Where the AVR toolchain and simavr are installed (CI installs them) the load cell is the built
+    firmware image under simavr, reset on every open after an optiboot-like 1.5 s; else the emulator.
+    """
+    firmware = _firmware_harness()
+    simulation = "simulation:\n  winch_reversed: true\n"
+    if firmware is not None:
+        simulation += "  loadcell_dtr_reset_s: 1.5\n"
+    path = _hardware_config(tmp_path, simulation)
     truth_path = tmp_path / "truth.json"
     twin = subprocess.Popen(
         [sys.executable, "-m", "rig.cli", "sim", "rig", "--rig", str(path), "--protocol", str(SMOKE),
-         "--calibration-out", str(tmp_path / "cal.json"), "--truth-out", str(truth_path)],
+         "--calibration-out", str(tmp_path / "cal.json"), "--truth-out", str(truth_path),
+         *([] if firmware is None else ["--firmware", str(firmware)])],
         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
         assert twin.stdout is not None
         assert twin.stdout.readline().startswith(f"SERVOS {tmp_path / 'dxl'} /dev/")
-        assert twin.stdout.readline().startswith(f"LOADCELL {tmp_path / 'cell'} /dev/")
+        cell = twin.stdout.readline()
+        assert cell.startswith(f"LOADCELL {tmp_path / 'cell'} /dev/")
+        assert cell.endswith(" firmware\n") == (firmware is not None)
         jog = ("--move", "--jog-travel-rev", "0.3", "--window-s", "1", "--json")
         first = _rig("check", "--rig", str(path), "--write", *jog)
         assert first.returncode == 1, first.stderr  # the reversed winch, found by the jog
@@ -245,3 +268,18 @@ def test_a_sample_older_than_the_worlds_history_reads_the_tension_now(tmp_path):
     start_ns = twin.world.now_ns
     twin.clock.advance_ns(5_000_000_000)
     assert twin.loadcell.tension_n(start_ns) == twin.world.tension_n
+
+
+def test_the_firmware_in_the_loop_needs_the_harness_and_a_cell_it_can_be(tmp_path):
+    from rig.sim.twin_firmware import harness_command
+
+    config = load_rig_config(_hardware_config(tmp_path, "simulation:\n  loadcell_dtr_reset_s: 1.5\n"))
+    harness = tmp_path / "hx711-sim"
+    with pytest.raises(InputError, match=r"--firmware .*hx711-sim: not built; allowed"):
+        harness_command(harness, config, 10.0, 1.5)
+    harness.write_text("")
+    assert harness_command(harness, config, 10.0, 1.5)[1:] == [
+        "--link", str(tmp_path / "cell"), "--rate", "10", "--signal", "stdin", "--reset-on-open", "1500",
+    ]  # fmt: skip
+    with pytest.raises(ConfigError, match=r"loadcell.rate_hz: 12; allowed with --firmware: 10, 80"):
+        harness_command(harness, config, 12.0, 0.0)

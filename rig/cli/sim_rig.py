@@ -12,9 +12,10 @@ from rig.errors import InputError
 from rig.files import atomic_write_text
 from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
-from rig.sim.pty_link import PtyLink, StopFlag
-from rig.sim.twin import build_twin, serve_twin
+from rig.sim.pty_link import StopFlag
+from rig.sim.twin import Served, build_twin, serve_twin
 from rig.sim.twin_console import HELP, run_console
+from rig.sim.twin_firmware import HARNESS_PATH
 
 MAX_SEED = 2**32 - 1
 
@@ -67,6 +68,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         metavar="FILE",
         help="write the calibration that matches the twin's cell here at start (the `rig calibrate` format)",
     )
+    parser.add_argument(
+        "--firmware",
+        type=Path,
+        nargs="?",
+        const=HARNESS_PATH,
+        default=None,
+        metavar="HARNESS",
+        help="the load cell is the built firmware image under simavr (default harness: firmware/build/"
+        "hx711-sim, `make -C firmware all sim`), driven live by the world's tension; needs loadcell.format "
+        "rig-lc1 and rate_hz 10, 20, 80 or 320; simulation.loadcell_dtr_reset_s > 0 resets it on every open",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -88,9 +100,9 @@ def run(args: argparse.Namespace) -> int:
         _write(args.calibration_out, "--calibration-out", json.dumps(twin.calibration().to_dict(), indent=2))
     stop = StopFlag()
 
-    def ready(servo_link: PtyLink, cell_link: PtyLink) -> None:
-        print(f"SERVOS {servo_link.link_path} {servo_link.slave_name}", flush=True)
-        print(f"LOADCELL {cell_link.link_path} {cell_link.slave_name}", flush=True)
+    def ready(servos: Served, loadcell: Served) -> None:
+        print(f"SERVOS {servos.link} {servos.device}", flush=True)
+        print(f"LOADCELL {loadcell.link} {loadcell.device}{' firmware' if args.firmware else ''}", flush=True)
         if sys.stdin is not None:  # the person at the twin: a daemon thread, it ends with the twin
             console = threading.Thread(target=run_console, args=(sys.stdin, twin.reference, sys.stderr))
             console.daemon = True
@@ -99,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
                 print(HELP, file=sys.stderr, flush=True)
 
     try:
-        serve_twin(twin, stop, ready=ready)
+        serve_twin(twin, stop, ready=ready, firmware=args.firmware)
     finally:
         if args.truth_out is not None:
             _write(args.truth_out, "--truth-out", json.dumps(twin.truth().to_json(), indent=2))

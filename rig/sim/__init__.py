@@ -9,4 +9,5 @@ __all__ = [
     "simulated_rig",
     "twin",
     "twin_console",
+    "twin_firmware",
 ]

@@ -5,7 +5,8 @@ The same world as the in-process simulated rig (rig/sim/simulated_rig.py: `SimWo
 tension), but in real time and reached only through pseudo-terminals symlinked at the config's
 `servos.port` and `loadcell.port`, so a hardware config's own commands drive it as they would the
 rig. The existing pty servers do the serving, each in its own thread: `rig.sim.dxl.pty_server.serve`
-for the bus and `rig.sim.loadcell.pty_server.serve_loadcell` for the cell.
+for the bus and `rig.sim.loadcell.pty_server.serve_loadcell` for the cell, or, with `firmware`,
+the built firmware image under simavr fed the world's tension (rig/sim/twin_firmware.py).
 
 Time: the world's `VirtualClock` reads the host's monotonic clock (its epoch makes `time_ns` the
 wall clock), and is moved to the monotonic time now under one lock before every bus transaction,
@@ -22,6 +23,7 @@ ports; the twin's hand (rig/sim/twin_hand.py) sets each up while the line is sla
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Callable
@@ -44,6 +46,7 @@ from rig.sim.physics.world import SimWorld
 from rig.sim.pty_link import PtyLink, StopFlag
 from rig.sim.simulated_rig import config_preset, loadcell_artefacts, loadcell_signal, new_world
 from rig.sim.twin_console import ReferenceLoad
+from rig.sim.twin_firmware import feed_firmware, harness_command, start_firmware_cell, stop_firmware_cell
 from rig.sim.twin_hand import HandTrial, TwinHand, hand_trials
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, FaultDevice
 
@@ -86,11 +89,19 @@ class Twin:
     hand: TwinHand
     lock: threading.Lock
     reference: ReferenceLoad  # a mass hung in the line by hand (the console's `hang`)
+    seed: int
 
     def catch_up(self) -> None:
         """Integrate the world up to the monotonic time now."""
         with self.lock:
             self.clock.advance_to_ns(time.monotonic_ns())
+
+    def tension_now_n(self) -> float:
+        """What the load cell's input is now: the line's tension, and any mass hung by hand [N]."""
+        with self.lock:
+            self.clock.advance_to_ns(time.monotonic_ns())
+            line_n = self.world.tension_n
+        return line_n + self.reference.read_n()
 
     def truth(self) -> RunTruth:
         """The world's truth now, with the line's tension and whether every servo's torque is off."""
@@ -191,7 +202,7 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
     done_force_n = float("inf") if protocol is None else DONE_FORCE_FRACTION * protocol.ramp.max_force_n
     hand = TwinHand(world, trials, done_force_n=done_force_n)
     clock.on_advance(hand.advance_to)
-    return Twin(config, clock, bus, world, emulator, schedule, hand, lock, reference)
+    return Twin(config, clock, bus, world, emulator, schedule, hand, lock, reference, seed)
 
 
 def serve_link(path: Path, field_name: str, config: RigConfig) -> PtyLink:
@@ -206,37 +217,60 @@ def serve_link(path: Path, field_name: str, config: RigConfig) -> PtyLink:
         ) from None
 
 
-def serve_twin(twin: Twin, stop: StopFlag, *, ready: Callable[[PtyLink, PtyLink], None]) -> None:
-    """Serve the twin on the config's ports until `stop`; `ready(servo_link, cell_link)` once they exist.
+@dataclass(frozen=True)
+class Served:
+    """Where one of the twin's devices is served: the config's port (a symlink) and the pty behind it."""
 
-    Each device's server runs in its own thread; an error in one stops them all and is raised here.
+    link: Path
+    device: str
+
+
+def serve_twin(
+    twin: Twin, stop: StopFlag, *, ready: Callable[[Served, Served], None], firmware: Path | None = None
+) -> None:
+    """Serve the twin on the config's ports until `stop`; `ready(servos, loadcell)` once they exist.
+
+    `firmware`: the harness that runs the built image as the load cell (rig/sim/twin_firmware.py)
+    instead of the Python emulator. Each device's server runs in its own thread; an error in one
+    stops them all and is raised here.
     """
     config = twin.config
+    command = None
+    if firmware is not None:
+        reset_s = simulation_section(config).loadcell_dtr_reset_s
+        command = harness_command(firmware, config, twin_loadcell_rate_hz(config), reset_s)
     errors: list[BaseException] = []
-    with (
-        serve_link(Path(config.servos.port), "servos.port", config) as servo_link,
-        serve_link(Path(config.loadcell.port), "loadcell.port", config) as cell_link,
-    ):
 
-        def guarded(target: Callable[[], object]) -> Callable[[], None]:
-            def body() -> None:
-                try:
-                    target()
-                except BaseException as exc:  # handed to the main thread, which raises it
-                    errors.append(exc)
-                    stop.stopped = True
+    def guarded(target: Callable[[], object]) -> threading.Thread:
+        def body() -> None:
+            try:
+                target()
+            except BaseException as exc:  # handed to the main thread, which raises it
+                errors.append(exc)
+                stop.stopped = True
 
-            return body
+        return threading.Thread(target=body, daemon=True)
 
-        threads = [
-            threading.Thread(target=guarded(lambda: serve(_LockedBus(twin), servo_link, stop)), daemon=True),
-            threading.Thread(
-                target=guarded(lambda: serve_loadcell(twin.loadcell, cell_link, stop)), daemon=True
-            ),
-        ]
+    with contextlib.ExitStack() as stack:
+        servo_link = stack.enter_context(serve_link(Path(config.servos.port), "servos.port", config))
+        threads = [guarded(lambda: serve(_LockedBus(twin), servo_link, stop))]
+        if command is None:
+            cell_link = stack.enter_context(serve_link(Path(config.loadcell.port), "loadcell.port", config))
+            threads.append(guarded(lambda: serve_loadcell(twin.loadcell, cell_link, stop)))
+            cell = Served(cell_link.link_path, cell_link.slave_name)
+        else:
+            board = start_firmware_cell(command, Path(config.loadcell.port))
+            stack.callback(stop_firmware_cell, board)
+            signal = twin.loadcell.signal
+            threads.append(
+                guarded(
+                    lambda: feed_firmware(board, twin.tension_now_n, signal, twin.seed, lambda: stop.stopped)
+                )
+            )
+            cell = Served(board.link, board.device)
         for thread in threads:
             thread.start()
-        ready(servo_link, cell_link)
+        ready(Served(servo_link.link_path, servo_link.slave_name), cell)
         try:
             while not stop.stopped:
                 twin.catch_up()
