@@ -32,6 +32,7 @@ from tests.helpers import build_firmware
 ROOT = Path(__file__).resolve().parent.parent
 TEMPLATE = ROOT / "protocols" / "rigs" / "hardware.example.yaml"
 SMOKE = ROOT / "protocols" / "smoke.yaml"
+RATE_HZ = 80  # the rehearsal's load cell (docstring of the rehearsal test)
 
 
 def _hardware_config(tmp_path: Path, simulation: str = "simulation:\n  winch_reversed: true\n") -> Path:
@@ -136,12 +137,18 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
 
     Where the AVR toolchain and simavr are installed (CI installs them) the load cell is the built
     firmware image under simavr, reset on every open after an optiboot-like 1.5 s; else the emulator.
+    The cell runs at 80/s (the HX711's RATE pin high): at the template's 10/s the smoke protocol's
+    detector (drop_fraction 0.15) missed a 20 % slip whose peak fell between samples in 1 of 4
+    rehearsals (the sampled drop was 14 %), and caught the third slip of the trial 0.7 s later.
     """
     firmware = _firmware_harness()
     simulation = "simulation:\n  winch_reversed: true\n"
     if firmware is not None:
         simulation += "  loadcell_dtr_reset_s: 1.5\n"
     path = _hardware_config(tmp_path, simulation)
+    text = path.read_text()
+    assert "  rate_hz: 10 " in text
+    path.write_text(text.replace("  rate_hz: 10 ", f"  rate_hz: {RATE_HZ} "))
     truth_path = tmp_path / "truth.json"
     twin = subprocess.Popen(
         [sys.executable, "-m", "rig.cli", "sim", "rig", "--rig", str(path), "--protocol", str(SMOKE),
@@ -176,21 +183,30 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
     assert run.returncode == 0, run.stderr
     assert report["safe_state_verified"] is True and report["completed"] == 2
     truth = json.loads(truth_path.read_text())["world"]
-    onsets_ns = [e["onset_time_ns"] for t in truth["trials"] for e in t["slip_events"]]
     assert [t["distance_m"] for t in truth["trials"][:2]] == [0.1, 0.2]  # the hand moved the hook
-    assert len(onsets_ns) == 2
-    for trial, true_trial in zip(report["trials"], truth["trials"], strict=False):
-        assert trial["outcome"] == "slip"
-        # The peak sample comes up to one period before the slip: at 10/s on the slow ramp's 0.5 N
-        # per sample (0.1 rad/s on a 10 mm drum and a 5000 N/m line) that is up to 7 % of 7.3 N.
-        assert trial["peak_force_n"] == pytest.approx(true_trial["slip_force_n"], rel=0.1)
-    period_ns = 1e9 / load_rig_config(path).loadcell.rate_hz
+    period_ns = 1e9 / RATE_HZ
     slips = read_run(tmp_path / "out" / "smoke.mcap").topic("/rig/slip")
-    seconds, nanoseconds = slips["detection.sec"], slips["detection.nsec"]
-    detected_ns = [s * 10**9 + n for s, n in zip(seconds, nanoseconds, strict=True)]
-    assert len(detected_ns) == 2
-    for found, true in zip(detected_ns, onsets_ns, strict=True):
-        assert 0 <= found - true <= 2 * period_ns, (found - true) / 1e6
+    # The detector's onset (the peak sample) and the sample that fired (by design two samples on).
+    onsets_ns = [s * 10**9 + n for s, n in zip(slips["onset.sec"], slips["onset.nsec"], strict=True)]
+    fired_ns = [s * 10**9 + n for s, n in zip(slips["detection.sec"], slips["detection.nsec"], strict=True)]
+    for trial in report["trials"]:
+        # The world's slips in the trial's (last) attempt: a bus timeout under load makes the run
+        # repeat a trial, by when the hand has set up the next one; the first slip is the trial's
+        # (a joint that re-sticks while the winch still reels slips again).
+        start_ns, end_ns = trial["start_time_ns"], trial["end_time_ns"]
+        (true_trial, true_ns), *_ = [
+            (t, e["onset_time_ns"])
+            for t in truth["trials"]
+            for e in t["slip_events"]
+            if start_ns <= e["onset_time_ns"] <= end_ns
+        ]
+        assert trial["outcome"] == "slip"
+        assert trial["peak_force_n"] == pytest.approx(true_trial["slip_force_n"], rel=0.03)
+        ((onset_ns, fired_at_ns),) = [
+            (o, f) for o, f in zip(onsets_ns, fired_ns, strict=True) if start_ns <= f <= end_ns
+        ]
+        assert abs(onset_ns - true_ns) <= 2 * period_ns, (onset_ns - true_ns) / 1e6
+        assert fired_at_ns > true_ns
 
 
 def test_the_console_hangs_and_unhangs_a_reference_mass():
@@ -283,3 +299,18 @@ def test_the_firmware_in_the_loop_needs_the_harness_and_a_cell_it_can_be(tmp_pat
     ]  # fmt: skip
     with pytest.raises(ConfigError, match=r"loadcell.rate_hz: 12; allowed with --firmware: 10, 80"):
         harness_command(harness, config, 12.0, 0.0)
+
+
+def test_trial_n_at_the_console_puts_the_hand_on_the_trial_the_run_repeats(tmp_path):
+    config = load_rig_config(_hardware_config(tmp_path))
+    twin = build_twin(config, protocol=load_protocol(SMOKE, joint_count=config.article.joint_count))
+    out = io.StringIO()
+    run_console(["trial 2\n", "trial 1\n", "trial 3\n", "trial x\n"], twin.reference, out, twin.set_up_trial)
+    assert [t.distance_m for t in twin.world.trials] == [0.1, 0.2, 0.1]
+    assert out.getvalue().splitlines() == [
+        "trial 2 set up (joint_estimation, the hook at 0.2 m)",
+        "trial 1 set up (joint_estimation, the hook at 0.1 m)",
+        "trial 3: allowed: 1-2",
+        "trial x: allowed: a trial number",
+    ]
+    assert twin.hand.index == 0  # the next slip and slack line move it on to trial 2

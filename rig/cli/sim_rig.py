@@ -34,7 +34,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
             "`rig run` with the unchanged config drive it as they would the rig. With --protocol the "
             "simulated hand sets each trial up (hook distance, bend) while the line is slack. Prints "
             "`SERVOS <link> <pty>` and `LOADCELL <link> <pty>` when ready; `hang KG` and `unhang` "
-            "typed on its stdin hang a reference mass in the line (to rehearse `rig calibrate`). Runs "
+            "typed on its stdin hang a reference mass in the line (to rehearse `rig calibrate`), `trial N` "
+            "sets up trial N (when the run repeats one). Runs "
             "until Ctrl-C or SIGTERM (exit 0, links removed). docs/hardware.md, 'Rehearse before the "
             "rig exists'."
         ),
@@ -104,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"SERVOS {servos.link} {servos.device}", flush=True)
         print(f"LOADCELL {loadcell.link} {loadcell.device}{' firmware' if args.firmware else ''}", flush=True)
         if sys.stdin is not None:  # the person at the twin: a daemon thread, it ends with the twin
-            console = threading.Thread(target=run_console, args=(sys.stdin, twin.reference, sys.stderr))
+            console = threading.Thread(
+                target=run_console, args=(sys.stdin, twin.reference, sys.stderr, twin.set_up_trial)
+            )
             console.daemon = True
             console.start()
             if sys.stdin.isatty():

@@ -103,6 +103,13 @@ class Twin:
             line_n = self.world.tension_n
         return line_n + self.reference.read_n()
 
+    def set_up_trial(self, number: int) -> str:
+        """The hand sets up the protocol's trial `number` (1-based) and goes on from it; what it did."""
+        with self.lock:
+            trial = self.hand.set_up(number - 1)
+        where = "" if trial.distance_m is None else f", the hook at {trial.distance_m:g} m"
+        return f"trial {number} set up ({trial.kind}{where})"
+
     def truth(self) -> RunTruth:
         """The world's truth now, with the line's tension and whether every servo's torque is off."""
         with self.lock:

@@ -3,7 +3,9 @@
 `hang KG` hangs a reference mass in the line at the load cell, `unhang` takes it off: the cell then
 reads KG x standard gravity (9.80665 m/s², `rig calibrate`'s default `--g`) on top of the line's
 tension, as when a known mass hangs from the line over the pulley with the link unhooked. With it
-`rig calibrate --rig CONFIG --reference-kg KG` is rehearsed against the twin. A line that is not a
+`rig calibrate --rig CONFIG --reference-kg KG` is rehearsed against the twin. `trial N` makes the
+hand set up the protocol's trial N now and go on from it, as the person does who follows the run's
+prompt when the run repeats a trial (rig/sim/twin_hand.py). A line that is not a
 command gets one line of help; the console never stops the twin.
 """
 
@@ -11,14 +13,14 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import TextIO
 
 from model.gravity import STANDARD_GRAVITY_M_S2
 
 MAX_REFERENCE_KG = 1000.0
-HELP = "commands: `hang KG` (a reference mass in the line, 0-1000 kg), `unhang`"
+HELP = "commands: `hang KG` (a reference mass in the line, 0-1000 kg), `unhang`, `trial N` (set up trial N)"
 
 
 @dataclass
@@ -39,8 +41,13 @@ class ReferenceLoad:
             return self.tension_n
 
 
-def run_console(lines: Iterable[str], load: ReferenceLoad, out: TextIO) -> None:
-    """Obey each typed line until the input ends."""
+def run_console(
+    lines: Iterable[str],
+    load: ReferenceLoad,
+    out: TextIO,
+    set_up_trial: Callable[[int], str] | None = None,
+) -> None:
+    """Obey each typed line until the input ends (`set_up_trial(N)`: what `trial N` does)."""
     for line in lines:
         words = line.split()
         if not words:
@@ -60,6 +67,12 @@ def run_console(lines: Iterable[str], load: ReferenceLoad, out: TextIO) -> None:
                     continue
                 load.hang(mass_kg)
                 print(f"hanging {mass_kg:g} kg: {load.read_n():.3f} N in the line", file=out, flush=True)
+            case ["trial", number] if set_up_trial is not None:
+                try:
+                    print(set_up_trial(int(number)), file=out, flush=True)
+                except ValueError as exc:  # not a number, or no such trial
+                    allowed = str(exc) if str(exc).startswith("allowed") else "allowed: a trial number"
+                    print(f"trial {number}: {allowed}", file=out, flush=True)
             case ["unhang"]:
                 load.hang(0.0)
                 print("the line is free of the reference mass", file=out, flush=True)

@@ -71,8 +71,18 @@ class TwinHand:
 
     def set_up_next(self) -> None:
         """Set up the next trial (the last one again once the list is done)."""
-        self.index = min(self.index + 1, len(self.trials) - 1)
-        trial = self.trials[self.index]
+        self.set_up(min(self.index + 1, len(self.trials) - 1))
+
+    def set_up(self, index: int) -> HandTrial:
+        """Set up trial `index` (0-based in `trials`) and go on from it: the person follows a prompt.
+
+        When the run repeats a trial (it recovered from a fault), the hand has moved on already; the
+        person at the twin's console puts it back (`trial N`).
+        """
+        if not 0 <= index < len(self.trials):
+            raise ValueError(f"allowed: 1-{len(self.trials)}")
+        self.index = index
+        trial = self.trials[index]
         world = self.world
         match trial.kind:
             case TrialKind.JOINT_ESTIMATION:
@@ -85,6 +95,7 @@ class TwinHand:
         self._slips_before = len(world.slips)
         self._over = False
         self._slack_since_ns = None
+        return trial
 
     def advance_to(self, now_ns: int) -> None:
         """Watch the line: once the present trial is over and the line has stayed slack, set up the next."""
