@@ -314,3 +314,18 @@ def test_trial_n_at_the_console_puts_the_hand_on_the_trial_the_run_repeats(tmp_p
         "trial x: allowed: a trial number",
     ]
     assert twin.hand.index == 0  # the next slip and slack line move it on to trial 2
+
+
+def test_a_port_without_a_path_is_refused_naming_it(tmp_path):
+    # The built-in simulated rig's ports are in-process (sim://dxl): the twin would have made a
+    # directory `sim:` in the working directory and a link in it.
+    from rig.rig_config import DEFAULT_RIG_CONFIG
+
+    with pytest.raises(
+        ConfigError, match=r"simulated.yaml: servos.port: sim://dxl; allowed in `rig sim rig`"
+    ):
+        build_twin(load_rig_config(DEFAULT_RIG_CONFIG))
+    path = _hardware_config(tmp_path)
+    path.write_text(path.read_text().replace(f"port: {tmp_path / 'cell'}", f"port: {tmp_path / 'dxl'}"))
+    with pytest.raises(ConfigError, match=r"loadcell.port: .*dxl; allowed: another path than servos.port"):
+        build_twin(load_rig_config(path))

@@ -145,6 +145,20 @@ def twin_loadcell_rate_hz(config: RigConfig) -> float:
     return rate_hz
 
 
+def _check_twin_ports(config: RigConfig) -> None:
+    """Both ports must be paths where a link can go (not `sim://...`), and not the same one."""
+    for field_name, port in (("servos.port", config.servos.port), ("loadcell.port", config.loadcell.port)):
+        if "://" in str(port):
+            raise ConfigError(
+                f"{config.source}: {field_name}: {port}; allowed in `rig sim rig`: a file-system path where "
+                "the twin makes a symlink to its pty (an in-process or URL port has no path)"
+            )
+    if Path(config.servos.port) == Path(config.loadcell.port):
+        raise ConfigError(
+            f"{config.source}: loadcell.port: {config.loadcell.port}; allowed: another path than servos.port"
+        )
+
+
 def _check_twin_faults(config: RigConfig) -> None:
     for index, fault in enumerate(simulation_section(config).faults):
         if fault.device in (FaultDevice.HOST, FaultDevice.LOGGER):
@@ -163,6 +177,7 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
             f"{config.source}: loadcell.format: {config.loadcell.format}; allowed: {cell.format}, the format "
             f"of simulation.loadcell_cell {sim.loadcell_cell}"
         )
+    _check_twin_ports(config)
     _check_twin_faults(config)
     rate_hz = twin_loadcell_rate_hz(config)
     preset = config_preset(config, seed)
