@@ -449,12 +449,12 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
             )
         )
     simulation = None
-    if kind == RigKind.SIMULATED:
+    if kind == RigKind.SIMULATED or top.has("simulation"):
+        # On a hardware rig the section describes the world `rig sim rig` serves behind the config's
+        # ports (its twin); the rig's own commands ignore it.
         simulation = parse_simulation(top.section("simulation", default={}), article.joint_count)
-    elif top.has("simulation"):
-        raise top.error("simulation", "only allowed with kind: simulated")
     loadcell = _loadcell(top.section("loadcell"), base_dir or Path("."))
-    loadcell = _loadcell_rate(top, loadcell, simulation)
+    loadcell = _loadcell_rate(top, loadcell, simulation if kind == RigKind.SIMULATED else None)
     values = read_fields(
         top,
         RigConfig,
@@ -713,13 +713,22 @@ def nominal_loadcell_rate_hz(config: RigConfig) -> float:
     """
     if config.loadcell.rate_hz is not None:
         return config.loadcell.rate_hz
-    if config.simulation is not None:
+    if config.simulation is not None and config.kind == RigKind.SIMULATED:
         return config.simulation.loadcell_rate_hz
     return DEFAULT_LOADCELL_RATE_HZ
 
 
 def require_simulated(config: RigConfig) -> SimulationConfig:
-    """The simulation settings of a simulated rig (a ConfigError for a hardware rig)."""
-    if config.simulation is None:
+    """The simulation settings of a simulated rig (a ConfigError for a hardware rig, even with a twin's)."""
+    if config.simulation is None or config.kind != RigKind.SIMULATED:
         raise ConfigError(f"{config.source}: kind: this command needs kind: simulated, got {config.kind}")
+    return config.simulation
+
+
+def simulation_section(config: RigConfig) -> SimulationConfig:
+    """The world a config's `simulation:` section describes, of either kind (a hardware rig's twin)."""
+    if config.simulation is None:
+        raise ConfigError(
+            f"{config.source}: simulation: missing; allowed: a simulation section (see protocols/README.md)"
+        )
     return config.simulation

@@ -1,6 +1,8 @@
-"""The simulation section of a rig config (only for `kind: simulated`; users' docs in protocols/README.md).
+"""The simulation section of a rig config: a simulated rig's world, or the twin of a hardware rig.
 
-The simulated world's preset, its slip kinds, capacity scatter, load-cell artefacts and injected faults.
+The simulated world's preset, its slip kinds, capacity scatter, load-cell artefacts and injected
+faults. On `kind: hardware` only `rig sim rig` reads it (rig/sim/twin.py). Users' docs in
+protocols/README.md.
 
 Each settings field is declared once on its dataclass (`model.field_spec`): its bounds, default and
 doc drive `parse_simulation`, the refusal of unknown keys, the dataclasses' own checks and the docs
@@ -299,7 +301,7 @@ SIMULATED_CELLS: dict[str, SimulatedCell | None] = {
 
 @dataclass(frozen=True)
 class SimulationConfig:
-    """Simulated-world settings (only for `kind: simulated`)."""
+    """Simulated-world settings (`kind: simulated`, or the twin `rig sim rig` serves of a hardware rig)."""
 
     preset: str = field(default="link1", metadata=choice(SIM_PRESETS, doc="simulated only"))
     loadcell_rate_hz: float = field(default=1000.0, metadata=number(10.0, 2000.0, unit="Hz"))

@@ -182,3 +182,95 @@ def test_harness_refuses_bad_options_with_one_line(harness, tmp_path):
         done = subprocess.run([str(harness), *args], capture_output=True, text=True, timeout=10)
         assert done.returncode == 2
         assert len(done.stderr.strip().splitlines()) == 1 and done.stderr.startswith("hx711-sim: ")
+
+
+@contextlib.contextmanager
+def _live_harness(
+    path: Path, tmp_path: Path, signal: str = "stdin"
+) -> Iterator[tuple[subprocess.Popen[str], Path]]:
+    """The harness in real time at 80/s, by default its input the counts written to its stdin."""
+    link = tmp_path / "live"
+    stats = str(tmp_path / "s.json")
+    argv = [str(path), "--link", str(link), "--rate", "80", "--signal", signal, "--stats", stats]
+    proc = subprocess.Popen(
+        argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("PTY ")
+        yield proc, link
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=30)
+
+
+def _raws_until(driver: SerialLoadCell, wanted: int, timeout_s: float = 10.0) -> list[int]:
+    raws: list[int] = []
+    deadline = time.monotonic() + timeout_s
+    while wanted not in raws[-3:] and time.monotonic() < deadline:
+        raws += [s.raw for s in driver.poll()]
+        time.sleep(0.01)
+    return raws
+
+
+@pytest.mark.pty
+def test_counts_written_to_stdin_are_the_input_from_the_next_conversion(harness, tmp_path):
+    # `--signal stdin`: the twin (`rig sim rig --firmware`) drives the HX711 input live.
+    with _live_harness(harness, tmp_path) as (proc, link):
+        assert proc.stdin is not None
+        proc.stdin.write("-4321\n")
+        proc.stdin.flush()
+        with SerialLoadCell(str(link), baud=115200, stale_timeout_s=5.0) as driver:
+            assert _raws_until(driver, -4321)[-1] == -4321
+            proc.stdin.write("1234567\nnot a number\n")
+            proc.stdin.flush()
+            raws = _raws_until(driver, 1234567)
+            time.sleep(0.1)
+            raws += [s.raw for s in driver.poll()]
+    assert raws[-1] == 1234567 and set(raws) <= {-4321, 1234567}  # the bad line changed nothing
+
+
+@pytest.mark.pty
+def test_a_client_at_another_baud_gets_garbage_as_from_a_uart(harness, tmp_path):
+    # The firmware sends at 115200 (16 MHz, U2X: 117647, within 5 %); a client at 921600 would read
+    # nothing but framing garbage on a real board, never a line. Before, it read the lines.
+    import serial
+
+    with _live_harness(harness, tmp_path, "constant:100") as (_, link):
+        with serial.Serial(str(link), 921600, timeout=0.5) as port:
+            time.sleep(0.3)
+            wrong = port.read(200)
+        with serial.Serial(str(link), 115200, timeout=0.5) as port:
+            time.sleep(0.3)
+            right = port.read(200)
+    assert wrong and b"$LC" not in wrong and b"\n" not in wrong and all(b >= 0x80 for b in wrong)
+    assert b"$LC," in right
+    assert json.loads((tmp_path / "s.json").read_text())["wrong_baud_bytes"] > 0
+
+
+@pytest.mark.pty
+def test_every_open_resets_the_board_after_the_bootloaders_wait(harness, tmp_path):
+    # An Uno resets on every open of its port (DTR), and optiboot waits before the sketch starts:
+    # each client then reads the banner first and seq from 0, never a line of the previous boot.
+    import serial
+
+    link, stats = tmp_path / "board", tmp_path / "s.json"
+    argv = [str(harness), "--link", str(link), "--rate", "80", "--signal", "constant:5"]
+    proc = subprocess.Popen(
+        [*argv, "--reset-on-open", "1500", "--stats", str(stats)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("PTY ")
+        time.sleep(0.5)  # the board streams into the closed port meanwhile
+        for _ in range(2):
+            start = time.monotonic()
+            with serial.Serial(str(link), 115200, timeout=4) as port:
+                first = port.readline()
+                waited_s = time.monotonic() - start
+                port.readline()  # the #INFO line
+                sample = port.readline()
+            assert first.startswith(b"#BOOT fw=rig-hx711/") and sample.startswith(b"$LC,0,")
+            assert 1.4 <= waited_s <= 3.0
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=30)
+    assert json.loads(stats.read_text())["resets_on_open"] == 2

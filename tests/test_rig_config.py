@@ -64,3 +64,31 @@ def test_a_file_name_too_long_for_the_file_system_is_named(tmp_path, name):
         ConfigError, match=r"loadcell\.calibration: a path component of \d+ bytes; allowed: at most 255"
     ):
         load_rig_config(path)
+
+
+def test_a_hardware_config_may_describe_its_twin_and_its_own_commands_ignore_it(tmp_path):
+    # `rig sim rig` serves a hardware config's `simulation:` section behind its ports (issue 30);
+    # the rig's run and checks go on as without it: no simulated cell rate, no simulated rig.
+    from rig.rig_config import (
+        DEFAULT_LOADCELL_RATE_HZ,
+        nominal_loadcell_rate_hz,
+        require_simulated,
+        simulation_section,
+    )
+
+    text = (RIGS / "hardware.example.yaml").read_text(encoding="utf-8")
+    assert "  rate_hz: 10 " in text
+    text = text.replace("  rate_hz: 10 ", "  # rate_hz: 10 ")
+    path = tmp_path / "hw.yaml"
+    path.write_text(text + "simulation:\n  winch_reversed: true\n  loadcell_rate_hz: 500\n")
+    config = load_rig_config(path)
+    assert config.kind == "hardware" and simulation_section(config).winch_reversed
+    assert config.loadcell.rate_hz is None and nominal_loadcell_rate_hz(config) == DEFAULT_LOADCELL_RATE_HZ
+    with pytest.raises(ConfigError, match="needs kind: simulated"):
+        require_simulated(config)
+    path.write_text(text + "simulation:\n  preset: link9\n")
+    with pytest.raises(ConfigError, match=r"hw.yaml: simulation.preset"):
+        load_rig_config(path)
+    path.write_text(text)
+    with pytest.raises(ConfigError, match="simulation: missing"):
+        simulation_section(load_rig_config(path))

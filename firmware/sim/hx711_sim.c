@@ -34,6 +34,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/inotify.h>
 #include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <termios.h>
@@ -81,7 +82,7 @@ static void die(const char *message)
 
 /* ---- the input signal: counts per conversion ------------------------------------------------ */
 
-enum signal_kind { SIGNAL_CONSTANT, SIGNAL_RAMP, SIGNAL_FILE };
+enum signal_kind { SIGNAL_CONSTANT, SIGNAL_RAMP, SIGNAL_FILE, SIGNAL_STDIN };
 
 typedef struct {
     enum signal_kind kind;
@@ -93,6 +94,8 @@ typedef struct {
     size_t position;        /* file: current entry */
     uint64_t used;          /* file: conversions of the current entry already given */
     uint64_t index;         /* conversions given so far */
+    char live[64];          /* stdin: the line still arriving */
+    size_t live_len;
 } input_signal_t;
 
 static int64_t clamp_count(int64_t value)
@@ -165,6 +168,11 @@ static void parse_signal(input_signal_t *s, const char *spec)
             die("--signal constant:COUNTS needs an integer");
         return;
     }
+    if (!strcmp(copy, "stdin")) {
+        s->kind = SIGNAL_STDIN; /* the latest whole line of counts read from stdin (read_live_signal) */
+        fcntl(0, F_SETFL, fcntl(0, F_GETFL) | O_NONBLOCK);
+        return;
+    }
     if (!strncmp(copy, "file:", 5)) {
         s->kind = SIGNAL_FILE;
         load_signal_file(s, copy + 5);
@@ -187,7 +195,31 @@ static void parse_signal(input_signal_t *s, const char *spec)
         s->hold = v[3];
         return;
     }
-    die("--signal: allowed: constant:COUNTS, ramp:FROM:TO:STEP[:HOLD], file:PATH");
+    die("--signal: allowed: constant:COUNTS, ramp:FROM:TO:STEP[:HOLD], file:PATH, stdin");
+}
+
+/* --signal stdin: take the lines that arrived since the last call; the last whole one is the input
+ * from now on (a line that is not an integer is ignored). The end of stdin keeps the last value. */
+static void read_live_signal(input_signal_t *s)
+{
+    if (s->kind != SIGNAL_STDIN)
+        return;
+    char chunk[4096];
+    ssize_t n;
+    while ((n = read(0, chunk, sizeof chunk)) > 0) {
+        for (ssize_t i = 0; i < n; i++) {
+            if (chunk[i] != '\n') {
+                if (s->live_len < sizeof s->live - 1)
+                    s->live[s->live_len++] = chunk[i];
+                continue;
+            }
+            s->live[s->live_len] = 0;
+            int64_t value;
+            if (!parse_int64(s->live, &value))
+                s->constant = value;
+            s->live_len = 0;
+        }
+    }
 }
 
 /* The input of the next conversion, clamped to the ADC's range (saturation codes beyond it). */
@@ -196,6 +228,7 @@ static int32_t signal_next(input_signal_t *s)
     int64_t value = 0;
     switch (s->kind) {
     case SIGNAL_CONSTANT:
+    case SIGNAL_STDIN:
         value = s->constant;
         break;
     case SIGNAL_RAMP:
@@ -362,11 +395,77 @@ static void sck_changed(struct avr_irq_t *irq, uint32_t value, void *param)
     }
 }
 
+/* --reset-on-open: every open(2) and close of the pty's slave by a client, whichever path it came
+ * by, as Linux inotify events on the device node (pyserial asserts DTR on open, which resets an Uno
+ * through its auto-reset capacitor). The harness's own descriptors are opened before the watch. */
+typedef struct {
+    int fd; /* -1: not watching */
+    int clients; /* clients that have the port open */
+    int open_pending; /* a client opened it and the board has not been reset for it yet */
+} open_watch_t;
+
+static open_watch_t opens = {.fd = -1};
+
+static void watch_client_opens(const char *device)
+{
+    int fd = inotify_init1(IN_NONBLOCK);
+    if (fd >= 0 && inotify_add_watch(fd, device, IN_OPEN | IN_CLOSE_WRITE | IN_CLOSE_NOWRITE) < 0) {
+        close(fd);
+        fd = -1;
+    }
+    opens.fd = fd;
+}
+
+static void poll_client_opens(void)
+{
+    char events[4096] __attribute__((aligned(__alignof__(struct inotify_event))));
+    ssize_t n;
+    while (opens.fd >= 0 && (n = read(opens.fd, events, sizeof events)) > 0) {
+        for (char *p = events; p < events + n;) {
+            const struct inotify_event *event = (const struct inotify_event *)p;
+            if (event->mask & IN_OPEN) {
+                opens.clients++;
+                opens.open_pending = 1;
+            }
+            if ((event->mask & (IN_CLOSE_WRITE | IN_CLOSE_NOWRITE)) && opens.clients > 0)
+                opens.clients--;
+            p += sizeof *event + event->len;
+        }
+    }
+}
+
+/* While nobody has the port open (or an open has not reset the board yet), what the board sends is
+ * lost, as into a USB adapter whose port is closed: no line of an old boot reaches a new client. */
+static int board_output_lost(void)
+{
+    if (opens.fd < 0)
+        return 0;
+    poll_client_opens();
+    return opens.clients == 0 || opens.open_pending;
+}
+
+/* The board resets (its RESET pin pulled low by DTR): the MCU starts again from its reset vector with
+ * its registers cleared; the HX711 is not reset by it, but its pending result is dropped and the
+ * conversion timer (cleared with simavr's cycle timers) is armed again. */
+static void reset_board(hx711_t *m)
+{
+    avr_reset(m->avr);
+    m->have_data = 0;
+    m->pulses = 0;
+    m->shifted = 0;
+    m->sck = 0;
+    m->powered = 1;
+    set_dout(m, 1);
+    avr_cycle_timer_register(m->avr, m->period_cycles, conversion_done, m);
+}
+
 /* ---- the UART: a pty for the host, and a tap that checks and times every line ---------------- */
 
 typedef struct {
     hx711_t *model;
     int master_fd;
+    int slave_fd; /* the harness's own descriptor of the pty's slave: the client's termios, for its baud */
+    uint64_t wrong_baud_bytes;
     int block; /* --fast: wait for the reader instead of dropping bytes */
     char out[4096];
     size_t out_len;
@@ -389,9 +488,54 @@ typedef struct {
     uint64_t line_limit;
 } uart_tap_t;
 
+static uint32_t bit_cycles(avr_t *avr);
+
+/* The baud rate the client set on the pty (0: unknown, e.g. no descriptor to ask). */
+static long client_baud(int slave_fd)
+{
+    struct termios tio;
+    if (slave_fd < 0 || tcgetattr(slave_fd, &tio))
+        return 0;
+    static const struct {
+        speed_t code;
+        long baud;
+    } speeds[] = {{B9600, 9600},     {B19200, 19200},   {B38400, 38400},     {B57600, 57600},
+                  {B115200, 115200}, {B230400, 230400}, {B460800, 460800},   {B500000, 500000},
+                  {B576000, 576000}, {B921600, 921600}, {B1000000, 1000000}, {B2000000, 2000000}};
+    speed_t code = cfgetospeed(&tio);
+    for (size_t i = 0; i < sizeof speeds / sizeof speeds[0]; i++)
+        if (speeds[i].code == code)
+            return speeds[i].baud;
+    return -1;
+}
+
+/* A UART receiving at another rate than the sender's sees framing garbage, never a line: the same
+ * mapping as the Python emulator's (rig/sim/loadcell/emulator.py, wrong_baud_garbage). Two rates
+ * within 5 % of each other are the same rate (115200 from a 16 MHz clock with U2X is 117647). */
+static void garble_if_wrong_baud(uart_tap_t *u)
+{
+    long client = client_baud(u->slave_fd);
+    uint32_t cycles = bit_cycles(u->model->avr);
+    if (client == 0 || cycles == 0)
+        return;
+    double board = (double)F_CPU_HZ / (double)cycles;
+    if (client > 0 && client > 0.95 * board && client < 1.05 * board)
+        return;
+    for (size_t i = 0; i < u->out_len; i++)
+        u->out[i] = (char)((((unsigned char)u->out[i] * 37u + 11u) & 0x7Fu) | 0x80u);
+    u->wrong_baud_bytes += u->out_len;
+}
+
 static void flush_out(uart_tap_t *u)
 {
     size_t done = 0;
+    if (board_output_lost()) {
+        u->bytes_out += u->out_len;
+        u->pty_bytes_dropped += u->out_len;
+        u->out_len = 0;
+        return;
+    }
+    garble_if_wrong_baud(u);
     while (u->master_fd >= 0 && done < u->out_len) {
         ssize_t n = write(u->master_fd, u->out + done, u->out_len - done);
         if (n > 0) {
@@ -631,17 +775,22 @@ static void usage(FILE *to)
 {
     fprintf(to,
             "usage: hx711-sim [--firmware ELF] [--link PATH] [--rate 10|20|80|320] [--period-us N]\n"
-            "                 [--signal constant:COUNTS | ramp:FROM:TO:STEP[:HOLD] | file:PATH]\n"
-            "                 [--fast] [--wait-open] [--seconds S] [--lines N] [--log FILE] [--stats FILE]\n"
+            "                 [--signal constant:COUNTS | ramp:FROM:TO:STEP[:HOLD] | file:PATH | stdin]\n"
+            "                 [--fast] [--wait-open] [--reset-on-open MS] [--seconds S] [--lines N] [--log FILE]\n"
+            "                 [--stats FILE]\n"
             "Runs the rig-lc1 HX711 firmware on simavr (ATmega328P, 16 MHz) with an HX711 model on D8/D9\n"
             "and its UART on a pty (printed as `PTY <link> <device>`). Real time unless --fast.\n"
             "  --rate        conversions per second: 10 or 80 (HX711 RATE pin), 20 or 320 (HX717) (default 80)\n"
             "  --period-us   conversion period in us instead of the nominal one (a slow or fast oscillator)\n"
             "  --signal      the ADC input per conversion (default constant:0); ramp: a staircase from FROM\n"
             "                to TO in STEPs, each held HOLD conversions, repeating; file: one `COUNTS [REPEAT]`\n"
-            "                per line, repeating; beyond 24 bits the ADC saturates (0x7FFFFF / 0x800000)\n"
+            "                per line, repeating; stdin: the latest whole line of counts on stdin (live);\n"
+            "                beyond 24 bits the ADC saturates (0x7FFFFF / 0x800000)\n"
+            "A client whose baud differs from the firmware's by more than 5 %% receives garbage, as from a UART.\n"
             "  --fast        run as fast as the host allows; the pty then waits for its reader (no bytes lost)\n"
             "  --wait-open   start the board 0.2 s after a client opens the pty (as DTR resets a real one)\n"
+            "  --reset-on-open MS  reset the board on every open of the pty by a client, silent for MS ms\n"
+            "                (the bootloader's wait; optiboot on an Uno: about 1500) before the sketch starts\n"
             "  --seconds S   stop after S simulated seconds;  --lines N  stop after N data lines\n"
             "  --log FILE    one line per conversion read: `conversion ready_cycle value` (what was shifted out)\n"
             "  --stats FILE  JSON with the counts, t-us steps and latencies at exit (also on SIGTERM/SIGINT)\n");
@@ -654,6 +803,7 @@ int main(int argc, char **argv)
     double seconds = 0;
     long long line_limit = 0;
     int fast = 0, wait_open = 0;
+    long reset_on_open_ms = -1;
     static struct option options[] = {
         {"firmware", required_argument, 0, 'f'}, {"link", required_argument, 0, 'l'},
         {"rate", required_argument, 0, 'r'},     {"period-us", required_argument, 0, 'p'},
@@ -661,6 +811,7 @@ int main(int argc, char **argv)
         {"wait-open", no_argument, 0, 'w'},      {"seconds", required_argument, 0, 'S'},
         {"lines", required_argument, 0, 'n'},    {"log", required_argument, 0, 'L'},
         {"stats", required_argument, 0, 'j'},    {"help", no_argument, 0, 'h'},
+        {"reset-on-open", required_argument, 0, 'R'},
         {0, 0, 0, 0},
     };
     int opt;
@@ -682,6 +833,11 @@ int main(int argc, char **argv)
         case 's': signal_spec = optarg; break;
         case 'F': fast = 1; break;
         case 'w': wait_open = 1; break;
+        case 'R':
+            reset_on_open_ms = strtol(optarg, &end, 10);
+            if (*end || reset_on_open_ms < 0 || reset_on_open_ms > 10000)
+                die("--reset-on-open: allowed: 0-10000 (ms the bootloader waits before the sketch starts)");
+            break;
         case 'S':
             seconds = strtod(optarg, &end);
             if (*end || !(seconds > 0 && seconds < 1e7))
@@ -773,6 +929,7 @@ int main(int argc, char **argv)
     char device[128];
     int slave_fd = -1;
     tap.master_fd = open_pty(link, device, sizeof device, &slave_fd);
+    tap.slave_fd = slave_fd;
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
     signal(SIGPIPE, SIG_IGN);
@@ -783,7 +940,14 @@ int main(int argc, char **argv)
         wait_for_client(tap.master_fd, &slave_fd);
         usleep(200000);
         slave_fd = open(device, O_RDWR | O_NOCTTY); /* hold it: a client's close must not hang up the pty */
+        tap.slave_fd = slave_fd;
     }
+    if (reset_on_open_ms >= 0) {
+        watch_client_opens(device);
+        if (opens.fd < 0)
+            die("--reset-on-open: cannot watch the pty for opens (inotify)");
+    }
+    uint64_t resets = 0;
 
     const uint64_t check_cycles = F_CPU_HZ / 1000; /* pace and poll every simulated millisecond */
     uint64_t next_check = avr->cycle + check_cycles;
@@ -797,6 +961,22 @@ int main(int argc, char **argv)
         if (avr->cycle >= next_check) {
             next_check = avr->cycle + check_cycles;
             drain_host_input(tap.master_fd);
+            read_live_signal(&model.signal);
+            poll_client_opens();
+            if (opens.open_pending) {
+                /* The bootloader (optiboot) holds the board silent for a while, then starts the
+                 * sketch; the pacing restarts from the wall clock so nothing comes in a burst. */
+                tap.out_len = 0; /* the rest of a line the old boot was sending */
+                tap.line_len = 0;
+                resets++;
+                struct timespec hold = {reset_on_open_ms / 1000, (reset_on_open_ms % 1000) * 1000000L};
+                nanosleep(&hold, NULL);
+                poll_client_opens(); /* an open during the hold resets a board that is resetting */
+                opens.open_pending = 0;
+                reset_board(&model);
+                wall_start = now_ns() - avr_cycles_to_nsec(avr, avr->cycle);
+                next_check = avr->cycle + check_cycles;
+            }
             if (!fast) {
                 uint64_t sim_ns = avr_cycles_to_nsec(avr, avr->cycle);
                 uint64_t wall_ns = now_ns() - wall_start;
@@ -847,7 +1027,8 @@ int main(int argc, char **argv)
              ", \"ready_step_min_us\": %.4f, \"ready_step_max_us\": %.4f, \"t_us_vs_ready_step_max_us\": %" PRId64
              ",\n"
              " \"latency_us_min\": %.3f, \"latency_us_mean\": %.3f, \"latency_us_max\": %.3f,\n"
-             " \"bytes_out\": %" PRIu64 ", \"pty_bytes_dropped\": %" PRIu64 "}\n",
+             " \"bytes_out\": %" PRIu64 ", \"pty_bytes_dropped\": %" PRIu64 ", \"wrong_baud_bytes\": %" PRIu64
+             ", \"resets_on_open\": %" PRIu64 "}\n",
              rate, period_us, signal_spec, fast ? "true" : "false", sim_s, wall_s, wall_s > 0 ? sim_s / wall_s : 0.0,
              state, model.conversions, model.reads, model.missed, model.serial_errors, model.long_high,
              model.clock_while_busy, model.power_downs, model.gain_a128, model.gain_other, tap.lines,
@@ -856,7 +1037,8 @@ int main(int argc, char **argv)
              (double)tap.ready_step_max_cycles * per_cycle_us, tap.t_vs_ready_max_us,
              (double)tap.latency_min * per_cycle_us,
              tap.latency_count ? (double)tap.latency_sum / (double)tap.latency_count * per_cycle_us : 0.0,
-             (double)tap.latency_max * per_cycle_us, tap.bytes_out, tap.pty_bytes_dropped);
+             (double)tap.latency_max * per_cycle_us, tap.bytes_out, tap.pty_bytes_dropped, tap.wrong_baud_bytes,
+             resets);
     if (out) {
         fputs(stats, out);
         fclose(out);

@@ -6,7 +6,7 @@ import argparse
 import importlib
 
 # Each module `rig.cli.<name>` defines `register(sim_subparsers)` for one emulated device.
-SIM_DEVICE_MODULES: tuple[str, ...] = ("sim_loadcell", "sim_servos")
+SIM_DEVICE_MODULES: tuple[str, ...] = ("sim_loadcell", "sim_servos", "sim_rig")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -7,4 +7,7 @@ __all__ = [
     "object_rig",
     "pty_link",
     "simulated_rig",
+    "twin",
+    "twin_console",
+    "twin_firmware",
 ]

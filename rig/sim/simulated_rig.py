@@ -32,7 +32,7 @@ from rig.hw.seams import ConfigurationSource
 from rig.hw.session import RigSession
 from rig.hw.truth import RunTruth
 from rig.protocol import TrialPlan
-from rig.rig_config import RigConfig, configuration_source_kind, require_simulated
+from rig.rig_config import RigConfig, configuration_source_kind, require_simulated, simulation_section
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
@@ -240,8 +240,8 @@ class _ShaftBus(Protocol):
 
 
 def config_preset(config: RigConfig, seed: int) -> SimPreset:
-    """The seeded preset of a simulated rig config (ConfigError naming the section if it is invalid)."""
-    sim = require_simulated(config)
+    """The seeded preset of a config's simulation (ConfigError naming the section if it is invalid)."""
+    sim = simulation_section(config)
     article = config.article
     try:
         preset = make_preset(
@@ -302,7 +302,7 @@ def new_world(
     """The world on the bus's winch and bender shafts, integrating on every advance of the clock."""
     benders = config.servos.benders
     winch: ShaftLike = bus.servo(config.servos.winch.servo_id)
-    if require_simulated(config).winch_reversed:
+    if simulation_section(config).winch_reversed:
         winch = MirroredShaft(winch)
     world = SimWorld(
         preset,

@@ -1,0 +1,305 @@
+"""The rig's twin over the ports (`rig sim rig`): a config's simulated world behind its own serial ports.
+
+The same world as the in-process simulated rig (rig/sim/simulated_rig.py: `SimWorld` on an
+`EmulatedBus` with every configured servo as its own model, and a `LoadCellEmulator` of the line's
+tension), but in real time and reached only through pseudo-terminals symlinked at the config's
+`servos.port` and `loadcell.port`, so a hardware config's own commands drive it as they would the
+rig. The existing pty servers do the serving, each in its own thread: `rig.sim.dxl.pty_server.serve`
+for the bus and `rig.sim.loadcell.pty_server.serve_loadcell` for the cell, or, with `firmware`,
+the built firmware image under simavr fed the world's tension (rig/sim/twin_firmware.py).
+
+Time: the world's `VirtualClock` reads the host's monotonic clock (its epoch makes `time_ns` the
+wall clock), and is moved to the monotonic time now under one lock before every bus transaction,
+before every load-cell sample, and every `TICK_S` in the main thread; the world integrates in its
+1 ms substeps whatever the step. The lock keeps the world, the servos and the hand in one thread at a
+time.
+
+The person at the twin types `hang KG` / `unhang` on its console (rig/sim/twin_console.py) to
+rehearse `rig calibrate`. Trials: the runner cannot tell the world that a trial begins over the
+ports; the twin's hand (rig/sim/twin_hand.py) sets each up while the line is slack. The config's
+`simulation.faults` on the servos and the load cell are applied as in-process; a `host` or
+`logger` fault acts on the run, not on the devices, and is refused.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from rig.errors import ConfigError
+from rig.hw.loadcell.calibration import Calibration
+from rig.hw.truth import RunTruth
+from rig.protocol import Protocol
+from rig.rig_config import RigConfig, simulation_section
+from rig.sim.clock import VirtualClock
+from rig.sim.dxl.bus import EmulatedBus, Reply
+from rig.sim.dxl.pty_server import serve
+from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults
+from rig.sim.loadcell.emulator import LoadCellEmulator
+from rig.sim.loadcell.inprocess import ideal_calibration, simulated_load_cell
+from rig.sim.loadcell.pty_server import serve_loadcell
+from rig.sim.physics.world import SimWorld
+from rig.sim.pty_link import PtyLink, StopFlag
+from rig.sim.simulated_rig import config_preset, loadcell_artefacts, loadcell_signal, new_world
+from rig.sim.twin_console import ReferenceLoad
+from rig.sim.twin_firmware import feed_firmware, harness_command, start_firmware_cell, stop_firmware_cell
+from rig.sim.twin_hand import HandTrial, TwinHand, hand_trials
+from rig.vocabulary import LOADCELL_FORMAT_TRAITS, FaultDevice
+
+TICK_S = 0.01  # how often the main thread brings the world up to the wall clock when nothing else does
+DONE_FORCE_FRACTION = 0.95  # a trial that reaches this share of the ramp's max_force_n is over
+
+
+class _LockedBus:
+    """The emulated bus as the pty server feeds it: the world brought up to the time first, under the lock."""
+
+    def __init__(self, twin: Twin) -> None:
+        self._twin = twin
+
+    @property
+    def baud(self) -> int:
+        """The host's line rate."""
+        return self._twin.bus.baud
+
+    @baud.setter
+    def baud(self, value: int) -> None:
+        self._twin.bus.baud = value
+
+    def feed(self, data: bytes, now_ns: int) -> list[Reply]:
+        """The replies to the host's bytes, after the world has moved to `now_ns`."""
+        with self._twin.lock:
+            self._twin.clock.advance_to_ns(now_ns)
+            return self._twin.bus.feed(data, now_ns)
+
+
+@dataclass
+class Twin:
+    """A config's world, its emulated devices and the simulated hand, on a clock that follows the wall."""
+
+    config: RigConfig
+    clock: VirtualClock
+    bus: EmulatedBus
+    world: SimWorld
+    loadcell: LoadCellEmulator
+    faults: FaultSchedule
+    hand: TwinHand
+    lock: threading.Lock
+    reference: ReferenceLoad  # a mass hung in the line by hand (the console's `hang`)
+    seed: int
+
+    def catch_up(self) -> None:
+        """Integrate the world up to the monotonic time now."""
+        with self.lock:
+            self.clock.advance_to_ns(time.monotonic_ns())
+
+    def tension_now_n(self) -> float:
+        """What the load cell's input is now: the line's tension, and any mass hung by hand [N]."""
+        with self.lock:
+            self.clock.advance_to_ns(time.monotonic_ns())
+            line_n = self.world.tension_n
+        return line_n + self.reference.read_n()
+
+    def set_up_trial(self, number: int) -> str:
+        """The hand sets up the protocol's trial `number` (1-based) and goes on from it; what it did."""
+        with self.lock:
+            trial = self.hand.set_up(number - 1)
+        where = "" if trial.distance_m is None else f", the hook at {trial.distance_m:g} m"
+        return f"trial {number} set up ({trial.kind}{where})"
+
+    def truth(self) -> RunTruth:
+        """The world's truth now, with the line's tension and whether every servo's torque is off."""
+        with self.lock:
+            return RunTruth(
+                final_tension_n=float(self.world.tension_n),
+                torque_off=not any(servo.torque_enabled for servo in self.bus.servos),
+                world=self.world.truth(),
+            )
+
+    def calibration(self) -> Calibration:
+        """The calibration a perfect `rig calibrate` would find for the twin's cell at power-on."""
+        return ideal_calibration(self.loadcell)
+
+
+def wall_clock() -> VirtualClock:
+    """A virtual clock at the host's monotonic time now, whose `time_ns` is the wall clock."""
+    clock = VirtualClock(epoch_ns=time.time_ns() - time.monotonic_ns())
+    clock.advance_to_ns(time.monotonic_ns())
+    return clock
+
+
+def twin_loadcell_rate_hz(config: RigConfig) -> float:
+    """The twin cell's rate: the config's `loadcell.rate_hz`, else the simulation's."""
+    sim = simulation_section(config)
+    rate_hz = config.loadcell.rate_hz if config.loadcell.rate_hz is not None else sim.loadcell_rate_hz
+    traits = LOADCELL_FORMAT_TRAITS[config.loadcell.format]
+    if rate_hz > traits.max_rate_hz(config.loadcell.baud):
+        raise ConfigError(
+            f"{config.source}: simulation.loadcell_rate_hz: {rate_hz:g} lines/s do not fit loadcell.baud "
+            f"{config.loadcell.baud}; allowed: at most {traits.max_rate_hz(config.loadcell.baud):.1f}, "
+            "or set loadcell.rate_hz"
+        )
+    return rate_hz
+
+
+def _check_twin_ports(config: RigConfig) -> None:
+    """Both ports must be paths where a link can go (not `sim://...`), and not the same one."""
+    for field_name, port in (("servos.port", config.servos.port), ("loadcell.port", config.loadcell.port)):
+        if "://" in str(port):
+            raise ConfigError(
+                f"{config.source}: {field_name}: {port}; allowed in `rig sim rig`: a file-system path where "
+                "the twin makes a symlink to its pty (an in-process or URL port has no path)"
+            )
+    if Path(config.servos.port) == Path(config.loadcell.port):
+        raise ConfigError(
+            f"{config.source}: loadcell.port: {config.loadcell.port}; allowed: another path than servos.port"
+        )
+
+
+def _check_twin_faults(config: RigConfig) -> None:
+    for index, fault in enumerate(simulation_section(config).faults):
+        if fault.device in (FaultDevice.HOST, FaultDevice.LOGGER):
+            raise ConfigError(
+                f"{config.source}: simulation.faults[{index}].device: {fault.device}; allowed in "
+                "`rig sim rig`: servos, winch, bender, loadcell (a host or logger fault acts on the run)"
+            )
+
+
+def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = None) -> Twin:
+    """The twin of `config` (its `simulation:` section), its hand following `protocol`; nothing served yet."""
+    sim = simulation_section(config)
+    cell = sim.cell
+    if cell is not None and cell.format != config.loadcell.format:
+        raise ConfigError(
+            f"{config.source}: loadcell.format: {config.loadcell.format}; allowed: {cell.format}, the format "
+            f"of simulation.loadcell_cell {sim.loadcell_cell}"
+        )
+    _check_twin_ports(config)
+    _check_twin_faults(config)
+    rate_hz = twin_loadcell_rate_hz(config)
+    preset = config_preset(config, seed)
+    clock = wall_clock()
+    bus = EmulatedBus.with_servos(
+        clock,
+        ids=[s.servo_id for s in config.servos.servos],
+        model=[s.model for s in config.servos.servos],
+        baud=config.servos.baud,
+        firmware=sim.servo_firmware,
+    )
+    for servo in bus.servos:
+        servo.supply_voltage_v = sim.servo_supply_v
+        servo.set_temperature_c(sim.servo_temperature_c)
+    world = new_world(preset, config, bus, clock, seed)
+    lock = threading.Lock()
+    reference = ReferenceLoad()
+
+    def tension_n(t_ns: int) -> float:  # the cell's thread samples the world, and any mass hung by hand
+        with lock:
+            clock.advance_to_ns(time.monotonic_ns())
+            try:
+                line_n = world.tension_at(t_ns)
+            except ValueError:  # older than the world's history: the twin was stopped (SIGSTOP) a while
+                line_n = world.tension_n
+        return line_n + reference.read_n()
+
+    _, emulator = simulated_load_cell(
+        tension_n,
+        clock,
+        format_name=config.loadcell.format,
+        rate_hz=rate_hz,
+        signal=loadcell_signal(preset),
+        faults=loadcell_rate_faults(sim.faults),
+        seed=seed,
+        artefacts=loadcell_artefacts(preset, seed),
+        baud=config.loadcell.baud,
+        cell=cell,
+        clock_error_ppm=sim.loadcell_clock_error_ppm,
+        dtr_reset_s=sim.loadcell_dtr_reset_s,
+    )
+    schedule = apply_faults(config, sim.faults, bus=bus, loadcell=emulator, clock=clock, seed=seed)
+    trials: list[HandTrial] = [] if protocol is None else hand_trials(protocol)
+    done_force_n = float("inf") if protocol is None else DONE_FORCE_FRACTION * protocol.ramp.max_force_n
+    hand = TwinHand(world, trials, done_force_n=done_force_n)
+    clock.on_advance(hand.advance_to)
+    return Twin(config, clock, bus, world, emulator, schedule, hand, lock, reference, seed)
+
+
+def serve_link(path: Path, field_name: str, config: RigConfig) -> PtyLink:
+    """A pty symlinked at a port the config names (a ConfigError naming the field if it cannot be made)."""
+    try:
+        return PtyLink(path)
+    except (OSError, ValueError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ConfigError(
+            f"{config.source}: {field_name}: {path}: cannot serve there ({reason}); allowed: a new path or "
+            "an old symlink in a writable directory"
+        ) from None
+
+
+@dataclass(frozen=True)
+class Served:
+    """Where one of the twin's devices is served: the config's port (a symlink) and the pty behind it."""
+
+    link: Path
+    device: str
+
+
+def serve_twin(
+    twin: Twin, stop: StopFlag, *, ready: Callable[[Served, Served], None], firmware: Path | None = None
+) -> None:
+    """Serve the twin on the config's ports until `stop`; `ready(servos, loadcell)` once they exist.
+
+    `firmware`: the harness that runs the built image as the load cell (rig/sim/twin_firmware.py)
+    instead of the Python emulator. Each device's server runs in its own thread; an error in one
+    stops them all and is raised here.
+    """
+    config = twin.config
+    command = None
+    if firmware is not None:
+        reset_s = simulation_section(config).loadcell_dtr_reset_s
+        command = harness_command(firmware, config, twin_loadcell_rate_hz(config), reset_s)
+    errors: list[BaseException] = []
+
+    def guarded(target: Callable[[], object]) -> threading.Thread:
+        def body() -> None:
+            try:
+                target()
+            except BaseException as exc:  # handed to the main thread, which raises it
+                errors.append(exc)
+                stop.stopped = True
+
+        return threading.Thread(target=body, daemon=True)
+
+    with contextlib.ExitStack() as stack:
+        servo_link = stack.enter_context(serve_link(Path(config.servos.port), "servos.port", config))
+        threads = [guarded(lambda: serve(_LockedBus(twin), servo_link, stop))]
+        if command is None:
+            cell_link = stack.enter_context(serve_link(Path(config.loadcell.port), "loadcell.port", config))
+            threads.append(guarded(lambda: serve_loadcell(twin.loadcell, cell_link, stop)))
+            cell = Served(cell_link.link_path, cell_link.slave_name)
+        else:
+            board = start_firmware_cell(command, Path(config.loadcell.port))
+            stack.callback(stop_firmware_cell, board)
+            signal = twin.loadcell.signal
+            threads.append(
+                guarded(
+                    lambda: feed_firmware(board, twin.tension_now_n, signal, twin.seed, lambda: stop.stopped)
+                )
+            )
+            cell = Served(board.link, board.device)
+        for thread in threads:
+            thread.start()
+        ready(Served(servo_link.link_path, servo_link.slave_name), cell)
+        try:
+            while not stop.stopped:
+                twin.catch_up()
+                time.sleep(TICK_S)
+        finally:
+            stop.stopped = True
+            for thread in threads:
+                thread.join()
+    if errors:
+        raise errors[0]
