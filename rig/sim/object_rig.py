@@ -24,6 +24,7 @@ from rig.sim.simulated_rig import (
     calibration_json,
     config_preset,
     configuration_source,
+    emulated_models,
     loadcell_artefacts,
     loadcell_signal,
     new_world,
@@ -63,7 +64,7 @@ def object_simulated_rig(
         )
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
-    models = sim.servo_models or [s.model for s in config.servos.servos]  # as on the byte-level bus
+    models = emulated_models(config)  # as on the byte-level bus
     bus = ObjectServoBus(clock, [(s.servo_id, m) for s, m in zip(config.servos.servos, models, strict=True)])
     world = new_world(preset, config, bus, clock, seed)
     world.devices_at_rest = bus.at_rest

@@ -167,8 +167,7 @@ def simulated_rig(
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
     ids = [s.servo_id for s in config.servos.servos]
-    # Each configured servo its own model, unless the world puts other servos on the bus.
-    models = list(sim.servo_models or [s.model for s in config.servos.servos])
+    models = emulated_models(config)
     bus = EmulatedBus.with_servos(
         clock, ids=ids, model=models, baud=config.servos.baud, firmware=sim.servo_firmware
     )
@@ -294,6 +293,18 @@ def run_clock(realtime: bool, invocation: int) -> VirtualClock:
     """The virtual clock of a run; `invocation` (1: a new run, 2: its first resume, ...) sets its start."""
     epoch_ns = DEFAULT_EPOCH_NS + (invocation - 1) * VIRTUAL_DAY_NS
     return PacedVirtualClock(epoch_ns) if realtime else VirtualClock(epoch_ns)
+
+
+def emulated_models(config: RigConfig) -> list[str]:
+    """The model of each servo on the emulated bus, in `servos.ids` order.
+
+    Each configured servo is its own model, unless `simulation.servo_models` puts others on the bus
+    (a lab's mixed-up servo).
+    """
+    sim = config.simulation
+    if sim is not None and sim.servo_models is not None:
+        return [str(m) for m in sim.servo_models]
+    return [s.model for s in config.servos.servos]
 
 
 def new_world(

@@ -44,7 +44,13 @@ from rig.sim.loadcell.inprocess import ideal_calibration, simulated_load_cell
 from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.physics.world import SimWorld
 from rig.sim.pty_link import PtyLink, StopFlag
-from rig.sim.simulated_rig import config_preset, loadcell_artefacts, loadcell_signal, new_world
+from rig.sim.simulated_rig import (
+    config_preset,
+    emulated_models,
+    loadcell_artefacts,
+    loadcell_signal,
+    new_world,
+)
 from rig.sim.twin_console import ReferenceLoad
 from rig.sim.twin_firmware import feed_firmware, harness_command, start_firmware_cell, stop_firmware_cell
 from rig.sim.twin_hand import HandTrial, TwinHand, hand_trials
@@ -185,7 +191,7 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
     bus = EmulatedBus.with_servos(
         clock,
         ids=[s.servo_id for s in config.servos.servos],
-        model=[s.model for s in config.servos.servos],
+        model=emulated_models(config),
         baud=config.servos.baud,
         firmware=sim.servo_firmware,
     )
