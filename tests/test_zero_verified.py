@@ -134,3 +134,21 @@ def test_a_loaded_line_on_a_reversed_winch_is_paid_out_the_way_the_cell_confirms
     goals = _winch_goals(tmp_path / "out")
     assert start_rad - min(goals) < 0.05
     assert sim.devices.bus.servo(1).present_position_rad > start_rad
+
+
+def test_a_cell_lost_in_the_middle_of_the_payout_leaves_the_winch_where_it_read_lowest(tmp_path):
+    # The cell's port fails 0.5 s in, while the loaded line is being paid out step by step. The safe
+    # state must not wind the winch back to where the line was loaded at connect (before: the zero
+    # stayed there, and the line ended at 5.3 N again); it goes to the step the cell read lowest,
+    # and the reason says that the tension was not measured at the end.
+    rig = _rig(
+        tmp_path,
+        "  initial_tension_n: 10\n  faults:\n    - {device: loadcell, kind: disconnect, at_s: 0.5}\n",
+    )
+    report, sim, start_rad = _run(rig, tmp_path / "out")
+    assert report.exit_code == 1 and (report.reason or "").startswith("NotConnectedError: load cell")
+    assert "the tension was not measured" in (report.reason or "")
+    end_rad = sim.devices.bus.servo(1).present_position_rad
+    assert end_rad < start_rad - 0.03  # paid out, and left there
+    assert sim.devices.world.tension_n < 3.0  # 5.3 N when the winch went back to its start
+    assert not any(servo.torque_enabled for servo in sim.devices.bus.servos)

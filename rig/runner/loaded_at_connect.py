@@ -83,7 +83,11 @@ class PayoutResult:
 
 
 def pay_out_verified(ctx: StepContext, reading_n: float) -> PayoutResult:
-    """Pay the line out step by step while the cell shows the tension falling; see the module docstring."""
+    """Pay the line out step by step while the cell shows the tension falling; see the module docstring.
+
+    `ctx.winch_zero_rad` follows the step with the lowest tension measured so far, so a fault in the
+    middle of the payout leaves the safe state going there, never back to the line as loaded.
+    """
     loop, config = ctx.loop, ctx.config
     limits = config.limits
     winch = ctx.session.winch_id
@@ -128,7 +132,7 @@ def pay_out_verified(ctx: StepContext, reading_n: float) -> PayoutResult:
                 break
         return sum(forces) / len(forces) if forces else None
 
-    force_n = reading_n
+    force_n = lowest_n = reading_n
     paid_rad = 0.0
     falling = False
     flipped = False
@@ -142,6 +146,8 @@ def pay_out_verified(ctx: StepContext, reading_n: float) -> PayoutResult:
             break
         step_change_n = force_n - measured
         force_n = measured
+        if force_n < lowest_n:  # should anything fail from here on, the safe state goes back here
+            lowest_n, ctx.winch_zero_rad = force_n, start_rad + out * paid_rad
         if force_n <= tolerance_n and (step_change_n < change_n or paid_rad >= max_payout_rad):
             verdict = PayoutVerdict.SLACK  # within the tolerance, and paying out no longer lowers it
             break

@@ -69,6 +69,7 @@ class LineRelease:
         self.report: list[str] = []  # what the release did and verified
         self.at_zero = False  # the winch's position was read back at its zero-tension angle
         self.slack_confirmed = False  # ... and the load cell read the line slack there (or is gone, said)
+        self.tension_measured = True  # False: the cell gave no reading once the winch was back
 
     def reading(self) -> Reading:
         """What the release read last."""
@@ -158,6 +159,7 @@ class LineRelease:
             fresh = fresh or bool(self.tick_samples)
         if not fresh:
             self.slack_confirmed = True
+            self.tension_measured = False
             last = f" (it last read {self.force_n:+.2f} N)" if self._cell_answered else ""
             self.report.append(
                 f"the load cell gave no reading once the winch was back{last}: the tension was not measured"

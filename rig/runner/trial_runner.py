@@ -124,6 +124,8 @@ class TrialRunner:
         )
         self.trial: TrialPlan | None = None
         self.connected = False
+        # Set by the safe state when it was verified without the load cell (it gave no reading).
+        self.tension_unmeasured: str | None = None
 
     # ------------------------------------------------------------------ run
 
@@ -162,6 +164,8 @@ class TrialRunner:
                     exit_code = ExitCode.FAULT if outcome.exit_code == ExitCode.OK else outcome.exit_code
                     status = "faulted" if outcome.exit_code == ExitCode.OK else outcome.status
                     outcome = RunOutcome(exit_code, status, reason, outcome.new_results, False)
+                elif self.tension_unmeasured is not None and outcome.reason is not None:
+                    outcome.reason = f"{outcome.reason}; then {self.tension_unmeasured}"
                 if outcome.exit_code != ExitCode.OK and self.recorder.phases.phase not in (
                     Phase.ABORTED,
                     Phase.FAULTED,
@@ -399,6 +403,8 @@ class TrialRunner:
             done = "; ".join(releases[0].report if releases else [])
             verified = never_loaded or (bool(releases) and releases[0].slack_confirmed)
             if not errors and verified:
+                if releases and not releases[0].tension_measured:
+                    self.tension_unmeasured = f"safe state: {done}; torque off (confirmed)"
                 self.recorder.note(
                     LogLevel.INFO, "safe state: " + (done + "; " if done else "") + "torque off (confirmed)"
                 )
