@@ -17,20 +17,8 @@ from rig.errors import RigTimeoutError
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import PortLatencySource
 from rig.hw.usb_latency import is_slow, latency_timer_path, read_latency_timer_ms
+from tests.test_hardware_path_faults import PROTOCOL  # one joint-1 trial at 0.12 m, no prompt
 
-PROTOCOL = """\
-format: rig-protocol/1
-name: latency
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.5, max_force_n: 40.0}
-limits: {force_ceiling_n: 45.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12]
-    repeats: 1
-    steps: [{tare: {settle_s: 0.2}}, ramp_until_slip, unload]
-"""
 HOST_BLAMED = "the host did not run in time"
 
 
@@ -87,7 +75,7 @@ def test_a_16_ms_timer_is_named_at_connect_and_for_late_ticks(
     sysfs = tmp_path / "sys"
     servos = dxl_server(ids=[1, 2], extra_args=["--usb-latency-ms", "16", "--sysfs-root", str(sysfs)])
     # A constant cell: no rise, so the first ramp ends on the reel-direction check (0.25 turn, about
-    # 1.6 s at 1 rad/s), exit 1; the timer's warnings come before it.
+    # 4 s at 0.4 rad/s), exit 1; the timer's warnings come before it.
     cell = loadcell_server("constant:0.5")
     rig = hardware_rig(servos.link, cell.link, top={"line_stiffness_n_per_m": 20000})
     protocol = tmp_path / "p.yaml"
