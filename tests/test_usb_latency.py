@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 from rig.errors import RigTimeoutError
 from rig.hw.dxl.bus import DynamixelServoBus
@@ -107,3 +109,36 @@ def test_a_16_ms_timer_is_named_at_connect_and_for_late_ticks(
     assert late, run.stderr  # a 16 ms hold on each of a tick's exchanges makes some ticks late
     assert all("USB latency timer is 16 ms (set it to 1 ms" in n for n in late), late
     assert all("latency timer is 16 ms" in n for n in notes if "servo bus timeouts" in n)
+
+
+@pytest.mark.pty
+@pytest.mark.subprocess
+def test_the_emulated_adapter_follows_its_sysfs_file_as_a_udev_rule_rewrites_it(
+    tmp_path: Path, dxl_server
+) -> None:
+    # Started at Linux's FTDI default (16 ms); then the udev rule's 1 ms is written to the file.
+    sysfs = tmp_path / "sys"
+    servos = dxl_server(ids=[1], extra_args=["--usb-latency-ms", "16", "--sysfs-root", str(sysfs)])
+    timer = latency_timer_path(sysfs, Path(servos.pty).name)
+    assert timer.read_text().strip() == "16"
+    port = PortHandler(servos.link)
+    assert port.openPort() and port.setBaudRate(1_000_000)
+    handler = PacketHandler(2.0)
+
+    def fastest_ping_ms() -> float:
+        times = []
+        for _ in range(5):
+            start = time.monotonic()
+            _, result, _ = handler.ping(port, 1)
+            assert result == COMM_SUCCESS
+            times.append((time.monotonic() - start) * 1e3)
+        return min(times)
+
+    try:
+        slow = fastest_ping_ms()
+        timer.write_text("1\n")
+        time.sleep(0.5)  # the emulator re-reads its file at most every 0.2 s
+        fast = fastest_ping_ms()
+    finally:
+        port.closePort()
+    assert slow >= 15.0 and fast < 10.0, (slow, fast)

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import assert_never
 
@@ -187,7 +188,9 @@ def run(args: argparse.Namespace) -> int:
         latency_file = _write_latency_timer(args, link.slave_name)
         print(f"PTY {link.slave_name} LINK {link.link_path}", flush=True)
         try:
-            latency_s = args.usb_latency_ms / 1e3
+            latency_s: float | Callable[[], float] = args.usb_latency_ms / 1e3
+            if latency_file is not None:
+                latency_s = LatencyTimerFile(latency_file, args.usb_latency_ms / 1e3)
             stats = serve(served, link, stop, wire_timing=args.wire_timing, usb_latency_s=latency_s)
         finally:
             if latency_file is not None:
@@ -198,6 +201,34 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+class LatencyTimerFile:
+    """The emulated adapter's latency timer as its sysfs file says now (re-read at most every 0.2 s).
+
+    A real FTDI adapter takes a new value written to its `latency_timer` file at once (the udev rule
+    in docs/udev/99-rig.rules writes 1); the emulator follows its own file the same way. A file
+    that cannot be read or parsed leaves the last value.
+    """
+
+    REREAD_S = 0.2
+
+    def __init__(self, path: Path, initial_s: float) -> None:
+        self.path = path
+        self.value_s = initial_s
+        self._read_at = time.monotonic()
+
+    def __call__(self) -> float:
+        now = time.monotonic()
+        if now - self._read_at >= self.REREAD_S:
+            self._read_at = now
+            try:
+                ms = int(self.path.read_text().strip())
+            except (OSError, ValueError):
+                return self.value_s
+            if 0 <= ms <= 255:
+                self.value_s = ms / 1e3
+        return self.value_s
 
 
 def _write_latency_timer(args: argparse.Namespace, device: str) -> Path | None:

@@ -8,7 +8,9 @@ would only add latency); `wire_timing=True` holds each reply until its simulated
 reply delays are always honoured. `usb_latency_s` emulates a USB-serial adapter's latency timer (an
 FTDI chip such as the U2D2's holds a short reply until its timer expires: 16 ms by default on
 Linux, 1 ms once set): every reply is held that long after it is computed, the worst case of a
-timer that runs freely (a real chip's wait is between 0 and the timer). The client's baud rate
+timer that runs freely (a real chip's wait is between 0 and the timer); given as a callable it is
+asked again for every chunk, so the emulated adapter follows its sysfs file as an FTDI chip follows
+its own (`rig sim servos --sysfs-root`). The client's baud rate
 is read from the pty on every chunk; servos at another rate (or a non-standard client rate) stay
 silent, so baud scans are testable.
 """
@@ -18,6 +20,7 @@ from __future__ import annotations
 import heapq
 import select
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -53,10 +56,15 @@ def serve(
     stop: StopFlag,
     *,
     wire_timing: bool = False,
-    usb_latency_s: float = 0.0,
+    usb_latency_s: float | Callable[[], float] = 0.0,
 ) -> ServeStats:
-    """Answer the client on `link` until `stop.stopped`; returns the counters."""
-    latency_ns = round(usb_latency_s * 1e9)
+    """Answer the client on `link` until `stop.stopped`; returns the counters.
+
+    `usb_latency_s` may be a callable, asked again at each chunk from the host: the latency timer as
+    it is now (the emulated adapter's sysfs file, which a udev rule or a person may rewrite).
+    """
+    latency_of: Callable[[], float] = usb_latency_s if callable(usb_latency_s) else (lambda: usb_latency_s)
+    latency_ns = round(latency_of() * 1e9)
     stats = ServeStats()
     poller = select.poll()
     poller.register(link.master_fd, select.POLLIN)
@@ -70,6 +78,7 @@ def serve(
             data = link.read()
             if data:
                 now = monotonic_ns()
+                latency_ns = round(latency_of() * 1e9)
                 stats.bytes_in += len(data)
                 baud = link.client_baud()
                 if baud is None:
