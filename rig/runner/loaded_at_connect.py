@@ -86,7 +86,8 @@ def pay_out_verified(ctx: StepContext, reading_n: float) -> PayoutResult:
     """Pay the line out step by step while the cell shows the tension falling; see the module docstring.
 
     `ctx.winch_zero_rad` follows the step with the lowest tension measured so far, so a fault in the
-    middle of the payout leaves the safe state going there, never back to the line as loaded.
+    middle of the payout leaves the safe state going there, never back to the line as loaded; at the
+    end it is where the winch holds, so the safe state does not move it again.
     """
     loop, config = ctx.loop, ctx.config
     limits = config.limits
@@ -166,7 +167,8 @@ def pay_out_verified(ctx: StepContext, reading_n: float) -> PayoutResult:
             break
         if paid_rad >= max_payout_rad:
             break
-    result = PayoutResult(verdict, reading_n, force_n, paid_rad, loop.states[winch].position_rad, flipped)
+    ctx.winch_zero_rad = loop.states[winch].position_rad
+    result = PayoutResult(verdict, reading_n, force_n, paid_rad, ctx.winch_zero_rad, flipped)
     level = LogLevel.INFO if verdict == PayoutVerdict.SLACK else LogLevel.WARNING
     ctx.recorder.note(level, f"line loaded at connect: {result.describe()}")
     return result

@@ -133,7 +133,7 @@ def nothing_measured(results: Sequence[TrialResult], max_force_n: float) -> str 
     tally = ", ".join(f"{n} {o}" for o, n in counts.items() if n)
     head = f"no trial gave a usable slip ({tally} of {len(results)})"
     if counts[TrialOutcome.ABORTED] == len(results):
-        first = next(r.reason for r in results if r.reason) if any(r.reason for r in results) else "unknown"
+        first = next((r.reason for r in results if r.reason), "unknown")
         return (
             f"{head}: every trial was aborted, the first by: {first}. If the ramps timed out, the tension "
             "did not rise as planned: check that the line is on the drum and tied to the link, "

@@ -234,9 +234,8 @@ class TrialRunner:
         tolerance the line may be loaded (a stop that could not release it) or the calibration's
         zero is off; either way the run stops (exit 1) with the reading. A positive reading is paid
         out in small steps, each checked on the cell (`rig.runner.loaded_at_connect`): never by a
-        travel in a direction nobody has verified yet. The winch's zero-tension angle becomes where
-        that left it, so the safe state does not move it again; the safe state's load-cell check then
-        says whether the line ended slack.
+        travel in a direction nobody has verified yet; the payout sets the winch's zero-tension angle
+        (`pay_out_verified`). The safe state's load-cell check then says whether the line ended slack.
         """
         samples = [f for _, f in self.loop.tick_samples]
         reading_n = sum(samples) / len(samples)
@@ -252,8 +251,7 @@ class TrialRunner:
                 f"{beyond}; a line cannot push, so the cell's zero is off: nothing moved. Recalibrate the "
                 "load cell with `rig calibrate` and start the run again"
             )
-        payout = pay_out_verified(self.ctx, reading_n)
-        self.ctx.winch_zero_rad = payout.position_rad
+        payout = pay_out_verified(self.ctx, reading_n)  # it leaves the zero where the winch holds
         if payout.verdict == PayoutVerdict.SLACK and payout.reversed:
             fix = (
                 f"on the now slack line run `rig check --rig {self.config.source} --move --write` to "
