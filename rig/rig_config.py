@@ -379,6 +379,11 @@ class RigConfig:
         return stall_tension_n(self.servos.winch.model, limits.winch_current_limit_a, self.spool_radius_m)
 
     @property
+    def line_n_per_rad(self) -> float:
+        """The line's tension per radian the winch reels, at the nominal line stiffness [N/rad]."""
+        return self.line_stiffness_n_per_m * self.spool_radius_m
+
+    @property
     def joints_from(self) -> str:
         """Where the link's joint count comes from, for a protocol that lists another count."""
         return f"{self.source} (article.segment_lengths_m: {self.article.joint_count} segments)"

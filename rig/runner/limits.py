@@ -44,7 +44,7 @@ DIRECTION_CHECK_MARGIN = 1.5
 def direction_check_rise_n(config: RigConfig) -> float:
     """The tension rise over the ramp's direction check (`limits.direction_check_rev`), nominal stiffness."""
     travel_rad = config.limits.direction_check_rev * 2 * math.pi
-    return config.line_stiffness_n_per_m * config.spool_radius_m * travel_rad
+    return config.line_n_per_rad * travel_rad
 
 
 def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
@@ -80,7 +80,7 @@ def limit_checks(protocol: Protocol, config: RigConfig) -> list[LimitCheck]:
             stall_force >= ramp.max_force_n,
         )
     )
-    travel_rev = ramp.max_force_n / (config.line_stiffness_n_per_m * config.spool_radius_m) / (2 * math.pi)
+    travel_rev = ramp.max_force_n / config.line_n_per_rad / (2 * math.pi)
     checks.append(
         LimitCheck(
             "winch travel to reach max force (nominal stiffness) <= travel limit",
@@ -164,7 +164,7 @@ def ramp_speeds(protocol: Protocol, config: RigConfig) -> RampSpeeds:
         fast_rad_s=ramp.fast_speed_rad_s,
         slow_rad_s=ramp.slow_speed_rad_s,
         rate_hz=nominal_loadcell_rate_hz(config),
-        n_per_rad=config.line_stiffness_n_per_m * config.spool_radius_m,
+        n_per_rad=config.line_n_per_rad,
     )
 
 
@@ -175,8 +175,7 @@ def loaded_after_slip_s(protocol: Protocol, config: RigConfig, slip_force_n: flo
     `ramp.unload_speed_rad_s` (docs/design.md §6 2e).
     """
     ramp = protocol.ramp
-    n_per_rad = config.line_stiffness_n_per_m * config.spool_radius_m
-    return ramp.hold_after_slip_s + slip_force_n / (n_per_rad * ramp.unload_speed_rad_s)
+    return ramp.hold_after_slip_s + slip_force_n / (config.line_n_per_rad * ramp.unload_speed_rad_s)
 
 
 def loaded_after_slip_warning(protocol: Protocol, config: RigConfig, slip_force_n: float) -> str | None:
