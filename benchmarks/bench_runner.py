@@ -23,7 +23,7 @@ from typing import Any
 
 import yaml
 
-from rig.rigs import open_session
+from rig.rigs import open_rig
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
 
@@ -33,12 +33,13 @@ ROOT = Path(__file__).resolve().parent.parent
 def one_run(protocol: Path, seed: int, out: Path) -> tuple[float, float, int, int]:
     request = RunRequest(protocol_path=protocol, rig_path=None, out_dir=out, seed=seed, run_id=f"bench{seed}")
     prepared = prepare_run(request)
-    session = open_session(prepared)
-    start_virtual_ns = session.clock.monotonic_ns()
+    rig = open_rig(prepared)
+    clock = rig.session.clock
+    start_virtual_ns = clock.monotonic_ns()
     t0 = time.perf_counter()
-    report = execute_run(prepared, session, SilentProgress())
+    report = execute_run(prepared, rig, SilentProgress())
     wall_s = time.perf_counter() - t0
-    rig_s = (session.clock.monotonic_ns() - start_virtual_ns) / 1e9
+    rig_s = (clock.monotonic_ns() - start_virtual_ns) / 1e9
     log_bytes = Path(report.log).stat().st_size
     return rig_s, wall_s, report.completed, log_bytes
 

@@ -61,7 +61,7 @@ def run_world(seconds: float, use_servo: bool) -> tuple[float, int]:
 
         world = SimWorld(preset, shaft, step_devices=ramp)
     world.set_configuration([0.2, -0.1, 0.0, 0.1, 0.0, 0.1, -0.1, 0.0])
-    world.begin_trial("link_validation")
+    world.hook_link()
     end_ns = round(seconds * 1e9)
     t0 = time.perf_counter()
     for t in range(CLOCK_STEP_NS, end_ns + 1, CLOCK_STEP_NS):

@@ -1,6 +1,7 @@
 """Composition: the rig a prepared run asks for, hardware or simulated (the CLI, tests and benchmarks use it).
 
-This is the one module that knows both rigs; the runner below it sees only `rig.hw.session.RigSession`.
+This is the one module that knows both rigs; the runner below it sees only `rig.hw.session.RigSession`
+and, beside it, what `rig.runner.rig_to_run.RigToRun` says a composition may know of a rig.
 """
 
 from __future__ import annotations
@@ -10,16 +11,15 @@ from typing import assert_never
 from rig.hw.hardware_rig import hardware_session, rig_calibration
 from rig.hw.session import RigSession
 from rig.rig_config import RigConfig
+from rig.runner.rig_to_run import BareRig, RigToRun
 from rig.runner.run import PreparedRun
-from rig.sim.object_rig import ObjectSimulatedRig, object_simulated_rig
 from rig.sim.simulated_rig import SimulatedRig, simulated_rig
 from rig.vocabulary import DeviceLevel, RigKind
 
 __all__ = [
     "check_session_inputs",
     "open_check_session",
-    "open_object_simulated_rig",
-    "open_session",
+    "open_rig",
     "open_simulated_rig",
 ]
 
@@ -29,25 +29,19 @@ def check_session_inputs(config: RigConfig) -> None:
     rig_calibration(config)
 
 
-def open_session(prepared: PreparedRun, *, devices: DeviceLevel = DeviceLevel.BYTE) -> RigSession:
+def open_rig(prepared: PreparedRun, *, devices: DeviceLevel = DeviceLevel.BYTE) -> RigToRun:
     """The rig a prepared run asks for (nothing connected yet).
 
-    A hardware config gives the hardware rig (always real time); a simulated one gives the session
-    of `open_simulated_rig` on `devices` ("byte": the real drivers on emulators; "object": the
+    A hardware config gives the hardware rig (always real time); a simulated one gives
+    `open_simulated_rig` on `devices` ("byte": the real drivers on emulators; "object": the
     object-level devices, same world; ignored for hardware).
     """
     match prepared.config.kind:
         case RigKind.HARDWARE:
-            return hardware_session(prepared.config, sysfs_root=prepared.request.sysfs_root)
+            return BareRig(hardware_session(prepared.config, sysfs_root=prepared.request.sysfs_root))
         case RigKind.SIMULATED:
             check_session_inputs(prepared.config)
-            match DeviceLevel(devices):  # ValueError for a name that is no level
-                case DeviceLevel.BYTE:
-                    return open_simulated_rig(prepared).session
-                case DeviceLevel.OBJECT:
-                    return open_object_simulated_rig(prepared).session
-                case level:
-                    assert_never(level)
+            return open_simulated_rig(prepared, devices=devices)
         case kind:
             assert_never(kind)
 
@@ -57,17 +51,7 @@ def open_check_session(config: RigConfig, *, seed: int = 0) -> RigSession:
     return simulated_rig(config, seed=seed).session
 
 
-def open_object_simulated_rig(prepared: PreparedRun) -> ObjectSimulatedRig:
-    """`open_simulated_rig` on the object-level devices (same world, seed and virtual clock; no bytes)."""
-    return object_simulated_rig(
-        prepared.config,
-        seed=prepared.journal.seed,
-        realtime=prepared.request.realtime,
-        invocation=prepared.journal.invocations + 1,
-    )
-
-
-def open_simulated_rig(prepared: PreparedRun) -> SimulatedRig:
+def open_simulated_rig(prepared: PreparedRun, *, devices: DeviceLevel = DeviceLevel.BYTE) -> SimulatedRig:
     """The simulated rig of a prepared run, seeded from its journal so a resumed part draws the same world.
 
     Each part starts its virtual clock after the previous one's (`invocation`), and
@@ -78,4 +62,5 @@ def open_simulated_rig(prepared: PreparedRun) -> SimulatedRig:
         seed=prepared.journal.seed,
         realtime=prepared.request.realtime,
         invocation=prepared.journal.invocations + 1,
+        devices=devices,
     )

@@ -52,7 +52,7 @@ def one_slip_mass_kg(
     world: SimWorld, winch: IdealWinch, distance_m: float, rate_rad_s: float, rng: np.random.Generator
 ) -> float:
     """One joint-estimation trial: ramp from slack to the first slip, detect it in noisy samples."""
-    world.begin_trial("joint_estimation", distance_m=distance_m)
+    world.place_hook(distance_m)
     winch.present_position_rad = world.taut_winch_angle_rad() - 0.05
     winch.rate_rad_s = rate_rad_s
     winch.last_ns = world.now_ns

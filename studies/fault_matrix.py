@@ -36,7 +36,7 @@ def main() -> None:
             request = RunRequest(args.protocol, config, Path(out), args.seed, run_id=config.stem)
             prepared = prepare_run(request)
             sim = open_simulated_rig(prepared)
-            report = execute_run(prepared, sim.session, SilentProgress())
+            report = execute_run(prepared, sim, SilentProgress())
             replayed = replay(report.logs)
             lost = len({t.trial_id for t in report.trials} - {r.trial_id for r in replayed.records})
             truth = report.truth

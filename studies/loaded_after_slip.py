@@ -32,7 +32,7 @@ def loaded_times_s(protocol: Path, rig: Path | None, seed: int) -> list[float]:
     """The logged time loaded after each slip of one run."""
     with tempfile.TemporaryDirectory() as out:
         prepared = prepare_run(RunRequest(protocol, rig, Path(out), seed=seed, run_id="loaded"))
-        execute_run(prepared, open_simulated_rig(prepared).session, SilentProgress())
+        execute_run(prepared, open_simulated_rig(prepared), SilentProgress())
         notes = read_run(Path(out)).topic("/rig/log").message
         return [float(m.group(1)) for m in map(_LOADED.search, notes) if m]
 

@@ -14,7 +14,7 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from rig.rigs import open_session
+from rig.rigs import open_rig
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
 
@@ -30,7 +30,7 @@ def run(protocol: str, seed: int, out: Path):
         run_id=f"{Path(protocol).stem}-{seed}",
     )
     prepared = prepare_run(request)
-    return execute_run(prepared, open_session(prepared), SilentProgress())
+    return execute_run(prepared, open_rig(prepared), SilentProgress())
 
 
 def main() -> None:

@@ -44,7 +44,7 @@ def main() -> None:
                     request = RunRequest(protocol, config_path, Path(out), seed, run_id="peak")
                     prepared = prepare_run(request)
                     sim = open_simulated_rig(prepared)
-                    report = execute_run(prepared, sim.session, SilentProgress())
+                    report = execute_run(prepared, sim, SilentProgress())
                     log = read_run(Path(out))
                     states = log.topic("/rig/servo/state")
                     peak_a = float(states[states.role == "winch"].current_a.abs().max())

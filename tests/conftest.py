@@ -496,7 +496,7 @@ def _run_on_simulated_rig(
     sim = open_simulated_rig(prepared)
     if patch is not None:
         patch(sim)
-    return execute_run(prepared, sim.session, SilentProgress()), sim
+    return execute_run(prepared, sim, SilentProgress()), sim
 
 
 @pytest.fixture(scope="session")

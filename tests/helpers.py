@@ -12,6 +12,9 @@ import tempfile
 from pathlib import Path
 
 from rig.hw.dxl.control_table import to_signed
+from rig.hw.truth import TrialTruth
+from rig.sim.physics.world import SimWorld
+from rig.vocabulary import TrialKind
 
 
 def u32(value: int) -> int:
@@ -87,3 +90,19 @@ def build_firmware() -> subprocess.CompletedProcess[str]:
             )
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def set_up_trial(
+    world: SimWorld, kind: TrialKind | str, distance_m: float | None = None, joint: int | None = None
+) -> TrialTruth:
+    """What a trial does to the world before its ramp, drawn at once (as the loading would draw it).
+
+    Joint estimation: the person hangs the hook at `distance_m` on the specimen (`joint` of the link,
+    or the nominal one); link validation: the line goes to the link.
+    """
+    if TrialKind(kind) is TrialKind.JOINT_ESTIMATION:
+        assert distance_m is not None
+        world.place_hook(distance_m, joint)
+    else:
+        world.hook_link()
+    return world.draw_trial()

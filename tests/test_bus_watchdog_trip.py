@@ -36,7 +36,7 @@ def _run(tmp_path: Path, rig_text: str):
     )
     prepared = prepare_run(request)
     sim = open_simulated_rig(prepared)
-    report = execute_run(prepared, sim.session, SilentProgress())
+    report = execute_run(prepared, sim, SilentProgress())
     return prepared, sim, report
 
 

@@ -283,7 +283,7 @@ def test_a_no_slip_trial_is_a_lower_bound_in_the_run_and_in_replay(tmp_path, wri
         "ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 40.0}\n"
         "limits: {force_ceiling_n: 45.0}\nblocks:\n  - kind: joint_estimation\n"
         "    distances_m: [0.03, 0.1, 0.15, 0.2]\n"
-        "    steps: [{tare: {settle_s: 0.1}}, ramp_until_slip, unload]\n",
+        "    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]\n",
         "cens.yaml",
     )
     report = cli_json("run", protocol, "--out", tmp_path / "out", "--json")

@@ -74,7 +74,7 @@ def test_fault_scenario_ends_as_stated(scenario, tmp_path):
     )
     prepared = prepare_run(request)
     sim = open_simulated_rig(prepared)
-    report = execute_run(prepared, sim.session, SilentProgress())
+    report = execute_run(prepared, sim, SilentProgress())
     assert report.exit_code == expected.exit_code, report.reason
     if expected.completed is not None:
         assert report.completed == expected.completed

@@ -40,7 +40,7 @@ blocks:
     joint: 1
     distances_m: [0.12, 0.2]
     repeats: 1
-    steps: [{tare: {settle_s: 0.1}}, ramp_until_slip, unload]
+    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
   - kind: link_validation
     estimates_from: run
     configurations_deg: [[5, 0, 5, 5, 0, 0, 0, 0], [0, 0, 5, 5, 0, 0, 0, 0], [5, 5, 0, 0, 0, 0, 0, 0]]

@@ -12,7 +12,7 @@ from rig.sim.physics.article import ChainArticle
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.forks import ForkFixture
 from rig.sim.physics.world import SimWorld
-from tests.helpers import ScriptedShaft
+from tests.helpers import ScriptedShaft, set_up_trial
 
 MS = 1_000_000
 
@@ -93,7 +93,7 @@ def test_the_world_holds_the_link_while_a_fork_pushes_and_frees_it_after() -> No
     preset = make_preset("link1", seed=1)
     winch, fork_shaft = ScriptedShaft(), ScriptedShaft()
     world = SimWorld(preset, winch, forks=[(1, fork_shaft)], seed=1)
-    world.begin_trial("link_validation")
+    set_up_trial(world, "link_validation")
     world.engage_fork(1)
     assert world.bending
     fork_shaft.present_position_rad = 0.5
@@ -102,7 +102,7 @@ def test_the_world_holds_the_link_while_a_fork_pushes_and_frees_it_after() -> No
     assert not world.slips
     angle = world.link.planar_joint_angles()[0]
     assert angle > 0.1
-    world.open_forks()
+    world.forks.open()
     assert not world.bending
     world.advance_to(201 * MS)
     assert world.slips  # free now: the overloaded link slips

@@ -21,7 +21,7 @@ from mcap.reader import make_reader
 from rig.errors import InputError
 from rig.log import schemas
 from rig.log.live import LivePublisher, serve_log
-from rig.rigs import open_session
+from rig.rigs import open_rig
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
 from tests.helpers import QUICK_PROTOCOL
@@ -110,7 +110,7 @@ def test_a_live_run_serves_the_logged_topics_with_their_schemas(tmp_path, protoc
         while not all(live.wants(t) for t in WATCHED):
             assert time.monotonic() < deadline, "the client did not subscribe"
             time.sleep(0.01)
-        report = execute_run(prepared, open_session(prepared), SilentProgress(), live=live)
+        report = execute_run(prepared, open_rig(prepared), SilentProgress(), live=live)
         stats = live.close()
     client.join()
     assert report.exit_code == 0, report.reason
@@ -234,7 +234,7 @@ def wait_until_subscribed(live: LivePublisher, topics: tuple[str, ...]) -> None:
 def test_replay_serve_streams_a_recorded_log_in_log_time_order(tmp_path, protocol_file):
     protocol = protocol_file(ONE_TRIAL)
     prepared = prepare_run(RunRequest(protocol_path=protocol, rig_path=None, out_dir=tmp_path, seed=5))
-    assert execute_run(prepared, open_session(prepared), SilentProgress()).exit_code == 0
+    assert execute_run(prepared, open_rig(prepared), SilentProgress()).exit_code == 0
     logged = file_messages(prepared.log_path)
     with LivePublisher(port=0, client_backlog=1 << 20, playback=True) as live:
         assert live.wait_ready()  # the server process listens
@@ -274,7 +274,7 @@ def test_serve_log_paces_messages_by_log_time(tmp_path, protocol_file):
 
     protocol = protocol_file(ONE_TRIAL)
     prepared = prepare_run(RunRequest(protocol_path=protocol, rig_path=None, out_dir=tmp_path, seed=5))
-    assert execute_run(prepared, open_session(prepared), SilentProgress()).exit_code == 0
+    assert execute_run(prepared, open_rig(prepared), SilentProgress()).exit_code == 0
     times = sorted(t for v in file_messages(prepared.log_path).values() for t, _ in v)
     with LivePublisher(port=0, playback=True) as live:
         serve_log([prepared.log_path], live, speed=2.0, sleep=sleep, monotonic=lambda: clock[0])

@@ -33,7 +33,7 @@ def _rig(tmp_path: Path, body: str) -> Path:
 def _run(rig: Path | None, out: Path) -> tuple[RunReport, SimulatedRig]:
     prepared = prepare_run(RunRequest(SMOKE, rig, out, seed=0, run_id="reel"))
     sim = open_simulated_rig(prepared)
-    return execute_run(prepared, sim.session, SilentProgress()), sim
+    return execute_run(prepared, sim, SilentProgress()), sim
 
 
 def _winch_positions(out: Path) -> list[float]:

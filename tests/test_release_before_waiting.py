@@ -62,7 +62,8 @@ def test_the_line_is_slack_before_anyone_is_asked_which_joint_moved(tmp_path):
     session = sim.session
     assert session.configuration is not None
     person = SlowPerson(session.configuration, sim.devices.world, session.clock.time_ns)
-    report = execute_run(prepared, dataclasses.replace(session, configuration=person), SilentProgress())
+    asked_rig = dataclasses.replace(sim, session=dataclasses.replace(session, configuration=person))
+    report = execute_run(prepared, asked_rig, SilentProgress())
     assert report.exit_code == 0 and [t.outcome for t in report.trials] == ["slip", "slip"]
     # Both slips were asked about, each for a minute, and the line was slack all the while.
     assert len(person.asked_at_ns) == 2

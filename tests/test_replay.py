@@ -37,7 +37,7 @@ blocks:
   - kind: joint_estimation
     joint: 1
     distances_m: [0.1, 0.2]
-    steps: [{tare: {settle_s: 0.1}}, ramp_until_slip, unload]
+    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
   - kind: link_validation
     estimates_from: run
     configurations_deg:
@@ -64,9 +64,15 @@ HAIR_TRIGGER = ["cusum_threshold_n=0.001", "cusum_drift_n_per_s=0", "min_drop_n=
 
 
 class _InterruptAtTrial2:
-    def confirm(self, text, trial, keep_alive):
-        if trial is not None and trial.trial_id == 2:
+    """The simulated person, who stops the run at trial 2's prompt."""
+
+    def __init__(self, person) -> None:
+        self.person = person
+
+    def confirm(self, request, keep_alive):
+        if request.trial is not None and request.trial.trial_id == 2:
             raise KeyboardInterrupt
+        self.person.confirm(request, keep_alive)
 
 
 @pytest.fixture(scope="session")
@@ -75,7 +81,7 @@ def logs(tmp_path_factory, run_on_simulated_rig):
 
     def run(out: Path, protocol: Path, run_id: str, *, resume: bool = False, operator=None):
         def use_operator(sim) -> None:
-            sim.session.operator = operator
+            sim.session.operator = operator(sim.session.operator)
 
         patch = use_operator if operator is not None else None
         return run_on_simulated_rig(protocol, out, run_id=run_id, resume=resume, patch=patch)[0]
@@ -85,7 +91,7 @@ def logs(tmp_path_factory, run_on_simulated_rig):
     link_protocol = root / "link_small.yaml"
     link_protocol.write_text(LINK)
     link = run(root / "link", link_protocol, "link")
-    first = run(root / "resumed", PROTOCOLS / "smoke.yaml", "res", operator=_InterruptAtTrial2())
+    first = run(root / "resumed", PROTOCOLS / "smoke.yaml", "res", operator=_InterruptAtTrial2)
     resumed = run(root / "resumed", PROTOCOLS / "smoke.yaml", "res", resume=True)
     assert smoke.exit_code == 0 and link.exit_code == 0 and first.exit_code == 130 and resumed.exit_code == 0
     return {"root": root, "smoke": smoke, "link": link, "resumed": resumed}

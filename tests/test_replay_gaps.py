@@ -22,10 +22,10 @@ def unplug_briefly_in_trial_2(sim) -> None:
     original = sim.session.operator
 
     class Operator:
-        def confirm(self, text, trial, keep_alive):
-            if trial is not None and trial.trial_id == 2:
+        def confirm(self, request, keep_alive):
+            if request.trial is not None and request.trial.trial_id == 2:
                 emulator.inject_silence(SILENCE_S, at_ns=clock.monotonic_ns() + 100_000_000)
-            original.confirm(text, trial, keep_alive)
+            original.confirm(request, keep_alive)
 
     sim.session.operator = Operator()
 

@@ -11,7 +11,6 @@ import pytest
 from model.fit import SUMMARY_KEYS
 from rig.cli import main
 from rig.errors import InputError
-from rig.protocol import TrialPlan
 from rig.rig_config import load_rig_config
 from rig.runner.journal import RunJournal
 from tests.helpers import QUICK_PROTOCOL
@@ -132,17 +131,16 @@ def test_a_hardware_error_that_comes_back_stops_the_run_safely_after_the_retries
     tmp_path, sim_run, protocol_file, assert_safe
 ):
     def overload_at_every_start_of_trial_2(sim):
-        world = sim.devices.world
         bus = sim.devices.bus
-        original = sim.session.begin_trial
+        person = sim.session.operator
+        original = person.confirm
 
-        def begin(trial: TrialPlan) -> None:
-            if trial.trial_id == 2:
+        def confirm(request, keep_alive) -> None:  # the prompt that starts each attempt of trial 2
+            if request.trial is not None and request.trial.trial_id == 2:
                 bus.set_hardware_error(1, 0x20)
-            original(trial)
+            original(request, keep_alive)
 
-        sim.session.begin_trial = begin
-        assert world is not None
+        person.confirm = confirm
 
     report, sim = sim_run(protocol_file(QUICK_PROTOCOL), patch=overload_at_every_start_of_trial_2)
     assert report.exit_code == 1 and report.completed == 1
@@ -156,10 +154,13 @@ def test_interrupt_then_resume_completes_without_repeats(tmp_path, sim_run, prot
     protocol = protocol_file(QUICK_PROTOCOL)
 
     def interrupt_at_trial_2(sim):
-        class Operator:
-            def confirm(self, text, trial, keep_alive):
-                if trial is not None and trial.trial_id == 2:
+        person = sim.session.operator
+
+        class Operator:  # the person, who stops the run at trial 2's prompt
+            def confirm(self, request, keep_alive):
+                if request.trial is not None and request.trial.trial_id == 2:
                     raise KeyboardInterrupt
+                person.confirm(request, keep_alive)
 
         sim.session.operator = Operator()
 
@@ -186,7 +187,7 @@ def test_resume_refuses_an_edited_protocol(sim_run, protocol_file):
 
     def stop_early(sim):
         class Operator:
-            def confirm(self, text, trial, keep_alive):
+            def confirm(self, request, keep_alive):
                 raise KeyboardInterrupt
 
         sim.session.operator = Operator()
@@ -207,7 +208,7 @@ def test_link_validation_predicts_from_the_rigs_own_estimates(sim_run, protocol_
     blocks:
       - kind: joint_estimation
         distances_m: [0.1, 0.2]
-        steps: [{tare: {settle_s: 0.1}}, ramp_until_slip, unload]
+        steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
       - kind: link_validation
         estimates_from: run
         configurations_deg:

@@ -14,8 +14,9 @@ from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.progress import SilentProgress
 from rig.runner.recorder import RunRecorder
 from rig.runner.release import LineRelease
-from rig.sim.object_rig import object_simulated_rig
+from rig.sim.simulated_rig import simulated_rig
 from rig.testing.recording import RecordingServoBus
+from rig.vocabulary import DeviceLevel
 
 RAMP = RampSettings(
     fast_speed_rad_s=2.0,
@@ -43,8 +44,8 @@ class _Log:
 
 def _loop_on_a_simulated_rig() -> tuple[RigSession, ControlLoop, RunRecorder]:
     """The control loop on the object-level simulated rig (servo calls recorded), connected, one tick in."""
-    rig = object_simulated_rig(load_rig_config(None))
-    session = dataclasses.replace(rig.session, servos=RecordingServoBus(rig.bus))
+    rig = simulated_rig(load_rig_config(None), devices=DeviceLevel.OBJECT)
+    session = dataclasses.replace(rig.session, servos=RecordingServoBus(rig.devices.bus))
     recorder = RunRecorder(cast(RunLogger, _Log()), session.clock, SilentProgress(), session.roles)
     loop = ControlLoop(
         session,

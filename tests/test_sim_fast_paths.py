@@ -15,6 +15,7 @@ from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.world import SimWorld
 from rig.sim_config import SlipKindMix
 from rig.vocabulary import SlipKind
+from tests.helpers import set_up_trial
 
 
 def _ramping_world() -> SimWorld:
@@ -23,7 +24,7 @@ def _ramping_world() -> SimWorld:
     bus = ObjectServoBus(clock, [(1, "XM430-W350")])
     world = SimWorld(make_preset("link1", 0), bus.servo(1), step_devices=bus.advance_to)
     clock.on_advance(world.advance_to)
-    world.begin_trial("joint_estimation", distance_m=0.1)
+    set_up_trial(world, "joint_estimation", distance_m=0.1)
     bus.set_torque([1], True)
     winch = bus.servo(1)
     goal = winch.present_position_rad
@@ -56,7 +57,7 @@ def _scripted_world(skip_still: bool, steps: list[int]) -> tuple[SimWorld, Objec
     clock.on_advance(world.advance_to)
     bus.set_torque([1, 2], True)
     for trial in range(4):
-        world.begin_trial("joint_estimation", distance_m=0.05 + 0.05 * trial)
+        set_up_trial(world, "joint_estimation", distance_m=0.05 + 0.05 * trial)
         goal = bus.servo(1).present_position_rad
         for _ in range(120):  # reel on past the slip
             goal += 0.03
@@ -81,8 +82,8 @@ def test_skipping_still_stretches_changes_nothing() -> None:
     fast, fast_bus = _scripted_world(True, fast_steps)
     assert len(plain.slips) >= 4
     assert len(fast_steps) < 0.9 * len(plain_steps)  # the still stretches were skipped
-    assert fast._times_ns == plain._times_ns
-    assert fast._tensions_n == plain._tensions_n
+    assert fast.history.times_ns == plain.history.times_ns
+    assert fast.history.tensions_n == plain.history.tensions_n
     assert fast.truth() == plain.truth()
     for a, b in zip(plain_bus.servos, fast_bus.servos, strict=True):
         assert (a.state, a._now_ns, a._at_limit_ns, a.hardware_error) == (
@@ -110,13 +111,13 @@ def _slip_kind_world(plain: bool, mix: SlipKindMix, seed: int) -> tuple[SimWorld
     bus.set_torque([1, 2], True)
     for trial in range(6):
         if trial % 3 == 2:
-            world.begin_trial("link_validation")
+            set_up_trial(world, "link_validation")
             world.engage_fork(1)
             bus.write_goal_positions({2: bus.servo(2).present_position_rad + 1.0})
             clock.sleep(1.5)  # the fork pushes component 1 and holds the link
-            world.open_forks()
+            world.forks.open()
         else:
-            world.begin_trial("joint_estimation", distance_m=0.06 + 0.04 * trial, joint=1 + trial % 8)
+            set_up_trial(world, "joint_estimation", distance_m=0.06 + 0.04 * trial, joint=1 + trial % 8)
         goal = bus.servo(1).present_position_rad
         for _ in range(200):  # a slow reel past the slip load (creep and trains take their time)
             goal += 0.012
@@ -143,8 +144,8 @@ def test_the_inlined_substep_equals_the_plain_substep(mix: str) -> None:
     fast, fast_bus = _slip_kind_world(False, MIXES[mix], 5)
     kinds = {s.onset.kind for s in plain.slips}
     assert mix in kinds or (mix == "mixed" and len(kinds) >= 2), kinds  # the kind under test happened
-    assert fast._times_ns == plain._times_ns
-    assert fast._tensions_n == plain._tensions_n
+    assert fast.history.times_ns == plain.history.times_ns
+    assert fast.history.tensions_n == plain.history.tensions_n
     assert fast.truth() == plain.truth()
     assert fast.link.planar_joint_angles() == plain.link.planar_joint_angles()
     for a, b in zip(plain_bus.servos, fast_bus.servos, strict=True):
@@ -153,8 +154,8 @@ def test_the_inlined_substep_equals_the_plain_substep(mix: str) -> None:
 
 def test_batch_tension_lookup_equals_the_per_time_lookup() -> None:
     world = _ramping_world()
-    times = world._times_ns
-    assert max(world._tensions_n) > 1.0  # the line was loaded
+    times = world.history.times_ns
+    assert max(world.history.tensions_n) > 1.0  # the line was loaded
     rng = random.Random(5)
     first, last = times[0], world.now_ns + 3_000_000
     for _ in range(200):

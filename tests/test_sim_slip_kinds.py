@@ -15,7 +15,7 @@ from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
 from rig.sim_config import CapacityScatter, SlipKindMix
 from rig.vocabulary import SlipKind, TrialKind
-from tests.helpers import ScriptedShaft
+from tests.helpers import ScriptedShaft, set_up_trial
 
 MS = 1_000_000
 S = 1_000_000_000
@@ -54,7 +54,7 @@ def load_to_just_below(world: SimWorld, shaft: ScriptedShaft, tension_n: float) 
 def test_sudden_and_small_drop_fall_by_their_fraction_within_a_few_ms() -> None:
     for mix, low, high in ((only("sudden"), 0.19, 0.21), (only("small_drop"), 0.03, 0.15)):
         world, shaft = world_of(mix)
-        trial = world.begin_trial(TrialKind.JOINT_ESTIMATION, DISTANCE_M)
+        trial = set_up_trial(world, TrialKind.JOINT_ESTIMATION, DISTANCE_M)
         load_to_just_below(world, shaft, trial.slip_force_n - 0.05)
         trace = ramp(world, shaft, 0.1)
         (slip,) = world.slips
@@ -73,7 +73,7 @@ def mix_kind(mix: SlipKindMix) -> str:
 
 def test_creep_sags_slowly_over_its_duration_while_the_winch_reels() -> None:
     world, shaft = world_of(only("creep", creep_duration_s=(0.5, 0.5), creep_drop_fraction=(0.05, 0.05)))
-    trial = world.begin_trial(TrialKind.JOINT_ESTIMATION, DISTANCE_M)
+    trial = set_up_trial(world, TrialKind.JOINT_ESTIMATION, DISTANCE_M)
     load_to_just_below(world, shaft, trial.slip_force_n - 0.02)
     trace = ramp(world, shaft, 1.0)
     creep = world.slips[0]
@@ -95,7 +95,7 @@ def test_creep_sags_slowly_over_its_duration_while_the_winch_reels() -> None:
 def test_stick_slip_is_a_train_of_drops_with_dwells() -> None:
     mix = only("stick_slip", stick_slip_drops=(4, 4), stick_slip_dwell_s=(0.03, 0.03))
     world, shaft = world_of(mix)
-    trial = world.begin_trial(TrialKind.JOINT_ESTIMATION, DISTANCE_M)
+    trial = set_up_trial(world, TrialKind.JOINT_ESTIMATION, DISTANCE_M)
     load_to_just_below(world, shaft, trial.slip_force_n - 0.02)
     while not world.slips:  # reel until the first drop, then hold, as the runner does after a slip
         ramp(world, shaft, 0.001)
@@ -119,7 +119,7 @@ def test_stick_slip_is_a_train_of_drops_with_dwells() -> None:
 def test_other_joint_slips_first_and_the_configuration_source_names_it() -> None:
     world, shaft = world_of(only("other_joint"), offset_ns=5 * S)
     source = SimConfigurationSource(world)
-    trial = world.begin_trial(TrialKind.JOINT_ESTIMATION, DISTANCE_M, joint=3)
+    trial = set_up_trial(world, TrialKind.JOINT_ESTIMATION, DISTANCE_M, joint=3)
     assert trial.slip.other_joint == 4
     other_load = trial.slip.other_load_n
     assert other_load is not None and 0.5 * trial.slip_force_n <= other_load <= 0.9 * trial.slip_force_n
@@ -144,10 +144,10 @@ def test_other_joint_slips_first_and_the_configuration_source_names_it() -> None
 def test_no_slip_holds_beyond_the_ramps_force_limit() -> None:
     world, shaft = world_of(only("no_slip"))
     for _ in range(20):
-        trial = world.begin_trial(TrialKind.JOINT_ESTIMATION, 0.1)
+        trial = set_up_trial(world, TrialKind.JOINT_ESTIMATION, 0.1)
         assert trial.slip.kind == "no_slip"
         assert trial.slip_force_n > 40.0 * 2  # capacities x10: far above the protocol's 40 N
-    world.begin_trial(TrialKind.JOINT_ESTIMATION, DISTANCE_M)
+    set_up_trial(world, TrialKind.JOINT_ESTIMATION, DISTANCE_M)
     ramp(world, shaft, 2.0, rate_rad_s=1.0)
     assert world.tension_n > 40.0 and not world.slips
 
@@ -158,21 +158,21 @@ def test_the_mix_draws_each_kind_with_its_probability_from_its_own_stream() -> N
     plain, _ = world_of(SlipKindMix(), seed=7)
     kinds = []
     for i in range(1500):
-        kinds.append(world.begin_trial(TrialKind.JOINT_ESTIMATION, 0.1 + 0.01 * (i % 10)).slip.kind)
-        plain.begin_trial(TrialKind.JOINT_ESTIMATION, 0.1 + 0.01 * (i % 10))
+        kinds.append(set_up_trial(world, TrialKind.JOINT_ESTIMATION, 0.1 + 0.01 * (i % 10)).slip.kind)
+        set_up_trial(plain, TrialKind.JOINT_ESTIMATION, 0.1 + 0.01 * (i % 10))
     counts = np.array([kinds.count(k) for k in tuple(SlipKind)]) / len(kinds)
     assert np.allclose(counts, probabilities, atol=0.03)
     # The capacity stream is untouched by the mix: the same draws as a world of sudden slips.
     for mixed, sudden in zip(world.trials, plain.trials, strict=True):
         assert mixed.capacity_factors == sudden.capacity_factors
     # Every kind of link-validation trial slips the link (other_joint is sudden there).
-    assert world.begin_trial(TrialKind.LINK_VALIDATION).slip.kind in tuple(SlipKind)
+    assert set_up_trial(world, TrialKind.LINK_VALIDATION).slip.kind in tuple(SlipKind)
 
 
 def test_truth_records_every_event_on_the_run_clock_and_is_json() -> None:
     world, shaft = world_of(SlipKindMix(probabilities=(0.2, 0.2, 0.2, 0.2, 0.2, 0.0)), offset_ns=10 * S)
     for i in range(6):
-        trial = world.begin_trial(TrialKind.JOINT_ESTIMATION, 0.12 + 0.02 * i)
+        trial = set_up_trial(world, TrialKind.JOINT_ESTIMATION, 0.12 + 0.02 * i)
         shaft.present_position_rad = 0.0
         world.advance_to(world.now_ns + MS)
         ramp(world, shaft, 1.5, rate_rad_s=1.0)
@@ -207,7 +207,7 @@ def test_scatter_shapes_give_slip_masses_with_sd_squared_a2_plus_bm2(
     world = SimWorld(preset, ScriptedShaft(), seed=4)
     for distance in (0.05, 0.25):  # slip masses near 3.2 kg and 0.65 kg
         masses = np.array(
-            [world.begin_trial(TrialKind.JOINT_ESTIMATION, distance).slip_mass_kg for _ in range(2000)]
+            [set_up_trial(world, TrialKind.JOINT_ESTIMATION, distance).slip_mass_kg for _ in range(2000)]
         )
         m0 = preset.specimen_capacity_nm / (preset.g * distance)
         expected_sd = math.sqrt(a_kg**2 + (b * m0) ** 2)
@@ -225,7 +225,7 @@ def test_multiplicative_default_is_the_world_of_before() -> None:
     world = SimWorld(preset, ScriptedShaft(), seed=9)
     rng = np.random.default_rng((9, 1))
     for _ in range(10):
-        trial = world.begin_trial(TrialKind.JOINT_ESTIMATION, 0.1)
+        trial = set_up_trial(world, TrialKind.JOINT_ESTIMATION, 0.1)
         draw = float(np.clip(rng.standard_normal(1), -3, 3)[0])
         assert trial.capacity_factors == (1.0 + preset.per_trial_capacity_sd * draw,)
         assert trial.slip.kind == SlipKind.SUDDEN

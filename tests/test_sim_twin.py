@@ -26,7 +26,7 @@ from rig.rig_config import load_rig_config
 from rig.sim.twin import build_twin
 from rig.sim.twin_console import ReferenceLoad, run_console
 from rig.sim.twin_hand import SLACK_DWELL_S
-from rig.vocabulary import SlipKind, TrialKind
+from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
 from tests.helpers import build_firmware
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,6 +50,10 @@ def _hardware_config(tmp_path: Path, simulation: str = "simulation:\n  winch_rev
     return path
 
 
+def config_joints(twin) -> int:
+    return twin.world.preset.joint_count
+
+
 def _slack_for(twin, seconds: float) -> None:
     twin.clock.advance_ns(round(seconds * 1e9))
     assert twin.world.tension_n == 0.0
@@ -60,23 +64,24 @@ def test_the_hand_moves_the_hook_only_after_a_slip_and_a_slack_line(tmp_path):
     protocol = load_protocol(SMOKE, joint_count=config.article.joint_count)
     twin = build_twin(config, protocol=protocol)
     world = twin.world
-    assert [(t.kind, t.distance_m, t.specimen_joint) for t in world.trials] == [
-        (TrialKind.JOINT_ESTIMATION, 0.1, 1)
-    ]
+    assert world.setup == ArticleSetup.SPECIMEN and world.hook_distance_m == 0.1
+    first = world.draw_trial()  # what the first trial's loading draws
+    assert (first.kind, first.distance_m, first.specimen_joint) == (TrialKind.JOINT_ESTIMATION, 0.1, 1)
     _slack_for(twin, 3.0)  # a slack line alone (a check, a tare) is no reason to touch the hook
-    assert len(world.trials) == 1
+    assert world.hook_distance_m == 0.1
     world.open_slip(1, 16.0, 16.0, SlipKind.SUDDEN, world.now_ns)  # the first trial's slip
     _slack_for(twin, SLACK_DWELL_S / 2)
-    assert len(world.trials) == 1  # not yet: a careful person waits
+    assert world.hook_distance_m == 0.1  # not yet: a careful person waits
     _slack_for(twin, SLACK_DWELL_S)
-    assert [t.distance_m for t in world.trials] == [0.1, 0.2]
-    assert world.trials[1].capacity_factors != world.trials[0].capacity_factors  # a fresh draw
+    assert world.hook_distance_m == 0.2
+    assert world.draw_trial().capacity_factors != first.capacity_factors  # a fresh draw
 
 
 def test_without_a_protocol_the_hand_sets_up_link_validation_on_the_straight_link(tmp_path):
     twin = build_twin(load_rig_config(_hardware_config(tmp_path)))
-    assert [t.kind for t in twin.world.trials] == [TrialKind.LINK_VALIDATION]
-    assert twin.world.setup == "link"
+    assert twin.world.setup == ArticleSetup.LINK and twin.world.hook_distance_m is None
+    assert twin.world.link.planar_joint_angles() == (0.0,) * config_joints(twin)
+    assert twin.world.draw_trial().kind == TrialKind.LINK_VALIDATION
 
 
 def test_a_fault_of_the_host_or_the_logger_is_refused_naming_it(tmp_path):
@@ -306,7 +311,7 @@ def test_trial_n_at_the_console_puts_the_hand_on_the_trial_the_run_repeats(tmp_p
     twin = build_twin(config, protocol=load_protocol(SMOKE, joint_count=config.article.joint_count))
     out = io.StringIO()
     run_console(["trial 2\n", "trial 1\n", "trial 3\n", "trial x\n"], twin.reference, out, twin.set_up_trial)
-    assert [t.distance_m for t in twin.world.trials] == [0.1, 0.2, 0.1]
+    assert twin.world.hook_distance_m == 0.1  # where trial 1, the last one set up, hangs it
     assert out.getvalue().splitlines() == [
         "trial 2 set up (joint_estimation, the hook at 0.2 m)",
         "trial 1 set up (joint_estimation, the hook at 0.1 m)",

@@ -16,7 +16,7 @@ from model.joint import PAPER_CONSTANT
 from rig.hw.truth import WorldTruth
 from rig.sim.physics.article_presets import PRESET_NAMES, SimPreset, make_preset
 from rig.sim.physics.world import SimWorld, TrialKind
-from tests.helpers import ScriptedShaft
+from tests.helpers import ScriptedShaft, set_up_trial
 
 MS = 1_000_000
 S = 1_000_000_000
@@ -98,7 +98,7 @@ def test_first_slip_is_model_predict_slip_on_the_trial_capacities(angles, seed, 
     shaft = ScriptedShaft()
     world = SimWorld(preset, shaft, seed=seed)
     world.set_configuration(angles)
-    trial = world.begin_trial("link_validation")
+    trial = set_up_trial(world, "link_validation")
     transforms = planar_transforms(np.asarray(angles), preset.segment_lengths_m)
     prediction = predict_slip(transforms, trial.capacities_nm, preset.point_m, direction, g=preset.g)
     if not math.isfinite(float(prediction.slip_force_n)) or prediction.slip_force_n > 200:
@@ -123,7 +123,7 @@ def test_stick_slip_drops_to_the_kinetic_level_then_rises_again() -> None:
     shaft = ScriptedShaft()
     world = SimWorld(preset, shaft, seed=11)
     world.set_configuration([0.3, -0.2, 0.1, 0.0, 0.2, -0.1, 0.0, 0.1])
-    world.begin_trial("link_validation")
+    set_up_trial(world, "link_validation")
     first = ramp_until_first_slip(world, shaft, 0.5)
     # Reeling on at 0.5 rad/s (25 N/s) the tension regains the ~1.4 N drop in about 55 ms.
     world.advance_to(world.now_ns + 70 * MS)
@@ -150,7 +150,7 @@ def test_slip_rate_spreads_the_drop_over_substeps() -> None:
     preset = replace(make_preset("link1", seed=2), slip_rate_rad_s=0.5)
     shaft = ScriptedShaft()
     world = SimWorld(preset, shaft, seed=2)
-    world.begin_trial("joint_estimation", distance_m=0.1)
+    set_up_trial(world, "joint_estimation", distance_m=0.1)
     record = ramp_until_first_slip(world, shaft, 1.0)
     world.advance_to(world.now_ns + 2 * S)
     assert record.end_ns is not None
@@ -163,7 +163,7 @@ def test_slip_rate_spreads_the_drop_over_substeps() -> None:
 def test_per_trial_variation_has_the_configured_spread() -> None:
     preset = replace(make_preset("link2", seed=5), per_trial_capacity_sd=0.07)
     world = SimWorld(preset, ScriptedShaft(), seed=5)
-    factors = np.array([world.begin_trial(TrialKind.LINK_VALIDATION).capacity_factors for _ in range(600)])
+    factors = np.array([set_up_trial(world, TrialKind.LINK_VALIDATION).capacity_factors for _ in range(600)])
     assert factors.shape == (600, 10)
     assert factors.mean() == pytest.approx(1.0, abs=0.003)
     assert factors.std() == pytest.approx(0.07, rel=0.04)
@@ -180,7 +180,7 @@ def test_joint_estimation_specimen_slips_at_capacity_over_distance() -> None:
     shaft = ScriptedShaft()
     world = SimWorld(preset, shaft, seed=8)
     for distance in (0.05, 0.2):
-        trial = world.begin_trial("joint_estimation", distance_m=distance)
+        trial = set_up_trial(world, "joint_estimation", distance_m=distance)
         assert world.setup == "specimen"
         assert world.article.lever_arms_m()[1] == pytest.approx(distance)
         assert trial.slip_force_n == pytest.approx(trial.capacities_nm[0] / distance)
@@ -194,17 +194,13 @@ def test_joint_estimation_specimen_slips_at_capacity_over_distance() -> None:
         ramp_n_per_substep = world.line.stiffness_n_per_m * preset.drum_radius_m * 2.0 * 1e-3
         assert trial.slip_force_n <= record.onset.peak_tension_n <= trial.slip_force_n + ramp_n_per_substep
     # A named joint of the link as the specimen carries that joint's true capacity.
-    trial = world.begin_trial("joint_estimation", distance_m=0.1, joint=3)
+    trial = set_up_trial(world, "joint_estimation", distance_m=0.1, joint=3)
     assert trial.specimen_joint == 3
     assert trial.capacities_nm[0] == pytest.approx(preset.joint_capacities_nm[2] * trial.capacity_factors[0])
     with pytest.raises(ValueError, match="distance_m"):
-        world.begin_trial("joint_estimation")
+        world.place_hook(0.0)
     with pytest.raises(ValueError, match="joint"):
-        world.begin_trial("joint_estimation", distance_m=0.1, joint=9)
-    with pytest.raises(ValueError):
-        world.begin_trial("tug_of_war")
-    with pytest.raises(ValueError, match="no distance_m"):
-        world.begin_trial("link_validation", distance_m=0.1)
+        world.place_hook(0.1, joint=9)
 
 
 def torsion_world(weak: int | None, direction=(0.0, -1.0, 0.0)) -> tuple[SimWorld, ScriptedShaft]:
@@ -224,13 +220,13 @@ def torsion_world(weak: int | None, direction=(0.0, -1.0, 0.0)) -> tuple[SimWorl
 
 def test_torsion_weak_joint_changes_which_joint_slips_under_an_out_of_plane_load() -> None:
     isotropic, _ = torsion_world(None)
-    iso_trial = isotropic.begin_trial("link_validation")
+    iso_trial = set_up_trial(isotropic, "link_validation")
     transforms = isotropic.article.transforms
     prediction = predict_slip(transforms, iso_trial.capacities_nm, isotropic.preset.point_m, (0, -1, 0))
     assert iso_trial.first_slip_joint == int(prediction.first_slip_joint) == 1
 
     weak, shaft = torsion_world(2)
-    trial = weak.begin_trial("link_validation")
+    trial = set_up_trial(weak, "link_validation")
     assert trial.first_slip_joint == 2  # twisted about its own axis by the bent distal part
     assert trial.slip_force_n < iso_trial.slip_force_n
     record = ramp_until_first_slip(weak, shaft, 1.0)
@@ -243,8 +239,8 @@ def test_torsion_weak_joint_changes_which_joint_slips_under_an_out_of_plane_load
     # An in-plane load puts no torsion on any joint: the weak joint makes no difference.
     in_plane_iso, _ = torsion_world(None, direction=(-1.0, 0.0, 0.0))
     in_plane_weak, _ = torsion_world(2, direction=(-1.0, 0.0, 0.0))
-    a = in_plane_iso.begin_trial("link_validation")
-    b = in_plane_weak.begin_trial("link_validation")
+    a = set_up_trial(in_plane_iso, "link_validation")
+    b = set_up_trial(in_plane_weak, "link_validation")
     assert (a.first_slip_joint, a.slip_force_n) == (b.first_slip_joint, pytest.approx(b.slip_force_n))
 
 
@@ -252,7 +248,7 @@ def test_truth_is_json_serialisable_and_consistent() -> None:
     preset = make_preset("link2", seed=21, torsion_weak_joint=4)
     shaft = ScriptedShaft()
     world = SimWorld(preset, shaft, seed=99)
-    world.begin_trial("joint_estimation", distance_m=0.1)
+    set_up_trial(world, "joint_estimation", distance_m=0.1)
     ramp_until_first_slip(world, shaft, 2.0)
     world.advance_to(world.now_ns + 300 * MS)
     truth = json.loads(json.dumps(world.truth().to_json(), allow_nan=False))
@@ -300,11 +296,11 @@ def run_protocol(seed: int) -> WorldTruth:
     preset = make_preset("link1", seed=seed)
     winch = ScriptedShaft()
     world = SimWorld(preset, winch, seed=seed)
-    world.begin_trial("joint_estimation", distance_m=0.08)
+    set_up_trial(world, "joint_estimation", distance_m=0.08)
     ramp_until_first_slip(world, winch, 2.0)
     winch.present_position_rad = 0.0
     world.step_devices = None
-    world.begin_trial("link_validation")
+    set_up_trial(world, "link_validation")
     world.bend_by_hand([0.2] * 8)
     world.advance_to(world.now_ns + 10 * MS)
     ramp_until_first_slip(world, winch, 2.0)

@@ -14,7 +14,7 @@ from rig.sim.clock import VirtualClock
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
-from tests.helpers import ScriptedShaft
+from tests.helpers import ScriptedShaft, set_up_trial
 
 MS = 1_000_000
 
@@ -55,7 +55,7 @@ def slip_report_fractions(probability: float, seed: int) -> tuple[int, int, bool
     correct = True
     for cycle in range(300):
         world.set_configuration([0.0] * 8)
-        trial = world.begin_trial("link_validation")
+        trial = set_up_trial(world, "link_validation")
         slips_before = len(world.slips)
         if cycle % 5 == 4:  # now and then a cycle without a slip
             shaft.present_position_rad = world.taut_winch_angle_rad()
@@ -89,7 +89,7 @@ def test_the_specimen_slip_is_reported_with_the_configured_probability() -> None
     source = SimConfigurationSource(world)
     seen = reported = 0
     for cycle in range(200):
-        trial = world.begin_trial("joint_estimation", distance_m=0.1, joint=1 + cycle % 8)
+        trial = set_up_trial(world, "joint_estimation", distance_m=0.1, joint=1 + cycle % 8)
         shaft.present_position_rad = world.line.winch_angle_for_tension_rad(
             trial.slip_force_n * 1.01, world.article.take_up_m
         )
@@ -116,7 +116,7 @@ def test_out_of_plane_configuration_is_reported_as_noisy_transforms() -> None:
     shaft = ScriptedShaft()
     world = SimWorld(preset, shaft, seed=4)
     world.set_configuration([0.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0, 0.0, 0.0])
-    world.begin_trial("link_validation")
+    set_up_trial(world, "link_validation")
     shaft.present_position_rad = world.taut_winch_angle_rad()
     world.step_devices = lambda t_ns: setattr(
         shaft, "present_position_rad", shaft.present_position_rad + 0.002
@@ -140,7 +140,7 @@ def test_out_of_plane_configuration_is_reported_as_noisy_transforms() -> None:
 def test_specimen_readings_and_seeded_repeatability() -> None:
     preset = make_preset("link2", seed=6)
     world = SimWorld(preset, ScriptedShaft(), seed=6)
-    world.begin_trial("joint_estimation", distance_m=0.1)
+    set_up_trial(world, "joint_estimation", distance_m=0.1)
     a = SimConfigurationSource(world).measure()
     b = SimConfigurationSource(world).measure()
     c = SimConfigurationSource(world, seed=7).measure()

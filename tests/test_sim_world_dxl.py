@@ -12,6 +12,7 @@ from rig.sim.clock import VirtualClock
 from rig.sim.dxl.servo import Servo
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.world import SimWorld
+from tests.helpers import set_up_trial
 
 MS = 1_000_000
 
@@ -70,7 +71,7 @@ def test_emulated_winch_drives_stick_slip_at_the_predicted_load() -> None:
     world = SimWorld(preset, servo, step_devices=servo.advance_to, seed=3)
     clock.on_advance(world.advance_to)
     world.set_configuration([0.2, 0.1, 0.0, -0.2, 0.3, 0.0, 0.1, 0.0])
-    trial = world.begin_trial("link_validation")
+    trial = set_up_trial(world, "link_validation")
     reel_to(servo, 10.0, clock.monotonic_ns())
     for _ in range(400):
         clock.advance_ns(50 * MS)

@@ -236,14 +236,14 @@ def _without_wall_time(records: list[RunRecord]) -> list[tuple[object, ...]]:
 def test_a_failing_run_is_aborted_and_the_study_goes_on(monkeypatch: pytest.MonkeyPatch) -> None:
     from rig.study import worker
 
-    real = worker.open_session
+    real = worker.open_simulated_rig
 
     def flaky(prepared: object, *, devices: str) -> object:
         if prepared.journal.seed == 1:  # type: ignore[attr-defined]
             raise RuntimeError("simulated crash")
         return real(prepared, devices=devices)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(worker, "open_session", flaky)
+    monkeypatch.setattr(worker, "open_simulated_rig", flaky)
     records = run_local(StudySpec(str(SMOKE), None, "object"), [0, 1, 2], 1, lambda r: None)
     by_seed = {r.seed: r for r in records}
     assert by_seed[1].status == "aborted" and by_seed[1].reason == "RuntimeError: simulated crash"

@@ -11,18 +11,17 @@ import pytest
 from rig.errors import ConfigError
 from rig.log.records import TrialOutcome
 from rig.rig_config import load_rig_config
-from rig.rigs import open_session
+from rig.rigs import open_rig
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
 from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.emulator import SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.object_devices import ObjectLoadCell
-from rig.sim.object_rig import object_simulated_rig
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.simulated_rig import simulated_rig
 from rig.sim_config import FaultConfig
-from rig.vocabulary import FaultDevice, LoggerFaultKind
+from rig.vocabulary import DeviceLevel, FaultDevice, LoggerFaultKind
 
 REPO = Path(__file__).resolve().parents[1]
 JOINT_ESTIMATION = REPO / "protocols" / "joint_estimation.yaml"
@@ -31,7 +30,7 @@ G = 9.80665
 
 def _run(devices: str, seed: int, out: Path) -> RunReport:
     prepared = prepare_run(RunRequest(JOINT_ESTIMATION, None, out / devices, seed, run_id="r"))
-    return execute_run(prepared, open_session(prepared, devices=devices), SilentProgress())
+    return execute_run(prepared, open_rig(prepared, devices=devices), SilentProgress())
 
 
 @pytest.mark.slow
@@ -99,7 +98,7 @@ def test_object_rig_refuses_timed_faults() -> None:
     fault = FaultConfig(FaultDevice.LOGGER, LoggerFaultKind.WRITE_ERROR, after_bytes=1000)
     faulty = dataclasses.replace(config, simulation=dataclasses.replace(config.simulation, faults=(fault,)))
     with pytest.raises(ConfigError, match="faults"):
-        object_simulated_rig(faulty, seed=0)
+        simulated_rig(faulty, seed=0, devices=DeviceLevel.OBJECT)
 
 
 @pytest.mark.parametrize("scenario", ["additive-scatter", "mixed-scatter", "mixed", "noisy-cell"])
@@ -107,9 +106,9 @@ def test_object_rig_builds_the_same_world_as_the_byte_level_rig(scenario: str) -
     """Scatter shape, slip kinds and load-cell artefacts of a scenario reach the object-level rig too."""
     config = load_rig_config(REPO / "protocols" / "rigs" / "scenarios" / f"{scenario}.yaml")
     byte = simulated_rig(config, seed=4)
-    obj = object_simulated_rig(config, seed=4)
+    obj = simulated_rig(config, seed=4, devices=DeviceLevel.OBJECT)
     assert obj.world.preset == byte.devices.world.preset
     assert obj.world.truth() == byte.devices.world.truth()
-    assert (obj.load_cell.artefacts is None) == (byte.devices.loadcell_emulator.artefacts is None)
+    assert (obj.session.load_cell.artefacts is None) == (byte.devices.loadcell_emulator.artefacts is None)
     if scenario == "noisy-cell":
-        assert obj.load_cell.artefacts is not None
+        assert obj.session.load_cell.artefacts is not None

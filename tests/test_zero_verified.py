@@ -40,7 +40,7 @@ def _run(rig: Path, out: Path) -> tuple[RunReport, SimulatedRig, float]:
     prepared = prepare_run(RunRequest(SMOKE, rig, out, seed=0, run_id="zero"))
     sim = open_simulated_rig(prepared)
     start_rad = sim.devices.bus.servo(1).present_position_rad
-    report = execute_run(prepared, sim.session, SilentProgress())
+    report = execute_run(prepared, sim, SilentProgress())
     return report, sim, start_rad
 
 
@@ -83,7 +83,8 @@ def test_a_line_loaded_at_connect_is_refused_and_left_slack(tmp_path, tension_n)
     goals = _winch_goals(tmp_path / "out")
     assert len(goals) >= 3 and all(end_rad - 0.03 <= g <= start_rad for g in goals)
     assert max(abs(b - a) for a, b in zip([start_rad, *goals], goals, strict=False)) < 0.05
-    assert sim.devices.world.trials == []  # no trial began
+    # No trial ran: the world saw only the loading it started with.
+    assert report.completed == 0 and len(sim.devices.world.trials) == 1
 
 
 def test_a_loaded_line_within_a_wider_tolerance_is_taken(tmp_path):

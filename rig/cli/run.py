@@ -123,7 +123,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
     # The runner is imported here, not at the top, so that `rig --help` stays quick.
-    from rig.rigs import check_session_inputs, open_session
+    from rig.rigs import check_session_inputs, open_rig
     from rig.runner.journal import MAX_SEED
     from rig.runner.progress import make_progress
     from rig.runner.run import execute_run, prepare_run
@@ -147,13 +147,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         prepared = prepare_run(_request(args))  # locks the run; InputError -> exit 2
         try:
-            # The default keeps the one-argument call (tests stand in for open_session with it).
-            session = (
-                open_session(prepared)
-                if args.devices == DeviceLevel.BYTE
-                else open_session(prepared, devices=DeviceLevel(args.devices))
-            )
-            report = execute_run(prepared, session, make_progress(args.json), live=live)
+            rig = open_rig(prepared, devices=DeviceLevel(args.devices))
+            report = execute_run(prepared, rig, make_progress(args.json), live=live)
         finally:
             prepared.release()
     finally:
@@ -355,6 +350,9 @@ def _summary(report: RunReport, out_dir: Path) -> str:
     if pe is not None:
         lines.append(_percentage_text(pe))
     if report.truth is not None:
+        from rig.hw.truth import RunTruth
+
+        assert isinstance(report.truth, RunTruth)  # the only truth a rig reports is the simulator's
         lines.append(_truth_text(report.truth, est))
     return "\n\n".join(lines)
 

@@ -19,9 +19,8 @@ from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.seams import Clock
-from rig.hw.session import RigSession
+from rig.hw.session import OperatorRequest, RigSession
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
-from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, configuration_source_kind
 from rig.vocabulary import RigKind
 
@@ -106,8 +105,9 @@ def hardware_session(config: RigConfig, *, sysfs_root: Path = DEFAULT_SYSFS_ROOT
 class ConsoleOperator:
     """A person at the terminal: prompts on stderr, waits for Enter on stdin."""
 
-    def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
+    def confirm(self, request: OperatorRequest, keep_alive: Callable[[], None]) -> None:
         """Prompt, then keep the rig's control loop running until Enter; no terminal is an error."""
+        text = request.text
         if not sys.stdin or not sys.stdin.isatty():
             raise InputError(
                 f"operator step needs a person at a terminal (stdin is not one; over ssh use `ssh -t`, "

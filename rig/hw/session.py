@@ -1,37 +1,48 @@
 """The session contract: what a run needs from a rig, real or simulated (devices, clock, operator, fixture).
 
 `RigSession` bundles the seams (`rig.hw.seams`) plus two rig-level roles the protocol steps use:
-the `Operator` (prompts a person, or auto-confirms in simulation, where the simulated operator
-also does the physical action, such as moving the hook) and the `BendingFixture` (turns a planar
-configuration into bender-servo goals, or asks the operator to bend the link by hand).
+the `Operator` (the person at the rig, asked by an `OperatorRequest` to follow a prompt or to bend or
+straighten the link by hand) and the `BendingFixture` (turns a planar configuration into
+bender-servo goals, or asks the operator to bend the link by hand). Every field is something a
+hardware rig has; what only a simulation knows (its hidden truth) stays with the composition.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Protocol
 
 from rig.hw.bending import BendStage
 from rig.hw.seams import Clock, ConfigurationSource, LoadCell, ServoBus
-from rig.hw.truth import RunTruth
 from rig.protocol import TrialPlan
 from rig.vocabulary import ConfigurationSourceKind, RigKind, ServoRole
 
 
-class GroundTruth(Protocol):
-    """What a simulated rig knows and a real one cannot: the hidden truth the estimates should find."""
+class OperatorTask(StrEnum):
+    """What the runner asks of the person at the rig."""
 
-    def snapshot(self) -> RunTruth:
-        """The truth now: the world's (with every trial's hidden draws and slips) and the rig's state."""
-        ...
+    FOLLOW_PROMPT = "follow_prompt"  # do what the protocol's prompt step says (e.g. hang the hook)
+    BEND_LINK = "bend_link"  # bend the link by hand to `OperatorRequest.joint_angles_rad`
+    STRAIGHTEN_LINK = "straighten_link"  # straighten the link by hand (the reset)
+
+
+@dataclass(frozen=True)
+class OperatorRequest:
+    """One request to the operator: the task, the text to show and the trial it belongs to."""
+
+    task: OperatorTask
+    text: str
+    trial: TrialPlan | None
+    joint_angles_rad: tuple[float, ...] | None = None  # BEND_LINK: the configuration [rad per joint]
 
 
 class Operator(Protocol):
     """Whoever confirms operator steps."""
 
-    def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
-        """Show `text` and return once the step is done (raise KeyboardInterrupt to abort).
+    def confirm(self, request: OperatorRequest, keep_alive: Callable[[], None]) -> None:
+        """Show `request.text` and return once the task is done (raise KeyboardInterrupt to abort).
 
         While waiting, call `keep_alive()` over and over: each call is one control period of the
         runner (the rig is read and logged, the interlocks are checked, and the servos keep hearing
@@ -85,12 +96,5 @@ class RigSession:
     configuration: ConfigurationSource | None
     winch_id: int
     roles: dict[int, ServoRole]
-    begin_trial: Callable[[TrialPlan], None] = field(default=lambda trial: None)
-    truth: GroundTruth | None = None  # simulation only: what the rig should find
     attachments: list[tuple[str, str, bytes]] = field(default_factory=list)  # (name, media type, data)
-    close: Callable[[], None] = field(default=lambda: None)
-    log_limit_bytes: int | None = None  # the most the run's log file may hold (writes beyond fail)
     configuration_kind: ConfigurationSourceKind | None = None  # the source behind `configuration`
-    # Bending by hand (no forks), after the operator's prompt: what the simulated person does.
-    hand_bend: Callable[[tuple[float, ...]], None] = field(default=lambda angles: None)
-    hand_straighten: Callable[[], None] = field(default=lambda: None)

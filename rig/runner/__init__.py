@@ -7,6 +7,7 @@ __all__ = [
     "limits",
     "planning",
     "progress",
+    "rig_to_run",
     "run",
     "safety",
     "trial_runner",

@@ -30,7 +30,6 @@ from model.payload_errors import PayloadErrorStats
 from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text, check_out_dir
 from rig.hw.session import RigSession
-from rig.hw.truth import RunTruth
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 from rig.log import schemas
 from rig.log.live import LivePublisher
@@ -45,6 +44,7 @@ from rig.runner.limits import check_limits
 from rig.runner.planning import AdaptiveSummary, TrialSchedule
 from rig.runner.progress import ProgressReporter
 from rig.runner.results import percentage_error_stats
+from rig.runner.rig_to_run import GroundTruth, RigToRun, TruthSnapshot
 from rig.runner.runlock import RunLock
 from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held
@@ -90,7 +90,7 @@ class RunReport:
     estimate: FitSummary | None
     percentage_errors: PayloadErrorStats | None
     joints: tuple[JointCapacity, ...] = ()
-    truth: RunTruth | None = None  # simulation only
+    truth: TruthSnapshot | None = None  # a simulated rig's, beside its session (rig_to_run.py)
     safe_state_verified: bool = True
     resumable: bool = False  # trials are left to run (`--resume` continues); False once all are done
     design: tuple[AdaptiveSummary, ...] = ()  # adaptive blocks: where each stands, why it stopped
@@ -284,12 +284,15 @@ def _prepared(
 
 def execute_run(
     prepared: PreparedRun,
-    session: RigSession,
+    rig: RigToRun,
     progress: ProgressReporter,
     *,
     live: LivePublisher | None = None,
 ) -> RunReport:
-    """Run the remaining trials on `session`, write the log, journal and estimates, release the lock.
+    """Run the remaining trials on `rig`'s session, write the log, journal and estimates, release the lock.
+
+    A simulated rig's truth goes into the log's `sim_truth` metadata and the report; its log limit,
+    if any, caps the log file (rig_to_run.py).
 
     With `live`, every logged message is also offered to the live view (which the caller closes; its
     counts of published and dropped messages end the run's `/rig/log`).
@@ -299,15 +302,16 @@ def execute_run(
     always ends with the run's status and the report is returned (docs/design.md §6).
     """
     try:
-        return _execute(prepared, session, progress, live)
+        return _execute(prepared, rig, progress, live)
     finally:
         prepared.release()
 
 
 def _execute(
-    prepared: PreparedRun, session: RigSession, progress: ProgressReporter, live: LivePublisher | None
+    prepared: PreparedRun, rig: RigToRun, progress: ProgressReporter, live: LivePublisher | None
 ) -> RunReport:
     protocol, config, journal = prepared.protocol, prepared.config, prepared.journal
+    session = rig.session
     log_path = prepared.log_path
     outcome: RunOutcome | None = None
     logger: RunLogger | None = None
@@ -319,9 +323,7 @@ def _execute(
             journal.logs.append(str(log_path))
             journal.status = "running"
             journal.save()
-            logger = RunLogger(
-                log_path, clock=session.clock, max_file_bytes=session.log_limit_bytes, live=live
-            )
+            logger = RunLogger(log_path, clock=session.clock, max_file_bytes=rig.log_limit_bytes, live=live)
             _write_metadata(logger, prepared, session)
             progress.start(journal.run_id, len(protocol.planned_trial_ids), len(journal.completed))
             runner = TrialRunner(
@@ -349,16 +351,18 @@ def _execute(
         with interrupts_held():
             progress.stop()
             if logger is not None:
-                log_error = _finish_log(logger, session if outcome is not None else None)
+                log_error = _finish_log(logger, session if outcome is not None else None, rig.truth)
     if log_error is not None and outcome.exit_code == ExitCode.OK:  # the rig is safe; the log is not whole
         reason = f"LogWriteError: {log_error}"
         verified = outcome.safe_state_verified
         outcome = RunOutcome(ExitCode.FAULT, "faulted", reason, outcome.new_results, verified)
     with interrupts_held():
-        return _finish(prepared, session, outcome, schedule)
+        return _finish(prepared, rig.truth, outcome, schedule)
 
 
-def _finish_log(logger: RunLogger, session: RigSession | None) -> LogWriteError | None:
+def _finish_log(
+    logger: RunLogger, session: RigSession | None, truth: GroundTruth | None
+) -> LogWriteError | None:
     """Add the simulator's truth (every trial's hidden draws) and finish the file; the error, if any.
 
     A log that cannot be written does not hide how the run ended: the error is returned, not raised.
@@ -370,8 +374,8 @@ def _finish_log(logger: RunLogger, session: RigSession | None) -> LogWriteError 
             now = session.clock.time_ns() if session is not None else time.time_ns()
             level = LogLevel.WARNING if stats.dropped or stats.slow_client_events else LogLevel.INFO
             logger.log(schemas.LOG, now, LogMessage(now, level, stats.text()).to_payload())
-        if session is not None and session.truth is not None:
-            truth_json = json.dumps(session.truth.snapshot().to_json(), allow_nan=False)
+        if session is not None and truth is not None:
+            truth_json = json.dumps(truth.snapshot().to_json(), allow_nan=False)
             logger.add_metadata("sim_truth", {"json": truth_json})
         logger.finish()
     except LogWriteError as exc:
@@ -382,7 +386,10 @@ def _finish_log(logger: RunLogger, session: RigSession | None) -> LogWriteError 
 
 
 def _finish(
-    prepared: PreparedRun, session: RigSession, outcome: RunOutcome, schedule: TrialSchedule | None = None
+    prepared: PreparedRun,
+    truth: GroundTruth | None,
+    outcome: RunOutcome,
+    schedule: TrialSchedule | None = None,
 ) -> RunReport:
     journal, log_path, estimates_path = prepared.journal, prepared.log_path, prepared.estimates_path
     journal.status = outcome.status
@@ -396,7 +403,6 @@ def _finish(
         "joints": [j.to_json() for j in joints],
     }
     atomic_write_text(estimates_path, json.dumps(estimates, indent=1) + "\n")
-    truth = session.truth.snapshot() if session.truth is not None else None
     return RunReport(
         run_id=journal.run_id,
         log=str(log_path),
@@ -412,7 +418,7 @@ def _finish(
         estimate=summary,
         percentage_errors=percentage_error_stats(journal.completed),
         joints=joints,
-        truth=truth,
+        truth=truth.snapshot() if truth is not None else None,
         design=tuple(schedule.summaries.values()) if schedule is not None else (),
         estimate_detail=detail,
     )

@@ -48,8 +48,4 @@ def enter_safe_state(session: RigSession, release: Callable[[], None]) -> list[s
         session.load_cell.close()
     except Exception as exc:
         errors.append(f"load cell close failed: {exc}")
-    try:
-        session.close()
-    except Exception as exc:
-        errors.append(f"session close failed: {exc}")
     return errors

@@ -15,6 +15,7 @@ from typing import assert_never
 
 from rig.errors import InterlockTripped, StaleDataError
 from rig.hw.bending import BendStage, fork_components, unreached_warning
+from rig.hw.session import OperatorRequest, OperatorTask
 from rig.log.records import LogLevel, ServoCommandName
 from rig.protocol import StepSpec, TrialPlan
 from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
@@ -33,7 +34,8 @@ def prompt(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasu
     """Ask the operator to do what the prompt says (the loop ticks while waiting)."""
     release_before_waiting(ctx, trial)
     ctx.recorder.phase(Phase.PROMPTING, trial.trial_id, StepKind.PROMPT)
-    ctx.session.operator.confirm(trial.prompt_text(step.text or ""), trial, ctx.loop.tick)
+    request = OperatorRequest(OperatorTask.FOLLOW_PROMPT, trial.prompt_text(step.text or ""), trial)
+    ctx.session.operator.confirm(request, ctx.loop.tick)
 
 
 def tare(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
@@ -75,8 +77,8 @@ def bend(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
     stages = fixture.bend_stages(angles, straight, _positions(ctx))
     if not stages and not fork_components(ctx.config):
         degrees = ", ".join(f"{math.degrees(a):.1f}" for a in angles)
-        _by_hand(ctx, trial, f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg")
-        ctx.session.hand_bend(tuple(angles))
+        text = f"Bend the link to configuration {trial.configuration_index}: [{degrees}] deg"
+        _by_hand(ctx, trial, OperatorRequest(OperatorTask.BEND_LINK, text, trial, tuple(angles)))
         return
     _run_stages(ctx, stages)
     if StepKind.MEASURE not in [s.kind for s in trial.steps]:
@@ -170,8 +172,8 @@ def reset(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasur
     ctx.recorder.phase(Phase.RESETTING, trial.trial_id, StepKind.RESET)
     goals = ctx.session.fixture.home_goals()
     if not goals:
-        _by_hand(ctx, trial, "Straighten the link (reset), then confirm.")
-        ctx.session.hand_straighten()
+        text = "Straighten the link (reset), then confirm."
+        _by_hand(ctx, trial, OperatorRequest(OperatorTask.STRAIGHTEN_LINK, text, trial))
         return
     _move_servos(ctx, goals, StepKind.RESET, speed_rad_s=BENDER_SPEED_RAD_S)
 
@@ -182,7 +184,7 @@ def pause(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasur
     ctx.loop.ticks_for(step.duration_s)
 
 
-def _by_hand(ctx: StepContext, trial: TrialPlan, text: str) -> None:
+def _by_hand(ctx: StepContext, trial: TrialPlan, request: OperatorRequest) -> None:
     """The operator sets the link by hand: the benders' torque is off meanwhile, so that they give way.
 
     Afterwards each bender holds where the operator left it (its goal set to its position before
@@ -195,7 +197,7 @@ def _by_hand(ctx: StepContext, trial: TrialPlan, text: str) -> None:
         servos.set_torque(benders, False)
         for sid in benders:
             ctx.recorder.command(sid, ServoCommandName.TORQUE, 0.0, "")
-    ctx.session.operator.confirm(text, trial, ctx.loop.tick)
+    ctx.session.operator.confirm(request, ctx.loop.tick)
     if benders:
         ctx.loop.tick()
         held = {sid: ctx.loop.states[sid].position_rad for sid in benders}

@@ -307,7 +307,6 @@ class TrialRunner:
 
     def _run_trial(self, trial: TrialPlan, links: TrialLinkCounter) -> TrialResult:
         self.trial = trial
-        self.session.begin_trial(trial)
         start_ns = self.clock.time_ns()
         self.progress.trial_started(trial.trial_id, _describe(trial))
         found = TrialMeasurements(joint_angles_rad=trial.joint_angles_rad)

@@ -4,7 +4,6 @@
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
     "clock",
-    "object_rig",
     "pty_link",
     "simulated_rig",
     "twin",

@@ -10,10 +10,18 @@ Assembly, in the order time flows on every clock advance:
 3. The real `DynamixelServoBus` talks Protocol 2.0 to the emulated bus through `SimPortHandler`
    (dynamixel-sdk unchanged), so the winch's position, current and faults come back over the wire.
 
-The simulated operator confirms prompts at once; placing the hook (joint estimation) or starting a
-validation trial is done at trial start through `SimWorld.begin_trial`, which also draws the
-trial's capacity variation. Bending goes through the forks' bender servos and the world's fork
-fixture (rig/sim/physics/forks.py); without forks the simulated person bends by hand.
+At the object level (`devices=DeviceLevel.OBJECT`) the same world, preset and seeds drive
+`ObjectServoBus` and `ObjectLoadCell` (rig/sim/object_devices.py) instead of the real drivers on
+emulators: no bytes, so timed faults and the cell's line-level options are refused there. The
+listener order on the clock is the same.
+
+The runner never tells the world that a trial begins. The simulated person (`SimulatedPerson`, the
+session's `Operator`) does at once what the operator is asked: following a joint-estimation prompt
+it hooks the line to the specimen at the trial's distance, asked to bend or straighten the link it
+does so by hand (with its placement error). Forks bend the link through their bender servos and
+the world's fork fixture (rig/sim/physics/forks.py). The world draws each loading's capacities
+itself when the line becomes taut (rig/sim/physics/world.py). Its truth is returned beside the
+session (`SimulatedRig.truth`), never through it.
 """
 
 from __future__ import annotations
@@ -28,10 +36,9 @@ from rig.errors import ConfigError
 from rig.hw.bending import BendStage, ForkBending, ManualBending, fork_components
 from rig.hw.configuration.factory import hardware_configuration_source
 from rig.hw.dxl.bus import DynamixelServoBus
-from rig.hw.seams import ConfigurationSource
-from rig.hw.session import RigSession
+from rig.hw.seams import ConfigurationSource, LoadCell, ServoBus
+from rig.hw.session import OperatorRequest, OperatorTask, RigSession
 from rig.hw.truth import RunTruth
-from rig.protocol import TrialPlan
 from rig.rig_config import RigConfig, configuration_source_kind, require_simulated, simulation_section
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
@@ -40,10 +47,11 @@ from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
 from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, SimPreset, make_preset, stream_rng
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import ShaftLike, SimWorld
-from rig.vocabulary import ConfigurationSourceKind, RigKind, TrialKind
+from rig.vocabulary import ConfigurationSourceKind, DeviceLevel, RigKind, TrialKind
 
 
 class PacedVirtualClock(VirtualClock):
@@ -56,15 +64,35 @@ class PacedVirtualClock(VirtualClock):
         super().sleep(seconds)
 
 
-class SimOperator:
-    """Confirms every prompt at once; the physical action happens in `SimWorld.begin_trial`."""
+class SimulatedPerson:
+    """The operator of a simulated rig: does what it is asked at once, on the world, then confirms.
 
-    def __init__(self) -> None:
-        self.prompts: list[str] = []
+    Following a joint-estimation trial's prompt it hangs the hook at the trial's distance on the
+    specimen (that trial's joint); following a link-validation trial's prompt it hooks the line to
+    the link; asked to bend or straighten the link, it does so by hand.
+    """
 
-    def confirm(self, text: str, trial: TrialPlan | None, keep_alive: Callable[[], None]) -> None:
-        """Record the prompt and return (the simulated operator answers at once)."""
-        self.prompts.append(text)
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+        self.requests: list[OperatorRequest] = []
+
+    def confirm(self, request: OperatorRequest, keep_alive: Callable[[], None]) -> None:
+        """Do the task on the world and return (the simulated person answers at once)."""
+        self.requests.append(request)
+        world, trial = self.world, request.trial
+        match request.task:
+            case OperatorTask.FOLLOW_PROMPT:
+                if trial is not None and trial.kind is TrialKind.JOINT_ESTIMATION:
+                    assert trial.distance_m is not None  # every joint-estimation trial has one
+                    world.place_hook(trial.distance_m, trial.joint)
+                elif trial is not None:
+                    world.hook_link()
+            case OperatorTask.BEND_LINK:
+                world.bend_by_hand(request.joint_angles_rad or ())
+            case OperatorTask.STRAIGHTEN_LINK:
+                world.straighten()
+            case task:
+                assert_never(task)
 
 
 class SimForkBending(ForkBending):
@@ -86,11 +114,13 @@ class SimForkBending(ForkBending):
 
     def end_stage(self, stage: BendStage) -> None:
         """The fork has arrived: the link settles and the fork holds."""
-        self.world.settle_fork()
+        if self.world.forks is not None:
+            self.world.forks.settle()
 
     def end_bend(self) -> None:
         """The forks open."""
-        self.world.open_forks()
+        if self.world.forks is not None:
+            self.world.forks.open()
 
     def home_goals(self) -> dict[int, float]:
         """The guide bar straightens the link; the forks go home."""
@@ -107,18 +137,29 @@ VIRTUAL_DAY_NS = 86_400 * 1_000_000_000
 class SimulatedDevices:
     """The simulation behind a session, for tests, fault injection and benchmarks (never the runner)."""
 
-    bus: EmulatedBus
+    bus: EmulatedBus | ObjectServoBus  # the servos behind the driver (byte level), or the session's own
     world: SimWorld
-    loadcell_emulator: LoadCellEmulator
-    faults: FaultSchedule  # the config's timed faults, and which of them fired
+    loadcell_emulator: LoadCellEmulator | None  # behind the driver (byte level); None at object level
+    faults: FaultSchedule  # the config's timed faults, and which of them fired (none at object level)
 
 
 @dataclass(frozen=True)
 class SimulatedRig:
-    """A simulated rig: the session the runner drives and the emulated devices behind it."""
+    """A simulated rig: the session the runner drives, its truth beside it, the devices behind it.
+
+    It is what `rig.runner.run.execute_run` takes (`rig.runner.rig_to_run.RigToRun`).
+    """
 
     session: RigSession
     devices: SimulatedDevices
+    truth: SimGroundTruth
+    person: SimulatedPerson
+    log_limit_bytes: int | None = None  # a logger fault: the most the run's log file may hold
+
+    @property
+    def world(self) -> SimWorld:
+        """The simulated world behind the devices."""
+        return self.devices.world
 
 
 class _TorqueServo(Protocol):
@@ -149,27 +190,56 @@ class SimGroundTruth:
         )
 
 
-def simulated_session(
-    config: RigConfig, *, seed: int = 0, realtime: bool = False, invocation: int = 1
-) -> RigSession:
-    """The session of `simulated_rig` (what the runner needs; the devices stay hidden)."""
-    return simulated_rig(config, seed=seed, realtime=realtime, invocation=invocation).session
-
-
 def simulated_rig(
-    config: RigConfig, *, seed: int = 0, realtime: bool = False, invocation: int = 1
+    config: RigConfig,
+    *,
+    seed: int = 0,
+    realtime: bool = False,
+    invocation: int = 1,
+    devices: DeviceLevel = DeviceLevel.BYTE,
 ) -> SimulatedRig:
     """The simulated rig of a `kind: simulated` config, seeded; nothing is connected yet.
 
-    `invocation` (1 for a new run, 2 for its first resume, ...) sets the start of virtual time.
+    `invocation` (1 for a new run, 2 for its first resume, ...) sets the start of virtual time;
+    `devices` chooses the real drivers on byte-level emulators or the object-level devices.
     """
     sim = require_simulated(config)
     preset = config_preset(config, seed)
     clock = run_clock(realtime, invocation)
+    match DeviceLevel(devices):  # ValueError for a name that is no level
+        case DeviceLevel.BYTE:
+            behind, servos, load_cell = _byte_devices(config, preset, clock, seed)
+        case DeviceLevel.OBJECT:
+            behind, servos, load_cell = _object_devices(config, preset, clock, seed)
+        case level:
+            assert_never(level)
+    world = behind.world
+    person = SimulatedPerson(world)
+    session = RigSession(
+        kind=RigKind.SIMULATED,
+        clock=clock,
+        servos=servos,
+        load_cell=load_cell,
+        operator=person,
+        fixture=bending_fixture(world, config),
+        configuration=configuration_source(world, config, clock, seed),
+        configuration_kind=configuration_source_kind(config),
+        winch_id=config.servos.winch.servo_id,
+        roles={s.servo_id: s.role for s in config.servos.servos},
+        attachments=[("loadcell-calibration.json", "application/json", calibration_json(load_cell))],
+    )
+    truth = SimGroundTruth(world, behind.bus)
+    return SimulatedRig(session, behind, truth, person, log_limit_bytes(sim.faults))
+
+
+def _byte_devices(
+    config: RigConfig, preset: SimPreset, clock: VirtualClock, seed: int
+) -> tuple[SimulatedDevices, ServoBus, LoadCell]:
+    """The byte-level emulators in the world, and the real drivers on them."""
+    sim = require_simulated(config)
     ids = [s.servo_id for s in config.servos.servos]
-    models = emulated_models(config)
     bus = EmulatedBus.with_servos(
-        clock, ids=ids, model=models, baud=config.servos.baud, firmware=sim.servo_firmware
+        clock, ids=ids, model=emulated_models(config), baud=config.servos.baud, firmware=sim.servo_firmware
     )
     for servo in bus.servos:
         servo.supply_voltage_v = sim.servo_supply_v
@@ -201,24 +271,40 @@ def simulated_rig(
         bus_watchdog_ms=config.servos.watchdog_ms,
         port_factory=lambda name: SimPortHandler(bus, clock, name),
     )
+    return SimulatedDevices(bus, world, loadcell_emulator, schedule), servos, load_cell
 
-    session = RigSession(
-        kind=RigKind.SIMULATED,
-        clock=clock,
-        servos=servos,
-        load_cell=load_cell,
-        operator=SimOperator(),
-        fixture=bending_fixture(world, config),
-        configuration=configuration_source(world, config, clock, seed),
-        winch_id=config.servos.winch.servo_id,
-        roles={s.servo_id: s.role for s in config.servos.servos},
-        begin_trial=trial_starter(world),
-        truth=SimGroundTruth(world, bus),
-        attachments=[("loadcell-calibration.json", "application/json", calibration_json(load_cell))],
-        log_limit_bytes=log_limit_bytes(sim.faults),
-        **session_extras(world, config),
+
+def _object_devices(
+    config: RigConfig, preset: SimPreset, clock: VirtualClock, seed: int
+) -> tuple[SimulatedDevices, ServoBus, LoadCell]:
+    """The object-level devices in the world (no bytes: timed faults and line-level options refused)."""
+    sim = require_simulated(config)
+    if sim.faults:
+        raise ConfigError(
+            f"{config.source}: simulation/faults: the object-level devices have no bytes to corrupt; "
+            "allowed: no faults, or the byte-level devices (--devices byte)"
+        )
+    if sim.cell is not None or sim.loadcell_clock_error_ppm or sim.loadcell_dtr_reset_s:
+        raise ConfigError(
+            f"{config.source}: simulation.loadcell_cell: {sim.loadcell_cell} (clock error "
+            f"{sim.loadcell_clock_error_ppm:g} ppm, DTR reset {sim.loadcell_dtr_reset_s:g} s): the "
+            "object-level load cell has no lines, settling, polls or device clock; allowed: the default "
+            "cell, or the byte-level devices (--devices byte)"
+        )
+    models = emulated_models(config)  # as on the byte-level bus
+    bus = ObjectServoBus(clock, [(s.servo_id, m) for s, m in zip(config.servos.servos, models, strict=True)])
+    world = new_world(preset, config, bus, clock, seed)
+    world.devices_at_rest = bus.at_rest
+    load_cell = ObjectLoadCell(
+        world.tension_at,
+        clock,
+        rate_hz=sim.loadcell_rate_hz,
+        signal=loadcell_signal(preset),
+        seed=seed,
+        artefacts=loadcell_artefacts(preset, seed),
+        tensions_n=world.tensions_at,
     )
-    return SimulatedRig(session, SimulatedDevices(bus, world, loadcell_emulator, schedule))
+    return SimulatedDevices(bus, world, None, FaultSchedule()), bus, load_cell
 
 
 def calibration_json(load_cell: Any) -> bytes:
@@ -355,27 +441,3 @@ def configuration_source(
     if configuration_source_kind(config) == ConfigurationSourceKind.SIMULATOR:
         return SimConfigurationSource(world, clock, seed=seed)
     return hardware_configuration_source(config, clock)
-
-
-def session_extras(world: SimWorld, config: RigConfig) -> dict[str, Any]:
-    """The session fields every simulated rig shares: the source's kind and the simulated person's hands."""
-    return {
-        "configuration_kind": configuration_source_kind(config),
-        "hand_bend": world.bend_by_hand,
-        "hand_straighten": world.straighten,
-    }
-
-
-def trial_starter(world: SimWorld) -> Callable[[TrialPlan], None]:
-    """The session's `begin_trial`: the world draws the trial's capacities and sets up its specimen."""
-
-    def begin_trial(trial: TrialPlan) -> None:
-        match trial.kind:
-            case TrialKind.JOINT_ESTIMATION:
-                world.begin_trial(trial.kind, distance_m=trial.distance_m, joint=trial.joint)
-            case TrialKind.LINK_VALIDATION:
-                world.begin_trial(trial.kind)
-            case kind:
-                assert_never(kind)
-
-    return begin_trial

@@ -5,10 +5,10 @@ the rig does it, as a careful person would on the bench: the hand starts with th
 the protocol it was given set up, and moves on to the next trial once the present one is over and
 the line has been slack for `SLACK_DWELL_S`. A trial is over when one of its joints slipped, or when
 the line reached the protocol's ramp limit `max_force_n` without a slip. Setting a trial up is what
-the in-process simulated rig does at the runner's `begin_trial`: the world draws the trial's
-capacities (a fresh static friction after the re-stick) and, for joint estimation, hooks the line to
-the specimen at the trial's distance; for link validation it straightens the link and bends it by
-hand to the trial's configuration (with its placement error).
+the in-process simulated person does when the runner asks: for joint estimation it hooks the line
+to the specimen at the trial's distance; for link validation it straightens the link and bends it
+by hand to the trial's configuration (with its placement error). The world draws the trial's
+capacities itself when the line is next loaded (a fresh static friction after the re-stick).
 
 The hand follows the protocol's fixed trials in the order the run plans them with the same seed;
 after the last it keeps setting up the last one again. Without a protocol it sets up a
@@ -86,10 +86,10 @@ class TwinHand:
         world = self.world
         match trial.kind:
             case TrialKind.JOINT_ESTIMATION:
-                world.begin_trial(trial.kind, distance_m=trial.distance_m, joint=trial.joint)
+                assert trial.distance_m is not None  # every joint-estimation trial has one
+                world.place_hook(trial.distance_m, trial.joint)
             case TrialKind.LINK_VALIDATION:
                 world.straighten()
-                world.begin_trial(trial.kind)
                 if trial.joint_angles_rad is not None:
                     world.bend_by_hand(trial.joint_angles_rad)
         self._slips_before = len(world.slips)

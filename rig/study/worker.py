@@ -25,7 +25,7 @@ from rig.errors import ExitCode
 from rig.hw.truth import WorldTruth
 from rig.log.records import TrialKind, TrialOutcome, TrialResult
 from rig.log.writer import RunLogger
-from rig.rigs import open_session
+from rig.rigs import open_simulated_rig
 from rig.runner.journal import RunJournal
 from rig.runner.planning import TrialSchedule
 from rig.runner.progress import SilentProgress
@@ -155,11 +155,11 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
             prepared.journal = _UnsavedJournal(**{f.name: getattr(journal, f.name) for f in fields(journal)})
             planned = len(prepared.protocol.planned_trial_ids)
             try:
-                session = open_session(prepared, devices=spec.devices)
+                rig = open_simulated_rig(prepared, devices=spec.devices)
                 runner = TrialRunner(
                     protocol=prepared.protocol,
                     config=prepared.config,
-                    session=session,
+                    session=rig.session,
                     logger=cast(RunLogger, _DiscardingLogger()),
                     journal=prepared.journal,
                     estimator=prepared.estimator,
@@ -173,9 +173,7 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
                 outcome = runner.run(schedule)
             finally:
                 prepared.release()
-            if session.truth is None:
-                raise RuntimeError("the rig reports no truth (a study needs the simulated rig)")
-            world = session.truth.snapshot().world
+            world = rig.truth.snapshot().world
     except Exception as exc:  # a broken run is counted, never the end of the study
         return RunRecord(seed, "aborted", f"{type(exc).__name__}: {exc}", planned, 0, _since(start), ())
     if outcome.exit_code == ExitCode.INTERRUPTED:

@@ -5,8 +5,8 @@ servos (`rig.sim.object_devices.ObjectServoBus`, driven by the same world as the
 rather than re-implementing a bus, so that a test checks what the runner asked of the servos while
 the servos behave as the simulator's do:
 
-    rig = object_simulated_rig(config)
-    servos = RecordingServoBus(rig.bus)
+    rig = simulated_rig(config, devices=DeviceLevel.OBJECT)
+    servos = RecordingServoBus(rig.devices.bus)
     session = dataclasses.replace(rig.session, servos=servos)
     ...
     servos.calls_to("set_torque")  # [ServoCall("set_torque", {"servo_ids": [2], "enabled": False}), ...]

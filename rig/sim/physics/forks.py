@@ -22,7 +22,9 @@ A reset straightens the link against a straight guide bar (exactly straight) whi
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -126,3 +128,58 @@ class ForkFixture:
         if component < self.link.joint_count:
             return np.asarray(poses[component + 1, :3, 3], dtype=float)
         return np.asarray(self.link.acting_point_w(), dtype=float)
+
+
+class ForkShaft(Protocol):
+    """A bender's output shaft as the forks see it."""
+
+    @property
+    def present_position_rad(self) -> float:
+        """Output-shaft angle [rad], multi-turn."""
+        ...
+
+
+class ShaftDrivenForks:
+    """The fixture's forks driven by their bender shafts, re-posing the link as the active one moves.
+
+    A pushing fork re-poses the link every `update_ns` (each re-pose costs about 0.2 ms), and once
+    more when it stops (`settle`).
+    """
+
+    def __init__(self, fixture: ForkFixture, shafts: Mapping[int, ForkShaft], *, update_ns: int) -> None:
+        self.fixture = fixture
+        self.shafts = dict(shafts)
+        self.update_ns = int(update_ns)
+        self._last_update_ns = 0
+
+    @property
+    def pushing(self) -> bool:
+        """True while a fork is closed on the link and moving it (or holding it)."""
+        return self.fixture.active is not None
+
+    def close(self, component: int, now_ns: int) -> None:
+        """Close fork `component` on the link; it pushes the link as its bender moves."""
+        if component not in self.shafts:
+            raise RuntimeError(f"this world has no fork on component {component}")
+        self.fixture.engage(component, self.shafts[component].present_position_rad)
+        self._last_update_ns = now_ns
+
+    def follow(self, t_ns: int) -> None:
+        """Re-pose the link after the active fork, at most every `update_ns`."""
+        active = self.fixture.active
+        if active is None or t_ns - self._last_update_ns < self.update_ns:
+            return
+        self._last_update_ns = t_ns
+        self.fixture.update(self.shafts[active].present_position_rad)
+
+    def settle(self) -> None:
+        """The moving fork has stopped: the link follows it to its final angle, then the fork holds."""
+        active = self.fixture.active
+        if active is not None:
+            self.fixture.update(self.shafts[active].present_position_rad)
+            self.fixture.active = None
+
+    def open(self) -> None:
+        """Open every fork: the link is free (the trial may load it)."""
+        self.settle()
+        self.fixture.open_all()

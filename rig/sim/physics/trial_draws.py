@@ -1,4 +1,4 @@
-"""What each simulated trial draws at its start: its capacity factors and its slip kind with parameters.
+"""What each simulated loading draws: its capacity factors and its slip kind with parameters.
 
 Two random streams of the seed (`article_presets.STREAM_TRIAL_CAPACITY`, `STREAM_SLIP_KIND`), one
 draw sequence per trial each, in a fixed order (a change of order changes every later trial):
@@ -14,7 +14,7 @@ draw sequence per trial each, in a fixed order (a change of order changes every 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import assert_never
 
 import numpy as np
@@ -35,6 +35,14 @@ class CapacityDraw:
     relative_sds: np.ndarray
 
 
+@dataclass(frozen=True)
+class TrialDraw:
+    """What one loading drew: its capacity factors and its slip plan (loads scaled to the article)."""
+
+    capacity: CapacityDraw
+    plan: SlipPlan
+
+
 class TrialDraws:
     """The per-trial random draws of a seeded world (each on its own stream)."""
 
@@ -42,6 +50,31 @@ class TrialDraws:
         self.preset = preset
         self._capacity_rng = stream_rng(seed, STREAM_TRIAL_CAPACITY)
         self._kind_rng = stream_rng(seed, STREAM_SLIP_KIND)
+
+    def draw(self, article: ChainArticle, *, joint_estimation: bool, specimen_joint: int | None) -> TrialDraw:
+        """Draw a loading's capacities, set them on `article` as it is posed now, and its slip plan.
+
+        The specimen (joint estimation) is joint `specimen_joint` of the link, or the preset's
+        nominal joint; the link's joints are the preset's.
+        """
+        preset = self.preset
+        if not joint_estimation:
+            nominal = np.asarray(preset.joint_capacities_nm)
+        elif specimen_joint is None:
+            nominal = np.array([preset.specimen_capacity_nm])
+        else:
+            nominal = np.array([preset.joint_capacities_nm[specimen_joint - 1]])
+        capacity = self.capacity_factors(nominal, article)
+        plan = self.slip_plan(joint_estimation, specimen_joint)
+        capacities = nominal * capacity.factors
+        if plan.kind == SlipKind.NO_SLIP:
+            capacities = capacities * preset.slip_mix.no_slip_capacity_factor
+        article.set_capacities(capacities)
+        if plan.kind == SlipKind.OTHER_JOINT:
+            assert plan.other_load_n is not None
+            # The fraction drawn becomes a load (inf if the specimen cannot slip).
+            plan = replace(plan, other_load_n=plan.other_load_n * article.slip_threshold_n)
+        return TrialDraw(capacity, plan)
 
     def capacity_factors(self, nominal_nm: np.ndarray, article: ChainArticle) -> CapacityDraw:
         """Factors for the capacities `nominal_nm` of the joints of `article` as it is posed now."""

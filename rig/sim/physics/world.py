@@ -20,7 +20,7 @@ winch that keeps reeling makes the tension rise to the next slip (stick-slip); f
 external torque is set from the tension after the slip motion.
 
 All times are the shared clock's monotonic nanoseconds. `tension_at(t_ns)` interpolates the recorded
-tension linearly over the last `history_s` seconds (the load-cell emulator's signal source).
+tension linearly over the last `history_s` seconds (the load cells' signal; `tension_history.py`).
 
 **Slip kinds.** Each trial draws its kind and its capacities (`trial_draws.py`, each on its own
 random stream of the seed); the kind becomes the trial's `SlipBehaviour` (`slips.py`: sudden, small
@@ -28,13 +28,16 @@ drop, creep, stick-slip train, other joint first, no slip), which opens the slip
 steps it until the joint sticks again. Every slip event is a `SlipRecord` with its kind, its onset on
 the run clock and its load.
 
-Trials: `begin_trial(kind, distance_m)` draws the capacities of this trial and, for joint
-estimation, sets up the **single-joint specimen**: one joint placed horizontally (its axis z along
-the base z, the line pulling across it along the preset's direction without its z part), the hook
-at distance l, so the lever arm is l. The specimen is re-levelled (straight) at the start of every
-such trial. Link-validation trials use the link in whatever configuration the forks (or
-`set_configuration`) left it. `truth()` returns the ground truth as a typed record
-(`rig.hw.truth.WorldTruth`).
+**Trials come from what is done to the rig**, not from the runner. The simulated person hooks
+the line to the **single-joint specimen** (`place_hook(distance_m, joint)`: one joint held
+horizontally, its axis z along the base z, the line pulling across it along the preset's direction
+without its z part, the hook at distance l, so the lever arm is l; the specimen re-levelled) or to
+the link (`hook_link`, also what bending the link by hand or by the forks does). Each of those, and a
+re-stick (the line slack for `RESTICK_S` after a slip), makes the joints' static friction **fresh**:
+the next time the line becomes taut the world draws that loading's capacities and slip kind
+(`draw_trial`), one `TrialTruth` per loading. A runner's trial loads the line once, so the truth's
+trials are the run's trials in order. `truth()` returns the ground truth as a typed record
+(`rig.hw.truth.WorldTruth`, built by `world_truth.py`).
 
 **Fast path.** `advance_to` spells out the common substep (no slip under way, nothing pending,
 no fork pushing) instead of calling `_substep`, and skips still stretches when the devices are at
@@ -44,37 +47,29 @@ holds the two histories equal).
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
 
-from model.joint import mu_delta0_pa_from_capacity, resolve_constant
-from rig.hw.truth import (
-    CapacityTruth,
-    GeometryTruth,
-    LineTruth,
-    NoiseTruth,
-    ScatterTruth,
-    SlipPlan,
-    SlipTruth,
-    TrialTruth,
-    WorldTruth,
-)
+from rig.hw.truth import SlipPlan, SlipTruth, TrialTruth, WorldTruth
 from rig.sim.physics.article import ChainArticle
 from rig.sim.physics.article_presets import STREAM_BEND, SimPreset, stream_rng
-from rig.sim.physics.forks import ForkFixture
+from rig.sim.physics.forks import ForkFixture, ShaftDrivenForks
 from rig.sim.physics.slips import ActiveSlip, SlipBehaviour, SlipRecord, Sudden, behaviour_for
+from rig.sim.physics.tension_history import TensionHistory
 from rig.sim.physics.trial_draws import TrialDraws
 from rig.sim.physics.winch_line import WinchLine
+from rig.sim.physics.world_truth import world_truth
 from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0
 BEND_UPDATE_NS = 50_000_000  # how often a pushing fork re-poses the link (each re-pose costs ~0.2 ms)
+# A slipped joint re-sticks with fresh static friction once the line has been slack this long: as
+# long as a careful person waits with the line slack before touching the rig (the twin's hand).
+RESTICK_S = 0.3
 
 
 def specimen_direction(direction_w: Sequence[float]) -> tuple[float, float, float]:
@@ -125,7 +120,6 @@ class SimWorld:
         self.preset = preset
         self.seed = int(seed)
         self._winch = winch
-        self._fork_shafts = {component: shaft for component, shaft in forks}
         self.step_devices = step_devices
         # True when stepping the devices would move nothing until the load on them changes
         # (`ObjectServoBus.at_rest`); lets `advance_to` skip a still stretch in one go.
@@ -158,17 +152,17 @@ class SimWorld:
             preset.spring_stiffness_n_per_m,
             slack_angle_rad=winch.present_position_rad + preset.winch_slack_rad,
         )
-        self.fixture: ForkFixture | None = None
-        if self._fork_shafts:
-            self.fixture = ForkFixture(
+        self.forks: ShaftDrivenForks | None = None
+        if forks:
+            fixture = ForkFixture(
                 self.link,
-                list(self._fork_shafts),
+                [component for component, _ in forks],
                 pinion_radius_m=pinion_radius_m,
                 contact_stiffness_n_per_m=preset.fork_contact_stiffness_n_per_m,
                 kinetic_ratio=preset.kinetic_ratio,
             )
+            self.forks = ShaftDrivenForks(fixture, dict(forks), update_ns=BEND_UPDATE_NS)
         self._hand_rng = stream_rng(seed, STREAM_BEND)  # a person's placement error, bending by hand
-        self._last_bend_update_ns = self._now_ns
 
         self.trials: list[TrialTruth] = []
         self.slips: list[SlipRecord] = []
@@ -177,15 +171,29 @@ class SimWorld:
         self.link_before_slip: dict[int, np.ndarray] = {}
         self._slip: ActiveSlip | None = None  # the slip under way
         self._behaviour: SlipBehaviour = Sudden(SlipPlan(SlipKind.SUDDEN), preset.kinetic_ratio)
-        self._clamp_take_up_m = 0.0  # what an other-joint slip let the line in by (this trial)
+        self._clamp_take_up_m = 0.0  # what an other-joint slip let the line in by (this hook-up)
+        self._hook_joint: int | None = None  # the specimen is this joint of the link (None: nominal)
+        self._hook_distance_m: float | None = None  # the hook's distance on the specimen
+        # The friction is fresh (the next taut line draws a trial), a slip happened since the last
+        # draw (a slack line re-sticks it), and since when the line has been slack after that slip.
+        self._fresh = True
+        self._slipped = False
+        self._slack_since_ns: int | None = None
+        self._watching = True  # _fresh or _slipped: whether a substep must watch the line
 
-        self._history_len = int(history_s * 1e9 / self._substep_ns) + 16
         tension = self.line.tension_n(winch.present_position_rad, self.line_take_up_m())
-        self._times_ns: list[int] = [self._now_ns]
-        self._tensions_n: list[float] = [tension]
+        self.history = TensionHistory(int(history_s * 1e9 / self._substep_ns) + 16, self._now_ns, tension)
+        # The load cells' signal: the tension at a time, or at a tick's batch of times (TensionHistory).
+        self.tension_at: Callable[[int], float] = self.history.at
+        self.tensions_at: Callable[[Sequence[int]], list[float]] = self.history.at_many
         winch.external_torque_nm = self.line.winch_torque_nm(tension)
 
     # --- state -------------------------------------------------------------------------------
+    @property
+    def substep_ns(self) -> int:
+        """The integration substep [ns]."""
+        return self._substep_ns
+
     @property
     def now_ns(self) -> int:
         """The time (monotonic ns) the world has been integrated to."""
@@ -194,12 +202,17 @@ class SimWorld:
     @property
     def tension_n(self) -> float:
         """The most recently recorded line tension [N]."""
-        return self._tensions_n[-1]
+        return self.history.tensions_n[-1]
 
     @property
     def setup(self) -> ArticleSetup:
         """Which article the line is hooked to: the link or the specimen."""
         return ArticleSetup.LINK if self._article is self.link else ArticleSetup.SPECIMEN
+
+    @property
+    def hook_distance_m(self) -> float | None:
+        """Where the hook hangs on the specimen (None: the line is on the link)."""
+        return self._hook_distance_m if self._article is self.specimen else None
 
     @property
     def article(self) -> ChainArticle:
@@ -214,7 +227,7 @@ class SimWorld:
     @property
     def bending(self) -> bool:
         """True while a fork is closed on the link (and holding it)."""
-        return self.fixture is not None and self.fixture.active is not None
+        return self.forks is not None and self.forks.pushing
 
     @property
     def slip_rate_rad_s(self) -> float:
@@ -246,8 +259,9 @@ class SimWorld:
         step_devices, at_rest = self.step_devices, self.devices_at_rest
         winch, line = self._winch, self.line
         radius, slack, stiffness = line.drum_radius_m, line.slack_angle_rad, line.stiffness_n_per_m
-        times, tensions, keep = self._times_ns, self._tensions_n, 2 * self._history_len
-        behaviour = self._behaviour  # no trial begins within an advance
+        history = self.history
+        times, tensions, keep = history.times_ns, history.tensions_n, 2 * history.keep
+        behaviour = self._behaviour  # refreshed when a loading draws its trial within the advance
         if self.plain_substeps:
             while t_ns < now_ns:
                 t_ns = min(t_ns + step_ns, now_ns)
@@ -256,12 +270,8 @@ class SimWorld:
         last_theta = math.nan
         while t_ns < now_ns:
             t_ns = min(t_ns + step_ns, now_ns)
-            fixture = self.fixture
-            if (
-                self._slip is not None
-                or behaviour.pending
-                or (fixture is not None and fixture.active is not None)
-            ):
+            forks = self.forks
+            if self._slip is not None or behaviour.pending or (forks is not None and forks.pushing):
                 self._substep(t_ns)
                 continue
             # Fast path of `_substep` for its common case (no slip under way, nothing pending, the
@@ -272,10 +282,12 @@ class SimWorld:
             theta = winch.present_position_rad
             stretch = radius * (theta - slack) - (article.take_up_m + self._clamp_take_up_m)
             tension = stiffness * stretch if stretch > 0.0 else 0.0  # WinchLine.tension_n
-            times.append(t_ns)  # _record, spelled out
+            times.append(t_ns)  # TensionHistory.record, spelled out
             tensions.append(tension)
             if len(times) > keep:
-                self._trim_history()
+                history.trim()
+            if self._watching and self._watch_line(tension, t_ns):
+                behaviour = self._behaviour
             still = False
             if tension > behaviour.other_load_n:
                 tension = behaviour.slip_other_joint(self, theta, tension, t_ns)
@@ -292,67 +304,28 @@ class SimWorld:
                 # take their shortcut once, to `now_ns`; the history gets every substep's entry.
                 step_devices(now_ns)
                 for later_ns in (*range(t_ns + step_ns, now_ns, step_ns), now_ns):
-                    self._record(later_ns, tension)
+                    self.history.record(later_ns, tension)
                 self._now_ns = now_ns
+                if self._watching:
+                    self._watch_line(tension, now_ns)
                 return
-
-    def tension_at(self, t_ns: int) -> float:
-        """Line tension [N] at monotonic `t_ns`, linearly interpolated; later than the world: the last value.
-
-        Raises `ValueError` for a time older than the retained history (about `history_s`).
-        """
-        times = self._times_ns
-        if t_ns >= times[-1]:
-            return self._tensions_n[-1]
-        if t_ns < times[0]:
-            raise ValueError(f"t_ns = {t_ns} is older than the tension history (from {times[0]} ns)")
-        i = bisect.bisect_right(times, t_ns)
-        t0, t1 = times[i - 1], times[i]
-        f0, f1 = self._tensions_n[i - 1], self._tensions_n[i]
-        return f0 + (f1 - f0) * (t_ns - t0) / (t1 - t0)
-
-    def tensions_at(self, times_ns: Sequence[int]) -> list[float]:
-        """`tension_at` of each of the ascending `times_ns` (one batch: a load cell's samples of a tick).
-
-        Fast path of `[self.tension_at(t) for t in times_ns]` with the same arithmetic, found by
-        walking the history once instead of bisecting per time (tests/test_sim_fast_paths.py
-        holds them equal).
-        """
-        times, tensions = self._times_ns, self._tensions_n
-        if not times_ns:
-            return []
-        last_t = times[-1]
-        first = times_ns[0]
-        if first < times[0]:
-            raise ValueError(f"t_ns = {first} is older than the tension history (from {times[0]} ns)")
-        out: list[float] = []
-        i = bisect.bisect_right(times, first) if first < last_t else len(times)
-        count = len(times)
-        for t_ns in times_ns:
-            if t_ns >= last_t:
-                out.append(tensions[-1])
-                continue
-            while i < count and times[i] <= t_ns:
-                i += 1
-            t0, t1 = times[i - 1], times[i]
-            f0, f1 = tensions[i - 1], tensions[i]
-            out.append(f0 + (f1 - f0) * (t_ns - t0) / (t1 - t0))
-        return out
 
     def _substep(self, t_ns: int) -> None:
         """One substep, every case (the plain twin of the fast path in `advance_to`)."""
         dt_s = (t_ns - self._now_ns) * 1e-9
         if self.step_devices is not None:
             self.step_devices(t_ns)
-        fixture = self.fixture
+        forks = self.forks
         holding = False
-        if fixture is not None and fixture.active is not None:
-            self._follow_fixture(fixture, t_ns)
+        if forks is not None and forks.pushing:
+            forks.follow(t_ns)
             holding = self._article is self.link
         article = self._article
         theta = self._winch.present_position_rad
         tension = self.line.tension_n(theta, article.take_up_m + self._clamp_take_up_m)
-        self._record(t_ns, tension)
+        self.history.record(t_ns, tension)
+        if self._watching:
+            self._watch_line(tension, t_ns)
         if not holding:
             slip, behaviour = self._slip, self._behaviour
             if slip is not None:
@@ -398,6 +371,8 @@ class SimWorld:
         )
         record = SlipRecord(onset)
         self.slips.append(record)
+        self._slipped = self._watching = True
+        self._slack_since_ns = None
         return record
 
     def _moved_joint(self, article_joint: int) -> int:
@@ -407,18 +382,6 @@ class SimWorld:
         trial = self.current_trial
         return 1 if trial is None or trial.specimen_joint is None else trial.specimen_joint
 
-    def _record(self, t_ns: int, tension_n: float) -> None:
-        self._times_ns.append(t_ns)
-        self._tensions_n.append(tension_n)
-        if len(self._times_ns) > 2 * self._history_len:
-            self._trim_history()
-
-    def _trim_history(self) -> None:
-        """Keep the last `_history_len` entries (in place: the lists stay the same objects)."""
-        drop = len(self._times_ns) - self._history_len
-        del self._times_ns[:drop]
-        del self._tensions_n[:drop]
-
     def _end_slip(self) -> None:
         """Cut the slip under way short (a new trial, the link re-posed) and forget what is pending."""
         if self._slip is not None:
@@ -426,39 +389,64 @@ class SimWorld:
             self._slip = None
         self._behaviour.end()
 
-    # --- bending -----------------------------------------------------------------------------
-    def _follow_fixture(self, fixture: ForkFixture, t_ns: int) -> None:
-        active = fixture.active
-        if active is None or t_ns - self._last_bend_update_ns < BEND_UPDATE_NS:
-            return
-        self._last_bend_update_ns = t_ns
-        fixture.update(self._fork_shafts[active].present_position_rad)
+    def _watch_line(self, tension: float, t_ns: int) -> bool:
+        """A taut line with fresh friction draws its trial (True); a slack one re-sticks a slipped joint."""
+        if tension > 0.0:
+            self._slack_since_ns = None
+            if self._fresh:
+                self.draw_trial(t_ns)
+                return True
+            return False
+        if self._slipped and self._slip is None:
+            if self._slack_since_ns is None:
+                self._slack_since_ns = t_ns
+            elif t_ns - self._slack_since_ns >= RESTICK_S * 1e9:
+                self._make_fresh()
+        return False
+
+    def _make_fresh(self) -> None:
+        """The joints' static friction is fresh: the next loading draws its trial."""
+        self._fresh = self._watching = True
+        self._slipped = False
+        self._slack_since_ns = None
+
+    # --- what is done to the rig -------------------------------------------------------------
+    def place_hook(self, distance_m: float, joint: int | None = None) -> None:
+        """A person hooks the line to the specimen at `distance_m` and levels it (joint estimation).
+
+        `joint` (1-based) makes the specimen that joint of the link (its true mean capacity); without
+        it the specimen is the preset's nominal joint.
+        """
+        if not (math.isfinite(distance_m) and distance_m > 0):
+            raise ValueError(f"the hook needs distance_m > 0; got {distance_m!r}")
+        if joint is not None and not 1 <= joint <= self.preset.joint_count:
+            raise ValueError(f"joint = {joint}; allowed: 1..{self.preset.joint_count} or None")
+        self._end_slip()
+        self._hook_joint, self._hook_distance_m = joint, float(distance_m)
+        self._article = self.specimen
+        self.specimen.set_joint_angles([0.0])
+        self.specimen.set_point((0.0, 0.0, float(distance_m)))
+        self._clamp_take_up_m = 0.0
+        self._make_fresh()
+
+    def hook_link(self) -> None:
+        """The line goes to the link's load point (link validation): what bending the link also does."""
+        self._end_slip()
+        self._article = self.link
+        self._clamp_take_up_m = 0.0
+        self._make_fresh()
 
     def engage_fork(self, component: int) -> None:
-        """Close fork `component` on the link; it pushes the link as its bender moves (forks.py)."""
-        if self.fixture is None or component not in self._fork_shafts:
+        """Close fork `component` on the link (the line on it); it pushes the link as its bender moves."""
+        if self.forks is None:
             raise RuntimeError(f"this world has no fork on component {component}")
-        if self._article is self.link:
-            self._end_slip()
-        self.fixture.engage(component, self._fork_shafts[component].present_position_rad)
-        self._last_bend_update_ns = self._now_ns
-
-    def settle_fork(self) -> None:
-        """The moving fork has stopped: let the link follow it to its final angle, then hold."""
-        fixture = self.fixture
-        if fixture is not None and fixture.active is not None:
-            fixture.update(self._fork_shafts[fixture.active].present_position_rad)
-            fixture.active = None
-
-    def open_forks(self) -> None:
-        """Open every fork: the link is free (the trial may load it)."""
-        if self.fixture is not None:
-            self.settle_fork()
-            self.fixture.open_all()
+        self.hook_link()
+        self.forks.close(component, self._now_ns)
 
     def straighten(self) -> None:
         """A reset: the forks open and a straight guide bar puts the link exactly straight."""
-        self.open_forks()
+        if self.forks is not None:
+            self.forks.open()
         self.set_configuration([0.0] * self.preset.joint_count)
 
     def bend_by_hand(self, joint_angles_rad: Sequence[float]) -> None:
@@ -469,122 +457,41 @@ class SimWorld:
         self.set_configuration(tuple(float(a) for a in target + error))
 
     def set_configuration(self, joint_angles_rad: Sequence[float]) -> None:
-        """Place the link in a planar configuration at once, exactly (an operator, or a test)."""
-        if self._article is self.link:
-            self._end_slip()
+        """Place the link in a planar configuration at once, exactly (a person, or a test); the line on it."""
+        self.hook_link()
         self.link.set_joint_angles(joint_angles_rad)
 
     # --- trials ------------------------------------------------------------------------------
-    def begin_trial(
-        self, kind: TrialKind | str, distance_m: float | None = None, joint: int | None = None
-    ) -> TrialTruth:
-        """Start a trial: draw its capacities and slip kind; for joint estimation hook the specimen.
+    def draw_trial(self, t_ns: int | None = None) -> TrialTruth:
+        """The loading starting now draws its capacities and slip kind (the world does this itself).
 
-        For joint estimation, `joint` (1-based) makes the specimen that joint of the link (its true
-        mean capacity); without it the specimen is the preset's nominal joint, at `distance_m`.
+        The world calls it when the line becomes taut with fresh friction; a test may call it to see
+        a draw without loading the line.
         """
-        kind = TrialKind(kind)
         self._end_slip()
         self.link_before_slip.clear()
-        preset = self.preset
-        if kind is TrialKind.JOINT_ESTIMATION:
-            if distance_m is None or not (math.isfinite(distance_m) and distance_m > 0):
-                raise ValueError(f"joint estimation needs distance_m > 0; got {distance_m!r}")
-            if joint is None:
-                nominal = np.array([preset.specimen_capacity_nm])
-            elif 1 <= joint <= preset.joint_count:
-                nominal = np.array([preset.joint_capacities_nm[joint - 1]])
-            else:
-                raise ValueError(f"joint = {joint}; allowed: 1..{preset.joint_count} or None")
-            self._article = self.specimen
-            self.specimen.set_joint_angles([0.0])
-            self.specimen.set_point((0.0, 0.0, float(distance_m)))
-        else:
-            if distance_m is not None or joint is not None:
-                raise ValueError(
-                    "link validation takes no distance_m or joint (the load point is the link's Q)"
-                )
-            nominal = np.asarray(preset.joint_capacities_nm)
-            self._article = self.link
-        self._clamp_take_up_m = 0.0
-        draw = self._draws.capacity_factors(nominal, self._article)
-        plan = self._draws.slip_plan(kind is TrialKind.JOINT_ESTIMATION, joint)
-        capacities = nominal * draw.factors
-        if plan.kind == SlipKind.NO_SLIP:
-            capacities = capacities * preset.slip_mix.no_slip_capacity_factor
-        self._article.set_capacities(capacities)
-        threshold = self._article.slip_threshold_n
-        if plan.kind == SlipKind.OTHER_JOINT:
-            assert plan.other_load_n is not None
-            # The fraction drawn becomes a load (inf if the specimen cannot slip).
-            plan = replace(plan, other_load_n=plan.other_load_n * threshold)
-        self._behaviour = behaviour_for(plan, preset.kinetic_ratio)
+        self._fresh = self._slipped = self._watching = False
+        joint_estimation = self._article is self.specimen
+        joint = self._hook_joint if joint_estimation else None
+        draw = self._draws.draw(self._article, joint_estimation=joint_estimation, specimen_joint=joint)
+        self._behaviour = behaviour_for(draw.plan, self.preset.kinetic_ratio)
         trial = TrialTruth(
             index=len(self.trials) + 1,
-            kind=kind,
-            distance_m=None if distance_m is None else float(distance_m),
+            kind=TrialKind.JOINT_ESTIMATION if joint_estimation else TrialKind.LINK_VALIDATION,
+            distance_m=self._hook_distance_m if joint_estimation else None,
             specimen_joint=joint,
-            start_ns=self._now_ns,
+            start_ns=self._now_ns if t_ns is None else t_ns,
             capacities_nm=self._article.capacities_nm,
-            capacity_factors=tuple(float(f) for f in draw.factors),
-            slip_force_n=threshold,
-            slip_mass_kg=threshold / preset.g,
+            capacity_factors=tuple(float(f) for f in draw.capacity.factors),
+            slip_force_n=self._article.slip_threshold_n,
+            slip_mass_kg=self._article.slip_threshold_n / self.preset.g,
             first_slip_joint=self._article.governing_joint,
-            slip=plan,
-            capacity_relative_sds=tuple(float(x) for x in draw.relative_sds),
+            slip=draw.plan,
+            capacity_relative_sds=tuple(float(x) for x in draw.capacity.relative_sds),
         )
         self.trials.append(trial)
         return trial
 
-    # --- ground truth ------------------------------------------------------------------------
     def truth(self) -> WorldTruth:
         """Ground truth: what the world was made with, every trial's draws and every slip so far."""
-        p = self.preset
-        constant = resolve_constant(p.constant)
-
-        def capacity(capacity_nm: float) -> CapacityTruth:
-            mu_delta0_pa = float(mu_delta0_pa_from_capacity(capacity_nm, p.joint_radius_m, constant))
-            return CapacityTruth(capacity_nm, capacity_nm / p.g, mu_delta0_pa)
-
-        return WorldTruth(
-            preset=p.name,
-            seed=self.seed,
-            article_seed=p.seed,
-            g=p.g,
-            constant_name=constant.name,
-            constant_c=constant.value,
-            joint_radius_m=p.joint_radius_m,
-            joints=tuple(capacity(c) for c in p.joint_capacities_nm),
-            specimen=capacity(p.specimen_capacity_nm),
-            noise=NoiseTruth(
-                per_trial_capacity_sd=p.per_trial_capacity_sd,
-                loadcell_noise_n=p.loadcell_noise_n,
-                sigma_bend_rad=p.sigma_bend_rad,
-                sigma_meas_rad=p.sigma_meas_rad,
-                slipped_joint_report_probability=p.slipped_joint_report_probability,
-            ),
-            kinetic_ratio=p.kinetic_ratio,
-            scatter=ScatterTruth(p.scatter_shape, p.scatter_a_kg, p.per_trial_capacity_sd),
-            slip_mix=p.slip_mix,
-            loadcell_artefacts=p.loadcell_artefacts,
-            run_clock_offset_ns=self.run_clock_offset_ns,
-            slip_rate_rad_s=p.slip_rate_rad_s,
-            torsion_weak_joint=p.torsion_weak_joint,
-            torsion_ratio=p.torsion_ratio,
-            geometry=GeometryTruth(
-                segment_lengths_m=tuple(p.segment_lengths_m),
-                point_m=tuple(p.point_m),
-                direction_w=tuple(p.unit_direction_w),
-                joint_estimation_distances_m=tuple(p.joint_estimation_distances_m),
-            ),
-            line=LineTruth(
-                drum_radius_m=p.drum_radius_m,
-                line_stiffness_n_per_m=p.line_stiffness_n_per_m,
-                spring_stiffness_n_per_m=p.spring_stiffness_n_per_m,
-                effective_stiffness_n_per_m=self.line.stiffness_n_per_m,
-                winch_slack_rad=p.winch_slack_rad,
-            ),
-            substep_ns=self._substep_ns,
-            trials=tuple(self.trials),
-            slips=tuple(s.truth() for s in self.slips),
-        )
+        return world_truth(self)
