@@ -10,4 +10,5 @@ __all__ = [
     "twin",
     "twin_console",
     "twin_firmware",
+    "twin_ports",
 ]
