@@ -12,6 +12,8 @@ Dynamixel:
 Hardware rig over ptys:
   `loadcell_server(profile)`: `rig sim loadcell` in a subprocess on a pty (stopped after the test).
   `hardware_rig(servo_link, cell_link, ...)`: a hardware rig config on them, with a calibration.
+  `hardware_twin(protocol, ...)`: `rig sim rig` serving a hardware config's coupled world on ptys,
+  with its console (`say`) and its truth when stopped.
 Runs:
   `run_on_simulated_rig` (session scope): runs a protocol on the simulated rig into any directory.
   `sim_run(protocol, ...)`: the same into tmp_path/out; returns (report, SimulatedRig).
@@ -26,11 +28,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import queue
 import select
 import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -411,8 +415,8 @@ def hardware_rig(tmp_path: Path) -> Callable[..., Path]:
     Two XM430-W350 (1 winch, 2 bender) at 1 Mbps with a 500 ms Bus Watchdog on `servo_link`; a
     rig-lc1 cell at 921600 baud on `cell_link` with the emulated cell's nominal calibration
     (tmp_path/cal.json; `calibration=False`: none); a link of two 3 cm segments. The keyword
-    mappings `servos`, `loadcell`, `limits` add keys to (or replace keys of) those sections, `top`
-    to the top level.
+    mappings `servos`, `loadcell`, `limits`, `article` add keys to (or replace keys of) those
+    sections, `top` to the top level.
     """
 
     def write(
@@ -423,6 +427,7 @@ def hardware_rig(tmp_path: Path) -> Callable[..., Path]:
         servos: dict[str, Any] | None = None,
         loadcell: dict[str, Any] | None = None,
         limits: dict[str, Any] | None = None,
+        article: dict[str, Any] | None = None,
         top: dict[str, Any] | None = None,
     ) -> Path:
         cell: dict[str, Any] = {"port": str(cell_link), "baud": 921600, "format": "rig-lc1"}
@@ -450,6 +455,7 @@ def hardware_rig(tmp_path: Path) -> Callable[..., Path]:
                 "joint_radius_m": 0.01,
                 "segment_lengths_m": [0.03, 0.03],
                 "load": {"point_m": [0, 0, 0.03], "direction": [0, -1, 0]},
+                **(article or {}),
             },
             "limits": {
                 "force_ceiling_n": 50,
@@ -464,6 +470,120 @@ def hardware_rig(tmp_path: Path) -> Callable[..., Path]:
         return path
 
     return write
+
+
+TWIN_LINE_STIFFNESS_N_PER_M = 2000.0  # `hardware_twin`'s world line, and its config's nominal
+
+
+@dataclass
+class TwinServer:
+    """A running `rig sim rig`: its config, its ports, and its console (stdin in, stderr lines out)."""
+
+    config: Path
+    servo_link: Path
+    cell_link: Path
+    truth_path: Path
+    process: subprocess.Popen[str]
+    said: queue.Queue[str] = field(default_factory=queue.Queue)  # the twin's stderr, line by line
+
+    def say(self, command: str, reply_starts: str, timeout_s: float = 10.0) -> str:
+        """Type `command` at the twin's console; the first line it prints that starts with `reply_starts`."""
+        assert self.process.stdin is not None
+        self.process.stdin.write(command + "\n")
+        self.process.stdin.flush()
+        return self.hear(reply_starts, timeout_s)
+
+    def hear(self, starts: str, timeout_s: float = 10.0) -> str:
+        """The next line the twin prints on stderr that starts with `starts` (others are skipped)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                line = self.said.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                raise AssertionError(f"the twin said no {starts!r} line in {timeout_s:g} s") from None
+            if line.startswith(starts):
+                return line
+
+    def tension_n(self) -> float:
+        """The line's tension now, from the console's `status`."""
+        return float(self.say("status", "line ").split()[1])
+
+    def wait_for_tension(
+        self, at_least_n: float, run: subprocess.Popen[str], timeout_s: float = 60.0
+    ) -> None:
+        """Poll `status` until the line carries `at_least_n` (the run must still be going)."""
+        deadline = time.monotonic() + timeout_s
+        while self.tension_n() < at_least_n:
+            assert run.poll() is None, run.communicate()
+            assert time.monotonic() < deadline, f"the line never reached {at_least_n:g} N"
+            time.sleep(0.05)
+
+    def stop(self) -> dict[str, Any]:
+        """Stop the twin (SIGTERM, exit 0 expected) and return its truth (`--truth-out`)."""
+        if self.process.poll() is None:
+            self.process.terminate()
+        self.process.wait(timeout=STOP_TIMEOUT_S)
+        assert self.process.returncode == 0, list(self.said.queue)
+        truth: dict[str, Any] = json.loads(self.truth_path.read_text())
+        return truth
+
+
+@pytest.fixture
+def hardware_twin(tmp_path: Path, hardware_rig: Callable[..., Path]) -> Iterator[Callable[..., TwinServer]]:
+    """Factory: `hardware_twin(protocol, **hardware_rig_kwargs)`: `rig sim rig` serving `hardware_rig`'s twin.
+
+    The config is `hardware_rig`'s at tmp_path/dxl and tmp_path/cell, with a link of eight 4 cm
+    segments (the `link1` world's), the cell at 200 lines/s, a line of
+    `TWIN_LINE_STIFFNESS_N_PER_M` (the world's 5000 N/m line in series with a spring; the config's
+    nominal stiffness is the same) and the calibration the twin writes for its cell. The hand
+    follows `protocol` (a path). Killed after the test if still running.
+    """
+    servers: list[TwinServer] = []
+
+    def start(protocol: Path, **kwargs: Any) -> TwinServer:
+        spring_n_per_m = 1 / (1 / TWIN_LINE_STIFFNESS_N_PER_M - 1 / 5000.0)
+        top = {
+            "line_stiffness_n_per_m": TWIN_LINE_STIFFNESS_N_PER_M,
+            "simulation": {"spring_stiffness_n_per_m": round(spring_n_per_m, 3)},
+            **kwargs.pop("top", {}),
+        }
+        config = hardware_rig(
+            tmp_path / "dxl",
+            tmp_path / "cell",
+            calibration=False,
+            loadcell={"rate_hz": 200, "calibration": "cal.json", **kwargs.pop("loadcell", {})},
+            article={"segment_lengths_m": [0.04] * 8, **kwargs.pop("article", {})},
+            top=top,
+            **kwargs,
+        )
+        truth = tmp_path / "truth.json"
+        cmd = [sys.executable, "-m", "rig.cli", "sim", "rig", "--rig", str(config),
+               "--protocol", str(protocol), "--calibration-out", str(tmp_path / "cal.json"),
+               "--truth-out", str(truth)]  # fmt: skip
+        proc = subprocess.Popen(
+            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        server = TwinServer(config, tmp_path / "dxl", tmp_path / "cell", truth, proc)
+        servers.append(server)
+        stderr = proc.stderr
+        assert stderr is not None
+
+        def listen() -> None:
+            for line in stderr:
+                server.said.put(line.rstrip("\n"))
+
+        threading.Thread(target=listen, daemon=True).start()
+        ready, _, _ = select.select([proc.stdout], [], [], 30)
+        assert ready and proc.stdout is not None, "the twin did not start"
+        assert proc.stdout.readline().startswith("SERVOS"), list(server.said.queue)
+        assert proc.stdout.readline().startswith("LOADCELL"), list(server.said.queue)
+        return server
+
+    yield start
+    for server in servers:
+        if server.process.poll() is None:
+            server.process.kill()
+        server.process.wait(timeout=STOP_TIMEOUT_S)
 
 
 # ------------------------------------------------------------------------------------------ runs

@@ -13,19 +13,25 @@ import pty
 import select
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import pytest
+import serial
 import yaml
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 from rig.errors import ConfigError, InputError
 from rig.log.reader import read_run
 from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
-from rig.sim.twin import build_twin
+from rig.sim.dxl.pty_server import IDLE_POLL_MS
+from rig.sim.pty_link import Stop
+from rig.sim.twin import TICK_S, build_twin, serve_twin
 from rig.sim.twin_console import ReferenceLoad, run_console
 from rig.sim.twin_hand import SLACK_DWELL_S
+from rig.sim.twin_ports import PortAction, PortCondition, TwinDevice
 from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
 from tests.helpers import build_firmware
 
@@ -33,6 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 TEMPLATE = ROOT / "protocols" / "rigs" / "hardware.example.yaml"
 SMOKE = ROOT / "protocols" / "smoke.yaml"
 RATE_HZ = 80  # the rehearsal's load cell (docstring of the rehearsal test)
+LED = 65  # the servos' LED register (X-series control table)
 
 
 def _hardware_config(tmp_path: Path, simulation: str = "simulation:\n  winch_reversed: true\n") -> Path:
@@ -334,3 +341,106 @@ def test_a_port_without_a_path_is_refused_naming_it(tmp_path):
     path.write_text(path.read_text().replace(f"port: {tmp_path / 'cell'}", f"port: {tmp_path / 'dxl'}"))
     with pytest.raises(ConfigError, match=r"loadcell.port: .*dxl; allowed: another path than servos.port"):
         build_twin(load_rig_config(path))
+
+
+def test_the_console_unplugs_freezes_and_reports_the_ports(tmp_path):
+    twin = build_twin(load_rig_config(_hardware_config(tmp_path)))
+    out = io.StringIO()
+    typed = ["status", "unplug servos 2.5", "freeze loadcell", "thaw servos", "replug servos 1",
+             "freeze servos", "unplug printer", "freeze loadcell -1", "unplug loadcell",
+             "status"]  # fmt: skip
+    run_console([f"{line}\n" for line in typed], twin.reference, out, twin.set_up_trial, twin)
+    assert out.getvalue().splitlines() == [
+        "line 0.000 N; torque on: none; servos: served; loadcell: served",
+        "unplug servos for 2.5 s: ok",
+        "freeze loadcell: ok",
+        "thaw servos: the port is unplugged; allowed: replug",
+        "replug servos 1: allowed: `replug servos`",
+        "freeze servos: the port is unplugged; allowed: replug",
+        "unplug printer: allowed devices: servos, loadcell",
+        "freeze loadcell -1: allowed: a duration in seconds above 0, at most 3600",
+        "unplug loadcell: ok",
+        "line 0.000 N; torque on: none; servos: unplugged; loadcell: unplugged",
+    ]
+    start_ns = time.monotonic_ns()
+    assert twin.port_wanted(TwinDevice.SERVOS, start_ns + 3_000_000_000) is PortCondition.SERVED  # 2.5 s on
+
+
+def _ping(link: Path) -> int:
+    """One ping of servo 1 through the SDK on `link`: its COMM result."""
+    port = PortHandler(str(link))
+    assert port.openPort() and port.setBaudRate(1_000_000)
+    try:
+        _, result, _ = PacketHandler(2.0).ping(port, 1)
+        return int(result)
+    finally:
+        port.closePort()
+
+
+# A port asked to change is brought to it on the twin's next tick, once its serving thread has seen
+# its stop (the bus server looks every 50 ms, rig.sim.dxl.pty_server.IDLE_POLL_MS).
+SETTLED_S = TICK_S + IDLE_POLL_MS / 1000 + 0.05
+
+
+@pytest.mark.pty
+def test_the_ports_are_unplugged_frozen_and_served_again_as_asked_and_as_configured(tmp_path):
+    # The cell's configured disconnect, 0.6 s after the twin is built, for 0.6 s.
+    faults = "simulation:\n  faults:\n  - {device: loadcell, kind: disconnect, at_s: 0.6, duration_s: 0.6}\n"
+    config = load_rig_config(_hardware_config(tmp_path, faults))
+    built_ns = time.monotonic_ns()
+    twin = build_twin(config)
+    servos, cell = tmp_path / "dxl", tmp_path / "cell"
+    stop, ready = Stop(), threading.Event()
+    server = threading.Thread(target=serve_twin, args=(twin, stop), kwargs={"ready": lambda *_: ready.set()})
+    server.start()
+    try:
+        assert ready.wait(10)
+        reader = serial.Serial(str(cell), 115200, timeout=0.5)
+        assert reader.readline().endswith(b"\n")  # the cell's lines
+        assert _ping(servos) == COMM_SUCCESS
+        twin.act(PortAction.FREEZE, TwinDevice.SERVOS)
+        time.sleep(SETTLED_S)
+        port = PortHandler(str(servos))
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        handler = PacketHandler(2.0)
+        assert handler.write1ByteTxRx(port, 1, LED, 1)[0] != COMM_SUCCESS  # nothing answers
+        assert handler.ping(port, 1)[1] != COMM_SUCCESS
+        twin.act(PortAction.THAW, TwinDevice.SERVOS)
+        time.sleep(SETTLED_S)
+        assert handler.read1ByteTxRx(port, 1, LED) == (0, COMM_SUCCESS, 0)  # the write never reached it
+        twin.act(PortAction.UNPLUG, TwinDevice.SERVOS)
+        time.sleep(SETTLED_S)
+        assert not servos.exists()
+        with pytest.raises(serial.SerialException):  # the host's open port fails, as a pulled adapter's
+            port.ser.write(b"\xff\xff\xfd\x00")
+            port.ser.read(1)
+        port.closePort()
+        twin.act(PortAction.REPLUG, TwinDevice.SERVOS)
+        time.sleep(SETTLED_S)
+        assert _ping(servos) == COMM_SUCCESS  # back at the same path
+        while cell.exists():  # the configured disconnect: the cell's path goes
+            assert time.monotonic_ns() - built_ns < 1_000_000_000, "the cell was not unplugged"
+            time.sleep(0.01)
+        with pytest.raises(serial.SerialException):
+            reader.read(10_000)
+        reader.close()
+        while not cell.exists():  # and comes back, 0.6 s later
+            assert time.monotonic_ns() - built_ns < 2_000_000_000, "the cell was not plugged back"
+            time.sleep(0.01)
+        with serial.Serial(str(cell), 115200, timeout=0.5) as again:
+            assert again.readline().endswith(b"\n")
+        assert twin.status().endswith("servos: served; loadcell: served")
+    finally:
+        stop.stopped = True
+        server.join(10)
+    assert not servos.exists() and not cell.exists()
+
+
+def test_a_load_cell_fault_with_the_firmware_in_the_loop_is_refused_naming_it(tmp_path):
+    # The board under simavr is the cell then: the emulator the fault would act on is not served.
+    faults = "simulation:\n  faults:\n    - {device: loadcell, kind: disconnect, at_s: 1}\n"
+    twin = build_twin(load_rig_config(_hardware_config(tmp_path, faults)))
+    refused = r"simulation.faults\[0\].device: loadcell; allowed with --firmware"
+    with pytest.raises(ConfigError, match=refused):
+        serve_twin(twin, Stop(), ready=lambda *_: None, firmware=tmp_path / "hx711-sim")
+    assert not (tmp_path / "dxl").exists()

@@ -16,6 +16,7 @@ from rig.sim.pty_link import StopFlag
 from rig.sim.twin import Served, build_twin, serve_twin
 from rig.sim.twin_console import HELP, run_console
 from rig.sim.twin_firmware import HARNESS_PATH
+from rig.sim.twin_ports import PortCondition, TwinDevice
 
 MAX_SEED = 2**32 - 1
 
@@ -35,7 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
             "simulated hand sets each trial up (hook distance, bend) while the line is slack. Prints "
             "`SERVOS <link> <pty>` and `LOADCELL <link> <pty>` when ready; `hang KG` and `unhang` "
             "typed on its stdin hang a reference mass in the line (to rehearse `rig calibrate`), `trial N` "
-            "sets up trial N (when the run repeats one). Runs "
+            "sets up trial N (when the run repeats one); `unplug servos|loadcell` pulls that device's "
+            "adapter out (the host's open port fails, the link is removed) and `replug` puts it back at "
+            "the same path; `freeze servos|loadcell` hangs the adapter (the port stays, nothing passes "
+            "either way, the servos' Bus Watchdog trips) and `thaw` frees it; `unplug` and `freeze` take "
+            "an optional SECONDS, after which the port is served again; `status` prints the line's "
+            "tension, the servos whose torque is on and each port's condition. Runs "
             "until Ctrl-C or SIGTERM (exit 0, links removed). docs/hardware.md, 'Rehearse before the "
             "rig exists'."
         ),
@@ -106,15 +112,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"LOADCELL {loadcell.link} {loadcell.device}{' firmware' if args.firmware else ''}", flush=True)
         if sys.stdin is not None:  # the person at the twin: a daemon thread, it ends with the twin
             console = threading.Thread(
-                target=run_console, args=(sys.stdin, twin.reference, sys.stderr, twin.set_up_trial)
+                target=run_console, args=(sys.stdin, twin.reference, sys.stderr, twin.set_up_trial, twin)
             )
             console.daemon = True
             console.start()
             if sys.stdin.isatty():
                 print(HELP, file=sys.stderr, flush=True)
 
+    def changed(device: TwinDevice, condition: PortCondition, served: Served | None) -> None:
+        where = "" if served is None else f" at {served.link} {served.device}"
+        print(f"{device}: {condition}{where}", file=sys.stderr, flush=True)
+
     try:
-        serve_twin(twin, stop, ready=ready, firmware=args.firmware)
+        serve_twin(twin, stop, ready=ready, firmware=args.firmware, changed=changed)
     finally:
         if args.truth_out is not None:
             _write(args.truth_out, "--truth-out", json.dumps(twin.truth().to_json(), indent=2))

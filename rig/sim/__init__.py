@@ -9,4 +9,5 @@ __all__ = [
     "twin",
     "twin_console",
     "twin_firmware",
+    "twin_ports",
 ]

@@ -197,11 +197,18 @@ class PtyLink:
         self.close()
 
 
-class StopFlag:
-    """Set by SIGTERM or SIGINT so that a serve loop can exit cleanly and remove its link."""
+class Stop:
+    """A serve loop's flag: it exits once `stopped` is set (by another thread, or a signal)."""
 
     def __init__(self) -> None:
         self.stopped = False
+
+
+class StopFlag(Stop):
+    """Set by SIGTERM or SIGINT so that a serve loop can exit cleanly and remove its link."""
+
+    def __init__(self) -> None:
+        super().__init__()
         signal.signal(signal.SIGTERM, self._stop)
         signal.signal(signal.SIGINT, self._stop)
 

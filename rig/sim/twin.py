@@ -17,8 +17,15 @@ time.
 The person at the twin types `hang KG` / `unhang` on its console (rig/sim/twin_console.py) to
 rehearse `rig calibrate`. Trials: the runner cannot tell the world that a trial begins over the
 ports; the twin's hand (rig/sim/twin_hand.py) sets each up while the line is slack. The config's
-`simulation.faults` on the servos and the load cell are applied as in-process; a `host` or
-`logger` fault acts on the run, not on the devices, and is refused.
+`simulation.faults` on the servos and the load cell are applied as in-process, timed from the
+twin's start; a load cell `disconnect` unplugs the cell's port for its window (rig/sim/twin_ports.py),
+as the console's `unplug loadcell` does. A `host` or `logger` fault acts on the run, not on the
+devices, and is refused; so is a load-cell fault with `--firmware` (the board under simavr is the
+cell then, and the emulator the faults act on is not served).
+
+The ports: each device is served by its own thread on a `ServedPort`, which the main thread brings
+every `TICK_S` to the condition the person asked at the console (`unplug`, `replug`, `freeze`,
+`thaw`; rig/sim/twin_console.py) or a configured disconnect holds.
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ import contextlib
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from rig.errors import ConfigError
@@ -43,7 +50,7 @@ from rig.sim.loadcell.emulator import LoadCellEmulator
 from rig.sim.loadcell.inprocess import ideal_calibration, simulated_load_cell
 from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.physics.world import SimWorld
-from rig.sim.pty_link import PtyLink, StopFlag
+from rig.sim.pty_link import PtyLink, Stop
 from rig.sim.simulated_rig import (
     config_preset,
     emulated_models,
@@ -54,6 +61,7 @@ from rig.sim.simulated_rig import (
 from rig.sim.twin_console import ReferenceLoad
 from rig.sim.twin_firmware import feed_firmware, harness_command, start_firmware_cell, stop_firmware_cell
 from rig.sim.twin_hand import HandTrial, TwinHand, hand_trials
+from rig.sim.twin_ports import PortAction, PortCondition, PortRequests, ServedPort, TwinDevice
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, FaultDevice
 
 TICK_S = 0.01  # how often the main thread brings the world up to the wall clock when nothing else does
@@ -96,6 +104,28 @@ class Twin:
     lock: threading.Lock
     reference: ReferenceLoad  # a mass hung in the line by hand (the console's `hang`)
     seed: int
+    ports: PortRequests = field(default_factory=PortRequests)  # unplugged or frozen by the person
+
+    def act(self, action: PortAction, device: TwinDevice, seconds: float | None = None) -> str:
+        """The person does `action` to `device`'s port (for `seconds`); what was done, one line."""
+        return self.ports.ask(action, device, time.monotonic_ns(), seconds)
+
+    def port_wanted(self, device: TwinDevice, now_ns: int) -> PortCondition:
+        """The condition `device`'s port is to be in: the person's, or the cell's configured disconnect."""
+        if device is TwinDevice.LOADCELL and self.loadcell.unplugged:  # simulation.faults: disconnect
+            return PortCondition.UNPLUGGED
+        return self.ports.wanted(device, now_ns)
+
+    def status(self) -> str:
+        """One line: the line's tension, the servos whose torque is on, and each port's condition."""
+        now_ns = time.monotonic_ns()
+        with self.lock:
+            self.clock.advance_to_ns(now_ns)
+            tension_n = float(self.world.tension_n)
+            torque_on = [servo.servo_id for servo in self.bus.servos if servo.torque_enabled]
+        servos = ", ".join(str(i) for i in torque_on) or "none"
+        ports = "; ".join(f"{device}: {self.port_wanted(device, now_ns)}" for device in TwinDevice)
+        return f"line {tension_n:.3f} N; torque on: {servos}; {ports}"
 
     def catch_up(self) -> None:
         """Integrate the world up to the monotonic time now."""
@@ -253,23 +283,35 @@ class Served:
     device: str
 
 
+PortChanged = Callable[[TwinDevice, PortCondition, Served | None], None]
+
+
 def serve_twin(
-    twin: Twin, stop: StopFlag, *, ready: Callable[[Served, Served], None], firmware: Path | None = None
+    twin: Twin,
+    stop: Stop,
+    *,
+    ready: Callable[[Served, Served], None],
+    firmware: Path | None = None,
+    changed: PortChanged | None = None,
 ) -> None:
     """Serve the twin on the config's ports until `stop`; `ready(servos, loadcell)` once they exist.
 
     `firmware`: the harness that runs the built image as the load cell (rig/sim/twin_firmware.py)
-    instead of the Python emulator. Each device's server runs in its own thread; an error in one
-    stops them all and is raised here.
+    instead of the Python emulator; the cell's port is then the harness's, not unplugged or frozen
+    by the twin. Each device's server runs in its own thread; an error in one stops them all and is
+    raised here. Every `TICK_S` the ports are brought to the condition the person asked
+    (rig/sim/twin_ports.py); `changed(device, condition, served)` hears of each change after `ready`
+    (`served`: where the port is now, None while unplugged).
     """
     config = twin.config
     command = None
     if firmware is not None:
+        _check_firmware_faults(config)
         reset_s = simulation_section(config).loadcell_dtr_reset_s
         command = harness_command(firmware, config, twin_loadcell_rate_hz(config), reset_s)
     errors: list[BaseException] = []
 
-    def guarded(target: Callable[[], object]) -> threading.Thread:
+    def start_guarded(target: Callable[[], object]) -> threading.Thread:
         def body() -> None:
             try:
                 target()
@@ -277,35 +319,88 @@ def serve_twin(
                 errors.append(exc)
                 stop.stopped = True
 
-        return threading.Thread(target=body, daemon=True)
+        thread = threading.Thread(target=body, daemon=True)
+        thread.start()
+        return thread
 
+    def serve_bus(link: PtyLink, device_stop: Stop) -> object:
+        return serve(_LockedBus(twin), link, device_stop)
+
+    def serve_cell(link: PtyLink, device_stop: Stop) -> object:
+        return serve_loadcell(twin.loadcell, link, device_stop)
+
+    def drop_owed_lines(_: PtyLink) -> None:  # the cell's lines of the time it was not served are lost
+        twin.loadcell.lines_until(time.monotonic_ns())
+
+    ports: dict[TwinDevice, ServedPort] = {}
+    feeder: threading.Thread | None = None
     with contextlib.ExitStack() as stack:
-        servo_link = stack.enter_context(serve_link(Path(config.servos.port), "servos.port", config))
-        threads = [guarded(lambda: serve(_LockedBus(twin), servo_link, stop))]
+
+        def open_port(field_name: str, path: str) -> Callable[[], PtyLink]:
+            return lambda: serve_link(Path(path), field_name, config)
+
+        ports[TwinDevice.SERVOS] = ServedPort(
+            open_port("servos.port", config.servos.port),
+            serve_bus,
+            _drop_host_bytes,
+            start_guarded,
+        )
+        stack.callback(ports[TwinDevice.SERVOS].close)
         if command is None:
-            cell_link = stack.enter_context(serve_link(Path(config.loadcell.port), "loadcell.port", config))
-            threads.append(guarded(lambda: serve_loadcell(twin.loadcell, cell_link, stop)))
-            cell = Served(cell_link.link_path, cell_link.slave_name)
+            ports[TwinDevice.LOADCELL] = ServedPort(
+                open_port("loadcell.port", config.loadcell.port),
+                serve_cell,
+                drop_owed_lines,
+                start_guarded,
+            )
+            stack.callback(ports[TwinDevice.LOADCELL].close)
         else:
+            twin.ports.refuse(TwinDevice.LOADCELL, "the firmware's harness serves this port (--firmware)")
             board = start_firmware_cell(command, Path(config.loadcell.port))
             stack.callback(stop_firmware_cell, board)
             signal = twin.loadcell.signal
-            threads.append(
-                guarded(
-                    lambda: feed_firmware(board, twin.tension_now_n, signal, twin.seed, lambda: stop.stopped)
-                )
+            feeder = start_guarded(
+                lambda: feed_firmware(board, twin.tension_now_n, signal, twin.seed, lambda: stop.stopped)
             )
-            cell = Served(board.link, board.device)
-        for thread in threads:
-            thread.start()
-        ready(Served(servo_link.link_path, servo_link.slave_name), cell)
+        for device, port in ports.items():
+            port.settle(twin.port_wanted(device, time.monotonic_ns()))
+        served_cell = ports.get(TwinDevice.LOADCELL)
+        cell = Served(board.link, board.device) if served_cell is None else _served(served_cell)
+        ready(_served(ports[TwinDevice.SERVOS]), cell)
         try:
             while not stop.stopped:
                 twin.catch_up()
+                now_ns = time.monotonic_ns()
+                for device, port in ports.items():
+                    if port.settle(twin.port_wanted(device, now_ns)) and changed is not None:
+                        changed(device, port.condition, None if port.link is None else _served(port))
                 time.sleep(TICK_S)
         finally:
             stop.stopped = True
-            for thread in threads:
-                thread.join()
+            for port in ports.values():
+                port.close()
+            if feeder is not None:
+                feeder.join()
     if errors:
         raise errors[0]
+
+
+def _check_firmware_faults(config: RigConfig) -> None:
+    for index, fault in enumerate(simulation_section(config).faults):
+        if fault.device is FaultDevice.LOADCELL:
+            raise ConfigError(
+                f"{config.source}: simulation.faults[{index}].device: {fault.device}; allowed with "
+                "--firmware: servos, winch, bender (the board under simavr is the cell, not the emulator "
+                "the faults act on)"
+            )
+
+
+def _served(port: ServedPort) -> Served:
+    assert port.link is not None
+    return Served(port.link.link_path, port.link.slave_name)
+
+
+def _drop_host_bytes(link: PtyLink) -> None:
+    """What the host wrote to a port that did not pass it on (frozen) never reaches the servos."""
+    while link.read():
+        pass

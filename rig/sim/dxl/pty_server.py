@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from rig.sim.dxl.bus import Reply
-from rig.sim.pty_link import PtyLink, StopFlag
+from rig.sim.pty_link import PtyLink, Stop
 
 IDLE_POLL_MS = 50  # how often the loop looks at the stop flag when nothing happens
 
@@ -53,7 +53,7 @@ class ServeStats:
 def serve(
     bus: ServedBus,
     link: PtyLink,
-    stop: StopFlag,
+    stop: Stop,
     *,
     wire_timing: bool = False,
     usb_latency_s: float | Callable[[], float] = 0.0,
