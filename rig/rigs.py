@@ -11,9 +11,10 @@ from rig.hw.hardware_rig import hardware_session, rig_calibration
 from rig.hw.session import RigSession
 from rig.rig_config import RigConfig
 from rig.runner.run import PreparedRun
+from rig.sim.kinds import DeviceLevel
 from rig.sim.object_rig import ObjectSimulatedRig, object_simulated_rig
 from rig.sim.simulated_rig import SimulatedRig, simulated_rig
-from rig.vocabulary import DeviceLevel, RigKind
+from rig.vocabulary import RigKind
 
 __all__ = [
     "check_session_inputs",

@@ -23,10 +23,11 @@ from rig.errors import ConfigError, InputError
 from rig.log.reader import read_run
 from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
+from rig.sim.kinds import SlipKind
 from rig.sim.twin import build_twin
 from rig.sim.twin_console import ReferenceLoad, run_console
 from rig.sim.twin_hand import SLACK_DWELL_S
-from rig.vocabulary import SlipKind, TrialKind
+from rig.vocabulary import TrialKind
 from tests.helpers import build_firmware
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -21,8 +21,6 @@ from rig.sim.object_devices import ObjectLoadCell
 from rig.sim.object_rig import object_simulated_rig
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.simulated_rig import simulated_rig
-from rig.sim_config import FaultConfig
-from rig.vocabulary import FaultDevice, LoggerFaultKind
 
 REPO = Path(__file__).resolve().parents[1]
 JOINT_ESTIMATION = REPO / "protocols" / "joint_estimation.yaml"
@@ -96,8 +94,9 @@ def test_object_rig_refuses_timed_faults() -> None:
     """Timed faults corrupt the emulators' bytes; the object-level rig has none and says so."""
     config = load_rig_config(None)
     assert config.simulation is not None
-    fault = FaultConfig(FaultDevice.LOGGER, LoggerFaultKind.WRITE_ERROR, after_bytes=1000)
-    faulty = dataclasses.replace(config, simulation=dataclasses.replace(config.simulation, faults=(fault,)))
+    fault = {"device": "logger", "kind": "write_error", "after_bytes": 1000}
+    section = dataclasses.replace(config.simulation, data={**config.simulation.data, "faults": [fault]})
+    faulty = dataclasses.replace(config, simulation=section)
     with pytest.raises(ConfigError, match="faults"):
         object_simulated_rig(faulty, seed=0)
 

@@ -10,13 +10,15 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from rig.hw.bending import BendStage
 from rig.hw.seams import Clock, ConfigurationSource, LoadCell, ServoBus
-from rig.hw.truth import RunTruth
 from rig.protocol import TrialPlan
 from rig.vocabulary import ConfigurationSourceKind, RigKind, ServoRole
+
+if TYPE_CHECKING:
+    from rig.sim.truth import RunTruth
 
 
 class GroundTruth(Protocol):

@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import rig
 from model.estimate_summary import EstimateSummary
@@ -30,7 +30,6 @@ from model.payload_errors import PayloadErrorStats
 from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text, check_out_dir
 from rig.hw.session import RigSession
-from rig.hw.truth import RunTruth
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 from rig.log import schemas
 from rig.log.live import LivePublisher
@@ -50,6 +49,9 @@ from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held
 from rig.runner.trial_runner import RunOutcome, TrialRunner
 from rig.vocabulary import RigKind
+
+if TYPE_CHECKING:
+    from rig.sim.truth import RunTruth
 
 # Run ids name files in --out (RUN_ID.mcap, RUN_ID.partN.mcap, RUN_ID.journal.json, ...): no path
 # separators, no leading dot, bounded length, and no `.partN` ending, which a resumed run's logs use.

@@ -4,9 +4,12 @@
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
     "clock",
+    "kinds",
     "object_rig",
     "pty_link",
+    "settings",
     "simulated_rig",
+    "truth",
     "twin",
     "twin_console",
     "twin_firmware",

@@ -14,9 +14,10 @@ from dataclasses import dataclass
 
 from rig.errors import ConfigError
 from rig.hw.session import RigSession
-from rig.rig_config import RigConfig, require_simulated
+from rig.rig_config import RigConfig
 from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
 from rig.sim.physics.world import SimWorld
+from rig.sim.settings import require_simulated
 from rig.sim.simulated_rig import (
     SimGroundTruth,
     SimOperator,

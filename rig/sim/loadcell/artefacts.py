@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import random
 
-from rig.sim_config import LoadCellArtefacts
+from rig.sim.settings import LoadCellArtefacts
 
 
 class ArtefactModel:

@@ -43,7 +43,7 @@ import numpy as np
 
 from model.gravity import PAPER_G_M_S2
 from model.joint import resolve_constant
-from rig.sim_config import (
+from rig.sim.settings import (
     MAX_SCATTER_A_KG,
     SCATTER_SHAPES,
     CapacityScatter,

@@ -53,7 +53,14 @@ from typing import Protocol
 import numpy as np
 
 from model.joint import mu_delta0_pa_from_capacity, resolve_constant
-from rig.hw.truth import (
+from rig.sim.kinds import ArticleSetup, SlipKind
+from rig.sim.physics.article import ChainArticle
+from rig.sim.physics.article_presets import STREAM_BEND, SimPreset, stream_rng
+from rig.sim.physics.forks import ForkFixture
+from rig.sim.physics.slips import ActiveSlip, SlipBehaviour, SlipRecord, Sudden, behaviour_for
+from rig.sim.physics.trial_draws import TrialDraws
+from rig.sim.physics.winch_line import WinchLine
+from rig.sim.truth import (
     CapacityTruth,
     GeometryTruth,
     LineTruth,
@@ -64,13 +71,7 @@ from rig.hw.truth import (
     TrialTruth,
     WorldTruth,
 )
-from rig.sim.physics.article import ChainArticle
-from rig.sim.physics.article_presets import STREAM_BEND, SimPreset, stream_rng
-from rig.sim.physics.forks import ForkFixture
-from rig.sim.physics.slips import ActiveSlip, SlipBehaviour, SlipRecord, Sudden, behaviour_for
-from rig.sim.physics.trial_draws import TrialDraws
-from rig.sim.physics.winch_line import WinchLine
-from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
+from rig.vocabulary import TrialKind
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0
