@@ -58,7 +58,7 @@ from rig.rig_config import load_rig_config
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
-from rig.sim_config import LoadCellArtefacts
+from rig.sim.settings import LoadCellArtefacts, require_simulated
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
@@ -281,8 +281,7 @@ def false_alarms(
 
 def quiet(samples: int, seed: int) -> None:
     params = load_protocol(PROTOCOL).detector
-    noisy = load_rig_config(SCENARIOS / "noisy-cell.yaml").simulation
-    assert noisy is not None
+    noisy = require_simulated(load_rig_config(SCENARIOS / "noisy-cell.yaml"))
     print("| load cell | quiet samples | false alarms | per 1e6 samples |")
     print("|---|---|---|---|")
     for label, artefacts in (("default (5 mN)", LoadCellArtefacts()), ("noisy-cell", noisy.loadcell)):

@@ -12,7 +12,6 @@ __all__ = [
     "rig_config",
     "rigs",
     "servo_ratings",
-    "sim_config",
     "validate",
     "vocabulary",
 ]

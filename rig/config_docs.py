@@ -25,9 +25,17 @@ from model.field_spec import (
 )
 from model.slip_detector import DetectorParams
 from rig.protocol import AdaptiveBlockFields, FixedBlockFields, LinkValidationBlockFields, Protocol
-from rig.rig_config import RigConfig
+from rig.rig_config import RigConfig, SimulationSection
+from rig.sim.settings import SimulationConfig
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# Sections a config keeps as written for another layer to parse: the dataclass that declares their fields.
+PARSED_ELSEWHERE: dict[type, type] = {SimulationSection: SimulationConfig}
+
+
+def _declaring(section_cls: type) -> type:
+    return PARSED_ELSEWHERE.get(section_cls, section_cls)
 
 
 def field_rows(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
@@ -37,7 +45,7 @@ def field_rows(cls: type, prefix: str = "") -> list[tuple[str, str, str]]:
         within = f"{declared.spec.within}." if declared.spec.within else ""
         path = f"{prefix}{within}{declared.key}"
         if declared.spec.type == FieldType.SECTION and declared.spec.expand_doc:
-            rows += field_rows(section_type(cls, declared.name), f"{path}.")
+            rows += field_rows(_declaring(section_type(cls, declared.name)), f"{path}.")
         else:
             rows.append((f"`{path}`", default_text(declared), allowed_text(declared)))
     return rows

@@ -4,11 +4,16 @@ A rig config is YAML, validated on load: every error names the file, the field p
 allowed. `kind: simulated` builds the byte-level simulated rig (the built-in default is package
 data, `rig/data/simulated.yaml`, so that an installed `rig` has it); `kind: hardware` opens real
 serial ports (template: `protocols/rigs/hardware.example.yaml`).
+
+The `simulation:` section is the simulator's (`rig.sim.settings` parses and checks it, and every
+command that loads a config for a rig has it checked); this module keeps it as written, and reads of
+it only the simulated cell's rate, which a simulated rig's `loadcell.rate_hz` defaults to.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from importlib.resources import files
 from pathlib import Path
@@ -26,7 +31,6 @@ from rig.servo_ratings import (
     stall_tension_n,
     winch_models,
 )
-from rig.sim_config import SimulationConfig, parse_simulation
 from rig.validate import Section, read_field, read_fields, reject_undeclared
 from rig.vocabulary import (
     LOADCELL_FORMAT_TRAITS,
@@ -333,6 +337,26 @@ def configuration_source_kind(config: RigConfig) -> ConfigurationSourceKind:
     )
 
 
+# The simulated cell's rate, declared once for both of its readers: this module (a simulated rig's
+# `loadcell.rate_hz` defaults to it) and `rig.sim.settings.SimulationConfig` (the simulator's cell).
+SIMULATED_LOADCELL_RATE_HZ = 1000.0
+SIMULATED_LOADCELL_RATE_FIELD = number(10.0, 2000.0, unit="Hz")
+
+
+@dataclass(frozen=True)
+class SimulationSection:
+    """A rig config's `simulation:` section as written (`rig.sim.settings` parses it), and its cell's rate.
+
+    `source` is the file's name as the config was loaded with it, for the parser's messages.
+    """
+
+    data: Mapping[str, Any] = field(hash=False)
+    source: str
+    loadcell_rate_hz: float = field(
+        default=SIMULATED_LOADCELL_RATE_HZ, metadata=SIMULATED_LOADCELL_RATE_FIELD
+    )
+
+
 @dataclass(frozen=True, kw_only=True)
 class RigConfig:
     """A validated rig config."""
@@ -366,7 +390,8 @@ class RigConfig:
     loadcell: LoadCellConfig = field(metadata=section())
     article: ArticleConfig = field(metadata=section())
     limits: RigLimits = field(metadata=section())
-    simulation: SimulationConfig | None = field(default=None, metadata=section(default_doc="none"))
+    # Its fields are `rig.sim.settings.SimulationConfig`'s (the docs table lists them).
+    simulation: SimulationSection | None = field(default=None, metadata=section(default_doc="none"))
     configuration: ConfigurationConfig = field(
         default_factory=lambda: ConfigurationConfig(), metadata=section(default_doc="see the fields")
     )
@@ -457,7 +482,11 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
     if kind == RigKind.SIMULATED or top.has("simulation"):
         # On a hardware rig the section describes the world `rig sim rig` serves behind the config's
         # ports (its twin); the rig's own commands ignore it.
-        simulation = parse_simulation(top.section("simulation", default={}), article.joint_count)
+        # `rig.sim.settings` parses the rest when a command loads the config for a rig.
+        sim_sec = top.section("simulation", default={})
+        simulation = SimulationSection(
+            sim_sec.data, source, read_field(sim_sec, SimulationSection, "loadcell_rate_hz")
+        )
     loadcell = _loadcell(top.section("loadcell"), base_dir or Path("."))
     loadcell = _loadcell_rate(top, loadcell, simulation if kind == RigKind.SIMULATED else None)
     values = read_fields(
@@ -483,13 +512,6 @@ def parse_rig_config(data: Any, *, source: str, text: str = "", base_dir: Path |
         )
     config = RigConfig(**values)
     _check_forks(top, config)
-    if simulation is not None and simulation.servo_models is not None:
-        count = len(config.servos.servos)
-        if len(simulation.servo_models) != count:
-            raise top.section("simulation").error(
-                "servo_models",
-                f"{len(simulation.servo_models)} models; allowed: one per servo of servos.ids ({count})",
-            )
     return config
 
 
@@ -551,25 +573,17 @@ class StaleTimeoutFit:
 
 
 def _loadcell_rate(
-    top: Section, loadcell: LoadCellConfig, simulation: SimulationConfig | None
+    top: Section, loadcell: LoadCellConfig, simulation: SimulationSection | None
 ) -> LoadCellConfig:
     """The cell's rate (left out on a simulated rig: its simulation's), checked against baud and format."""
     sec = top.section("loadcell")
     traits = LOADCELL_FORMAT_TRAITS[loadcell.format]
     rate_hz = loadcell.rate_hz
-    if simulation is not None:
+    if simulation is not None and rate_hz is None:
         # Left out, a simulated cell's rate is its simulation's. Given, it is what the operator
         # believes, and may be wrong as on a real rig: the run and `rig check` compare it with what
         # the simulated cell sends.
-        if rate_hz is None:
-            rate_hz = simulation.loadcell_rate_hz
-        cell = simulation.cell
-        if cell is not None and cell.format != loadcell.format:
-            raise sec.error(
-                "format",
-                f"{loadcell.format}; allowed: {cell.format}, the format of simulation.loadcell_cell "
-                f"{simulation.loadcell_cell}",
-            )
+        rate_hz = simulation.loadcell_rate_hz
     if rate_hz is None:
         if traits.poll_command is not None:
             raise sec.error(
@@ -721,19 +735,3 @@ def nominal_loadcell_rate_hz(config: RigConfig) -> float:
     if config.simulation is not None and config.kind == RigKind.SIMULATED:
         return config.simulation.loadcell_rate_hz
     return DEFAULT_LOADCELL_RATE_HZ
-
-
-def require_simulated(config: RigConfig) -> SimulationConfig:
-    """The simulation settings of a simulated rig (a ConfigError for a hardware rig, even with a twin's)."""
-    if config.simulation is None or config.kind != RigKind.SIMULATED:
-        raise ConfigError(f"{config.source}: kind: this command needs kind: simulated, got {config.kind}")
-    return config.simulation
-
-
-def simulation_section(config: RigConfig) -> SimulationConfig:
-    """The world a config's `simulation:` section describes, of either kind (a hardware rig's twin)."""
-    if config.simulation is None:
-        raise ConfigError(
-            f"{config.source}: simulation: missing; allowed: a simulation section (see protocols/README.md)"
-        )
-    return config.simulation

@@ -13,8 +13,9 @@ from rig.hw.session import RigSession
 from rig.rig_config import RigConfig
 from rig.runner.rig_to_run import BareRig, RigToRun
 from rig.runner.run import PreparedRun
+from rig.sim.kinds import DeviceLevel
 from rig.sim.simulated_rig import SimulatedRig, simulated_rig
-from rig.vocabulary import DeviceLevel, RigKind
+from rig.vocabulary import RigKind
 
 __all__ = [
     "check_session_inputs",

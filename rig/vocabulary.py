@@ -62,20 +62,6 @@ class TrialOutcome(StrEnum):
 SLIP_LIKE = frozenset({TrialOutcome.SLIP, TrialOutcome.CREEP, TrialOutcome.STICK_SLIP})
 
 
-class SlipKind(StrEnum):
-    """How a simulated joint slips (`simulation.slips.mix`; `rig.rig_config.SlipKindMix` describes each).
-
-    The order is that of the mix's probabilities.
-    """
-
-    SUDDEN = "sudden"
-    SMALL_DROP = "small_drop"
-    CREEP = "creep"
-    STICK_SLIP = "stick_slip"
-    OTHER_JOINT = "other_joint"
-    NO_SLIP = "no_slip"
-
-
 class ServoRole(StrEnum):
     """What a servo does on the rig: the winch loads the line, a bender bends the link."""
 
@@ -88,13 +74,6 @@ class RigKind(StrEnum):
 
     SIMULATED = "simulated"
     HARDWARE = "hardware"
-
-
-class DeviceLevel(StrEnum):
-    """The simulated devices a run talks to: the real drivers on byte-level emulators, or objects."""
-
-    BYTE = "byte"
-    OBJECT = "object"
 
 
 class LoadCellFormatName(StrEnum):
@@ -168,23 +147,12 @@ __all__ = [
     "SERVO_BAUDS",
     "SLIP_LIKE",
     "UART_BITS_PER_BYTE",
-    "ArticleSetup",
-    "DeviceLevel",
-    "FaultDevice",
-    "FaultKind",
-    "HostFaultKind",
-    "LoadCellFaultKind",
     "LoadCellFormatName",
     "LoadCellFormatTraits",
-    "LoggerFaultKind",
-    "ReplyFaultKind",
     "RigKind",
-    "ServoFaultFlag",
-    "ServoFaultKind",
     "ServoModel",
     "ServoRole",
     "SlipEventKind",
-    "SlipKind",
     "StepKind",
     "TrialKind",
     "TrialOutcome",
@@ -206,77 +174,3 @@ class MeasurementStage(StrEnum):
 
     BENT = "bent"  # after bending (and after each correction)
     AFTER_SLIP = "after_slip"  # after the slip, to tell which joint moved
-
-
-class ArticleSetup(StrEnum):
-    """What the simulated winch line is hooked to: the whole link, or the single-joint specimen."""
-
-    LINK = "link"
-    SPECIMEN = "specimen"
-
-
-class FaultDevice(StrEnum):
-    """The simulated devices a rig config's `simulation.faults:` entry can name (`FaultConfig.device`)."""
-
-    SERVOS = "servos"  # every servo on the bus
-    WINCH = "winch"  # the servos of that role
-    BENDER = "bender"
-    LOADCELL = "loadcell"
-    LOGGER = "logger"
-    HOST = "host"
-
-
-class ServoFaultKind(StrEnum):
-    """The faults a simulated servo can be given (rate kinds are `ReplyFaultKind`'s; the rest are timed)."""
-
-    DROP = "drop"
-    CORRUPT = "corrupt"
-    DELAY = "delay"
-    SILENT = "silent"  # its replies are lost, it still obeys
-    DISCONNECT = "disconnect"  # it neither hears nor answers
-    OVERLOAD = "overload"  # Hardware Error Status 0x20 latches
-
-
-class LoadCellFaultKind(StrEnum):
-    """The faults a simulated load cell can be given (`garble`, `checksum` at a rate; the rest timed)."""
-
-    GARBLE = "garble"
-    CHECKSUM = "checksum"
-    GAP = "gap"
-    SILENT = "silent"
-    DISCONNECT = "disconnect"
-
-
-class LoggerFaultKind(StrEnum):
-    """The faults the run log can be given."""
-
-    WRITE_ERROR = "write_error"
-
-
-class HostFaultKind(StrEnum):
-    """The faults the simulated host can be given."""
-
-    PAUSE = "pause"
-
-
-# A `simulation.faults:` entry's kind: one of its device's kinds (`rig.sim_config.FAULT_KINDS`).
-FaultKind = ServoFaultKind | LoadCellFaultKind | LoggerFaultKind | HostFaultKind
-
-
-class ReplyFaultKind(StrEnum):
-    """What an emulated Dynamixel bus does to a reply it is told to fault (`rig.sim.dxl.faults`)."""
-
-    DROP = "drop"
-    CORRUPT = "corrupt"
-    DELAY = "delay"
-
-
-class ServoFaultFlag(StrEnum):
-    """The fault kinds of `rig sim servos --fault KIND:...` (grammar in `rig.sim.dxl.faults`)."""
-
-    DROP = "drop"
-    CORRUPT = "corrupt"
-    DELAY = "delay"
-    SILENT = "silent"
-    HWERROR = "hwerror"
-    BAUD = "baud"

@@ -12,8 +12,8 @@ import tempfile
 from pathlib import Path
 
 from rig.hw.dxl.control_table import to_signed
-from rig.hw.truth import TrialTruth
 from rig.sim.physics.world import SimWorld
+from rig.sim.truth import TrialTruth
 from rig.vocabulary import TrialKind
 
 

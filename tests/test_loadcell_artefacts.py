@@ -10,8 +10,8 @@ from rig.rig_config import load_rig_config
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.loadcell.profiles import ConstantTension
+from rig.sim.settings import LoadCellArtefacts
 from rig.sim.simulated_rig import simulated_rig
-from rig.sim_config import LoadCellArtefacts
 
 GAIN = 80_000.0
 OFFSET = 120_000.0

@@ -13,7 +13,7 @@ from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.emulator import LoadCellEmulator
 from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.loadcell.profiles import ConstantTension
-from rig.sim_config import SIMULATED_CELLS
+from rig.sim.settings import SIMULATED_CELLS, check_simulation, require_simulated
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName
 from tests.test_sim_scenarios import CELL_NAMES, SCENARIOS
 
@@ -139,7 +139,8 @@ def test_the_driver_polls_a_gauge_and_reads_newtons():
 @pytest.mark.parametrize("name", CELL_NAMES)
 def test_cell_scenarios_load_with_their_rates_and_timeouts(name):
     config = load_rig_config(SCENARIOS / f"{name}.yaml")
-    cell = config.simulation.cell
+    cell = require_simulated(config).cell
+    assert cell is not None
     assert config.loadcell.rate_hz == cell.rate_hz and config.loadcell.format == cell.format
     assert config.limits.stale_timeout_s == default_stale_timeout_s(cell.rate_hz)
     assert cell.rate_hz <= LOADCELL_FORMAT_TRAITS[config.loadcell.format].max_rate_hz(config.loadcell.baud)
@@ -188,10 +189,10 @@ def test_a_simulated_cell_needs_its_format_and_rate():
         ConfigError,
         match=r"simulation\.loadcell_rate_hz: 80; allowed: 10, the rate of loadcell_cell hx711-10",
     ):
-        parse_rig_config(yaml.safe_load(base % 80), source="r.yaml")
+        check_simulation(parse_rig_config(yaml.safe_load(base % 80), source="r.yaml"))
     gauge = "extends: simulated\nsimulation: {loadcell_cell: gauge-12, loadcell_rate_hz: 12}"
     with pytest.raises(ConfigError, match=r"loadcell\.format: rig-lc1; allowed: value-unit"):
-        parse_rig_config(yaml.safe_load(gauge), source="r.yaml")
+        check_simulation(parse_rig_config(yaml.safe_load(gauge), source="r.yaml"))
 
 
 def test_rig_calibrate_works_on_a_polled_gauge(tmp_path, capsys):

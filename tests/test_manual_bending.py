@@ -11,10 +11,11 @@ from rig.hw.session import OperatorTask
 from rig.rig_config import load_rig_config
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
+from rig.sim.kinds import DeviceLevel
 from rig.sim.object_devices import ObjectServoBus
 from rig.sim.simulated_rig import SimulatedPerson, simulated_rig
 from rig.testing.recording import RecordingServoBus
-from rig.vocabulary import DeviceLevel, TrialOutcome
+from rig.vocabulary import TrialOutcome
 
 PROTOCOL = """\
 format: rig-protocol/1

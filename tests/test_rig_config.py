@@ -8,6 +8,7 @@ import pytest
 
 from rig.errors import ConfigError, InputError
 from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.sim.settings import load_checked_rig_config
 
 RIGS = Path(__file__).resolve().parent.parent / "protocols" / "rigs"
 
@@ -41,7 +42,7 @@ def test_bad_field_is_named(tmp_path, old, new, needle):
     path = tmp_path / "rig.yaml"
     path.write_text(text.replace(old, new))
     with pytest.raises(ConfigError) as exc:
-        load_rig_config(path)
+        load_checked_rig_config(path)
     message = str(exc.value)
     assert str(path) in message and needle in message and "\n" not in message
 
@@ -69,12 +70,8 @@ def test_a_file_name_too_long_for_the_file_system_is_named(tmp_path, name):
 def test_a_hardware_config_may_describe_its_twin_and_its_own_commands_ignore_it(tmp_path):
     # `rig sim rig` serves a hardware config's `simulation:` section behind its ports (issue 30);
     # the rig's run and checks go on as without it: no simulated cell rate, no simulated rig.
-    from rig.rig_config import (
-        DEFAULT_LOADCELL_RATE_HZ,
-        nominal_loadcell_rate_hz,
-        require_simulated,
-        simulation_section,
-    )
+    from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, nominal_loadcell_rate_hz
+    from rig.sim.settings import require_simulated, simulation_section
 
     text = (RIGS / "hardware.example.yaml").read_text(encoding="utf-8")
     assert "  rate_hz: 10 " in text
@@ -88,7 +85,7 @@ def test_a_hardware_config_may_describe_its_twin_and_its_own_commands_ignore_it(
         require_simulated(config)
     path.write_text(text + "simulation:\n  preset: link9\n")
     with pytest.raises(ConfigError, match=r"hw.yaml: simulation.preset"):
-        load_rig_config(path)
+        load_checked_rig_config(path)
     path.write_text(text)
     with pytest.raises(ConfigError, match="simulation: missing"):
         simulation_section(load_rig_config(path))

@@ -14,9 +14,9 @@ from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.progress import SilentProgress
 from rig.runner.recorder import RunRecorder
 from rig.runner.release import LineRelease
+from rig.sim.kinds import DeviceLevel
 from rig.sim.simulated_rig import simulated_rig
 from rig.testing.recording import RecordingServoBus
-from rig.vocabulary import DeviceLevel
 
 RAMP = RampSettings(
     fast_speed_rad_s=2.0,

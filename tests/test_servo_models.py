@@ -10,6 +10,7 @@ from rig.errors import ConfigError
 from rig.hw.dxl.control_table import MODELS, MODELS_BY_NUMBER, model_name_for, table_for_model
 from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
 from rig.servo_ratings import MOTOR_RATINGS, PROTOCOL_1_MODELS, stall_tension_n, winch_models
+from rig.sim.settings import load_checked_rig_config
 from rig.vocabulary import ServoModel
 
 
@@ -96,7 +97,7 @@ def test_simulation_servo_models_are_one_per_configured_servo(tmp_path):
     with pytest.raises(
         ConfigError, match=r"r\.yaml: simulation\.servo_models: 1 models; allowed: one per servo"
     ):
-        load_rig_config(rig)
+        load_checked_rig_config(rig)
     rig.write_text("extends: simulated\nsimulation:\n  servo_models: [XM430-W350, AX-12]\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=r"simulation\.servo_models\[1\]: 'AX-12'; allowed: XM430-W350"):
-        load_rig_config(rig)
+        load_checked_rig_config(rig)

@@ -9,7 +9,8 @@ import pytest
 
 from rig.analysis.runlog import read_parts, run_settings
 from rig.rig_config import load_rig_config
-from rig.vocabulary import SlipKind
+from rig.sim.kinds import SlipKind
+from rig.sim.settings import require_simulated
 from tests.helpers import QUICK_PROTOCOL
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios"
@@ -23,16 +24,17 @@ NAMES = ("small-drops", "creep", "stick-slip", "noisy-cell", "additive-scatter",
 def test_every_scenario_is_shipped_and_loads() -> None:
     assert sorted(p.stem for p in SCENARIOS.glob("*.yaml")) == sorted(NAMES + CELL_NAMES + LINE_NAMES)
     compliant = load_rig_config(SCENARIOS / "compliant-10.yaml")
-    assert compliant.simulation is not None and compliant.simulation.spring_stiffness_n_per_m == 1000
-    series_n_per_m = 1 / (1 / 5000 + 1 / compliant.simulation.spring_stiffness_n_per_m)
+    spring_n_per_m = require_simulated(compliant).spring_stiffness_n_per_m
+    assert spring_n_per_m == 1000
+    series_n_per_m = 1 / (1 / 5000 + 1 / spring_n_per_m)
     assert compliant.line_stiffness_n_per_m == pytest.approx(series_n_per_m, rel=1e-3)
-    mixed = load_rig_config(SCENARIOS / "mixed.yaml").simulation
+    mixed = require_simulated(load_rig_config(SCENARIOS / "mixed.yaml"))
     assert mixed is not None and all(mixed.slips.probability(kind) > 0 for kind in tuple(SlipKind))
-    noisy = load_rig_config(SCENARIOS / "noisy-cell.yaml").simulation
+    noisy = require_simulated(load_rig_config(SCENARIOS / "noisy-cell.yaml"))
     assert noisy is not None and noisy.loadcell.noise_scale == 10 and noisy.loadcell.active
-    additive = load_rig_config(SCENARIOS / "additive-scatter.yaml").simulation
+    additive = require_simulated(load_rig_config(SCENARIOS / "additive-scatter.yaml"))
     assert additive is not None and (additive.scatter.shape, additive.scatter.a_kg) == ("additive", 0.1)
-    mixed_scatter = load_rig_config(SCENARIOS / "mixed-scatter.yaml").simulation
+    mixed_scatter = require_simulated(load_rig_config(SCENARIOS / "mixed-scatter.yaml"))
     assert mixed_scatter is not None
     assert (mixed_scatter.scatter.shape, mixed_scatter.scatter.a_kg, mixed_scatter.scatter.b) == (
         "mixed",
@@ -100,7 +102,7 @@ def test_scenario_runs_a_short_protocol_to_the_end(tmp_path: Path, run_cli, name
     settings = run_settings(read_parts(report["log"]), [])
     assert settings.truth is not None
     world = settings.truth["world"]
-    config = load_rig_config(SCENARIOS / f"{name}.yaml").simulation
+    config = require_simulated(load_rig_config(SCENARIOS / f"{name}.yaml"))
     assert config is not None
     assert world["scatter"]["shape"] == config.scatter.shape
     for trial in world["trials"]:

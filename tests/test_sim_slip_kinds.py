@@ -10,11 +10,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from rig.sim.kinds import SlipKind
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import SimWorld
-from rig.sim_config import CapacityScatter, SlipKindMix
-from rig.vocabulary import SlipKind, TrialKind
+from rig.sim.settings import CapacityScatter, SlipKindMix
+from rig.vocabulary import TrialKind
 from tests.helpers import ScriptedShaft, set_up_trial
 
 MS = 1_000_000

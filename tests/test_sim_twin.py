@@ -27,12 +27,13 @@ from rig.log.reader import read_run
 from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
 from rig.sim.dxl.pty_server import IDLE_POLL_MS
+from rig.sim.kinds import ArticleSetup, SlipKind
 from rig.sim.pty_link import Stop
 from rig.sim.twin import TICK_S, build_twin, serve_twin
 from rig.sim.twin_console import ReferenceLoad, run_console
 from rig.sim.twin_hand import SLACK_DWELL_S
 from rig.sim.twin_ports import PortAction, PortCondition, TwinDevice
-from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
+from rig.vocabulary import TrialKind
 from tests.helpers import build_firmware
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -15,13 +15,12 @@ from rig.rigs import open_rig
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
 from rig.sim.clock import VirtualClock
+from rig.sim.kinds import DeviceLevel
 from rig.sim.loadcell.emulator import SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.object_devices import ObjectLoadCell
 from rig.sim.physics.article_presets import make_preset
 from rig.sim.simulated_rig import simulated_rig
-from rig.sim_config import FaultConfig
-from rig.vocabulary import DeviceLevel, FaultDevice, LoggerFaultKind
 
 REPO = Path(__file__).resolve().parents[1]
 JOINT_ESTIMATION = REPO / "protocols" / "joint_estimation.yaml"
@@ -95,8 +94,9 @@ def test_object_rig_refuses_timed_faults() -> None:
     """Timed faults corrupt the emulators' bytes; the object-level rig has none and says so."""
     config = load_rig_config(None)
     assert config.simulation is not None
-    fault = FaultConfig(FaultDevice.LOGGER, LoggerFaultKind.WRITE_ERROR, after_bytes=1000)
-    faulty = dataclasses.replace(config, simulation=dataclasses.replace(config.simulation, faults=(fault,)))
+    fault = {"device": "logger", "kind": "write_error", "after_bytes": 1000}
+    section = dataclasses.replace(config.simulation, data={**config.simulation.data, "faults": [fault]})
+    faulty = dataclasses.replace(config, simulation=section)
     with pytest.raises(ConfigError, match="faults"):
         simulated_rig(faulty, seed=0, devices=DeviceLevel.OBJECT)
 

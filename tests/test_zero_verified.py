@@ -19,6 +19,7 @@ from rig.rig_config import load_rig_config
 from rig.rigs import open_simulated_rig
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
+from rig.sim.settings import load_checked_rig_config, require_simulated
 from rig.sim.simulated_rig import SimulatedRig, config_preset
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,12 +59,12 @@ def _winch_goals(out: Path) -> list[float]:
 
 def test_the_simulated_line_can_start_loaded(tmp_path):
     config = load_rig_config(_rig(tmp_path, "  initial_tension_n: 30\n"))
-    assert config.simulation is not None and config.simulation.initial_tension_n == 30.0
+    assert require_simulated(config).initial_tension_n == 30.0
     preset = config_preset(config, 0)
     # Stretched by 30 N / 5000 N/m = 6 mm of line, 0.6 rad of a 10 mm drum.
     assert preset.winch_slack_rad == pytest.approx(-0.6)
     with pytest.raises(ConfigError, match=r"simulation\.initial_tension_n"):
-        load_rig_config(_rig(tmp_path, "  initial_tension_n: -1\n"))
+        load_checked_rig_config(_rig(tmp_path, "  initial_tension_n: -1\n"))
 
 
 @pytest.mark.parametrize("tension_n", [30.0, 150.0])

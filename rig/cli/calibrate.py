@@ -22,7 +22,7 @@ from rig.hw.loadcell.calibration import (
 from rig.hw.loadcell.driver import DEFAULT_BAUD, DEFAULT_STALE_TIMEOUT_S, SerialLoadCell
 from rig.hw.loadcell.formats import FORMATS
 from rig.hw.seams import Clock, LoadCell
-from rig.rig_config import load_rig_config
+from rig.sim.settings import load_checked_rig_config
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName, RigKind
 
 PromptFn = Callable[[CalibrationStep, str], None]
@@ -118,7 +118,7 @@ def apply_rig_config(args: argparse.Namespace) -> None:
     """With --rig, fill the load-cell port, baud, format and output file from the rig config."""
     if getattr(args, "rig", None) is None:
         return
-    config = load_rig_config(args.rig)
+    config = load_checked_rig_config(args.rig)
     if config.kind != RigKind.HARDWARE:
         raise InputError(f"{args.rig}: kind: {config.kind}; --rig needs a hardware rig (use --sim to try it)")
     args.port = config.loadcell.port

@@ -120,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
     from rig.preflight.verdicts import Verdict, exit_code
     from rig.protocol import load_protocol
     from rig.rig_config import DEFAULT_RIG_CONFIG, parse_rig_config
+    from rig.sim.settings import check_simulation
 
     if args.write and not args.move:
         raise InputError("--write: only with --move (it writes what the jog measured)")
@@ -134,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
     text = read_text_file(path, what="a rig config YAML file")
     # Parsed without the tension-cap refusal of `load_rig_config`: here the cap is a row of its own.
     config = parse_rig_config(parse_yaml(text, str(path)), source=str(path), text=text, base_dir=path.parent)
+    check_simulation(config)
     protocols = tuple(
         load_protocol(
             p, seed=args.seed, joint_count=config.article.joint_count, joints_from=config.joints_from

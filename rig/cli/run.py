@@ -15,17 +15,18 @@ from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
 from rig.files import check_out_dir
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
-from rig.vocabulary import ConfigurationSourceKind, DeviceLevel, RigKind, StepKind
+from rig.sim.kinds import DeviceLevel
+from rig.vocabulary import ConfigurationSourceKind, RigKind, StepKind
 
 if TYPE_CHECKING:
     from model.estimate_summary import EstimateSummary
     from model.fit import FitSummary
     from model.payload_errors import PayloadErrorStats
-    from rig.hw.truth import RunTruth
     from rig.log.live import LivePublisher
     from rig.protocol import Protocol
     from rig.rig_config import RigConfig
     from rig.runner.run import RunReport, RunRequest
+    from rig.sim.truth import RunTruth
 
 DESCRIPTION = """\
 Run a protocol of automated slip trials. The winch (a Dynamixel servo in current-based position
@@ -128,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
     from rig.runner.progress import make_progress
     from rig.runner.run import execute_run, prepare_run
     from rig.runner.safety import interrupts_held
+    from rig.sim.settings import check_simulation
 
     if not 0 <= args.seed <= MAX_SEED:
         raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
@@ -141,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
     # Everything is validated before anything is written (the --out directory, the lock, the journal):
     # first as a dry run, with the files the session will read; then for real.
     checked = prepare_run(_request(args), dry_run=True)
+    check_simulation(checked.config)  # the simulator's section, which the runner keeps as written
     check_session_inputs(checked.config)
     _require_a_terminal_for_prompts(checked.protocol, checked.config)
     live = _start_live(args)  # a port in use is an InputError before anything is written or moves
@@ -184,8 +187,10 @@ def _dry_run(args: argparse.Namespace) -> int:
     from rig.rigs import check_session_inputs
     from rig.runner.limits import plan_summary
     from rig.runner.run import prepare_run
+    from rig.sim.settings import check_simulation
 
     prepared = prepare_run(_request(args), dry_run=True)
+    check_simulation(prepared.config)
     notes = _calibration_not_made_yet(prepared.config)
     if not notes:
         check_session_inputs(prepared.config)
@@ -350,7 +355,7 @@ def _summary(report: RunReport, out_dir: Path) -> str:
     if pe is not None:
         lines.append(_percentage_text(pe))
     if report.truth is not None:
-        from rig.hw.truth import RunTruth
+        from rig.sim.truth import RunTruth
 
         assert isinstance(report.truth, RunTruth)  # the only truth a rig reports is the simulator's
         lines.append(_truth_text(report.truth, est))

@@ -16,7 +16,8 @@ from collections.abc import Callable, Sequence
 from rig.errors import InputError, RigError
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.setup import assign_id_and_baud, describe_found, find_single_servo, search_order
-from rig.rig_config import ServoSpec, load_rig_config
+from rig.rig_config import ServoSpec
+from rig.sim.settings import load_checked_rig_config
 
 DESCRIPTION = """\
 Give each servo of the rig config its ID and the bus baud rate, one servo at a time (as a new servo
@@ -51,7 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Set up every configured servo in turn; see the module docstring."""
-    config = load_rig_config(args.rig)
+    config = load_checked_rig_config(args.rig)
     port = config.servos.port
     if "://" in port:
         raise InputError(

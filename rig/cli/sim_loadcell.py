@@ -24,7 +24,7 @@ from rig.sim.loadcell.inprocess import cell_emulator_options
 from rig.sim.loadcell.profiles import parse_profile
 from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.pty_link import PtyLink, StopFlag
-from rig.sim_config import SIMULATED_CELLS
+from rig.sim.settings import SIMULATED_CELLS
 
 MAX_SEED = 2**64 - 1
 

@@ -11,8 +11,8 @@ from pathlib import Path
 from rig.errors import InputError
 from rig.files import atomic_write_text
 from rig.protocol import load_protocol
-from rig.rig_config import load_rig_config
 from rig.sim.pty_link import StopFlag
+from rig.sim.settings import load_checked_rig_config
 from rig.sim.twin import Served, build_twin, serve_twin
 from rig.sim.twin_console import HELP, run_console
 from rig.sim.twin_firmware import HARNESS_PATH
@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; returns 0."""
     if not 0 <= args.seed <= MAX_SEED:
         raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")
-    config = load_rig_config(args.rig)
+    config = load_checked_rig_config(args.rig)
     protocol = None
     if args.protocol is not None:
         protocol = load_protocol(

@@ -20,8 +20,8 @@ from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.faults import FaultSpec, parse_fault
 from rig.sim.dxl.protocol1 import Protocol1Bus
 from rig.sim.dxl.pty_server import ServedBus, serve
+from rig.sim.kinds import ServoFaultFlag
 from rig.sim.pty_link import PtyLink, StopFlag
-from rig.vocabulary import ServoFaultFlag
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -11,7 +11,8 @@ from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import ExitCode, InputError
 from rig.files import check_out_dir
-from rig.vocabulary import DeviceLevel, RigKind, TrialKind
+from rig.sim.kinds import DeviceLevel
+from rig.vocabulary import RigKind, TrialKind
 
 if TYPE_CHECKING:
     from rig.protocol import Protocol
@@ -154,14 +155,15 @@ def _jobs(jobs: int | None) -> int:
 
 def _checked_spec(args: argparse.Namespace) -> StudySpec:
     """Everything a run will read, validated once here (exit 2 before any worker starts)."""
-    from rig.rig_config import require_simulated
     from rig.rigs import check_session_inputs
     from rig.runner.run import RunRequest, prepare_run
+    from rig.sim.settings import check_simulation, require_simulated
     from rig.study.worker import StudySpec
 
     request = RunRequest(protocol_path=args.protocol, rig_path=args.rig, out_dir=Path("."), seed=0)
     prepared = prepare_run(request, dry_run=True)
     config = prepared.config
+    check_simulation(config)
     if config.kind != RigKind.SIMULATED:
         raise InputError(
             f"--rig {config.source}: kind {config.kind}; allowed: a simulated rig (a study needs the truth)"

@@ -9,6 +9,5 @@ __all__ = [
     "interrupts",
     "seams",
     "session",
-    "truth",
     "usb_latency",
 ]

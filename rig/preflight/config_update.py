@@ -14,6 +14,7 @@ from pathlib import Path
 from rig.errors import ConfigError
 from rig.files import atomic_write_text, parse_yaml
 from rig.rig_config import RigConfig, parse_rig_config
+from rig.sim.settings import check_simulation
 
 _ANCHOR = "spool_radius_m"
 
@@ -69,6 +70,7 @@ def write_changes(config: RigConfig, values: dict[str, str]) -> list[str]:
     text = updated_text(config.text, values)
     # The new file must be a valid config with exactly these values, or nothing is written.
     new = parse_rig_config(parse_yaml(text, str(path)), source=str(path), text=text, base_dir=path.parent)
+    check_simulation(new)
     wanted_direction = int(values.get("reel_direction", config.reel_direction))
     wanted_stiffness = float(values.get("line_stiffness_n_per_m", config.line_stiffness_n_per_m))
     if new.reel_direction != wanted_direction or new.line_stiffness_n_per_m != wanted_stiffness:

@@ -4,8 +4,11 @@
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
     "clock",
+    "kinds",
     "pty_link",
+    "settings",
     "simulated_rig",
+    "truth",
     "twin",
     "twin_console",
     "twin_firmware",

@@ -27,17 +27,17 @@ from typing import assert_never
 from rig.rig_config import RigConfig
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
-from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator
-from rig.sim_config import FaultConfig
-from rig.vocabulary import (
+from rig.sim.kinds import (
     FaultDevice,
     HostFaultKind,
     LoadCellFaultKind,
     LoggerFaultKind,
     ReplyFaultKind,
     ServoFaultKind,
-    ServoRole,
 )
+from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator
+from rig.sim.settings import FaultConfig
+from rig.vocabulary import ServoRole
 
 OVERLOAD_BIT = 0x20
 _FOREVER_S = 1e9

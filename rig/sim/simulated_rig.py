@@ -38,12 +38,12 @@ from rig.hw.configuration.factory import hardware_configuration_source
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import ConfigurationSource, LoadCell, ServoBus
 from rig.hw.session import OperatorRequest, OperatorTask, RigSession
-from rig.hw.truth import RunTruth
-from rig.rig_config import RigConfig, configuration_source_kind, require_simulated, simulation_section
+from rig.rig_config import RigConfig, configuration_source_kind
 from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.dxl.bus import EmulatedBus
 from rig.sim.dxl.inprocess import SimPortHandler
 from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults, log_limit_bytes
+from rig.sim.kinds import DeviceLevel
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.loadcell.inprocess import simulated_load_cell
@@ -51,7 +51,9 @@ from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
 from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, SimPreset, make_preset, stream_rng
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.world import ShaftLike, SimWorld
-from rig.vocabulary import ConfigurationSourceKind, DeviceLevel, RigKind, TrialKind
+from rig.sim.settings import require_simulated, simulation_section, simulation_settings
+from rig.sim.truth import RunTruth
+from rig.vocabulary import ConfigurationSourceKind, RigKind, TrialKind
 
 
 class PacedVirtualClock(VirtualClock):
@@ -387,7 +389,7 @@ def emulated_models(config: RigConfig) -> list[str]:
     Each configured servo is its own model, unless `simulation.servo_models` puts others on the bus
     (a lab's mixed-up servo).
     """
-    sim = config.simulation
+    sim = simulation_settings(config)
     if sim is not None and sim.servo_models is not None:
         return [str(m) for m in sim.servo_models]
     return [s.model for s in config.servos.servos]

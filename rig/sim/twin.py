@@ -39,18 +39,19 @@ from pathlib import Path
 
 from rig.errors import ConfigError
 from rig.hw.loadcell.calibration import Calibration
-from rig.hw.truth import RunTruth
 from rig.protocol import Protocol
-from rig.rig_config import RigConfig, simulation_section
+from rig.rig_config import RigConfig
 from rig.sim.clock import VirtualClock
 from rig.sim.dxl.bus import EmulatedBus, Reply
 from rig.sim.dxl.pty_server import serve
 from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults
+from rig.sim.kinds import FaultDevice
 from rig.sim.loadcell.emulator import LoadCellEmulator
 from rig.sim.loadcell.inprocess import ideal_calibration, simulated_load_cell
 from rig.sim.loadcell.pty_server import serve_loadcell
 from rig.sim.physics.world import SimWorld
 from rig.sim.pty_link import PtyLink, Stop
+from rig.sim.settings import simulation_section
 from rig.sim.simulated_rig import (
     config_preset,
     emulated_models,
@@ -58,11 +59,12 @@ from rig.sim.simulated_rig import (
     loadcell_signal,
     new_world,
 )
+from rig.sim.truth import RunTruth
 from rig.sim.twin_console import ReferenceLoad
 from rig.sim.twin_firmware import feed_firmware, harness_command, start_firmware_cell, stop_firmware_cell
 from rig.sim.twin_hand import HandTrial, TwinHand, hand_trials
 from rig.sim.twin_ports import PortAction, PortCondition, PortRequests, ServedPort, TwinDevice
-from rig.vocabulary import LOADCELL_FORMAT_TRAITS, FaultDevice
+from rig.vocabulary import LOADCELL_FORMAT_TRAITS
 
 TICK_S = 0.01  # how often the main thread brings the world up to the wall clock when nothing else does
 DONE_FORCE_FRACTION = 0.95  # a trial that reaches this share of the ramp's max_force_n is over

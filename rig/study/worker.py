@@ -22,7 +22,6 @@ from model.design import StopReason
 from model.estimators import ESTIMATOR_NAMES, check_estimator, crlb_k, estimate_k
 from model.fit import DEFAULT_LEVEL
 from rig.errors import ExitCode
-from rig.hw.truth import WorldTruth
 from rig.log.records import TrialKind, TrialOutcome, TrialResult
 from rig.log.writer import RunLogger
 from rig.rigs import open_simulated_rig
@@ -31,8 +30,9 @@ from rig.runner.planning import TrialSchedule
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, prepare_run
 from rig.runner.trial_runner import TrialRunner
+from rig.sim.kinds import DeviceLevel
+from rig.sim.truth import WorldTruth
 from rig.study.series import score_series
-from rig.vocabulary import DeviceLevel
 
 # Outcomes whose slip mass is a measured slip load, and those whose mass is only a lower bound.
 

@@ -21,7 +21,7 @@ from typing import assert_never
 
 from rig.errors import InputError
 from rig.hw.dxl.control_table import BAUD_REGISTER_BY_RATE
-from rig.vocabulary import ReplyFaultKind, ServoFaultFlag
+from rig.sim.kinds import ReplyFaultKind, ServoFaultFlag
 
 
 @dataclass(slots=True)

@@ -1,6 +1,6 @@
 """What a real load cell adds to the line tension besides white noise: drift, wander, spikes, hum, gain creep.
 
-The one definition of the artefacts (`rig.rig_config.LoadCellArtefacts` documents the formula and
+The one definition of the artefacts (`rig.sim.settings.LoadCellArtefacts` documents the formula and
 the parameters). `ArtefactModel.apparent_tension_n` turns the true tension at a sample into the
 tension the cell's bridge reports; the emulator (`LoadCellEmulator`, both its in-process port and
 its pty process) converts that to ADC counts with its white noise and quantisation. The model is
@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import random
 
-from rig.sim_config import LoadCellArtefacts
+from rig.sim.settings import LoadCellArtefacts
 
 
 class ArtefactModel:

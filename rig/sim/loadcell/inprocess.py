@@ -32,7 +32,7 @@ from rig.sim.loadcell.emulator import (
     firmware_banner,
     wrong_baud_garbage,
 )
-from rig.sim_config import SimulatedCell
+from rig.sim.settings import SimulatedCell
 from rig.vocabulary import LoadCellFormatName
 
 DEFAULT_RX_BUFFER_BYTES = 65536
@@ -241,7 +241,7 @@ def simulated_load_cell(
     """The real driver reading an in-process emulator of `tension_n` (not yet opened).
 
     Without `calibration`, the driver uses the emulator's exact gain and offset, so `force_n`
-    tracks `tension_n` up to noise and drift. A `cell` (a profile of `rig.sim_config.SIMULATED_CELLS`)
+    tracks `tension_n` up to noise and drift. A `cell` (a profile of `rig.sim.settings.SIMULATED_CELLS`)
     sets the signal model, settling, codec and banner of a cell labs own (`cell_emulator_options`);
     `signal` then only scales its noise (`noise_counts` / the default cell's).
     """

@@ -43,7 +43,7 @@ import numpy as np
 
 from model.gravity import PAPER_G_M_S2
 from model.joint import resolve_constant
-from rig.sim_config import (
+from rig.sim.settings import (
     MAX_SCATTER_A_KG,
     SCATTER_SHAPES,
     CapacityScatter,
@@ -77,10 +77,10 @@ class SimPreset:
 
     Friction, beyond the capacities: each trial draws its capacity scatter (`scatter_shape`, with
     a = `scatter_a_kg` and b = `per_trial_capacity_sd`, so that a slip mass m scatters with
-    sd(m)² = a² + (b·m)²) and its slip kind from `slip_mix` (`rig.rig_config.SlipKindMix`: sudden
+    sd(m)² = a² + (b·m)²) and its slip kind from `slip_mix` (`rig.sim.settings.SlipKindMix`: sudden
     drops to `kinetic_ratio`, small drops, creep, stick-slip trains, a neighbouring joint slipping
     first, or no slip before the force limit; each kind's parameters are documented there and in
-    protocols/README.md). `loadcell_artefacts` (`rig.rig_config.LoadCellArtefacts`: drift, zero
+    protocols/README.md). `loadcell_artefacts` (`rig.sim.settings.LoadCellArtefacts`: drift, zero
     wander, spikes, mains hum, gain creep) is what the simulated load cell adds to the tension;
     `loadcell_noise_n` already includes its `noise_scale`.
     """

@@ -27,17 +27,17 @@ from typing import Protocol, assert_never
 
 import numpy as np
 
-from rig.hw.truth import SlipPlan, SlipTruth
+from rig.sim.kinds import SlipKind
 from rig.sim.physics.article import ChainArticle
 from rig.sim.physics.winch_line import WinchLine
-from rig.vocabulary import SlipKind
+from rig.sim.truth import SlipPlan, SlipTruth
 
 
 @dataclass(slots=True)
 class SlipRecord:
     """One true slip event as it happens: its onset, and what the world fills in until it ends.
 
-    `onset` holds every field of the slip (`rig.hw.truth.SlipTruth`) as it began; the three that
+    `onset` holds every field of the slip (`rig.sim.truth.SlipTruth`) as it began; the three that
     change while the joint turns are kept here and put into the copy that `truth()` returns.
     """
 

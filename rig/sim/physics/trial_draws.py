@@ -19,10 +19,10 @@ from typing import assert_never
 
 import numpy as np
 
-from rig.hw.truth import SlipPlan
+from rig.sim.kinds import SlipKind
 from rig.sim.physics.article import ChainArticle
 from rig.sim.physics.article_presets import STREAM_SLIP_KIND, STREAM_TRIAL_CAPACITY, SimPreset, stream_rng
-from rig.vocabulary import SlipKind
+from rig.sim.truth import SlipPlan
 
 MIN_CAPACITY_FACTOR = 0.05
 

@@ -37,7 +37,7 @@ re-stick (the line slack for `RESTICK_S` after a slip), makes the joints' static
 the next time the line becomes taut the world draws that loading's capacities and slip kind
 (`draw_trial`), one `TrialTruth` per loading. A runner's trial loads the line once, so the truth's
 trials are the run's trials in order. `truth()` returns the ground truth as a typed record
-(`rig.hw.truth.WorldTruth`, built by `world_truth.py`).
+(`rig.sim.truth.WorldTruth`, built by `world_truth.py`).
 
 **Fast path.** `advance_to` spells out the common substep (no slip under way, nothing pending,
 no fork pushing) instead of calling `_substep`, and skips still stretches when the devices are at
@@ -53,7 +53,7 @@ from typing import Protocol
 
 import numpy as np
 
-from rig.hw.truth import SlipPlan, SlipTruth, TrialTruth, WorldTruth
+from rig.sim.kinds import ArticleSetup, SlipKind
 from rig.sim.physics.article import ChainArticle
 from rig.sim.physics.article_presets import STREAM_BEND, SimPreset, stream_rng
 from rig.sim.physics.forks import ForkFixture, ShaftDrivenForks
@@ -62,7 +62,8 @@ from rig.sim.physics.tension_history import TensionHistory
 from rig.sim.physics.trial_draws import TrialDraws
 from rig.sim.physics.winch_line import WinchLine
 from rig.sim.physics.world_truth import world_truth
-from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
+from rig.sim.truth import SlipPlan, SlipTruth, TrialTruth, WorldTruth
+from rig.vocabulary import TrialKind
 
 DEFAULT_SUBSTEP_NS = 1_000_000
 DEFAULT_HISTORY_S = 2.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from model.joint import mu_delta0_pa_from_capacity, resolve_constant
-from rig.hw.truth import (
+from rig.sim.truth import (
     CapacityTruth,
     GeometryTruth,
     LineTruth,

@@ -7,7 +7,8 @@ leaves the process: the log's `sim_truth` metadata (`RunTruth.to_json()`, with e
 `truth` object of `rig run --json` (`RunTruth.to_json(with_trials=False)`). The JSON layout is
 docs/formats.md's; its keys and their order are fixed by these methods.
 
-The records sit here, beside the session contract, because the runner below the simulator holds them.
+They are the simulator's: the layers below it (the session contract, the runner) name them only for
+type checking, and hold the truth as an object they pass on.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from rig.sim_config import LoadCellArtefacts, SlipKindMix
-from rig.vocabulary import ArticleSetup, SlipKind, TrialKind
+from rig.sim.kinds import ArticleSetup, SlipKind
+from rig.sim.settings import LoadCellArtefacts, SlipKindMix
+from rig.vocabulary import TrialKind
 
 SCATTER_SD_FORMULA = "sqrt(a^2 + (b m)^2)"
 TORSION_CRITERION = "sqrt((|N_bend|/cap)^2 + (N_torsion/(torsion_ratio*cap))^2) > 1"

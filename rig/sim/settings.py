@@ -4,6 +4,11 @@ The simulated world's preset, its slip kinds, capacity scatter, load-cell artefa
 faults. On `kind: hardware` only `rig sim rig` reads it (rig/sim/twin.py). Users' docs in
 protocols/README.md.
 
+`rig.rig_config` keeps the section as written (`SimulationSection`); `simulation_settings` parses it
+and checks it against the rest of the config. Every command that loads a config for a rig does so
+through `load_checked_rig_config` (or `check_simulation`), so that a bad section fails there, before
+anything starts, naming the file and the field.
+
 Each settings field is declared once on its dataclass (`model.field_spec`): its bounds, default and
 doc drive `parse_simulation`, the refusal of unknown keys, the dataclasses' own checks and the docs
 table (`rig.config_docs`).
@@ -12,6 +17,7 @@ table (`rig.config_docs`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from model.field_spec import (
     FieldType,
@@ -24,17 +30,24 @@ from model.field_spec import (
     numbers,
     section,
 )
-from rig.validate import Section, read_field, read_fields, reject_undeclared
-from rig.vocabulary import (
+from rig.errors import ConfigError
+from rig.rig_config import (
+    SIMULATED_LOADCELL_RATE_FIELD,
+    SIMULATED_LOADCELL_RATE_HZ,
+    RigConfig,
+    load_rig_config,
+)
+from rig.sim.kinds import (
     FaultDevice,
     FaultKind,
     HostFaultKind,
     LoadCellFaultKind,
     LoggerFaultKind,
     ServoFaultKind,
-    ServoModel,
     SlipKind,
 )
+from rig.validate import Section, read_field, read_fields, reject_undeclared
+from rig.vocabulary import RigKind, ServoModel
 
 SIM_PRESETS = ("link1", "link2")
 
@@ -304,7 +317,9 @@ class SimulationConfig:
     """Simulated-world settings (`kind: simulated`, or the twin `rig sim rig` serves of a hardware rig)."""
 
     preset: str = field(default="link1", metadata=choice(SIM_PRESETS, doc="simulated only"))
-    loadcell_rate_hz: float = field(default=1000.0, metadata=number(10.0, 2000.0, unit="Hz"))
+    loadcell_rate_hz: float = field(
+        default=SIMULATED_LOADCELL_RATE_HZ, metadata=SIMULATED_LOADCELL_RATE_FIELD
+    )
     noise_scale: float = field(
         default=1.0, metadata=number(0.0, 10.0, doc="multiplies every noise level of the preset")
     )
@@ -533,3 +548,61 @@ def parse_fault(sec: Section) -> FaultConfig:
     at_s = read_field(sec, FaultConfig, "at_s", required=True)
     duration = read_field(sec, FaultConfig, "duration_s", required=device == FaultDevice.HOST)
     return FaultConfig(device, kind, at_s=at_s, duration_s=duration)
+
+
+def simulation_settings(config: RigConfig) -> SimulationConfig | None:
+    """The config's `simulation:` section parsed and checked against the rest (None: it has none).
+
+    A `ConfigError` names the file and the field: a field of the section, `simulation.servo_models`
+    (one model per configured servo) or `loadcell.format` (the simulated cell's).
+    """
+    if config.simulation is None:
+        return None
+    sec = Section(config.simulation.data, config.simulation.source, "simulation")
+    sim = parse_simulation(sec, config.article.joint_count)
+    if (
+        config.kind == RigKind.SIMULATED
+        and sim.cell is not None
+        and sim.cell.format != config.loadcell.format
+    ):
+        raise Section({}, sec.source, "loadcell").error(
+            "format",
+            f"{config.loadcell.format}; allowed: {sim.cell.format}, the format of simulation.loadcell_cell "
+            f"{sim.loadcell_cell}",
+        )
+    count = len(config.servos.servos)
+    if sim.servo_models is not None and len(sim.servo_models) != count:
+        raise sec.error(
+            "servo_models", f"{len(sim.servo_models)} models; allowed: one per servo of servos.ids ({count})"
+        )
+    return sim
+
+
+def check_simulation(config: RigConfig) -> None:
+    """Refuse a config whose `simulation:` section is bad (`simulation_settings`'s `ConfigError`)."""
+    simulation_settings(config)
+
+
+def load_checked_rig_config(path: str | Path | None = None) -> RigConfig:
+    """`rig.rig_config.load_rig_config`, with the `simulation:` section checked too."""
+    config = load_rig_config(path)
+    check_simulation(config)
+    return config
+
+
+def require_simulated(config: RigConfig) -> SimulationConfig:
+    """The simulation settings of a simulated rig (a ConfigError for a hardware rig, even with a twin's)."""
+    sim = simulation_settings(config) if config.kind == RigKind.SIMULATED else None
+    if sim is None:
+        raise ConfigError(f"{config.source}: kind: this command needs kind: simulated, got {config.kind}")
+    return sim
+
+
+def simulation_section(config: RigConfig) -> SimulationConfig:
+    """The world a config's `simulation:` section describes, of either kind (a hardware rig's twin)."""
+    sim = simulation_settings(config)
+    if sim is None:
+        raise ConfigError(
+            f"{config.source}: simulation: missing; allowed: a simulation section (see protocols/README.md)"
+        )
+    return sim
