@@ -33,6 +33,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
+
 from rig.errors import CommunicationError, RigTimeoutError
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.bus import DynamixelServoBus
@@ -158,7 +160,10 @@ def main() -> None:
     )
     parser.add_argument("--seconds", type=float, default=20.0, help="ticking time per latency (default 20)")
     parser.add_argument("--latency-ms", type=float, nargs="+", default=[1.0, 16.0])
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # both latencies, 50 ticks each
+        args.seconds = 1.0
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         results = [measure(latency, args.seconds, Path(tmp)) for latency in args.latency_ms]
