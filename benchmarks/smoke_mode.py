@@ -17,13 +17,15 @@ JOINT_ESTIMATION = ROOT / "protocols" / "joint_estimation.yaml"
 SMOKE_HELP = "a few iterations of the same measurement, to check that it still runs (figures meaningless)"
 
 
-def short_protocol(folder: Path, source: Path = JOINT_ESTIMATION, name: str = "smoke-protocol.yaml") -> Path:
-    """A copy of the joint-estimation protocol `source` with two distances (its longest two), once each."""
+def short_protocol(
+    folder: Path, source: Path = JOINT_ESTIMATION, name: str = "smoke-protocol.yaml", trials: int = 2
+) -> Path:
+    """A copy of the joint-estimation protocol `source` with `trials` distances (its longest), once each."""
     import yaml  # here, not above: some benchmarks' parents stay stdlib-only for their children's peak RSS
 
     data = yaml.safe_load(source.read_text(encoding="utf-8"))
     (block,) = data["blocks"]
-    block["distances_m"] = sorted(block["distances_m"])[-2:]
+    block["distances_m"] = sorted(block["distances_m"])[-trials:]
     block["repeats"] = 1
     block.pop("shuffle", None)
     path = folder / name
