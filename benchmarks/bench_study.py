@@ -32,7 +32,7 @@ in this mode.
         [--baseline-tree DIR]
     .venv/bin/python benchmarks/bench_study.py --profile 3
     .venv/bin/python benchmarks/bench_study.py --dask 2 [--seeds 64] [--repeats 5] [--baseline-tree DIR]
-    .venv/bin/python benchmarks/bench_study.py --smoke   (both comparisons: 2 seeds of a two-trial copy
+    .venv/bin/python benchmarks/bench_study.py --smoke   (both comparisons: 1 seed of a one-trial copy
         of the protocol, once; the Dask one on 1 worker)
 """
 
@@ -168,9 +168,10 @@ def main() -> None:
     args = parser.parse_args()
     if args.smoke:
         with tempfile.TemporaryDirectory() as folder:
-            args.protocol, args.seeds, args.repeats = short_protocol(Path(folder), args.protocol), 2, 1
+            args.protocol = short_protocol(Path(folder), args.protocol, trials=1)
+            args.seeds, args.repeats = 1, 1
             studies_against_runs(args)
-            dask_against_pool(args.protocol, 2, 1, 1, None)
+            dask_against_pool(args.protocol, 1, 1, 1, None)
         return
     if args.profile is not None:
         profile_seed(args.protocol, args.profile)
