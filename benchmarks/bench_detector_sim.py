@@ -296,8 +296,11 @@ def quiet(samples: int, seed: int, protocol: Path = PROTOCOL) -> None:
 
 def run_ratio(ratio: float, before: bool, seed: int, protocol: Path = PROTOCOL) -> str:
     original: Callable[..., Any] = simulated_rig.make_preset
+    presets_made = 0
 
     def patched(*args: Any, **kwargs: Any) -> Any:
+        nonlocal presets_made
+        presets_made += 1
         return dataclasses.replace(original(*args, **kwargs), kinetic_ratio=ratio)
 
     text = protocol.read_text()
@@ -313,6 +316,10 @@ def run_ratio(ratio: float, before: bool, seed: int, protocol: Path = PROTOCOL) 
                 code = rig_main(["run", str(protocol), "--seed", str(seed), "--json", "--out", folder])
         finally:
             simulated_rig.make_preset = original  # type: ignore[assignment]
+    if not presets_made:  # the run got its preset elsewhere: the ratio would silently not apply
+        raise SystemExit(
+            "rig.sim.simulated_rig.make_preset was not called by the run: the ratio was not applied"
+        )
     report = json.loads(out.getvalue())
     estimate = report.get("estimate") or {}
     k_ci = estimate.get("k_ci")
