@@ -2,7 +2,8 @@
 
 A benchmark's smoke mode is its own measurement code on a few iterations (benchmarks/smoke_mode.py);
 the figures are not checked, only that the code under the benchmark has not moved away from it. The
-list is the directory's, so a new benchmark without `--smoke` fails here (argparse: exit 2).
+list is the directory's, so a new benchmark without `--smoke` fails here (argparse: exit 2; the
+source is also checked for the option, as a script without argparse would run in full).
 Skipped, with the reason, only where what a benchmark needs is not installed, as its tests skip:
 the AVR toolchain and simavr (bench_firmware.py), OpenCV with cv2.aruco (bench_camera.py), valgrind
 (bench_runner_instructions.py), Dask (bench_study.py).
@@ -23,7 +24,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 BENCHMARKS = sorted((ROOT / "benchmarks").glob("bench_*.py"))
-TIMEOUT_S = 120
+TIMEOUT_S = 100  # under pytest's own 120 s, so that a hung benchmark shows its output
 
 
 def _firmware_missing() -> str | None:
@@ -63,6 +64,12 @@ REQUIREMENTS: dict[str, Callable[[], str | None]] = {
 
 def test_the_requirements_name_benchmarks_that_exist() -> None:
     assert set(REQUIREMENTS) <= {path.name for path in BENCHMARKS}
+
+
+@pytest.mark.parametrize("script", BENCHMARKS, ids=[path.name for path in BENCHMARKS])
+def test_benchmark_declares_a_smoke_mode(script: Path) -> None:
+    # A script without argparse would ignore `--smoke` and run its whole measurement.
+    assert '"--smoke"' in script.read_text(encoding="utf-8"), f"{script.name}: no --smoke option"
 
 
 @pytest.mark.slow
