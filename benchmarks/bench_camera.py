@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from rig.hw.camera.marker_map import CornerRefinement, load_marker_map
 from rig.hw.camera.measure import MarkerDetector, MarkerNotSeenError, measure_image
@@ -66,7 +67,11 @@ def main() -> None:
         help="IPPE pose per marker: chosen along the chain (default) or each marker's best reprojection",
     )
     parser.add_argument("--repeats", type=int, default=0, help="timing runs per image (default 0: no timing)")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # one image per condition at one distance, timed once
+        args.scenes, args.distances, args.repeats = 1, [DISTANCES_M[1]], 1
+    measured_any = False
 
     marker_map = load_marker_map(ROOT / "protocols" / "link1_markers.yaml")
     if args.refinement is not None:
@@ -131,6 +136,7 @@ def main() -> None:
             if not errors:
                 print(f"{name} | {distance:10.2f} | markers not found in any image ({not_seen})")
                 continue
+            measured_any = True
             abs_deg = np.degrees(np.abs(errors))
             z = np.abs(np.asarray(z_scores))
             line = (
@@ -146,6 +152,8 @@ def main() -> None:
                     f"{1000 * statistics.median(detect_s):9.1f} | {ratio:5.2f}"
                 )
             print(line, flush=True)
+    if args.smoke and not measured_any:
+        raise SystemExit("smoke: no image was measured")
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ import platform  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402 (thread limits must be set before numpy loads)
+from smoke_mode import SMOKE_HELP  # noqa: E402 (benchmarks/ is the script's directory)
 
 from model.chain import joint_moment_norms, planar_transforms, predict_slip  # noqa: E402
 
@@ -40,7 +41,10 @@ def main():
     parser.add_argument("--configs", type=int, default=100_000)
     parser.add_argument("--loop-configs", type=int, default=2_000)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.configs, args.loop_configs, args.repeats = 2_000, 200, 1
 
     rng = np.random.default_rng(12345)
     angles = rng.uniform(-0.6, 0.6, (args.configs, N_JOINTS))

@@ -33,6 +33,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from model.slip_detector import DetectorParams, detector_init, detector_step, further_drops
 
@@ -265,7 +266,11 @@ def main() -> None:
     )
     parser.add_argument("--show-alarms", action="store_true", help="describe every false alarm")
     parser.add_argument("--detector", nargs="*", default=[], help="key=value overrides of the defaults")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # every case and quiet case, both detectors, on a few trials and samples
+        args.trials, args.quiet_samples, args.noisy_samples = 2, 20_000, 20_000
+        args.jobs, args.before = 1, True
     detectors = {"defaults": DetectorParams(arm_threshold_n=1.0).with_overrides(args.detector)}
     if args.before:
         detectors["before (drop rule on single samples)"] = DetectorParams(

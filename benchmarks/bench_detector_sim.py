@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from smoke_mode import SMOKE_HELP, short_protocol  # benchmarks/ is the script's directory
 
 import rig.sim.simulated_rig as simulated_rig
 from model.slip_detector import DetectorParams, SlipEvent, detector_init, detector_step
@@ -125,9 +126,9 @@ def size_label(trial: dict[str, Any]) -> str:
     return kind
 
 
-def run_scenario(name: str, seed: int, folder: Path) -> tuple[int, dict[str, Any]]:
+def run_scenario(name: str, seed: int, folder: Path, protocol: Path = PROTOCOL) -> tuple[int, dict[str, Any]]:
     """`rig run` of the joint-estimation protocol on a scenario; (exit code, JSON report)."""
-    argv = ["run", str(PROTOCOL), "--seed", str(seed), "--json", "--out", str(folder)]
+    argv = ["run", str(protocol), "--seed", str(seed), "--json", "--out", str(folder)]
     if name != "default":
         argv += ["--rig", str(SCENARIOS / f"{name}.yaml")]
     out = io.StringIO()
@@ -197,7 +198,7 @@ def score_run(report: dict[str, Any], scores: dict[str, Score]) -> None:
             score.relative_biases.append(detected.peak_force_n / first["load_n"] - 1)
 
 
-def scenarios(seeds: list[int], names: list[str]) -> None:
+def scenarios(seeds: list[int], names: list[str], protocol: Path = PROTOCOL) -> None:
     header = (
         "| kind (size) | trials | detected | latency median | p99 | max [samples] | misses | early "
         "| peak bias mean [mN] | max abs [mN] | max abs [%] |"
@@ -207,7 +208,7 @@ def scenarios(seeds: list[int], names: list[str]) -> None:
         print(f"\n### {name}\n")
         for seed in seeds:
             with tempfile.TemporaryDirectory() as folder:
-                code, report = run_scenario(name, seed, Path(folder))
+                code, report = run_scenario(name, seed, Path(folder), protocol)
                 estimate = report.get("estimate") or {}
                 k_true = report["truth"]["k"]
                 ci = estimate.get("k_ci")
@@ -279,8 +280,8 @@ def false_alarms(
     return alarms, fed
 
 
-def quiet(samples: int, seed: int) -> None:
-    params = load_protocol(PROTOCOL).detector
+def quiet(samples: int, seed: int, protocol: Path = PROTOCOL) -> None:
+    params = load_protocol(protocol).detector
     noisy = require_simulated(load_rig_config(SCENARIOS / "noisy-cell.yaml"))
     print("| load cell | quiet samples | false alarms | per 1e6 samples |")
     print("|---|---|---|---|")
@@ -292,13 +293,16 @@ def quiet(samples: int, seed: int) -> None:
 # -------------------------------------------------------------------------------------- ratios
 
 
-def run_ratio(ratio: float, before: bool, seed: int) -> str:
+def run_ratio(ratio: float, before: bool, seed: int, protocol: Path = PROTOCOL) -> str:
     original: Callable[..., Any] = simulated_rig.make_preset
+    presets_made = 0
 
     def patched(*args: Any, **kwargs: Any) -> Any:
+        nonlocal presets_made
+        presets_made += 1
         return dataclasses.replace(original(*args, **kwargs), kinetic_ratio=ratio)
 
-    text = PROTOCOL.read_text()
+    text = protocol.read_text()
     if before:
         text = text.replace("  drop_fraction: 0.15\n", "  drop_fraction: 0.15\n" + BEFORE, 1)
     out = io.StringIO()
@@ -311,6 +315,10 @@ def run_ratio(ratio: float, before: bool, seed: int) -> str:
                 code = rig_main(["run", str(protocol), "--seed", str(seed), "--json", "--out", folder])
         finally:
             simulated_rig.make_preset = original  # type: ignore[assignment]
+    if not presets_made:  # the run got its preset elsewhere: the ratio would silently not apply
+        raise SystemExit(
+            "rig.sim.simulated_rig.make_preset was not called by the run: the ratio was not applied"
+        )
     report = json.loads(out.getvalue())
     estimate = report.get("estimate") or {}
     k_ci = estimate.get("k_ci")
@@ -325,13 +333,12 @@ def run_ratio(ratio: float, before: bool, seed: int) -> str:
     )
 
 
-def ratios(values: list[float], seed: int) -> None:
+def ratios(values: list[float], seed: int, protocol: Path = PROTOCOL) -> None:
     for ratio in values:
         for before in (False, True):
             label = "before" if before else "defaults"
-            print(
-                f"kinetic_ratio {ratio:g} ({1 - ratio:.0%} drop), {label}: {run_ratio(ratio, before, seed)}"
-            )
+            result = run_ratio(ratio, before, seed, protocol)
+            print(f"kinetic_ratio {ratio:g} ({1 - ratio:.0%} drop), {label}: {result}")
 
 
 def main() -> None:
@@ -342,7 +349,15 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=1_000_000, help="quiet: samples per load cell")
     parser.add_argument("--ratios", type=float, nargs="+", default=[0.8, 0.9, 0.95], help="ratios")
     parser.add_argument("--seed", type=int, default=0, help="quiet, ratios")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP + "; every mode")
     args = parser.parse_args()
+    if args.smoke:  # every mode, on a two-trial copy of the protocol: one scenario, one ratio
+        with tempfile.TemporaryDirectory() as folder:
+            protocol = short_protocol(Path(folder))
+            scenarios([0], ["mixed"], protocol)
+            quiet(2 * SEGMENT_SAMPLES, args.seed, protocol)
+            ratios([0.8], args.seed, protocol)  # 0.8: the old detector's ramps do not time out
+        return
     if args.mode == "scenarios":
         scenarios(args.seeds, args.scenarios)
     elif args.mode == "quiet":

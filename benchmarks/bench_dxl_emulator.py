@@ -36,6 +36,7 @@ from dynamixel_sdk import (
     PacketHandler,
     PortHandler,
 )
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from rig.hw.dxl import control_table as ct
 from rig.sim.clock import VirtualClock
@@ -358,11 +359,11 @@ def cpu_winch_ramp(seconds: float = 10.0) -> tuple[float, str]:
     return cpu_s / steps * 1e6, digest.hexdigest()[:16]
 
 
-def bench_cpu(reads: int) -> None:
-    """Median CPU time of (a) and (b) over CPU_REPEATS repetitions, after one warm-up."""
+def bench_cpu(reads: int, repeats: int = CPU_REPEATS) -> None:
+    """Median CPU time of (a) and (b) over `repeats` repetitions, after one warm-up."""
     reads_us, canned_us, ramps_us = [], [], []
     digests = set()
-    for k in range(CPU_REPEATS + 1):
+    for k in range(repeats + 1):
         us, c_us, d_read = cpu_fast_sync_read(reads)
         ramp_us, d_ramp = cpu_winch_ramp()
         digests.add((d_read, d_ramp))
@@ -374,11 +375,11 @@ def bench_cpu(reads: int) -> None:
     print(
         f"(a) fast sync read of 2 servos, SDK on SimPortHandler: {statistics.median(reads_us):.1f} µs CPU "
         f"per read (min {min(reads_us):.1f}; SDK alone on canned bytes {statistics.median(canned_us):.1f}; "
-        f"{reads} reads x {CPU_REPEATS}), digest {d_read}"
+        f"{reads} reads x {repeats}), digest {d_read}"
     )
     print(
         f"(b) winch ramp 10 s in 1 ms steps, 2 servos: {statistics.median(ramps_us):.2f} µs CPU per step "
-        f"(min {min(ramps_us):.2f}; x {CPU_REPEATS}), digest {d_ramp}"
+        f"(min {min(ramps_us):.2f}; x {repeats}), digest {d_ramp}"
     )
 
 
@@ -389,7 +390,10 @@ def main() -> int:
     parser.add_argument("--soak", type=int, default=0, help="also run N mixed transactions over the pty")
     parser.add_argument("--cpu", action="store_true", help="only the in-process CPU costs (a) and (b)")
     parser.add_argument("--serve-canned", metavar="LINK", help=argparse.SUPPRESS)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # the pty, in-process and soak measurements small, then the CPU costs
+        args.reads, args.inprocess, args.soak = 50, 200, 50
     if args.serve_canned:
         serve_canned(args.serve_canned)
         return 0
@@ -400,7 +404,10 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         bench_pty(args.reads, tmp)
         bench_inprocess(args.inprocess)
-        return soak(args.soak, tmp) if args.soak else 0
+        code = soak(args.soak, tmp) if args.soak else 0
+    if args.smoke and code == 0:
+        bench_cpu(200, repeats=1)
+    return code
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from model.estimators import estimate_k
 from model.fit import t_quantile
@@ -61,7 +62,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--trials", type=int, nargs="+", default=[24, 96])
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.trials, args.rounds = [24], 1
     for dfe in range(1, max(args.trials) + 1):  # the t quantiles are cached for every estimator alike
         t_quantile(0.99, dfe)
     estimate_k("auto", [0.1, 0.2, 0.3], [1.0, 0.5, 0.34], [False, False, True])  # import scipy once

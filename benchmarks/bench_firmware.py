@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
+
 from rig.hw.loadcell.driver import SerialLoadCell
 
 FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"
@@ -85,7 +87,10 @@ def main() -> int:
     parser.add_argument("--samples", type=int, default=10_000)
     parser.add_argument("--rates", default="80,10,320", help="comma-separated: 10, 20, 80, 320")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # every rate, 100 samples each (10 simulated seconds at 10/s)
+        args.samples = 100
     build = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "all", "sim"], capture_output=True, text=True)
     if build.returncode:
         print(build.stdout + build.stderr, file=sys.stderr)
@@ -97,6 +102,8 @@ def main() -> int:
             # At 10/s, 10,000 samples are 1,000 simulated seconds: a tenth of them says the same.
             n = args.samples if rate >= 80 else max(100, args.samples // 10)
             results.append(measure(rate, n, Path(tmp)))
+    if args.smoke and not all(r["samples_read_by_driver"] for r in results):
+        raise SystemExit(f"smoke: the driver read no sample at some rate: {results}")
     if args.json:
         print(json.dumps({"size": size, "runs": results}, indent=1))
         return 0

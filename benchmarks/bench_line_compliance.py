@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import yaml
 from bench_rates import score  # benchmarks/ is the script's directory
+from smoke_mode import SMOKE_HELP, short_protocol
 
 from rig.analysis.runlog import read_parts, run_settings
 from rig.cli import main as rig_main
@@ -48,9 +49,9 @@ def series_n_per_m(spring: float | None) -> float:
     return LINE_N_PER_M if spring is None else 1.0 / (1.0 / LINE_N_PER_M + 1.0 / spring)
 
 
-def scaled_protocol(factor: float) -> str:
-    """The default protocol with its winch speeds times `factor` (fast and unload capped)."""
-    data = yaml.safe_load(PROTOCOL.read_text())
+def scaled_protocol(factor: float, source: Path = PROTOCOL) -> str:
+    """The default protocol (or `source`) with its winch speeds times `factor` (fast and unload capped)."""
+    data = yaml.safe_load(source.read_text())
     ramp = data["ramp"]
     ramp["slow_speed_rad_s"] = ramp["slow_speed_rad_s"] * factor
     ramp["fast_speed_rad_s"] = min(MAX_WINCH_RAD_S, ramp["fast_speed_rad_s"] * factor)
@@ -58,7 +59,9 @@ def scaled_protocol(factor: float) -> str:
     return yaml.safe_dump(data, sort_keys=False)
 
 
-def run(rate_hz: float, spring: float | None, seed: int, folder: Path) -> tuple[int, dict[str, Any]]:
+def run(
+    rate_hz: float, spring: float | None, seed: int, folder: Path, source: Path = PROTOCOL
+) -> tuple[int, dict[str, Any]]:
     """One run at `rate_hz` with `spring` in series; (exit code, report)."""
     k = series_n_per_m(spring)
     rig = folder / "rig.yaml"
@@ -68,7 +71,7 @@ def run(rate_hz: float, spring: float | None, seed: int, folder: Path) -> tuple[
         f"simulation:\n  loadcell_rate_hz: {rate_hz:g}\n{spring_line}"
     )
     protocol = folder / "protocol.yaml"
-    protocol.write_text(scaled_protocol(LINE_N_PER_M / k))
+    protocol.write_text(scaled_protocol(LINE_N_PER_M / k, source))
     argv = ["run", str(protocol), "--rig", str(rig), "--seed", str(seed), "--json", "--out", str(folder)]
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
@@ -88,7 +91,10 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=10.0)
     parser.add_argument("--springs", nargs="+", default=["none", "2000", "1000"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # the line alone and with a spring, one seed, a two-trial copy of the protocol
+        args.springs, args.seeds = ["none", "1000"], [0]
     print(
         "| spring [N/m] | series k [N/m] | q [mN] | seed | outcomes | smallest slip [N] | q / it [%] "
         "| error < 0.5 % | error mean, max abs [%] | lag <= 2 | run time [s] |"
@@ -100,7 +106,8 @@ def main() -> None:
         q_n = k * SPOOL_M * RAD_PER_PULSE
         for seed in args.seeds:
             with tempfile.TemporaryDirectory() as folder:
-                code, report = run(args.rate, spring, seed, Path(folder))
+                source = short_protocol(Path(folder), name="source.yaml") if args.smoke else PROTOCOL
+                code, report = run(args.rate, spring, seed, Path(folder), source)
                 lags, errors, _ = score(report, args.rate)
                 smallest = smallest_slip_n(report)
             trials = report["trials"]

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from mcap.reader import make_reader
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = """\
@@ -38,10 +39,12 @@ limits: {force_ceiling_n: 75.0}
 blocks:
   - kind: joint_estimation
     joint: 1
-    distances_m: [0.12, 0.16, 0.2, 0.25]
+    distances_m: DISTANCES
     repeats: REPEATS
     steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
 """
+
+DISTANCES_M = "[0.12, 0.16, 0.2, 0.25]"
 
 CLIENT = r"""
 import asyncio, json, socket, sys, websockets
@@ -103,11 +106,11 @@ def _own_and_children_cpu(pid: int) -> tuple[float, float]:
 
 
 def run_once(
-    work: Path, name: str, client: str | None, repeats: int, tree: Path = ROOT
+    work: Path, name: str, client: str | None, repeats: int, tree: Path = ROOT, distances: str = DISTANCES_M
 ) -> tuple[float, float, float, str, str]:
     """Wall time, own and children's CPU of one `rig run`, the live view's log line, what the client got."""
     protocol = work / "p.yaml"
-    protocol.write_text(PROTOCOL.replace("REPEATS", str(repeats)))
+    protocol.write_text(PROTOCOL.replace("REPEATS", str(repeats)).replace("DISTANCES", distances))
     cmd = [sys.executable, "-m", "rig.cli", "run", str(protocol), "--out", str(work / name), "--json"]
     cmd += ["--run-id", name]
     reader = None
@@ -152,7 +155,11 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--repeats", type=int, default=3, help="repeats of the 4 distances in the protocol")
     parser.add_argument("--baseline-tree", type=Path, help="another checkout to run plain and live with")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    distances = DISTANCES_M
+    if args.smoke:  # one round of the four ways, one trial each
+        args.rounds, args.repeats, distances = 1, 1, "[0.25]"
     kinds = ["plain", "none", "live", "stall"]
     if args.baseline_tree is not None:
         kinds += ["base-plain", "base-live"]
@@ -169,7 +176,7 @@ def main() -> None:
                     tree, mode = args.baseline_tree.resolve(), kind.removeprefix("base-")
                 client = None if mode == "plain" else mode
                 elapsed, used, child, line, received = run_once(
-                    work, f"{kind}{r}", client, args.repeats, tree
+                    work, f"{kind}{r}", client, args.repeats, tree, distances
                 )
                 wall[kind].append(elapsed)
                 own[kind].append(used)

@@ -4,13 +4,15 @@
    decode, sequence check, calibrate, `LoadCellSample`) from an in-memory stream, against a bare
    `readline()` loop over the same bytes (`io.BytesIO`), in the same run.
 2. Streaming: `rig sim loadcell` in its own process on a pty at --rate Hz, read by the driver
-   through real pyserial for --duration-s; lines expected vs received, gaps and corrupt lines.
+   through real pyserial for --duration-s; lines expected vs received, gaps and corrupt lines. Both
+   ends at 921600 baud (the emulator's default; the driver's is the firmware's 115200, too slow for
+   1000 lines/s).
 3. Simulated chain: what one sample costs the main thread of a simulated run, in CPU time: the
    emulator (1 kHz, default signal, a sawtooth tension), the in-process port and the driver's
    `poll()`, with the virtual clock advanced as the runner does (two 10 ms advances per poll).
 
 Run: .venv/bin/python benchmarks/bench_loadcell.py [--lines N] [--duration-s 60] [--rate 1000]
-     [--chain-s 20]
+     [--chain-s 20] [--smoke]
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
+
 from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
@@ -34,6 +38,7 @@ from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.inprocess import simulated_load_cell
 from rig.sim.loadcell.profiles import SawtoothTension
 
+PTY_BAUD = 921_600
 CAL = Calibration(1.25e-5, 120000.0, None, STANDARD_GRAVITY_M_S2, "2026-01-01", "", "rig-lc1")
 
 
@@ -153,7 +158,7 @@ def bench_pty(duration_s: float, rate_hz: float) -> dict[str, float]:
         link = Path(tmp) / "loadcell"
         cmd = [sys.executable, "-c", "import sys; from rig.cli import main; sys.exit(main(sys.argv[1:]))"]
         proc = subprocess.Popen(
-            [*cmd, "sim", "loadcell", "--link", str(link), "--rate", f"{rate_hz:g}"],
+            [*cmd, "sim", "loadcell", "--link", str(link), "--rate", f"{rate_hz:g}", "--baud", str(PTY_BAUD)],
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,
@@ -162,7 +167,7 @@ def bench_pty(duration_s: float, rate_hz: float) -> dict[str, float]:
             ready, _, _ = select.select([proc.stdout], [], [], 30.0)
             if not ready or not proc.stdout.readline().startswith("PTY "):
                 raise RuntimeError("rig sim loadcell did not start")
-            driver = SerialLoadCell(str(link), calibration=CAL, stale_timeout_s=1.0)
+            driver = SerialLoadCell(str(link), baud=PTY_BAUD, calibration=CAL, stale_timeout_s=1.0)
             received = 0
             first_seq = last_seq = None
             with driver:
@@ -207,7 +212,10 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=1000.0)
     parser.add_argument("--skip-pty", action="store_true")
     parser.add_argument("--chain-s", type=float, default=20.0, help="rig seconds per chain repetition")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.lines, args.repeats, args.chain_s, args.duration_s, args.skip_pty = 2_000, 1, 1.0, 1.0, False
     chain = bench_chain(args.chain_s, max(args.repeats, 5))
     print(
         f"chain: {chain['samples']} samples: emulator + in-process port + driver poll "
@@ -232,6 +240,8 @@ def main() -> None:
             f"gaps {r['sequence_gaps']}, missing {r['missing_samples']}, corrupt {r['corrupt_lines']}, "
             f"checksum failures {r['checksum_failures']}, dropped from queue {r['samples_dropped']}"
         )
+        if not r["lines_received"]:
+            raise SystemExit("pty: the driver received no line")
 
 
 if __name__ == "__main__":

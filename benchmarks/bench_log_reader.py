@@ -17,6 +17,7 @@ Variants run alternately, each in a fresh process, `--repeats` times; the ratios
 
 Run: .venv/bin/python benchmarks/bench_log_reader.py [--messages 1000000] [--repeats 2]
      .venv/bin/python benchmarks/bench_log_reader.py --default-run --repeats 5
+     .venv/bin/python benchmarks/bench_log_reader.py --smoke  (both, small: the log of a two-trial run)
 """
 
 from __future__ import annotations
@@ -30,11 +31,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from smoke_mode import SMOKE_HELP, short_protocol  # benchmarks/ is the script's directory
+
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
 VARIANTS = ("bare_stream", "bare_indexed", "read_run")
 RUN_VARIANTS = ("bare_iterate", "bare_decode", "open_log", "trials", "loadcell")
 ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
 # The parent stays small (stdlib only): Linux keeps ru_maxrss across fork and exec, so a child's
 # figure would otherwise start from the parent's high-water mark.
 
@@ -49,9 +53,9 @@ def generate(path: Path, n: int) -> None:
             log.log(S.LOADCELL, T0_NS + i * MS, payload)
 
 
-def generate_default_run(path: Path) -> None:
-    """The default run's log (seed 0) at `path`, written by this tree's `rig run`."""
-    command = [sys.executable, "-m", "rig.cli", "run", str(ROOT / "protocols" / "joint_estimation.yaml")]
+def generate_default_run(path: Path, protocol: Path = DEFAULT_PROTOCOL) -> None:
+    """The default run's log (seed 0) at `path`, written by this tree's `rig run` (`protocol`: another's)."""
+    command = [sys.executable, "-m", "rig.cli", "run", str(protocol)]
     command += ["--seed", "0", "--out", str(path.parent), "--run-id", path.stem, "--json"]
     subprocess.run(command, check=True, capture_output=True, timeout=900)
 
@@ -82,12 +86,12 @@ def run_library_variant(name: str, path: Path) -> dict[str, float]:
     return {"seconds": elapsed, "messages": count, "peak_rss_mb": peak_mb}
 
 
-def default_run_main(repeats: int) -> None:
+def default_run_main(repeats: int, smoke: bool = False) -> None:
     import statistics
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.mcap"
-        generate_default_run(path)
+        generate_default_run(path, short_protocol(Path(tmp)) if smoke else DEFAULT_PROTOCOL)
         print(f"default run log: {path.stat().st_size / 1e6:.1f} MB")
         times: dict[str, list[float]] = {name: [] for name in RUN_VARIANTS}
         peaks: dict[str, float] = {}
@@ -165,7 +169,10 @@ def main() -> None:
         "--variant", choices=(*VARIANTS, *RUN_VARIANTS, "generate", "imports"), help=argparse.SUPPRESS
     )
     parser.add_argument("--file", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.messages, args.repeats = 2_000, 1
     if args.variant == "generate":
         generate(args.file, args.messages)
         return
@@ -187,6 +194,8 @@ def main() -> None:
     if args.default_run:
         default_run_main(args.repeats)
         return
+    if args.smoke:
+        default_run_main(args.repeats, smoke=True)
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.mcap"

@@ -5,10 +5,16 @@ Variants (same payload dicts, zstd, 512 KiB chunks, all in this process):
                chunking as RunLogger, whose writer process flushes every second of log time
   bare         json.dumps + Writer.add_message, chunks closed by size only
   logger       RunLogger.log() for every message, then finish(); caller-side time = the log() calls
-  logger_rows  RunLogger.log_many() with rows, 20 messages per call (the runner's way at 1 kHz and a
+  logger_rows  RunLogger.log_many() with rows (schemas.LoadCellRow), 20 messages per call (1 kHz and a
                20 ms control period), then finish()
+  logger_cols  RunLogger.log_columns() with one column per row field, 20 messages per call (the
+               runner's way since rig.runner.recorder logs a tick's samples as columns), then finish()
 
-Run: .venv/bin/python benchmarks/bench_log_writer.py [--messages 200000] [--repeats 3]
+The samples are built once as rows of the current row type (every field of `schemas.ROW_FIELDS`,
+as the driver gives them, device time included); the payload dicts and the columns are made from
+them by field name, so a field added to the row type is in every variant.
+
+Run: .venv/bin/python benchmarks/bench_log_writer.py [--messages 200000] [--repeats 3] [--smoke]
 """
 
 from __future__ import annotations
@@ -19,7 +25,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from rig.log import schemas as S
 from rig.log.writer import DEFAULT_CHUNK_SIZE, RunLogger
@@ -28,14 +36,22 @@ T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
 
 
-def make_messages(n: int) -> list[tuple[int, dict]]:
+def make_rows(n: int) -> list[tuple[int, S.LoadCellRow]]:
+    """`n` load-cell samples at 1 kHz as (log time, row), the device clock ticking with them."""
     return [
         (
             T0_NS + i * MS,
-            S.loadcell_sample(raw=100_000 + (i * 37) % 5000, force_n=1.5 + (i % 997) * 1e-3, seq=i),
+            S.LoadCellRow(
+                seq=i, raw=100_000 + (i * 37) % 5000, force_n=1.5 + (i % 997) * 1e-3, device_time_us=i * 1000
+            ),
         )
         for i in range(n)
     ]
+
+
+def make_messages(rows: list[tuple[int, S.LoadCellRow]]) -> list[tuple[int, dict]]:
+    """The same samples as payload dicts, as `RunLogger.log` takes them."""
+    return [(t, S.row_payload(S.LOADCELL, row)) for t, row in rows]
 
 
 def run_bare(path: Path, messages: list[tuple[int, dict]], flush_every: int | None) -> dict[str, float]:
@@ -68,9 +84,9 @@ def run_logger(path: Path, messages: list[tuple[int, dict]]) -> dict[str, float]
     return {"caller_s": caller, "total_s": total, "bytes": path.stat().st_size}
 
 
-def run_logger_rows(path: Path, messages: list[tuple[int, dict]], per_call: int = 20) -> dict[str, float]:
-    fields = S.ROW_FIELDS[S.LOADCELL]
-    rows = [(t, S.LoadCellRow(*(payload[f] for f in fields))) for t, payload in messages]
+def run_logger_rows(
+    path: Path, rows: list[tuple[int, S.LoadCellRow]], per_call: int = 20
+) -> dict[str, float]:
     start = time.perf_counter()
     logger = RunLogger(path)
     for i in range(0, len(rows), per_call):
@@ -81,27 +97,66 @@ def run_logger_rows(path: Path, messages: list[tuple[int, dict]], per_call: int 
     return {"caller_s": caller, "total_s": total, "bytes": path.stat().st_size}
 
 
+def run_logger_columns(
+    path: Path, rows: list[tuple[int, S.LoadCellRow]], per_call: int = 20
+) -> dict[str, float]:
+    fields = S.ROW_FIELDS[S.LOADCELL]
+    calls = [
+        ([t for t, _ in chunk], {f: [getattr(row, f) for _, row in chunk] for f in fields})
+        for chunk in (rows[i : i + per_call] for i in range(0, len(rows), per_call))
+    ]
+    start = time.perf_counter()
+    logger = RunLogger(path)
+    for times_ns, columns in calls:
+        logger.log_columns(S.LOADCELL, times_ns, **columns)
+    caller = time.perf_counter() - start
+    logger.finish()
+    total = time.perf_counter() - start
+    return {"caller_s": caller, "total_s": total, "bytes": path.stat().st_size}
+
+
+def loadcell_messages(path: Path) -> int:
+    """The number of `/rig/loadcell` messages in the file's summary."""
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None, f"{path}: no summary"
+    ids = [i for i, channel in summary.channels.items() if channel.topic == S.LOADCELL]
+    return sum(summary.statistics.channel_message_counts.get(i, 0) for i in ids)
+
+
+VARIANTS = ("bare_flush", "bare", "logger", "logger_rows", "logger_cols")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--messages", type=int, default=200_000)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
-    messages = make_messages(args.messages)
+    if args.smoke:
+        args.messages, args.repeats = 2_000, 1
+    rows = make_rows(args.messages)
+    messages = make_messages(rows)
+    n = args.messages
     best: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for repeat in range(args.repeats):
-            for name in ("bare_flush", "bare", "logger", "logger_rows"):
+            for name in VARIANTS:
                 path = Path(tmp) / f"{name}-{repeat}.mcap"
                 if name == "logger":
                     result = run_logger(path, messages)
                 elif name == "logger_rows":
-                    result = run_logger_rows(path, messages)
+                    result = run_logger_rows(path, rows)
+                elif name == "logger_cols":
+                    result = run_logger_columns(path, rows)
                 else:
                     result = run_bare(path, messages, 1000 if name == "bare_flush" else None)
+                written = loadcell_messages(path)
+                if written != args.messages:
+                    raise SystemExit(f"{name}: {written} load-cell messages in the file, {n} logged")
                 path.unlink()
                 if name not in best or result["total_s"] < best[name]["total_s"]:
                     best[name] = result
-    n = args.messages
     print(f"{n} load-cell messages, best of {args.repeats}")
     print(f"{'variant':<11} {'caller s':>9} {'total s':>8} {'msg/s':>9} {'caller us/msg':>14} {'MB':>6}")
     for name, r in best.items():
@@ -114,8 +169,8 @@ def main() -> None:
         f"ratio total logger / bare_flush: {logger['total_s'] / bare_flush['total_s']:.2f}x (target <= 1.3x)"
     )
     print(f"ratio total logger / bare:       {logger['total_s'] / bare['total_s']:.2f}x")
-    rows = best["logger_rows"]
-    print(f"ratio total logger_rows / bare_flush: {rows['total_s'] / bare_flush['total_s']:.2f}x")
+    for name in ("logger_rows", "logger_cols"):
+        print(f"ratio total {name} / bare_flush: {best[name]['total_s'] / bare_flush['total_s']:.2f}x")
     print(f"ratio caller-side logger / bare_flush total: {logger['caller_s'] / bare_flush['total_s']:.2f}x")
 
 

@@ -3,10 +3,12 @@
 Run: .venv/bin/python benchmarks/bench_online_fit.py
 """
 
+import argparse
 import math
 import time
 
 import numpy as np
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from model.fit import t_quantile
 from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
@@ -43,16 +45,23 @@ def time_numpy(distances, masses):
 
 
 def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
+    args = parser.parse_args()
+    sizes, repeats = ((10, 100), 1) if args.smoke else ((10, 100, 1000, 3000), 3)
     rng = np.random.default_rng(0)
-    print("online fit: update + estimate after every trial, whole sequence (best of 3; t quantiles cached)")
+    print(
+        "online fit: update + estimate after every trial, whole sequence "
+        f"(best of {repeats}; t quantiles cached)"
+    )
     print(f"{'trials':>7} {'online ms':>10} {'numpy ms':>10} {'online/numpy':>13} {'online us/trial':>16}")
-    for n in (10, 100, 1000, 3000):
+    for n in sizes:
         for dfe in range(1, n):  # warm the shared t-quantile cache: scipy's t.ppf is not what is compared
             t_quantile(0.99, dfe)
         distances = rng.uniform(0.03, 0.5, n)
         masses = 0.16 / distances + rng.normal(0, 0.05, n)
-        online = min(time_online(distances, masses) for _ in range(3))
-        refit = min(time_numpy(distances, masses) for _ in range(3))
+        online = min(time_online(distances, masses) for _ in range(repeats))
+        refit = min(time_numpy(distances, masses) for _ in range(repeats))
         ratio = online / refit
         print(f"{n:>7} {online * 1e3:>10.2f} {refit * 1e3:>10.2f} {ratio:>13.2f} {online / n * 1e6:>16.1f}")
 
@@ -70,7 +79,7 @@ def main():
         ),
     ):
         seconds = []
-        for _ in range(3):
+        for _ in range(repeats):
             start = time.perf_counter()
             events = detect_slips(params, times_ns, forces)
             seconds.append(time.perf_counter() - start)

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 import yaml
 from bench_detector_sim import detections_with_sample_times  # benchmarks/ is the script's directory
+from smoke_mode import SMOKE_HELP, short_protocol
 
 from model.slip_detector import detector_init, detector_run, params_for_rate
 from rig.analysis.runlog import read_parts, run_settings
@@ -55,7 +56,7 @@ PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
 
 
 def run_at(
-    rate_hz: float, seed: int, folder: Path, scenario: str | None = None
+    rate_hz: float, seed: int, folder: Path, scenario: str | None = None, protocol: Path = PROTOCOL
 ) -> tuple[int, dict[str, Any]]:
     """`rig run` of the default protocol with the simulated cell at `rate_hz`; (exit code, report).
 
@@ -68,7 +69,7 @@ def run_at(
     config.setdefault("simulation", {})["loadcell_rate_hz"] = rate_hz
     rig = folder / "rig.yaml"
     rig.write_text(yaml.safe_dump(config))
-    argv = ["run", str(PROTOCOL), "--rig", str(rig), "--seed", str(seed), "--json", "--out", str(folder)]
+    argv = ["run", str(protocol), "--rig", str(rig), "--seed", str(seed), "--json", "--out", str(folder)]
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
         code = rig_main(argv)
@@ -132,7 +133,11 @@ def _around(parts: list[Any], offset_ns: int, onset_ns: int) -> str:
 
 
 def runs(
-    rates: list[float], seeds: list[int], show_trials: bool = False, scenario: str | None = None
+    rates: list[float],
+    seeds: list[int],
+    show_trials: bool = False,
+    scenario: str | None = None,
+    protocol: Path = PROTOCOL,
 ) -> None:
     print(
         "| rate [/s] | seed | exit | outcomes | k [99 % bounds] | true k | inside | lag <= 2 "
@@ -142,7 +147,7 @@ def runs(
     for rate in rates:
         for seed in seeds:
             with tempfile.TemporaryDirectory() as folder:
-                code, report = run_at(rate, seed, Path(folder), scenario)
+                code, report = run_at(rate, seed, Path(folder), scenario, protocol)
                 late: list[str] | None = [] if show_trials else None
                 lags, errors, early = score(report, rate, late)
             estimate = report.get("estimate") or {}
@@ -167,9 +172,9 @@ def runs(
                 print(line, flush=True)
 
 
-def quiet_alarms(rate_hz: float, samples: int, seed: int) -> tuple[int, int]:
+def quiet_alarms(rate_hz: float, samples: int, seed: int, path: Path = PROTOCOL) -> tuple[int, int]:
     """(false alarms, samples fed) on quiet segments of the emulated cell at `rate_hz`."""
-    protocol = load_protocol(PROTOCOL)
+    protocol = load_protocol(path)
     params = params_for_rate(protocol.detector, protocol.detector_given, rate_hz)
     speeds = RampSpeeds(
         fast_rad_s=1.0, slow_rad_s=protocol.ramp.slow_speed_rad_s, rate_hz=rate_hz, n_per_rad=50.0
@@ -208,17 +213,17 @@ def quiet_alarms(rate_hz: float, samples: int, seed: int) -> tuple[int, int]:
     return alarms, fed
 
 
-def quiet(rates: list[float], samples: int, seed: int) -> None:
+def quiet(rates: list[float], samples: int, seed: int, protocol: Path = PROTOCOL) -> None:
     print("| rate [/s] | quiet samples | false alarms |")
     print("|---|---|---|")
     for rate in rates:
-        alarms, fed = quiet_alarms(rate, samples, seed)
+        alarms, fed = quiet_alarms(rate, samples, seed, protocol)
         print(f"| {rate:g} | {fed} | {alarms} |", flush=True)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("mode", choices=["runs", "quiet"])
+    parser.add_argument("mode", nargs="?", choices=["runs", "quiet"], help="required but with --smoke")
     parser.add_argument("--rates", type=float, nargs="+", default=[10.0, 80.0, 320.0, 1000.0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--samples", type=int, default=1_000_000, help="quiet: samples per rate")
@@ -229,7 +234,16 @@ def main() -> None:
     parser.add_argument(
         "--trials", action="store_true", help="runs: the trials detected late, with their forces"
     )
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP + "; both modes")
     args = parser.parse_args()
+    if args.smoke:  # both modes at 80/s, a two-trial copy of the protocol on a scenario's config, 2 segments
+        with tempfile.TemporaryDirectory() as folder:
+            protocol = short_protocol(Path(folder))
+            runs([80.0], [0], True, "noisy-cell", protocol)
+            quiet([80.0], 20_000, args.seed, protocol)
+        return
+    if args.mode is None:
+        parser.error("a mode (runs or quiet) is required")
     if args.mode == "runs":
         runs(args.rates, args.seeds, args.trials, args.scenario)
     else:

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
+
 from rig.errors import CommunicationError, RigTimeoutError
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.bus import DynamixelServoBus
@@ -69,6 +71,9 @@ class _NoRecorder:
     def tick_rows(self, *args: object) -> None:
         pass
 
+    def note(self, *args: object) -> None:  # the loop's warnings: a late tick, a slow latency timer
+        pass
+
 
 @dataclass
 class Result:
@@ -90,7 +95,8 @@ class Result:
         )
 
 
-def measure(latency_ms: float, seconds: float, tmp: Path) -> Result:
+def measure(latency_ms: float, seconds: float, tmp: Path, late_tick: bool = False) -> Result:
+    """`late_tick`: make the 10th tick a period late (smoke mode: the loop's late-tick path runs)."""
     servo_link, cell_link = tmp / f"dxl{latency_ms:g}", tmp / f"cell{latency_ms:g}"
     servo_proc = start([sys.executable, "-m", "rig.cli.sim_servos", "--ids", "1,2", "--link", str(servo_link),
                         "--usb-latency-ms", str(latency_ms)])  # fmt: skip
@@ -125,6 +131,8 @@ def measure(latency_ms: float, seconds: float, tmp: Path) -> Result:
         loop.restart_pacing()
         end = time.monotonic() + seconds
         while time.monotonic() < end:
+            if late_tick and len(lateness_ns) == 10:
+                time.sleep(2 * PERIOD_S)
             due = loop._next_tick_ns + loop.period_ns
             came = time.monotonic_ns()
             try:
@@ -158,10 +166,13 @@ def main() -> None:
     )
     parser.add_argument("--seconds", type=float, default=20.0, help="ticking time per latency (default 20)")
     parser.add_argument("--latency-ms", type=float, nargs="+", default=[1.0, 16.0])
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # both latencies, 50 ticks each, one of them late
+        args.seconds = 1.0
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
-        results = [measure(latency, args.seconds, Path(tmp)) for latency in args.latency_ms]
+        results = [measure(latency, args.seconds, Path(tmp), args.smoke) for latency in args.latency_ms]
     load_after = os.getloadavg()[0]
     print(
         f"control period {PERIOD_S * 1e3:g} ms, {args.seconds:g} s per latency; "

@@ -14,7 +14,9 @@ Printed per tree and mode: peak RSS and wall time of the short and the long log 
 so at most the scale), and the ratios new / old.
 
 Run: .venv/bin/python benchmarks/bench_replay.py [--base /path/to/old/tree] [--scale 10] [--repeats 1]
-(--base: a checkout of an older commit with its own .venv, e.g. the tree before bounded replay.)
+     [--smoke]
+(--base: a checkout of an older commit, e.g. the tree before bounded replay, run with its own .venv's
+interpreter or, without one, this one's.)
 """
 
 from __future__ import annotations
@@ -29,24 +31,26 @@ import tempfile
 import time
 from pathlib import Path
 
+from smoke_mode import SMOKE_HELP, short_protocol, tree_python  # benchmarks/ is the script's directory
+
 ROOT = Path(__file__).resolve().parent.parent
+SHIPPED = ROOT / "protocols" / "joint_estimation.yaml"
 SHIPPED_REPEATS = "    repeats: 3\n"
 MODES = ("json", "report")
 
 
-def _python(tree: Path) -> Path:
-    return tree / ".venv" / "bin" / "python"
+def generate(out: Path, repeats: int, source: Path = SHIPPED, repeats_line: str = SHIPPED_REPEATS) -> Path:
+    """A log of joint_estimation (`source`) with `repeats` repeats per distance, by this tree's `rig run`.
 
-
-def generate(out: Path, repeats: int) -> Path:
-    """A log of joint_estimation with `repeats` repeats per distance, written by this tree's `rig run`."""
-    text = (ROOT / "protocols" / "joint_estimation.yaml").read_text()
-    if text.count(SHIPPED_REPEATS) != 1:
-        raise SystemExit("protocols/joint_estimation.yaml: expected one 'repeats: 3' line to scale")
+    `repeats_line`: the one line of `source` that sets its repeats, replaced.
+    """
+    text = source.read_text()
+    if text.count(repeats_line) != 1:
+        raise SystemExit(f"{source}: expected one {repeats_line.strip()!r} line to scale")
     protocol = out / f"joint_estimation_x{repeats}.yaml"
-    protocol.write_text(text.replace(SHIPPED_REPEATS, f"    repeats: {repeats}\n"))
+    protocol.write_text(text.replace(repeats_line, repeats_line.split(":")[0] + f": {repeats}\n"))
     run_id = f"bench{repeats}"
-    command = [str(_python(ROOT)), "-m", "rig.cli", "run", str(protocol), "--out", str(out)]
+    command = [tree_python(ROOT), "-m", "rig.cli", "run", str(protocol), "--out", str(out)]
     command += ["--run-id", run_id, "--devices", "object", "--seed", "0", "--json"]
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, check=False)
     if done.returncode != 0:
@@ -56,7 +60,7 @@ def generate(out: Path, repeats: int) -> Path:
 
 def measure(tree: Path, log: Path, mode: str, scratch: Path) -> tuple[float, float]:
     """(peak RSS in MB, wall seconds) of one `rig replay` process of `tree`."""
-    command = [str(_python(tree)), "-m", "rig.cli", "replay", str(log), "--json"]
+    command = [tree_python(tree), "-m", "rig.cli", "replay", str(log), "--json"]
     if mode == "report":
         command += ["--report", tempfile.mkdtemp(prefix="report.", dir=scratch) + "/r"]
     start = time.perf_counter()
@@ -76,19 +80,26 @@ def main() -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--base", type=Path, help="an older tree (with .venv) to run alternately")
+    parser.add_argument("--base", type=Path, help="an older tree to run alternately (its .venv, if any)")
     parser.add_argument("--scale", type=int, default=10, help="the long log has this many times the trials")
     parser.add_argument("--repeats", type=int, default=1, help="runs of each (tree, log, mode)")
     parser.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
     trees = {"new": ROOT}
     if args.base is not None:
-        if not _python(args.base).exists():
-            raise SystemExit(f"--base {args.base}: no .venv/bin/python in it")
+        if not (args.base / "rig" / "cli").is_dir():
+            raise SystemExit(f"--base {args.base}: not a checkout of this project (no rig/cli)")
         trees = {"old": args.base.resolve(), "new": ROOT}
     with tempfile.TemporaryDirectory(prefix="bench_replay.") as tmp:
         scratch = Path(tmp)
-        logs = {"short": generate(scratch, 3), "long": generate(scratch, 3 * args.scale)}
+        if args.smoke:  # one log of a one-trial copy of the protocol, as the short and the long one
+            args.scale, args.repeats = 1, 1
+            source = short_protocol(scratch, SHIPPED, "source.yaml", trials=1)
+            log = generate(scratch, 1, source, "  repeats: 1\n")
+            logs = {"short": log, "long": log}
+        else:
+            logs = {"short": generate(scratch, 3), "long": generate(scratch, 3 * args.scale)}
         sizes = {name: log.stat().st_size for name, log in logs.items()}
         samples: dict[tuple[str, str, str], list[tuple[float, float]]] = {}
         for _ in range(args.repeats):

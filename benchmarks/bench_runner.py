@@ -8,7 +8,7 @@ and prints the simulated duration, the wall time and their ratio. Target: >= 50x
 runner's per-tick calls), per millisecond of rig time. `--control-period-s` runs a copy of the
 protocol with another control period (what-if; the shipped protocol is what counts).
 
-    .venv/bin/python benchmarks/bench_runner.py [--protocol PATH] [--seeds 0 1 2] [--parts]
+    .venv/bin/python benchmarks/bench_runner.py [--protocol PATH] [--seeds 0 1 2] [--parts] [--smoke]
 """
 
 from __future__ import annotations
@@ -85,16 +85,22 @@ def with_control_period(protocol: Path, period_s: float, out: Path) -> Path:
 
 
 def main() -> None:
+    # Here, not above: the other benchmarks import `one_run` from `benchmarks.bench_runner`.
+    from smoke_mode import SMOKE_HELP, short_protocol  # benchmarks/ is the script's directory
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--protocol", type=Path, default=ROOT / "protocols" / "joint_estimation.yaml")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--parts", action="store_true", help="CPU time per part of the tick")
     parser.add_argument("--control-period-s", type=float, help="run a copy with this control period")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # a two-trial copy of the protocol, one seed, with the parts and a control period
+        args.seeds, args.parts, args.control_period_s = [0], True, 0.02
     parts = instrument_parts() if args.parts else None
     ratios = []
     with tempfile.TemporaryDirectory() as tmp:
-        protocol = args.protocol
+        protocol = short_protocol(Path(tmp), args.protocol) if args.smoke else args.protocol
         if args.control_period_s is not None:
             protocol = with_control_period(protocol, args.control_period_s, Path(tmp))
         print(f"protocol {protocol.name}")

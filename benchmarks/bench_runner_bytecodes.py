@@ -8,6 +8,9 @@ between modules shows as one gone and one new). Work done in C (builtins, regula
 numpy, pickling) is not counted, only the bytecodes that call it. About 4 minutes per tree.
 
     .venv/bin/python benchmarks/bench_runner_bytecodes.py --baseline-tree DIR [--protocol PATH] [--top N]
+    .venv/bin/python benchmarks/bench_runner_bytecodes.py --smoke   (one trial, this tree against itself)
+
+The interpreter of a tree is its own `.venv/bin/python`, or this one's where it has none.
 """
 
 from __future__ import annotations
@@ -15,7 +18,10 @@ from __future__ import annotations
 import argparse
 import json
 import subprocess
+import tempfile
 from pathlib import Path
+
+from smoke_mode import SMOKE_HELP, short_protocol, tree_python  # benchmarks/ is the script's directory
 
 ROOT = Path(__file__).resolve().parent.parent
 # Run in the tree's own interpreter; prints {"file:function": bytecodes, "file:function:calls": calls}.
@@ -50,9 +56,12 @@ print(json.dumps(counts))
 
 
 def bytecodes(tree: Path, protocol: Path) -> dict[str, int]:
-    python = str(tree / ".venv" / "bin" / "python")
     result = subprocess.run(
-        [python, "-c", COUNT, str(protocol), f"{tree}/"], cwd=tree, capture_output=True, text=True, check=True
+        [tree_python(tree), "-c", COUNT, str(protocol), f"{tree}/"],
+        cwd=tree,
+        capture_output=True,
+        text=True,
+        check=True,
     )
     counts: dict[str, int] = json.loads(result.stdout.splitlines()[-1])
     return counts
@@ -64,11 +73,19 @@ def total(counts: dict[str, int]) -> int:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--baseline-tree", type=Path, required=True)
+    parser.add_argument("--baseline-tree", type=Path, help="required but with --smoke")
     parser.add_argument("--protocol", type=Path, default=Path("protocols/joint_estimation.yaml"))
     parser.add_argument("--top", type=int, default=25, help="functions listed each way")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP + "; this tree against itself")
     args = parser.parse_args()
-    old, new = bytecodes(args.baseline_tree.resolve(), args.protocol), bytecodes(ROOT, args.protocol)
+    if args.baseline_tree is None and not args.smoke:
+        parser.error("--baseline-tree is required")
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.smoke:  # one trial, counted once and taken as both trees'
+            protocol = short_protocol(Path(tmp), (ROOT / args.protocol).resolve(), trials=1)
+            old = new = bytecodes(ROOT, protocol)
+        else:
+            old, new = bytecodes(args.baseline_tree.resolve(), args.protocol), bytecodes(ROOT, args.protocol)
     ratio = total(new) / total(old)
     print(f"bytecodes per run: baseline {total(old):,}, this tree {total(new):,}: ratio {ratio:.4f}")
     names = {key for key in old.keys() | new.keys() if not key.endswith(":calls")}

@@ -20,6 +20,7 @@ import statistics
 import time
 
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.rig_config import ServoSpec
@@ -98,7 +99,10 @@ def sdk_reader(fast: bool):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--calls", type=int, default=5000)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.calls = 100
     print(f"state read of {len(IDS)} servos, {args.calls} calls each, in-process transport (virtual time)")
     print(f"load average at start: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     header = f"{'path':<28}{'wall p50':>10}{'wall p99':>10}{'cpu p50':>10}{'cpu p99':>10}{'cpu mean':>10}"

@@ -19,6 +19,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
+
 from rig.hw.dxl import control_table as ct
 from rig.sim.dxl.servo import Servo
 from rig.sim.physics.article_presets import make_preset
@@ -83,7 +85,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="virtual seconds per run")
     parser.add_argument("--repeats", type=int, default=3, help="best of N")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:  # long enough for the stick-slip to slip
+        args.seconds, args.repeats = 5.0, 1
     substeps = round(args.seconds * 1000)
     rows = []
     scripted = min(run_world(args.seconds, False) for _ in range(args.repeats))
@@ -99,6 +104,8 @@ def main() -> None:
             f"{wall / substeps * 1e6:6.2f} us/substep" + (f"  {slips} slips" if slips is not None else "")
         )
     print(f"  ratio coupled / servo alone: {coupled[0] / alone:.2f}")
+    if args.smoke and not (scripted[1] and coupled[1]):
+        raise SystemExit("smoke: the line never slipped")
 
 
 if __name__ == "__main__":

@@ -32,6 +32,8 @@ in this mode.
         [--baseline-tree DIR]
     .venv/bin/python benchmarks/bench_study.py --profile 3
     .venv/bin/python benchmarks/bench_study.py --dask 2 [--seeds 64] [--repeats 5] [--baseline-tree DIR]
+    .venv/bin/python benchmarks/bench_study.py --smoke   (both comparisons: 1 seed of a one-trial copy
+        of the protocol, once; the Dask one on 1 worker)
 """
 
 from __future__ import annotations
@@ -44,6 +46,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from smoke_mode import SMOKE_HELP, short_protocol  # benchmarks/ is the script's directory
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -160,7 +164,15 @@ def main() -> None:
         metavar="N",
         help="compare --scheduler on a local cluster of N workers with --jobs N",
     )
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        with tempfile.TemporaryDirectory() as folder:
+            args.protocol = short_protocol(Path(folder), args.protocol, trials=1)
+            args.seeds, args.repeats = 1, 1
+            studies_against_runs(args)
+            dask_against_pool(args.protocol, 1, 1, 1, None)
+        return
     if args.profile is not None:
         profile_seed(args.protocol, args.profile)
         return
@@ -169,6 +181,11 @@ def main() -> None:
         dask_against_pool(args.protocol, args.seeds or 64, args.dask, args.repeats, baseline)
         return
     args.seeds = args.seeds or 24
+    studies_against_runs(args)
+
+
+def studies_against_runs(args: argparse.Namespace) -> None:
+    """The default comparison: N sequential runs, the byte-level and the object-level study."""
     measures = {
         "runs": lambda: sequential_runs(args.protocol, args.seeds),
         "study_byte": lambda: study(args.protocol, args.seeds, "byte"),

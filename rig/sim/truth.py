@@ -1,14 +1,15 @@
 """What a simulated rig knows and a real one cannot, as typed records: the ground truth of a run.
 
-The simulated world (`rig.sim.physics.world.SimWorld.truth`) makes these records; the session's
-`GroundTruth` (`rig.hw.session`) hands them to the runner with the rig's state at that moment.
-Readers (the runner, `rig study`, the CLI) use the fields; `to_json` is called only where the truth
-leaves the process: the log's `sim_truth` metadata (`RunTruth.to_json()`, with every trial) and the
-`truth` object of `rig run --json` (`RunTruth.to_json(with_trials=False)`). The JSON layout is
-docs/formats.md's; its keys and their order are fixed by these methods.
+The simulated world (`rig.sim.physics.world.SimWorld.truth`) makes these records; the simulated
+rig's `SimGroundTruth` (rig/sim/simulated_rig.py), handed to the runner beside the session
+(`rig.runner.rig_to_run.GroundTruth`), adds the rig's state at that moment. Readers (`rig study`,
+the CLI, tests) use the fields; the runner only passes the snapshot on and calls `to_json` where the
+truth leaves the process: the log's `sim_truth` metadata (`RunTruth.to_json()`, with every trial)
+and the `truth` object of `rig run --json` (`RunTruth.to_json(with_trials=False)`). The JSON
+layout is docs/formats.md's; its keys and their order are fixed by these methods.
 
-They are the simulator's: the layers below it (the session contract, the runner) name them only for
-type checking, and hold the truth as an object they pass on.
+They are the simulator's: no layer below it (the session contract, the runner, the input files)
+imports them (an import contract says so).
 """
 
 from __future__ import annotations
@@ -101,14 +102,14 @@ class SlipTruth:
 class TrialTruth:
     """What was true for one trial: its capacities, its slip kind and the exact slip load at its start."""
 
-    index: int  # 1-based, in begin_trial order
+    index: int  # 1-based, in loading order (a run's trials in order: each loads the line once)
     kind: TrialKind
     distance_m: float | None
     specimen_joint: int | None  # joint estimation: the link joint used as the specimen (None: nominal)
     start_ns: int
     capacities_nm: tuple[float, ...]  # of the active setup (one entry for the specimen)
     capacity_factors: tuple[float, ...]
-    slip_force_n: float  # static slip load of the configuration at begin_trial (inf: cannot slip)
+    slip_force_n: float  # static slip load of the configuration as the loading began (inf: cannot slip)
     slip_mass_kg: float
     first_slip_joint: int  # 1-based, 0 if nothing can slip
     slip: SlipPlan = SlipPlan(SlipKind.SUDDEN)
