@@ -1,7 +1,7 @@
 """Wrappers of the hardware seams and camera images for tests: for tests only, never imported by the rig.
 
 The seams' wrappers (`recording`, `injected_errors`, `prompts`) wrap the object-level simulated devices
-(`rig.sim.object_devices`, the same world as the byte-level rig); `fakes` is on its way out (issue 30).
+(`rig.sim.object_devices`, the same world as the byte-level rig): one simulator, no second world.
 
 An import-linter contract in pyproject.toml ("test doubles are not used at runtime") keeps every
 other rig module from importing this package.
@@ -12,7 +12,6 @@ other rig module from importing this package.
 __all__ = [
     "camera_images",
     "camera_scenes",
-    "fakes",
     "injected_errors",
     "prompts",
     "recording",
