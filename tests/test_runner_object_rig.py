@@ -42,9 +42,12 @@ ALL_CREEP_RIG = (
     "extends: simulated\nname: creep\nsimulation:\n  noise_scale: 0\n"
     f"  slips: {{mix: {{creep: 1.0}}, {_CREEP}}}\n"
 )
-# The quick protocol with a ramp that times out sooner (3 x 20 N / 15 N/s + 0.5 s = 4.5 s, not 19 s).
-TIMEOUT_PROTOCOL = QUICK_PROTOCOL.replace("max_force_n: 70.0", "max_force_n: 20.0").replace(
-    "force_ceiling_n: 75.0", "force_ceiling_n: 75.0, step_timeout_margin_s: 0.5"
+# The quick protocol with a ramp that times out sooner: 3 x 20 N / (0.6 rad/s x 50 N/rad) + 0.5 s = 2.5 s
+# (rig.runner.ramp), not 3 x 70 N / 15 N/s + 5 s = 19 s.
+TIMEOUT_PROTOCOL = (
+    QUICK_PROTOCOL.replace("max_force_n: 70.0", "max_force_n: 20.0")
+    .replace("slow_speed_rad_s: 0.3", "slow_speed_rad_s: 0.6")
+    .replace("force_ceiling_n: 75.0", "force_ceiling_n: 75.0, step_timeout_margin_s: 0.5")
 )
 # Trial 2 a stick-slip train of 3 drops, trials 1 and 3 sudden slips: the draws at seed 1.
 STICK_SLIP_RIG = (
