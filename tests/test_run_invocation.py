@@ -3,6 +3,7 @@ same run, moved protocols, run ids that try to leave --out, and an --out that ca
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -11,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -19,11 +21,10 @@ import rig.rigs as composition
 from rig.errors import InputError
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
+from rig.runner.run import RunReport, RunRequest, prepare_run
 from rig.runner.runlock import RunInProgressError
-from rig.testing.fakes import FakeRig, fake_rig
 from tests.helpers import QUICK_PROTOCOL
-from tests.test_runner_fakes import SLIP_FORCES_N, assert_released_then_torque_off
+from tests.runner_rig import RunnerRig, assert_released_then_torque_off, execute_on, runner_rig
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -44,26 +45,39 @@ def request(protocol: Path, out: Path, *, run_id: str | None = "f1", resume: str
     )
 
 
-def run_fake(rig: FakeRig, protocol: Path, out: Path, **kwargs):
-    return execute_run(prepare_run(request(protocol, out, **kwargs)), rig.session, SilentProgress())
+def run_sim(
+    protocol: Path,
+    out: Path,
+    *,
+    interrupt_at_trial: int | None = None,
+    setup: Callable[[RunnerRig], None] | None = None,
+    **kwargs,
+) -> tuple[RunReport, RunnerRig]:
+    """Prepare the run and execute it on its object-level simulated rig (tests/runner_rig.py)."""
+    prepared = prepare_run(request(protocol, out, **kwargs))
+    rig = runner_rig(prepared, interrupt_at_trial=interrupt_at_trial)
+    if setup is not None:
+        setup(rig)
+    return execute_on(prepared, rig), rig
 
 
 def interrupted_run(protocol: Path, out: Path) -> None:
-    """Run f1 on the fakes and Ctrl-C it at trial 2: a journal with one trial, status interrupted."""
-    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2), protocol, out)
+    """Run f1 on the simulated rig and Ctrl-C it at trial 2: a journal with one trial, status interrupted."""
+    report, _ = run_sim(protocol, out, interrupt_at_trial=2)
     assert report.exit_code == 130 and report.completed == 1
 
 
-def signal_during_shutdown(rig: FakeRig, *signums: int) -> None:
+def signal_during_shutdown(rig: RunnerRig, *signums: int) -> None:
     """Send `signums` to this process while the servo bus runs its safe-state shutdown."""
-    shutdown = rig.servos.shutdown
+    bus = rig.sim.devices.bus
+    shutdown = bus.shutdown
 
     def signalled(release=None):
         for signum in signums:
             os.kill(os.getpid(), signum)
         shutdown(release)
 
-    rig.servos.shutdown = signalled
+    bus.shutdown = signalled  # type: ignore[method-assign]
 
 
 def status(out: Path, run_id: str = "f1") -> str:
@@ -76,9 +90,12 @@ def status(out: Path, run_id: str = "f1") -> str:
 def test_a_second_ctrl_c_in_the_safe_state_still_saves_the_journal_and_report(
     tmp_path, quick, signal_handlers
 ):
-    rig = fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2)
-    signal_during_shutdown(rig, signal.SIGINT, signal.SIGTERM)
-    report = run_fake(rig, quick, tmp_path / "out")
+    report, rig = run_sim(
+        quick,
+        tmp_path / "out",
+        interrupt_at_trial=2,
+        setup=lambda rig: signal_during_shutdown(rig, signal.SIGINT, signal.SIGTERM),
+    )
     assert report.exit_code == 130 and report.aborted and report.completed == 1
     assert report.reason == "interrupted by the operator"
     assert status(tmp_path / "out") == "interrupted"
@@ -88,10 +105,16 @@ def test_a_second_ctrl_c_in_the_safe_state_still_saves_the_journal_and_report(
 def test_a_second_ctrl_c_prints_the_json_report_and_exits_130(
     tmp_path, quick, signal_handlers, monkeypatch, run_cli
 ):
-    rig = fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2)
-    signal_during_shutdown(rig, signal.SIGINT)
-    monkeypatch.setattr(composition, "open_session", lambda prepared: rig.session)
+    rigs: list[RunnerRig] = []
+
+    def open_rig(prepared, **kwargs):
+        rigs.append(runner_rig(prepared, interrupt_at_trial=2))
+        signal_during_shutdown(rigs[-1], signal.SIGINT)
+        return dataclasses.replace(rigs[-1].sim, session=rigs[-1].session)
+
+    monkeypatch.setattr(composition, "open_rig", open_rig)
     result = run_cli("run", quick, "--out", tmp_path / "out", "--run-id", "f1", "--json")
+    (rig,) = rigs
     assert result.code == 130, result.err
     report = json.loads(result.out)  # exactly one JSON object
     assert report["run_id"] == "f1" and report["aborted"] and report["completed"] == 1
@@ -101,9 +124,9 @@ def test_a_second_ctrl_c_prints_the_json_report_and_exits_130(
 
 
 def test_ctrl_c_after_the_last_trial_does_not_undo_a_completed_run(tmp_path, quick, signal_handlers):
-    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
-    signal_during_shutdown(rig, signal.SIGINT)
-    report = run_fake(rig, quick, tmp_path / "out")
+    report, rig = run_sim(
+        quick, tmp_path / "out", setup=lambda rig: signal_during_shutdown(rig, signal.SIGINT)
+    )
     assert report.exit_code == 0 and report.completed == 3 and not report.aborted
     assert status(tmp_path / "out") == "completed"
     assert_released_then_torque_off(rig)
@@ -112,17 +135,17 @@ def test_ctrl_c_after_the_last_trial_does_not_undo_a_completed_run(tmp_path, qui
 def test_ctrl_c_while_the_log_is_set_up_ends_interrupted_before_anything_moved(
     tmp_path, quick, signal_handlers
 ):
-    rig = fake_rig(slip_forces_n=SLIP_FORCES_N)
-
     class Progress(SilentProgress):
         def start(self, run_id: str, planned: int, done: int) -> None:
             os.kill(os.getpid(), signal.SIGINT)
 
-    report = execute_run(prepare_run(request(quick, tmp_path / "out")), rig.session, Progress())
+    prepared = prepare_run(request(quick, tmp_path / "out"))
+    rig = runner_rig(prepared)
+    report = execute_on(prepared, rig, Progress())
     assert report.exit_code == 130 and report.completed == 0
     assert status(tmp_path / "out") == "interrupted"
     assert "connect" not in rig.servos.call_names()
-    assert not rig.winch.torque_enabled
+    assert not any(servo.torque_enabled for servo in rig.sim.devices.bus.servos)
 
 
 # ------------------------------------------------------------------ 2. signals from the first instruction
@@ -193,7 +216,7 @@ def test_a_run_in_progress_cannot_be_started_or_resumed_twice(tmp_path, quick, r
     finally:
         held.release()
     assert not (out / "f1.lock").exists()
-    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), quick, out, resume="f1")
+    report, _ = run_sim(quick, out, resume="f1")
     assert report.exit_code == 0 and report.completed == 3
 
 
@@ -236,7 +259,7 @@ def test_a_lock_held_by_a_killed_process_does_not_block_resume(tmp_path, quick):
         holder.kill()  # SIGKILL: no chance to clean up; the kernel drops the flock
         holder.wait()
     assert (out / "f1.lock").exists()  # stale file left behind ...
-    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), quick, out, resume="f1")  # ... blocks nothing
+    report, _ = run_sim(quick, out, resume="f1")  # ... blocks nothing
     assert report.exit_code == 0 and report.completed == 3
     assert not (out / "f1.lock").exists()
 
@@ -281,7 +304,7 @@ def test_a_moved_but_identical_protocol_resumes(tmp_path, quick):
     moved = tmp_path / "elsewhere" / "renamed.yaml"
     moved.parent.mkdir()
     quick.rename(moved)
-    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), moved, out, resume="f1")
+    report, _ = run_sim(moved, out, resume="f1")
     assert report.exit_code == 0 and [t.trial_id for t in report.trials] == [1, 2, 3]
 
 
@@ -301,10 +324,10 @@ def _rig_file(tmp_path: Path, zero_tolerance_n: float = 2.0) -> Path:
 
 
 def _started_on(rig: Path | None, protocol: Path, out: Path) -> None:
-    """Run f1 on the fakes with `rig`'s config and Ctrl-C it at trial 2 (as `interrupted_run`)."""
+    """Run f1 on the simulated rig of `rig`'s config and Ctrl-C it at trial 2 (as `interrupted_run`)."""
     req = RunRequest(protocol_path=protocol, rig_path=rig, out_dir=out, seed=1, run_id="f1")
-    fake = fake_rig(slip_forces_n=SLIP_FORCES_N, interrupt_at_trial=2)
-    assert execute_run(prepare_run(req), fake.session, SilentProgress()).exit_code == 130
+    prepared = prepare_run(req)
+    assert execute_on(prepared, runner_rig(prepared, interrupt_at_trial=2)).exit_code == 130
 
 
 def _resume_by_id(out: Path, rig: Path | None = None) -> RunRequest:
@@ -322,7 +345,7 @@ def test_resume_by_id_alone_takes_protocol_and_rig_from_the_journal(tmp_path, qu
     monkeypatch.chdir(elsewhere)  # the journal's paths do not depend on the directory
     prepared = prepare_run(_resume_by_id(out))
     assert prepared.config.name == ("lab" if own_rig else "simulated")
-    report = execute_run(prepared, fake_rig(slip_forces_n=SLIP_FORCES_N).session, SilentProgress())
+    report = execute_on(prepared, runner_rig(prepared))
     assert report.exit_code == 0 and [t.trial_id for t in report.trials] == [1, 2, 3]
 
 
@@ -371,7 +394,7 @@ def test_a_journal_written_before_the_texts_were_kept_still_resumes(tmp_path, qu
     for key in ("rig_builtin", "protocol_text", "rig_text"):
         del data[key]
     path.write_text(json.dumps(data))
-    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), quick, out, resume="f1")
+    report, _ = run_sim(quick, out, resume="f1")
     assert report.exit_code == 0 and report.completed == 3
 
 
@@ -436,7 +459,7 @@ def test_a_protocol_file_name_gives_a_safe_run_id(tmp_path, file_name, expected)
 def test_a_long_protocol_file_name_is_cut_to_the_run_id_limit(tmp_path):
     protocol = tmp_path / ("n" * 200 + ".yaml")
     protocol.write_text(QUICK_PROTOCOL.replace("name: quick\n", ""))
-    report = run_fake(fake_rig(slip_forces_n=SLIP_FORCES_N), protocol, tmp_path / "out", run_id=None)
+    report, _ = run_sim(protocol, tmp_path / "out", run_id=None)
     assert report.exit_code == 0 and len(report.run_id) == 100
     assert Path(report.log).parent == tmp_path / "out"
 

@@ -1,7 +1,8 @@
-"""Adaptive joint-estimation blocks in the runner, on the object-level fakes (rig/testing/fakes.py).
+"""Adaptive joint-estimation blocks in the runner, on the object-level simulated rig (tests/runner_rig.py).
 
-The fake link slips at capacity / distance times a factor fixed per trial id, so the planner's
-choices can be followed and a resumed run compared with an uninterrupted one.
+The world's specimen slips at its capacity over the distance times a factor each trial draws (the
+built-in simulated rig: multiplicative scatter), so the planner's choices can be followed and a
+resumed run compared with an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -14,13 +15,9 @@ from mcap.reader import make_reader
 from rig.log import schemas
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
-from rig.testing.fakes import FakeRig, fake_rig
+from rig.runner.run import RunRequest, prepare_run
+from tests.runner_rig import execute_on, runner_rig
 
-G = 9.8
-CAPACITY_NM = 1.2  # slips at 40 N at 0.03 m
-# Per-trial capacity factors (about 5 % scatter, proportional to the load).
-FACTORS = [1.0, 1.06, 0.95, 1.03, 0.97, 1.05, 0.94, 1.02, 0.99, 1.04]
 MAX_SLIP_FORCE_N = 0.8 * 70.0  # max_force_fraction x max_force_n
 
 PROTOCOL = """\
@@ -53,22 +50,11 @@ class RecordingProgress(SilentProgress):
         self.messages.append(text)
 
 
-def adaptive_rig(interrupt_at_trial: int | None = None) -> FakeRig:
-    rig = fake_rig(interrupt_at_trial=interrupt_at_trial)
-    forces = rig.line.slip_forces_n
-
-    def begin(trial) -> None:  # the link placed at the trial's distance: its slip force is known
-        forces.append(CAPACITY_NM / trial.distance_m * FACTORS[(trial.trial_id - 1) % len(FACTORS)])
-
-    rig.session.begin_trial = begin
-    return rig
-
-
 @pytest.fixture
 def run_adaptive(tmp_path, protocol_file):
-    """`run_adaptive(target=, max_trials=, run_id=, resume=False, rig=None)` -> (report, progress)."""
+    """`run_adaptive(target=, max_trials=, run_id=, resume=, interrupt_at_trial=)` -> (report, progress)."""
 
-    def run(*, target=0.001, max_trials=8, run_id="a1", resume=False, rig=None):
+    def run(*, target=0.001, max_trials=8, run_id="a1", resume=False, interrupt_at_trial=None):
         protocol = protocol_file(PROTOCOL.format(target=target, max_trials=max_trials), name=f"{run_id}.yaml")
         request = RunRequest(
             protocol_path=protocol,
@@ -79,8 +65,10 @@ def run_adaptive(tmp_path, protocol_file):
             resume=run_id if resume else None,
         )
         progress = RecordingProgress()
-        rig = rig or adaptive_rig()
-        return execute_run(prepare_run(request), rig.session, progress), progress
+        prepared = prepare_run(request)
+        return execute_on(
+            prepared, runner_rig(prepared, interrupt_at_trial=interrupt_at_trial), progress
+        ), progress
 
     return run
 
@@ -94,7 +82,7 @@ def log_messages(path) -> list[str]:
         ]
 
 
-@pytest.mark.slow  # whole runs of 6-16 trials on the fakes: 1-5 s
+@pytest.mark.slow  # whole runs of 6-16 trials on the object-level simulated rig: 1-5 s
 def test_the_planner_chooses_every_trial_and_stops_on_the_budget(run_adaptive, tmp_path):
     report, progress = run_adaptive()
     assert report.exit_code == 0 and not report.aborted and report.completed == 8 and report.planned == 8
@@ -125,7 +113,7 @@ def test_the_planner_chooses_every_trial_and_stops_on_the_budget(run_adaptive, t
     assert journal.planned_trials == list(range(1, 9)) and journal.status == "completed"
 
 
-@pytest.mark.slow  # whole runs of 6-16 trials on the fakes: 1-5 s
+@pytest.mark.slow  # whole runs of 6-16 trials on the object-level simulated rig: 1-5 s
 def test_the_block_stops_when_the_target_is_reached(run_adaptive):
     report, progress = run_adaptive(target=0.5, max_trials=20)
     assert report.exit_code == 0 and report.completed == 6 and report.planned == 20  # min_trials
@@ -134,15 +122,17 @@ def test_the_block_stops_when_the_target_is_reached(run_adaptive):
     assert report.as_json()["design"][0]["half_width_rel"] <= 0.5
 
 
-@pytest.mark.slow  # whole runs of 6-16 trials on the fakes: 1-5 s
+@pytest.mark.slow  # whole runs of 6-16 trials on the object-level simulated rig: 1-5 s
 def test_a_resumed_adaptive_run_replans_from_its_journal(run_adaptive, tmp_path):
     whole, _ = run_adaptive(run_id="whole")
-    interrupted, _ = run_adaptive(run_id="part", rig=adaptive_rig(interrupt_at_trial=5))
+    interrupted, _ = run_adaptive(run_id="part", interrupt_at_trial=5)
     assert interrupted.exit_code == 130 and interrupted.completed == 4
     resumed, progress = run_adaptive(run_id="part", resume=True)
     assert resumed.exit_code == 0 and resumed.completed == 8
     assert [t.trial_id for t in resumed.trials] == list(range(1, 9))
-    assert [t.distance_m for t in resumed.trials] == [t.distance_m for t in whole.trials]
+    # Trials 1-4 come from the journal and trial 5 is planned from them, as in the uninterrupted run
+    # (the same world drew trials 1-4); the resumed world draws its own trials from there on.
+    assert [t.distance_m for t in resumed.trials[:5]] == [t.distance_m for t in whole.trials[:5]]
     assert "after 4 trial(s)" in next(m for m in progress.messages if m.startswith("adaptive design"))
     # Resuming a run whose adaptive block already stopped: it stops again at once, nothing runs.
     journal = RunJournal.load(tmp_path / "out" / "part.journal.json")

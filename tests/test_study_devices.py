@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 from rig.errors import ConfigError
+from rig.hw.dxl.control_table import CURRENT_UNIT_A, RAD_S_PER_VELOCITY_UNIT
+from rig.hw.seams import OperatingMode
 from rig.log.records import TrialOutcome
 from rig.rig_config import load_rig_config
 from rig.rigs import open_rig
@@ -112,3 +114,36 @@ def test_object_rig_builds_the_same_world_as_the_byte_level_rig(scenario: str) -
     assert (obj.session.load_cell.artefacts is None) == (byte.devices.loadcell_emulator.artefacts is None)
     if scenario == "noisy-cell":
         assert obj.session.load_cell.artefacts is not None
+
+
+def test_a_reboot_restores_the_settings_and_the_torque_at_both_device_levels() -> None:
+    """A latched overload drops the torque; the reboot clears it and, as the driver does, puts back
+    what the host had set (goal current, profile, torque on). The object-level bus once left the
+    torque off and the profile at its default, so a runner that rebooted a winch could not unwind it."""
+    config = load_rig_config(None)
+    byte_rig, object_rig = (
+        simulated_rig(config, seed=0),
+        simulated_rig(config, seed=0, devices=DeviceLevel.OBJECT),
+    )
+    levels = [
+        (byte_rig.session.servos, byte_rig.devices.bus.set_hardware_error, byte_rig.devices.bus.servo(1)),
+        (
+            object_rig.session.servos,
+            object_rig.devices.bus.set_hardware_error,
+            object_rig.devices.bus.servo(1),
+        ),
+    ]
+    for servos, latch, servo in levels:
+        servos.connect()
+        servos.set_operating_mode(1, OperatingMode.CURRENT_BASED_POSITION, goal_current_a=0.3)
+        servos.set_profile(1, velocity_rad_s=1.0)
+        servos.set_torque([1], True)
+        latch(1, 0x20)  # overload (Hardware Error Status bit 5)
+        assert servos.read_states()[1].hardware_error == 0x20 and not servo.torque_enabled
+        servos.reboot(1)
+        assert servos.read_states()[1].hardware_error == 0 and servo.torque_enabled
+    restored = object_rig.devices.bus.servo(1)
+    assert restored.goal_current_units * CURRENT_UNIT_A == pytest.approx(0.3, abs=CURRENT_UNIT_A)
+    assert restored.profile_velocity_units * RAD_S_PER_VELOCITY_UNIT == pytest.approx(
+        1.0, abs=RAD_S_PER_VELOCITY_UNIT
+    )

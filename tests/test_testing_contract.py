@@ -17,3 +17,11 @@ def test_every_rig_module_but_the_test_doubles_is_a_source_of_the_contract() -> 
     (contract,) = [c for c in contracts if c.get("forbidden_modules") == ["rig.testing"]]
     top_level = {f"rig.{m.name}" for m in pkgutil.iter_modules(rig.__path__)} - {"rig.testing"}
     assert set(contract["source_modules"]) == top_level
+
+
+def test_every_module_of_rig_testing_is_public() -> None:
+    """Tests import each of them; `__all__` (the "private modules stay private" contract) names them all."""
+    import rig.testing
+
+    modules = {m.name for m in pkgutil.iter_modules(rig.testing.__path__)}
+    assert set(rig.testing.__all__) == modules

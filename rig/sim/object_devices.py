@@ -60,6 +60,7 @@ class ObjectServo(IntegratedShaft):
         self.external_torque_nm = 0.0  # set by the world
         self.mode = int(table["Operating Mode"].default)
         self.torque_enabled = False
+        self.torque_wanted = False  # what the host last asked for; a reboot restores it, as the driver does
         self.hardware_error = 0
         self.goal_pulses = 0
         self.profile_velocity_units = 0
@@ -110,10 +111,11 @@ class ObjectServo(IntegratedShaft):
         self._integrate(now_ns)
 
     def _on_overload(self) -> None:
-        self._latch(ct.HW_ERROR_OVERLOAD)
+        self.set_hardware_error(ct.HW_ERROR_OVERLOAD)
 
-    def _latch(self, bits: int) -> None:
-        self.hardware_error |= bits
+    def set_hardware_error(self, bits: int) -> None:
+        """Latch Hardware Error Status bits (until reboot); torque drops if Shutdown selects any of them."""
+        self.hardware_error |= bits & 0xFF
         if bits & self.shutdown_bits and self.torque_enabled:
             self.torque_enabled = False
             self.update_command()
@@ -172,6 +174,12 @@ class ObjectServoBus:
         """True if no servo would move (nor change) until the world changes its load (`SimWorld`)."""
         return all(servo._at_rest() for servo in self.servos)
 
+    def set_hardware_error(self, servo_id: int, bits: int) -> None:
+        """Latch Hardware Error Status bits on a servo now (fault injection, as `EmulatedBus` offers)."""
+        servo = self.servo(servo_id)
+        servo.advance_to(self.clock.monotonic_ns())
+        servo.set_hardware_error(bits)
+
     def connect(self) -> None:
         """Nothing to open: every servo is there."""
         self._connected = True
@@ -218,7 +226,7 @@ class ObjectServoBus:
                 )
             if enabled and not servo.torque_enabled:
                 servo.hold_here()
-            servo.torque_enabled = enabled
+            servo.torque_enabled = servo.torque_wanted = enabled
             servo.update_command()
 
     def set_profile(
@@ -295,15 +303,22 @@ class ObjectServoBus:
         return value
 
     def reboot(self, servo_id: int) -> None:
-        """Clear a latched error: the servo restarts (RAM defaults, torque off) after its boot time."""
+        """Clear a latched error: the servo restarts after its boot time, its settings restored.
+
+        The servo itself comes back with RAM defaults and torque off; the driver
+        (`DynamixelServoBus.reboot`) then writes back the goal current and profile it had set and
+        turns the torque on in place if the host had it on, so that is what this bus does too.
+        """
         servo = self.servo(servo_id)
         servo.advance_to(self.clock.monotonic_ns())
+        goal_current = servo.goal_current_units
+        profile = (servo.profile_velocity_units, servo.profile_acceleration_units)
         self.clock.sleep(DEFAULT_BOOT_TIME_S)
         servo.hardware_error = 0
-        servo.torque_enabled = False
-        servo.goal_current_units = servo.current_limit_units
-        servo.profile_velocity_units = servo.profile_acceleration_units = 0
+        servo.goal_current_units = goal_current
+        servo.profile_velocity_units, servo.profile_acceleration_units = profile
         servo.hold_here()
+        servo.torque_enabled = servo.torque_wanted
         servo.update_command()
 
     def shutdown(self, release: Callable[[], None] | None = None) -> None:

@@ -1,4 +1,7 @@
-"""Test doubles of the hardware seams (`rig.testing.fakes`): for tests only, never imported by the rig.
+"""Wrappers of the hardware seams and camera images for tests: for tests only, never imported by the rig.
+
+The seams' wrappers (`recording`, `injected_errors`, `prompts`) wrap the object-level simulated devices
+(`rig.sim.object_devices`, the same world as the byte-level rig): one simulator, no second world.
 
 An import-linter contract in pyproject.toml ("test doubles are not used at runtime") keeps every
 other rig module from importing this package.
@@ -9,5 +12,7 @@ other rig module from importing this package.
 __all__ = [
     "camera_images",
     "camera_scenes",
-    "fakes",
+    "injected_errors",
+    "prompts",
+    "recording",
 ]
