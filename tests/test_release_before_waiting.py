@@ -102,3 +102,18 @@ def test_the_dry_run_warns_when_a_slip_would_keep_the_line_loaded_beyond_the_bou
     assert any("would keep the line loaded about 8.9 s" in w for w in soft["warnings"]), soft.get("warnings")
     stiff = cli_json("run", SMOKE, "--dry-run", "--json")
     assert not any("line loaded" in w for w in stiff.get("warnings", []))
+
+
+def test_the_dry_run_warns_when_nobody_is_asked_to_move_the_hook(cli_json, tmp_path):
+    """The rig cannot move the hook: a joint-estimation block with several distances and no prompt
+    runs every trial wherever the hook hangs (the simulated person, like a real one, moves it only
+    when asked). The shipped protocols prompt, so they are not warned about."""
+    text = SMOKE.read_text(encoding="utf-8")
+    assert "steps: [prompt, " in text
+    quiet = tmp_path / "no-prompt.yaml"
+    quiet.write_text(text.replace("steps: [prompt, ", "steps: ["), encoding="utf-8")
+    warned = cli_json("run", quiet, "--dry-run", "--json")
+    assert any("nobody is asked to move the hook" in w for w in warned.get("warnings", [])), warned
+    for protocol in ("smoke", "joint_estimation", "joint_estimation_adaptive", "link_validation"):
+        plan = cli_json("run", ROOT / "protocols" / f"{protocol}.yaml", "--dry-run", "--json")
+        assert not any("hook" in w for w in plan.get("warnings", [])), (protocol, plan.get("warnings"))

@@ -333,7 +333,8 @@ class PlanSummary:
     adaptive: tuple[AdaptivePlan, ...] = ()
     # One winch count's tension: the finest the slip load can be read (rig.runner.ramp_speed).
     slip_load_resolution_n: float = 0.0
-    # Configurations that bend joints no fork reaches, one line each (`rig.hw.bending.unreached_warning`).
+    # Configurations that bend joints no fork reaches (`rig.hw.bending.unreached_warning`), a long
+    # loaded time after a slip, joint-estimation blocks that move the hook without a prompt.
     warnings: tuple[str, ...] = ()
 
     def as_json(self) -> dict[str, Any]:
@@ -391,10 +392,42 @@ def plan_summary(protocol: Protocol, config: RigConfig) -> PlanSummary:
         slip_load_resolution_n=ramp_speeds(protocol, config).count_n,
         warnings=tuple(
             w
-            for w in (loaded_after_slip_warning(protocol, config, typical), *fork_warnings(protocol, config))
+            for w in (
+                loaded_after_slip_warning(protocol, config, typical),
+                *fork_warnings(protocol, config),
+                *hook_warnings(protocol),
+            )
             if w
         ),
     )
+
+
+def hook_warnings(protocol: Protocol) -> tuple[str, ...]:
+    """One warning per joint-estimation block whose trials move the hook without a prompt.
+
+    The rig cannot move the hook: only a person asked by a `prompt` step does, so without one every
+    trial of the block runs wherever the hook hangs (a real rig's behaviour, and the simulated one's).
+    An adaptive block's planner moves it from trial to trial.
+    """
+    places: dict[int, set[tuple[int | None, float | None]]] = {}
+    for trial in protocol.trials:
+        if trial.kind is TrialKind.JOINT_ESTIMATION and not _prompts(trial):
+            places.setdefault(trial.block, set()).add((trial.joint, trial.distance_m))
+    moving = {block for block, where in places.items() if len(where) > 1}
+    for adaptive in protocol.adaptive:
+        sample = adaptive.trial(adaptive.first_trial_id, adaptive.design.distance_max_m, 1)
+        if not _prompts(sample):
+            moving.add(sample.block)
+    return tuple(
+        f"block {block + 1} (joint_estimation): its trials hang the load at different places but its "
+        "steps have no prompt, so nobody is asked to move the hook and every trial runs where it hangs "
+        "(add `prompt` to the block's steps)"
+        for block in sorted(moving)
+    )
+
+
+def _prompts(trial: TrialPlan) -> bool:
+    return any(step.kind == StepKind.PROMPT for step in trial.steps)
 
 
 def fork_warnings(protocol: Protocol, config: RigConfig) -> tuple[str, ...]:
