@@ -85,6 +85,13 @@ def test_the_hand_moves_the_hook_only_after_a_slip_and_a_slack_line(tmp_path):
     assert world.draw_trial().capacity_factors != first.capacity_factors  # a fresh draw
 
 
+def test_the_twins_line_is_as_stiff_as_the_config_says(tmp_path):
+    """`rig check --move --write` on the twin must find the lab's own stiffness, not the preset's."""
+    config = load_rig_config(_hardware_config(tmp_path))
+    assert config.line_stiffness_n_per_m == 200.0  # the template's
+    assert build_twin(config).world.line.stiffness_n_per_m == 200.0
+
+
 def test_without_a_protocol_the_hand_sets_up_link_validation_on_the_straight_link(tmp_path):
     twin = build_twin(load_rig_config(_hardware_config(tmp_path)))
     assert twin.world.setup == ArticleSetup.LINK and twin.world.hook_distance_m is None
@@ -162,6 +169,10 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
     text = path.read_text()
     assert "  rate_hz: 10 " in text
     text = text.replace("  rate_hz: 10 ", f"  rate_hz: {RATE_HZ} ")
+    # A lab with a stiff line (a short steel one): the twin's line is the config's, and the smoke
+    # protocol's speeds suit 5000 N/m (the template's 200 N/m would take minutes of real time).
+    assert "line_stiffness_n_per_m: 200 " in text
+    text = text.replace("line_stiffness_n_per_m: 200 ", "line_stiffness_n_per_m: 5000 ")
     # The twin, simavr and the CLI share two cores with the rest of the suite: a bus reply may miss
     # the SDK's 34 ms packet timeout while the twin's thread waits for a core (a real adapter has
     # no such contention). Five retries ride out about 0.2 s of that.
@@ -183,7 +194,7 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
         jog = ("--move", "--jog-travel-rev", "0.3", "--window-s", "1", "--json")
         first = _rig("check", "--rig", str(path), "--write", *jog)
         assert first.returncode == 1, first.stderr  # the reversed winch, found by the jog
-        assert yaml.safe_load(path.read_text())["reel_direction"] == -1
+        assert yaml.safe_load(path.read_text())["reel_direction"] == -1, first.stdout
         second = _rig("check", "--rig", str(path), *jog)
         assert second.returncode == 0 and json.loads(second.stdout)["counts"]["fail"] == 0, second.stdout
         operator, terminal = pty.openpty()  # the person at the terminal confirms the hook placements

@@ -348,6 +348,10 @@ def config_preset(config: RigConfig, seed: int) -> SimPreset:
         )
         if sim.spring_stiffness_n_per_m is not None:
             preset = replace(preset, spring_stiffness_n_per_m=sim.spring_stiffness_n_per_m)
+        elif config.kind is RigKind.HARDWARE:
+            # A lab's twin: its line is as stiff as the lab says its own is (`rig check --move`
+            # measures it there, and `--write` must not put the preset's stiffness into the config).
+            preset = replace(preset, line_stiffness_n_per_m=config.line_stiffness_n_per_m)
         if sim.initial_tension_n > 0:  # the line starts stretched by the drum travel that loads it so
             stretch_m = sim.initial_tension_n / preset.effective_line_stiffness_n_per_m
             preset = replace(preset, winch_slack_rad=-stretch_m / preset.drum_radius_m)
