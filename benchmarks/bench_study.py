@@ -37,7 +37,7 @@ in this mode.
     .venv/bin/python benchmarks/bench_study.py --profile 3
     .venv/bin/python benchmarks/bench_study.py --dask 2 [--seeds 64] [--repeats 5] [--baseline-tree DIR]
     .venv/bin/python benchmarks/bench_study.py --smoke   (both comparisons: 1 seed of a one-trial copy
-        of the protocol, once; the Dask one on 1 worker)
+        of the protocol, once; the Dask one on 1 worker, without its warm-up study)
 """
 
 from __future__ import annotations
@@ -86,8 +86,10 @@ def study(protocol: Path, seeds: int, devices: str, tree: Path = ROOT, where: tu
     return timed([*command, *(where or ("--jobs", "2")), "--devices", devices, "--json"], tree)
 
 
-def dask_against_pool(protocol: Path, seeds: int, workers: int, repeats: int, baseline: Path | None) -> None:
-    """`--dask N`: see the module docstring."""
+def dask_against_pool(
+    protocol: Path, seeds: int, workers: int, repeats: int, baseline: Path | None, *, warm_up: bool = True
+) -> None:
+    """`--dask N`: see the module docstring (`warm_up=False`, for the smoke mode: no warm-up study)."""
     from distributed import LocalCluster
 
     with LocalCluster(
@@ -100,7 +102,8 @@ def dask_against_pool(protocol: Path, seeds: int, workers: int, repeats: int, ba
         }
         if baseline is not None:
             measures["dask_baseline"] = lambda: study(protocol, seeds, "object", baseline, scheduler)
-        study(protocol, workers, "object", where=scheduler)  # warm-up: the workers import the rig
+        if warm_up:  # the workers import the rig
+            study(protocol, workers, "object", where=scheduler)
         dask_overhead(cluster.scheduler_address, protocol, seeds)
         names = list(measures)
         ratios: dict[str, list[float]] = {name: [] for name in names if name != "pool"}
@@ -221,7 +224,7 @@ def main() -> None:
             args.protocol = short_protocol(Path(folder), args.protocol, trials=1)
             args.seeds, args.repeats = 1, 1
             studies_against_runs(args)
-            dask_against_pool(args.protocol, 1, 1, 1, None)
+            dask_against_pool(args.protocol, 1, 1, 1, None, warm_up=False)
         return
     if args.profile is not None:
         profile_seed(args.protocol, args.profile)
