@@ -98,6 +98,12 @@ def quick_protocol(*, block: Mapping[str, Any] | None = None, **overrides: Any) 
     return protocol_text(data)
 
 
+def quick_then_link_validation(name: str, **validation: Any) -> str:
+    """QUICK_PROTOCOL's block at 0.12 and 0.2 m, then the shipped link-validation block with `validation`."""
+    joint = with_overrides(QUICK_BLOCK, {"distances_m": [0.12, 0.2]})
+    return quick_protocol(name=name, blocks=[joint, shipped_block("link_validation", 1, **validation)])
+
+
 def write_joint_1_protocol(path: Path, name: str, ramp: str, distances_m: str) -> Path:
     """A one-block joint-estimation protocol on joint 1 (prompt, tare, ramp until slip, unload) at `path`.
 

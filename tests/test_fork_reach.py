@@ -16,7 +16,7 @@ from typing import Any
 from mcap.reader import make_reader
 
 from rig.log import schemas
-from tests.helpers import QUICK_BLOCK, quick_protocol, shipped_block, with_overrides
+from tests.helpers import quick_then_link_validation
 
 RIG = """\
 extends: simulated
@@ -30,16 +30,9 @@ servos:
 
 # Trial 3 bends joints 1, 3 and 4 (the fork on component 1 moves); trial 4 only joints 3 and 4
 # (no fork has anything to do).
-PROTOCOL = quick_protocol(
-    name="beyond-the-forks",
-    blocks=[
-        with_overrides(QUICK_BLOCK, {"distances_m": [0.12, 0.2]}),
-        shipped_block(
-            "link_validation",
-            1,
-            configurations_deg=[[5, 0, 5, 5, 0, 0, 0, 0], [0, 0, 5, 5, 0, 0, 0, 0], [5, 5, 0, 0, 0, 0, 0, 0]],
-        ),
-    ],
+PROTOCOL = quick_then_link_validation(
+    "beyond-the-forks",
+    configurations_deg=[[5, 0, 5, 5, 0, 0, 0, 0], [0, 0, 5, 5, 0, 0, 0, 0], [5, 5, 0, 0, 0, 0, 0, 0]],
 )
 
 WARNING_START = "configuration {index} bends joints 3, 4, which no fork of"

@@ -16,19 +16,12 @@ from rig.sim.object_devices import ObjectServoBus
 from rig.sim.simulated_rig import SimulatedPerson, simulated_rig
 from rig.testing.recording import RecordingServoBus
 from rig.vocabulary import TrialOutcome
-from tests.helpers import QUICK_BLOCK, quick_protocol, shipped_block, with_overrides
+from tests.helpers import quick_then_link_validation
 
-PROTOCOL = quick_protocol(
-    name="by-hand",
-    blocks=[
-        with_overrides(QUICK_BLOCK, {"distances_m": [0.12, 0.2]}),
-        shipped_block(
-            "link_validation",
-            1,
-            configurations_deg=[[5, 5, 5, 5, -5, -5, -5, -5]],
-            steps=["bend", {"tare": {"settle_s": 0.1}}, "ramp_until_slip", "unload", "reset"],
-        ),
-    ],
+PROTOCOL = quick_then_link_validation(
+    "by-hand",
+    configurations_deg=[[5, 5, 5, 5, -5, -5, -5, -5]],
+    steps=["bend", {"tare": {"settle_s": 0.1}}, "ramp_until_slip", "unload", "reset"],
 )
 
 
