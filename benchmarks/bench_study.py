@@ -24,7 +24,11 @@ study on it, as a lab's cluster would be up before a study), then every repetiti
 order alternated per repetition, `rig study PROTOCOL --seeds ... --jobs N` and `rig study PROTOCOL
 --seeds ... --scheduler ADDRESS` (object-level devices, whole commands). Prints each repetition's
 runs/s, the ratio of the Dask throughput to the local pool's and the load average, then the median
-ratio (target >= 0.95). With `--baseline-tree` the other tree's `--scheduler` study is timed too
+ratio (target >= 0.95). Before the repetitions it measures the Dask path's own overhead apart from
+the runs (`dask_overhead`): importing `distributed` in the client, connecting, registering the
+plugin, and one round trip of the study's chunks through tasks that return records without running
+anything (submission, serialization, scheduling and gathering), with the pickled sizes of what goes
+out per task and comes back per seed. With `--baseline-tree` the other tree's `--scheduler` study is timed too
 (its client, so its way of sending the seeds, on the same workers). The default N of seeds is 64
 in this mode.
 
@@ -33,7 +37,7 @@ in this mode.
     .venv/bin/python benchmarks/bench_study.py --profile 3
     .venv/bin/python benchmarks/bench_study.py --dask 2 [--seeds 64] [--repeats 5] [--baseline-tree DIR]
     .venv/bin/python benchmarks/bench_study.py --smoke   (both comparisons: 1 seed of a one-trial copy
-        of the protocol, once; the Dask one on 1 worker)
+        of the protocol, once; the Dask one on 1 worker, without its warm-up study)
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from smoke_mode import SMOKE_HELP, short_protocol  # benchmarks/ is the script's directory
 
@@ -81,8 +86,10 @@ def study(protocol: Path, seeds: int, devices: str, tree: Path = ROOT, where: tu
     return timed([*command, *(where or ("--jobs", "2")), "--devices", devices, "--json"], tree)
 
 
-def dask_against_pool(protocol: Path, seeds: int, workers: int, repeats: int, baseline: Path | None) -> None:
-    """`--dask N`: see the module docstring."""
+def dask_against_pool(
+    protocol: Path, seeds: int, workers: int, repeats: int, baseline: Path | None, *, warm_up: bool = True
+) -> None:
+    """`--dask N`: see the module docstring (`warm_up=False`, for the smoke mode: no warm-up study)."""
     from distributed import LocalCluster
 
     with LocalCluster(
@@ -95,7 +102,9 @@ def dask_against_pool(protocol: Path, seeds: int, workers: int, repeats: int, ba
         }
         if baseline is not None:
             measures["dask_baseline"] = lambda: study(protocol, seeds, "object", baseline, scheduler)
-        study(protocol, workers, "object", where=scheduler)  # warm-up: the workers import the rig
+        if warm_up:  # the workers import the rig
+            study(protocol, workers, "object", where=scheduler)
+        dask_overhead(cluster.scheduler_address, protocol, seeds)
         names = list(measures)
         ratios: dict[str, list[float]] = {name: [] for name in names if name != "pool"}
         print(
@@ -121,6 +130,50 @@ def dask_against_pool(protocol: Path, seeds: int, workers: int, repeats: int, ba
             + ", ".join(f"{name}/pool {statistics.median(ratios[name]):.3f}x" for name in ratios)
             + " (target >= 0.95 for dask/pool)"
         )
+
+
+def _records_unrun(record: Any, seeds: list[int]) -> list[Any]:
+    """A stand-in for `run_chunk`: a chunk's records, copies of one real record, without running anything."""
+    import dataclasses
+
+    return [dataclasses.replace(record, seed=seed) for seed in seeds]
+
+
+def dask_overhead(address: str, protocol: Path, seeds: int) -> None:
+    """What the Dask path costs besides the runs; see the module docstring. Prints one line."""
+    import pickle
+
+    from distributed import Client, as_completed
+
+    sys.path.insert(0, str(ROOT))
+    from rig.study.dask_plugin import PRELOAD_PLUGIN, PreloadRig
+    from rig.study.executor import run_chunk, seed_chunks
+    from rig.study.worker import StudySpec, run_seed
+
+    bare_s = timed([sys.executable, "-c", "pass"])
+    import_s = timed([sys.executable, "-c", "import distributed"]) - bare_s
+    spec = StudySpec(str(protocol), None, "object")
+    record = run_seed(spec, 0)  # a real record, for the size of what comes back
+    start = time.perf_counter()
+    with Client(address, timeout="10s") as client:
+        connect_s = time.perf_counter() - start
+        start = time.perf_counter()
+        client.register_plugin(PreloadRig(), name=PRELOAD_PLUGIN)
+        plugin_s = time.perf_counter() - start
+        chunks = seed_chunks(range(seeds), sum(client.nthreads().values()))
+        start = time.perf_counter()
+        futures = client.map(_records_unrun, [record] * len(chunks), chunks, pure=False)
+        returned = sum(len(future.result()) for future in as_completed(futures))
+        round_trip_s = time.perf_counter() - start
+    assert returned == seeds
+    task_bytes = len(pickle.dumps((run_chunk, spec, chunks[0])))
+    print(
+        f"dask overhead: import distributed {import_s * 1e3:.0f} ms, connect {connect_s * 1e3:.0f} ms, "
+        f"plugin {plugin_s * 1e3:.0f} ms, {len(chunks)} chunk tasks round trip without runs "
+        f"{round_trip_s * 1e3:.0f} ms ({round_trip_s / len(chunks) * 1e3:.1f} ms per task); pickled: "
+        f"a task's arguments {task_bytes} B, a record {len(pickle.dumps(record))} B",
+        flush=True,
+    )
 
 
 def profile_seed(protocol: Path, seed: int) -> None:
@@ -171,7 +224,7 @@ def main() -> None:
             args.protocol = short_protocol(Path(folder), args.protocol, trials=1)
             args.seeds, args.repeats = 1, 1
             studies_against_runs(args)
-            dask_against_pool(args.protocol, 1, 1, 1, None)
+            dask_against_pool(args.protocol, 1, 1, 1, None, warm_up=False)
         return
     if args.profile is not None:
         profile_seed(args.protocol, args.profile)

@@ -5,11 +5,16 @@ Import as `from tests.helpers import ...`; fixtures live in tests/conftest.py.
 
 from __future__ import annotations
 
+import copy
 import fcntl
 import functools
 import subprocess
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from rig.hw.dxl.control_table import to_signed
 from rig.sim.physics.world import SimWorld
@@ -40,20 +45,63 @@ class ScriptedShaft:
         self.external_torque_nm = 0.0
 
 
-# Three joint-estimation slips on joint 1, quick to run: the runner tests' protocol.
-QUICK_PROTOCOL = """\
-format: rig-protocol/1
-name: quick
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12, 0.2, 0.25]
-    repeats: 1
-    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
-"""
+PROTOCOLS_DIR = Path(__file__).resolve().parent.parent / "protocols"
+
+
+def with_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """A copy of `data` with `overrides` applied key by key: a mapping is merged into the mapping
+    it overrides (recursively), None deletes the key, anything else (a list, a number) replaces it."""
+    merged = copy.deepcopy(dict(data))
+    for key, value in overrides.items():
+        if value is None:
+            merged.pop(key, None)
+        elif isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = with_overrides(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
+def shipped_protocol(stem: str, /, **overrides: Any) -> dict[str, Any]:
+    """protocols/STEM.yaml as data, with `overrides` applied (`with_overrides`)."""
+    data = yaml.safe_load((PROTOCOLS_DIR / f"{stem}.yaml").read_text(encoding="utf-8"))
+    return with_overrides(data, overrides)
+
+
+def shipped_block(stem: str, index: int = 0, /, **overrides: Any) -> dict[str, Any]:
+    """Block `index` of protocols/STEM.yaml, with `overrides` applied (`with_overrides`)."""
+    return with_overrides(shipped_protocol(stem)["blocks"][index], overrides)
+
+
+def protocol_text(data: Mapping[str, Any]) -> str:
+    """`data` as protocol YAML, keys in their order, lists and mappings of plain values inline."""
+    return yaml.safe_dump(dict(data), sort_keys=False, default_flow_style=None, allow_unicode=True)
+
+
+# A tare, the ramp until the slip and the unload, after the operator's prompt: the runner tests' steps.
+QUICK_STEPS = ["prompt", {"tare": {"settle_s": 0.1}}, "ramp_until_slip", "unload"]
+# Three joint-estimation slips on joint 1, quick to run: the runner tests' protocol, the shipped
+# smoke protocol at three distances with a faster slow ramp.
+QUICK_BLOCK = shipped_block("smoke", distances_m=[0.12, 0.2, 0.25], steps=QUICK_STEPS)
+QUICK_PROTOCOL = protocol_text(
+    shipped_protocol(
+        "smoke", name="quick", description=None, ramp={"slow_speed_rad_s": 0.3}, blocks=[QUICK_BLOCK]
+    )
+)
+
+
+def quick_protocol(*, block: Mapping[str, Any] | None = None, **overrides: Any) -> str:
+    """QUICK_PROTOCOL's text with `overrides` applied (`with_overrides`), and `block` to its one block."""
+    data = with_overrides(yaml.safe_load(QUICK_PROTOCOL), overrides)
+    if block is not None:
+        data["blocks"] = [with_overrides(data["blocks"][0], block)]
+    return protocol_text(data)
+
+
+def quick_then_link_validation(name: str, **validation: Any) -> str:
+    """QUICK_PROTOCOL's block at 0.12 and 0.2 m, then the shipped link-validation block with `validation`."""
+    joint = with_overrides(QUICK_BLOCK, {"distances_m": [0.12, 0.2]})
+    return quick_protocol(name=name, blocks=[joint, shipped_block("link_validation", 1, **validation)])
 
 
 def write_joint_1_protocol(path: Path, name: str, ramp: str, distances_m: str) -> Path:

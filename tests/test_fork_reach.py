@@ -16,6 +16,7 @@ from typing import Any
 from mcap.reader import make_reader
 
 from rig.log import schemas
+from tests.helpers import quick_then_link_validation
 
 RIG = """\
 extends: simulated
@@ -29,22 +30,10 @@ servos:
 
 # Trial 3 bends joints 1, 3 and 4 (the fork on component 1 moves); trial 4 only joints 3 and 4
 # (no fork has anything to do).
-PROTOCOL = """\
-format: rig-protocol/1
-name: beyond-the-forks
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12, 0.2]
-    repeats: 1
-    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
-  - kind: link_validation
-    estimates_from: run
-    configurations_deg: [[5, 0, 5, 5, 0, 0, 0, 0], [0, 0, 5, 5, 0, 0, 0, 0], [5, 5, 0, 0, 0, 0, 0, 0]]
-"""
+PROTOCOL = quick_then_link_validation(
+    "beyond-the-forks",
+    configurations_deg=[[5, 0, 5, 5, 0, 0, 0, 0], [0, 0, 5, 5, 0, 0, 0, 0], [5, 5, 0, 0, 0, 0, 0, 0]],
+)
 
 WARNING_START = "configuration {index} bends joints 3, 4, which no fork of"
 

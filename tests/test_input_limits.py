@@ -14,7 +14,7 @@ from rig.errors import InputError
 from rig.rig_config import DEFAULT_RIG_CONFIG
 from rig.runner.estimation import load_estimates_file
 from rig.runner.journal import JOURNAL_FORMAT, RunJournal, content_hash
-from tests.helpers import QUICK_PROTOCOL
+from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, quick_protocol
 
 REPO = Path(__file__).resolve().parents[1]
 PROTOCOLS = REPO / "protocols"
@@ -313,14 +313,12 @@ def test_a_key_with_a_line_break_still_gives_one_line(tmp_path, run_cli):
 def test_protocol_prompt_and_size_limits(tmp_path, run_cli):
     path = tmp_path / "p.yaml"
     path.write_text(
-        QUICK_PROTOCOL.replace("steps: [prompt,", "steps: [{prompt: {text: '{joint:>999999999}'}},")
+        quick_protocol(block={"steps": [{"prompt": {"text": "{joint:>999999999}"}}, *QUICK_STEPS[1:]]})
     )
     assert_one_line_exit_2(
         run_cli("run", path, "--dry-run"), "placeholder '{joint:>999999999}' is not allowed"
     )
-    path.write_text(
-        QUICK_PROTOCOL.replace("repeats: 1", "repeats: 100").replace("[0.12, 0.2, 0.25]", str([0.1] * 101))
-    )
+    path.write_text(quick_protocol(block={"repeats": 100, "distances_m": [0.1] * 101}))
     assert_one_line_exit_2(run_cli("run", path, "--dry-run"), "more than 10000 trials")
 
 

@@ -24,13 +24,13 @@ from rig.log.live import LivePublisher, serve_log
 from rig.rigs import open_rig
 from rig.runner.progress import SilentProgress
 from rig.runner.run import RunRequest, execute_run, prepare_run
-from tests.helpers import QUICK_PROTOCOL
+from tests.helpers import QUICK_PROTOCOL, quick_protocol
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk speaks the first
 WATCHED = (schemas.LOADCELL, schemas.SLIP, schemas.ESTIMATE)
 MESSAGE_DATA = 0x01
 TIME = 0x02
-ONE_TRIAL = QUICK_PROTOCOL.replace("[0.12, 0.2, 0.25]", "[0.2]")
+ONE_TRIAL = quick_protocol(block={"distances_m": [0.2]})
 
 
 class FoxgloveClient:

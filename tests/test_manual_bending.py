@@ -16,24 +16,13 @@ from rig.sim.object_devices import ObjectServoBus
 from rig.sim.simulated_rig import SimulatedPerson, simulated_rig
 from rig.testing.recording import RecordingServoBus
 from rig.vocabulary import TrialOutcome
+from tests.helpers import quick_then_link_validation
 
-PROTOCOL = """\
-format: rig-protocol/1
-name: by-hand
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12, 0.2]
-    repeats: 1
-    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
-  - kind: link_validation
-    estimates_from: run
-    configurations_deg: [[5, 5, 5, 5, -5, -5, -5, -5]]
-    steps: [bend, {tare: {settle_s: 0.1}}, ramp_until_slip, unload, reset]
-"""
+PROTOCOL = quick_then_link_validation(
+    "by-hand",
+    configurations_deg=[[5, 5, 5, 5, -5, -5, -5, -5]],
+    steps=["bend", {"tare": {"settle_s": 0.1}}, "ramp_until_slip", "unload", "reset"],
+)
 
 
 class TorqueWatchingOperator(SimulatedPerson):

@@ -3,7 +3,9 @@ same run, moved protocols, run ids that try to leave --out, and an --out that ca
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import json
 import os
 import re
@@ -11,13 +13,17 @@ import shlex
 import signal
 import subprocess
 import sys
+import tempfile
 import time
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 import rig.rigs as composition
+from rig.cli import build_parser
+from rig.cli import main as cli_main
 from rig.errors import InputError
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
@@ -495,16 +501,61 @@ def test_out_through_a_file_exits_2_in_one_line(tmp_path, quick, run_cli, where)
     assert result.err.startswith(f"rig: error: --out {out}") and result.err.count("\n") == 1
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")
-def test_a_read_only_out_exits_2_in_one_line(tmp_path, quick, run_cli):
-    out = tmp_path / "ro"
-    out.mkdir()
-    out.chmod(0o555)
-    try:
-        result = run_cli("run", quick, "--out", out, "--run-id", "f1")
-    finally:
-        out.chmod(0o755)
-    assert result.code == 2 and result.err == f"rig: error: --out {out}: not writable\n"
+NOBODY_ID = 65534  # the unprivileged `nobody` user and `nogroup` group of Debian and most Linux
+
+
+def run_cli_as_nobody(argv: list[str]) -> tuple[int, str]:
+    """`rig.cli.main(argv)` in a forked child that has dropped root for `nobody`: (exit code, stderr).
+
+    Forked rather than spawned so the child needs no read access to the interpreter or the sources
+    (a pyenv Python under /root is private): building the parser here imports every command first.
+    """
+    build_parser()
+    read_fd, write_fd = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: never returns into pytest
+        try:
+            os.close(read_fd)
+            os.setgroups([])
+            os.setgid(NOBODY_ID)
+            os.setuid(NOBODY_ID)
+            err = io.StringIO()
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+                code = cli_main(argv)
+            report = [code, err.getvalue()]
+        except BaseException:  # any failure goes to the parent, which shows it
+            report = [-1, traceback.format_exc()]
+        with os.fdopen(write_fd, "w") as pipe:
+            json.dump(report, pipe)
+        os._exit(0)
+    os.close(write_fd)
+    with os.fdopen(read_fd) as pipe:
+        code, err = json.load(pipe)
+    os.waitpid(pid, 0)
+    return code, err
+
+
+def test_a_read_only_out_exits_2_in_one_line(run_cli):
+    """Root writes into read-only directories, so as root (CI) the CLI runs as `nobody` in a forked
+    child (run_cli_as_nobody); as anyone else, here. The refusal checked is the same."""
+    with tempfile.TemporaryDirectory() as tmp:  # not tmp_path: pytest's base directory is private
+        base = Path(tmp)
+        base.chmod(0o755)
+        protocol = base / "quick.yaml"
+        protocol.write_text(QUICK_PROTOCOL)
+        out = base / "ro"
+        out.mkdir()
+        out.chmod(0o555)
+        argv = ["run", str(protocol), "--out", str(out), "--run-id", "f1"]
+        try:
+            if os.geteuid() == 0:
+                code, err = run_cli_as_nobody(argv)
+            else:
+                result = run_cli(*argv)
+                code, err = result.code, result.err
+        finally:
+            out.chmod(0o755)
+    assert code == 2 and err == f"rig: error: --out {out}: not writable\n", err
 
 
 def test_a_read_only_file_system_exits_2_in_one_line(tmp_path, quick, run_cli, monkeypatch):

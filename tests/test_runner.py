@@ -13,7 +13,7 @@ from rig.cli import main
 from rig.errors import InputError
 from rig.rig_config import load_rig_config
 from rig.runner.journal import RunJournal
-from tests.helpers import QUICK_PROTOCOL
+from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, quick_protocol
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 
@@ -67,15 +67,12 @@ def test_dry_run_moves_nothing_and_writes_nothing(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("edit", "needle"),
     [
-        (lambda t: t.replace("drop_fraction: 0.15", "drop_fracton: 0.15"), "drop_fracton"),
-        (
-            lambda t: t.replace("distances_m: [0.12, 0.2, 0.25]", "distances_m: [0.12, -0.2]"),
-            "distances_m[1]",
-        ),
-        (lambda t: t.replace("max_force_n: 70.0", "max_force_n: 80.0"), "max_force_n"),
-        (lambda t: t.replace("rig-protocol/1", "rig-protocol/9"), "format"),
-        (lambda t: t.replace("ramp_until_slip, unload]", "ramp_until_slip]"), "unload"),
-        (lambda t: t.replace("joint: 1", "joint: 12"), "joint"),
+        ({"detector": {"drop_fraction": None, "drop_fracton": 0.15}}, "drop_fracton"),
+        ({"block": {"distances_m": [0.12, -0.2]}}, "distances_m[1]"),
+        ({"ramp": {"max_force_n": 80.0}}, "max_force_n"),
+        ({"format": "rig-protocol/9"}, "format"),
+        ({"block": {"steps": QUICK_STEPS[:-1]}}, "unload"),
+        ({"block": {"joint": 12}}, "joint"),
     ],
     ids=[
         "misspelt-detector-field",
@@ -87,7 +84,7 @@ def test_dry_run_moves_nothing_and_writes_nothing(tmp_path, capsys):
     ],
 )
 def test_bad_protocol_exits_2_and_starts_nothing(tmp_path, capsys, edit, needle, protocol_file):
-    path = protocol_file(edit(QUICK_PROTOCOL))
+    path = protocol_file(quick_protocol(**edit))
     code = main(["run", str(path), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2
@@ -97,18 +94,17 @@ def test_bad_protocol_exits_2_and_starts_nothing(tmp_path, capsys, edit, needle,
 
 
 def test_limit_check_against_the_rig_exits_2(tmp_path, capsys, protocol_file):
-    path = protocol_file(QUICK_PROTOCOL.replace("force_ceiling_n: 75.0", "force_ceiling_n: 95.0"))
+    path = protocol_file(quick_protocol(limits={"force_ceiling_n": 95.0}))
     assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 2
     assert "limit check failed" in capsys.readouterr().err
 
 
 def test_force_ceiling_interlock_stops_safely(tmp_path, sim_run, protocol_file, assert_safe):
     # A fast ramp straight to a low ceiling: the tension overshoots the ceiling within one tick.
-    body = (
-        QUICK_PROTOCOL.replace("arm_threshold_n: 2.0", "arm_threshold_n: 9.5")
-        .replace("fast_speed_rad_s: 1.0", "fast_speed_rad_s: 15.0")
-        .replace("max_force_n: 70.0", "max_force_n: 9.8")
-        .replace("force_ceiling_n: 75.0", "force_ceiling_n: 10.0")
+    body = quick_protocol(
+        detector={"arm_threshold_n": 9.5},
+        ramp={"fast_speed_rad_s": 15.0, "max_force_n": 9.8},
+        limits={"force_ceiling_n": 10.0},
     )
     report, sim = sim_run(protocol_file(body))
     assert report.exit_code == 1 and report.aborted
@@ -193,7 +189,7 @@ def test_resume_refuses_an_edited_protocol(sim_run, protocol_file):
         sim.session.operator = Operator()
 
     sim_run(protocol, patch=stop_early)
-    protocol.write_text(QUICK_PROTOCOL.replace("repeats: 1", "repeats: 2"))
+    protocol.write_text(quick_protocol(block={"repeats": 2}))
     with pytest.raises(InputError, match="changed since run r1 started"):
         sim_run(protocol, resume="r1")
 

@@ -24,7 +24,7 @@ from rig.runner.journal import RunJournal
 from rig.runner.ramp import RAMP_GOAL_LEAD_S
 from rig.runner.run import RunRequest, prepare_run
 from rig.sim.kinds import SlipKind
-from tests.helpers import QUICK_PROTOCOL
+from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, quick_protocol
 from tests.runner_rig import EXACT_RIG, RunnerRig, assert_released_then_torque_off, execute_on, runner_rig
 
 OVERLOAD = 0x20  # Hardware Error Status bit 5, overload (e-Manual, XM430-W350 control table, address 70)
@@ -44,10 +44,8 @@ ALL_CREEP_RIG = (
 )
 # The quick protocol with a ramp that times out sooner: 3 x 20 N / (0.6 rad/s x 50 N/rad) + 0.5 s = 2.5 s
 # (rig.runner.ramp), not 3 x 70 N / 15 N/s + 5 s = 19 s.
-TIMEOUT_PROTOCOL = (
-    QUICK_PROTOCOL.replace("max_force_n: 70.0", "max_force_n: 20.0")
-    .replace("slow_speed_rad_s: 0.3", "slow_speed_rad_s: 0.6")
-    .replace("force_ceiling_n: 75.0", "force_ceiling_n: 75.0, step_timeout_margin_s: 0.5")
+TIMEOUT_PROTOCOL = quick_protocol(
+    ramp={"max_force_n": 20.0, "slow_speed_rad_s": 0.6}, limits={"step_timeout_margin_s": 0.5}
 )
 # Trial 2 a stick-slip train of 3 drops, trials 1 and 3 sudden slips: the draws at seed 1.
 STICK_SLIP_RIG = (
@@ -401,7 +399,7 @@ class _CameraLike:
 
 @pytest.mark.parametrize(("moved", "outcome"), [(2, "other_joint"), (1, "slip"), (None, "slip")])
 def test_the_joint_that_moved_is_found_from_the_configuration_before_and_after(prepare, moved, outcome):
-    prepared = prepare(protocol=QUICK_PROTOCOL.replace("steps: [prompt, ", "steps: [prompt, measure, "))
+    prepared = prepare(protocol=quick_protocol(block={"steps": ["prompt", "measure", *QUICK_STEPS[1:]]}))
     rig = runner_rig(prepared)
     rig.session = dataclasses.replace(rig.session, configuration=_CameraLike(moved))
     report = execute_on(prepared, rig)
