@@ -58,7 +58,7 @@ from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
-from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
+from rig.sim.physics.link_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
 from rig.sim.settings import LoadCellArtefacts, require_simulated
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -49,7 +49,7 @@ from rig.log import schemas
 from rig.protocol import load_protocol
 from rig.runner.ramp_speed import RampSpeeds
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
-from rig.sim.physics.article_presets import make_preset
+from rig.sim.physics.link_presets import make_preset
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"

@@ -3,16 +3,16 @@
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
+    "capacity_grid_filter",
     "chain",
     "design",
-    "estimate_summary",
-    "estimators",
     "field_spec",
     "fit",
+    "fit_keys",
     "gravity",
     "joint",
-    "joint_capacity_estimation",
     "joint_rotation",
+    "k_estimators",
     "online_fit",
     "payload_errors",
     "slip_detector",

@@ -25,9 +25,9 @@ from model.design import (
     DEFAULT_STOP_SCALE_CONFIDENCE,
     DesignSettings,
 )
-from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
 from model.field_spec import choice, custom, flag, integer, keys_within, number, numbers, section, top_keys
 from model.field_spec import text as text_field
+from model.k_estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
 from model.slip_detector import DetectorParams, params_for_rate
 from rig.errors import ConfigError
 from rig.files import parse_yaml, read_text_file

@@ -39,7 +39,7 @@ import numpy as np
 from scatter_shapes import scenario_shapes
 from scipy import stats
 
-from model import estimators
+from model import k_estimators as estimators
 from model.design import (
     DEFAULT_MIN_SPREAD_FRACTION,
     DEFAULT_STARTUP_TRIALS,
@@ -52,10 +52,10 @@ from model.design import (
     information_per_trial,
     plan_next,
 )
-from model.estimators import ESTIMATOR_NAMES, KEstimate, check_estimator, estimate_k
 from model.fit import t_quantile
+from model.k_estimators import ESTIMATOR_NAMES, KEstimate, check_estimator, estimate_k
 from rig.rig_config import load_rig_config
-from rig.study.summary import clopper_pearson
+from rig.study.statistics import clopper_pearson
 
 K_TRUE = 0.1615  # link 1 of the paper [kg·m]
 G = 9.8

@@ -15,7 +15,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from rig.analysis.replay import replay
+from rig.analysis.replay_run import replay
 from rig.errors import ConfigError, InputError
 from rig.hw.configuration import factory
 from rig.hw.configuration.file_source import FileConfigurationSource, MeasuredAnglesFile
@@ -23,7 +23,7 @@ from rig.hw.configuration.operator_source import OperatorConfigurationSource, pa
 from rig.hw.seams import MeasurementRequest
 from rig.log import schemas
 from rig.rig_config import DEFAULT_RIG_CONFIG, configuration_source_kind, parse_rig_config
-from rig.sim.clock import VirtualClock
+from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import ConfigurationSourceKind
 
 ROOT = Path(__file__).resolve().parent.parent

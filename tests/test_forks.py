@@ -8,9 +8,9 @@ from dataclasses import replace
 import numpy as np
 
 from rig.hw.bending import ForkBending
-from rig.sim.physics.article import ChainArticle
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.forks import ForkFixture
+from rig.sim.physics.link import ChainArticle
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.physics.world import SimWorld
 from tests.helpers import ScriptedShaft, set_up_trial
 

@@ -32,8 +32,8 @@ from rig.hw.loadcell.calibration import Calibration
 from rig.linkfile import load_link_file
 from rig.protocol import load_protocol
 from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
-from rig.runner.estimation import RunEstimator, load_estimates_file
 from rig.runner.journal import RunJournal
+from rig.runner.run_estimates import RunEstimator, load_estimates_file
 from rig.sim.dxl.faults import parse_fault as parse_dxl_fault
 from rig.sim.loadcell.emulator import FaultPlan
 from rig.sim.loadcell.emulator import parse_fault as parse_loadcell_fault

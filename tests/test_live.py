@@ -22,8 +22,8 @@ from rig.errors import InputError
 from rig.log import schemas
 from rig.log.live import LivePublisher, serve_log
 from rig.rigs import open_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 from tests.helpers import QUICK_PROTOCOL
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk speaks the first

@@ -10,7 +10,7 @@ from rig.errors import InputError
 from rig.log.log_format import LOG_FORMAT_VERSION, METADATA_NAME, UNVERSIONED, format_metadata
 from rig.log.reader import read_run
 from rig.log.writer import RunLogger
-from rig.sim.clock import VirtualClock
+from rig.sim.virtual_clock import VirtualClock
 
 T0_NS = 1_767_225_600_000_000_000
 

@@ -26,7 +26,7 @@ from rig.log.log_format import format_metadata
 from rig.log.reader import read_run
 from rig.log.records import SlipMessage, TrialPhase, TrialState
 from rig.log.writer import LIBRARY, LogWriteError, RunLogger
-from rig.sim.clock import VirtualClock
+from rig.sim.virtual_clock import VirtualClock
 
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000

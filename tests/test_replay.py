@@ -18,7 +18,7 @@ from mcap.stream_reader import breakup_chunk
 from model.chain import lever_arms_m, planar_transforms
 from rig.analysis import redetect as rd
 from rig.analysis import report as report_module
-from rig.analysis.replay import replay
+from rig.analysis.replay_run import replay
 from rig.analysis.trials import load_trial_table
 from rig.cli import main
 from rig.log import schemas as S

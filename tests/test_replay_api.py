@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from rig.analysis import LoggedRuns, LogWarning, Refit, open_log, open_logs
-from rig.analysis.replay import replay
+from rig.analysis.replay_run import replay
 from rig.analysis.trials import TRIAL_COLUMNS, load_trial_table
 from rig.errors import InputError
 from rig.log import schemas as S

@@ -26,9 +26,9 @@ from rig.errors import ConfigError, InputError
 from rig.log.reader import read_run
 from rig.protocol import load_protocol
 from rig.rig_config import load_rig_config
-from rig.sim.dxl.pty_server import IDLE_POLL_MS
+from rig.sim.dxl.bus_pty_server import IDLE_POLL_MS
 from rig.sim.kinds import ArticleSetup, SlipKind
-from rig.sim.pty_link import Stop
+from rig.sim.pty_port import Stop
 from rig.sim.twin import TICK_S, build_twin, serve_twin
 from rig.sim.twin_console import ReferenceLoad, run_console
 from rig.sim.twin_hand import SLACK_DWELL_S
@@ -384,7 +384,7 @@ def _ping(link: Path) -> int:
 
 
 # A port asked to change is brought to it on the twin's next tick, once its serving thread has seen
-# its stop (the bus server looks every 50 ms, rig.sim.dxl.pty_server.IDLE_POLL_MS).
+# its stop (the bus server looks every 50 ms, rig.sim.dxl.bus_pty_server.IDLE_POLL_MS).
 SETTLED_S = TICK_S + IDLE_POLL_MS / 1000 + 0.05
 
 

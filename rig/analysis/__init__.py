@@ -17,7 +17,7 @@ __all__ = [
     "open_log",
     "open_logs",
     "redetect",
-    "replay",
+    "replay_run",
+    "replay_tables",
     "report",
-    "summary",
 ]

@@ -35,8 +35,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from model.fit import t_quantile
-from rig.analysis import summary
-from rig.analysis.replay import ReplayResult
+from rig.analysis import replay_tables as summary
+from rig.analysis.replay_run import ReplayResult
 from rig.analysis.samples import loadcell_samples
 from rig.analysis.trials import TrialRecord, slipped_rows, write_trial_table
 from rig.errors import InputError

@@ -13,7 +13,7 @@ from rig.errors import ExitCode, InputError
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 
 if TYPE_CHECKING:
-    from rig.preflight.context import CheckContext
+    from rig.preflight.check_context import CheckContext
     from rig.preflight.verdicts import CheckRow
 
 DESCRIPTION = """\
@@ -114,7 +114,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 def run(args: argparse.Namespace) -> int:
     """Run the sections, print the rows, offer to write the jog's findings; returns the exit code."""
     from rig.files import parse_yaml, read_text_file
-    from rig.preflight.context import CheckContext, CheckOptions
+    from rig.preflight.check_context import CheckContext, CheckOptions
     from rig.preflight.devices import check_devices
     from rig.preflight.sections import run_sections
     from rig.preflight.verdicts import Verdict, exit_code

@@ -10,7 +10,7 @@ from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 
 if TYPE_CHECKING:
-    from rig.analysis.replay import ReplayResult
+    from rig.analysis.replay_run import ReplayResult
 
 DESCRIPTION = """\
 Replay a run's MCAP log(s): rebuild the trial table from /rig/trial/result, run the slip detector
@@ -152,7 +152,7 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _text(result: ReplayResult) -> str:
-    from rig.analysis.summary import (
+    from rig.analysis.replay_tables import (
         base_moments_table,
         estimates_table,
         links_table,

@@ -19,13 +19,13 @@ from rig.sim.kinds import DeviceLevel
 from rig.vocabulary import ConfigurationSourceKind, RigKind, StepKind
 
 if TYPE_CHECKING:
-    from model.estimate_summary import EstimateSummary
     from model.fit import FitSummary
+    from model.fit_keys import EstimateSummary
     from model.payload_errors import PayloadErrorStats
     from rig.log.live import LivePublisher
     from rig.protocol import Protocol
     from rig.rig_config import RigConfig
-    from rig.runner.run import RunReport, RunRequest
+    from rig.runner.execute import RunReport, RunRequest
     from rig.sim.truth import RunTruth
 
 DESCRIPTION = """\
@@ -125,9 +125,9 @@ def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
     # The runner is imported here, not at the top, so that `rig --help` stays quick.
     from rig.rigs import check_session_inputs, open_rig
+    from rig.runner.execute import execute_run, prepare_run
     from rig.runner.journal import MAX_SEED
     from rig.runner.progress import make_progress
-    from rig.runner.run import execute_run, prepare_run
     from rig.runner.safety import interrupts_held
     from rig.sim.settings import check_simulation
 
@@ -185,8 +185,8 @@ def _dry_run(args: argparse.Namespace) -> int:
     The same `prepare_run` as a real run (it writes nothing), and the files the session would read.
     """
     from rig.rigs import check_session_inputs
+    from rig.runner.execute import prepare_run
     from rig.runner.limits import plan_summary
-    from rig.runner.run import prepare_run
     from rig.sim.settings import check_simulation
 
     prepared = prepare_run(_request(args), dry_run=True)
@@ -278,7 +278,7 @@ def _calibration_not_made_yet(config: RigConfig) -> list[str]:
 
 
 def _request(args: argparse.Namespace) -> RunRequest:
-    from rig.runner.run import RunRequest
+    from rig.runner.execute import RunRequest
 
     return RunRequest(
         protocol_path=args.protocol,

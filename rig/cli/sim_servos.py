@@ -16,12 +16,12 @@ from typing import assert_never
 from rig.errors import InputError, one_line
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.control_table import BAUD_REGISTER_BY_RATE, MODELS
-from rig.sim.dxl.bus import EmulatedBus
+from rig.sim.dxl.bus_pty_server import ServedBus, serve
+from rig.sim.dxl.emulated_bus import EmulatedBus
 from rig.sim.dxl.faults import FaultSpec, parse_fault
-from rig.sim.dxl.protocol1 import Protocol1Bus
-from rig.sim.dxl.pty_server import ServedBus, serve
+from rig.sim.dxl.packet1 import Protocol1Bus
 from rig.sim.kinds import ServoFaultFlag
-from rig.sim.pty_link import PtyLink, StopFlag
+from rig.sim.pty_port import PtyLink, StopFlag
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -14,9 +14,9 @@ from __future__ import annotations
 from rig.errors import HandshakeError
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.bus import ServoHealthReport, ServoInfo
-from rig.hw.dxl.errors import describe_hardware_error
+from rig.hw.dxl.error_codes import describe_hardware_error
 from rig.hw.seams import OperatingMode
-from rig.preflight.context import CheckContext
+from rig.preflight.check_context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
 from rig.rig_config import RigConfig
 from rig.servo_ratings import BUS_WATCHDOG_MIN_FIRMWARE, INPUT_VOLTAGE_RANGE_V

@@ -3,12 +3,12 @@
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
+    "execute",
     "journal",
     "limits",
     "planning",
     "progress",
     "rig_to_run",
-    "run",
     "safety",
     "trial_runner",
 ]

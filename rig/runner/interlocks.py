@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from rig.hw.dxl.errors import describe_hardware_error
+from rig.hw.dxl.error_codes import describe_hardware_error
 from rig.hw.seams import ServoState
 from rig.vocabulary import ServoRole
 

@@ -11,7 +11,7 @@ from rig.hw.seams import ConfigurationReading, MeasurementRequest, RequestAwareS
 from rig.log import schemas
 from rig.log.records import ConfigurationMeasurement
 from rig.protocol import TrialPlan
-from rig.runner.context import StepContext
+from rig.runner.step_context import StepContext
 from rig.vocabulary import ConfigurationSourceKind, MeasurementStage
 
 

@@ -12,9 +12,9 @@ from rig.errors import InterlockTripped, RigError, StepTimeoutError
 from rig.hw.seams import ServoState
 from rig.log.records import LogLevel
 from rig.protocol import TrialPlan
-from rig.runner.context import StepContext
 from rig.runner.phases import Phase
 from rig.runner.safe_state import POSITION_TOLERANCE_RAD
+from rig.runner.step_context import StepContext
 
 # After a device fault in a trial: how many times the trial may be repeated, and how long the rig
 # has to answer healthily again (servos without a hardware error, fresh load-cell samples).

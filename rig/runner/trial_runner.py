@@ -39,12 +39,9 @@ from rig.log.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOut
 from rig.log.writer import RunLogger
 from rig.protocol import Protocol, TrialPlan
 from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
-from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.control_loop import ControlLoop
-from rig.runner.estimation import RunEstimator
 from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.journal import RunJournal
-from rig.runner.link_counts import TrialLinkCounter
 from rig.runner.link_view import LinkView
 from rig.runner.loaded_at_connect import PayoutVerdict, pay_out_verified
 from rig.runner.phases import Phase
@@ -53,9 +50,12 @@ from rig.runner.recorder import RunRecorder
 from rig.runner.recovery import MAX_TRIAL_RETRIES, is_device_fault, recover
 from rig.runner.release import LineRelease
 from rig.runner.results import TrialMeasurements, nothing_measured, trial_result
+from rig.runner.run_estimates import RunEstimator
 from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held
+from rig.runner.step_context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.steps import STEPS
+from rig.runner.wire_counts import TrialLinkCounter
 from rig.vocabulary import ServoRole, TrialKind
 
 LINE_MAY_BE_LOADED = (

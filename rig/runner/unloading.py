@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from rig.log.records import LogLevel, ServoCommandName
 from rig.protocol import TrialPlan
-from rig.runner.context import StepContext
 from rig.runner.phases import Phase
 from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
+from rig.runner.step_context import StepContext
 from rig.vocabulary import StepKind
 
 # How the log names the time from a slip's detection to the line slack (studies/loaded_after_slip.py).

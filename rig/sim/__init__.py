@@ -3,9 +3,8 @@
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
-    "clock",
     "kinds",
-    "pty_link",
+    "pty_port",
     "settings",
     "simulated_rig",
     "truth",
@@ -13,4 +12,5 @@ __all__ = [
     "twin_console",
     "twin_firmware",
     "twin_ports",
+    "virtual_clock",
 ]

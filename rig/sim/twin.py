@@ -4,8 +4,8 @@ The same world as the in-process simulated rig (rig/sim/simulated_rig.py: `SimWo
 `EmulatedBus` with every configured servo as its own model, and a `LoadCellEmulator` of the line's
 tension), but in real time and reached only through pseudo-terminals symlinked at the config's
 `servos.port` and `loadcell.port`, so a hardware config's own commands drive it as they would the
-rig. The existing pty servers do the serving, each in its own thread: `rig.sim.dxl.pty_server.serve`
-for the bus and `rig.sim.loadcell.pty_server.serve_loadcell` for the cell, or, with `firmware`,
+rig. The existing pty servers do the serving, each in its own thread: `rig.sim.dxl.bus_pty_server.serve`
+for the bus and `rig.sim.loadcell.line_pty_server.serve_loadcell` for the cell, or, with `firmware`,
 the built firmware image under simavr fed the world's tension (rig/sim/twin_firmware.py).
 
 Time: the world's `VirtualClock` reads the host's monotonic clock (its epoch makes `time_ns` the
@@ -41,16 +41,15 @@ from rig.errors import ConfigError
 from rig.hw.loadcell.calibration import Calibration
 from rig.protocol import Protocol
 from rig.rig_config import RigConfig
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl.bus import EmulatedBus, Reply
-from rig.sim.dxl.pty_server import serve
+from rig.sim.dxl.bus_pty_server import serve
+from rig.sim.dxl.emulated_bus import EmulatedBus, Reply
 from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults
 from rig.sim.kinds import FaultDevice
 from rig.sim.loadcell.emulator import LoadCellEmulator
-from rig.sim.loadcell.inprocess import ideal_calibration, simulated_load_cell
-from rig.sim.loadcell.pty_server import serve_loadcell
+from rig.sim.loadcell.inprocess_line import ideal_calibration, simulated_load_cell
+from rig.sim.loadcell.line_pty_server import serve_loadcell
 from rig.sim.physics.world import SimWorld
-from rig.sim.pty_link import PtyLink, Stop
+from rig.sim.pty_port import PtyLink, Stop
 from rig.sim.settings import simulation_section
 from rig.sim.simulated_rig import (
     config_preset,
@@ -64,6 +63,7 @@ from rig.sim.twin_console import ReferenceLoad
 from rig.sim.twin_firmware import feed_firmware, harness_command, start_firmware_cell, stop_firmware_cell
 from rig.sim.twin_hand import HandTrial, TwinHand, hand_trials
 from rig.sim.twin_ports import PortAction, PortCondition, PortRequests, ServedPort, TwinDevice
+from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS
 
 TICK_S = 0.01  # how often the main thread brings the world up to the wall clock when nothing else does

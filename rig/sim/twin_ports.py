@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
-from rig.sim.pty_link import PtyLink, Stop
+from rig.sim.pty_port import PtyLink, Stop
 
 
 class TwinDevice(StrEnum):

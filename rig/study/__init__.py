@@ -8,7 +8,7 @@ Layer: between `rig.cli` and `rig.rigs` (it composes simulated rigs through `rig
 __all__ = [
     "executor",
     "seeds",
-    "summary",
+    "statistics",
     "table",
     "worker",
 ]

@@ -8,7 +8,7 @@ Formats and conventions: docs/formats.md §9.
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
-    "calibration",
+    "camera_calibration",
     "marker_map",
     "measure",
     "opencv",

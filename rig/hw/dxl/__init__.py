@@ -5,8 +5,8 @@
 __all__ = [
     "bus",
     "control_table",
-    "errors",
-    "scan",
+    "discovery",
+    "error_codes",
     "setup",
     "transport",
     "units",

@@ -4,11 +4,11 @@
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
     "actuator",
-    "bus",
+    "bus_pty_server",
+    "emulated_bus",
     "faults",
-    "inprocess",
-    "protocol1",
-    "pty_server",
+    "inprocess_port",
+    "packet1",
     "servo",
     "shaft_motion",
 ]

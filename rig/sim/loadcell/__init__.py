@@ -5,7 +5,7 @@
 __all__ = [
     "artefacts",
     "emulator",
-    "inprocess",
+    "inprocess_line",
+    "line_pty_server",
     "profiles",
-    "pty_server",
 ]

@@ -3,7 +3,7 @@
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
-    "article_presets",
     "configuration_source",
+    "link_presets",
     "world",
 ]

@@ -29,7 +29,7 @@ from typing import Protocol
 import numpy as np
 
 from model.chain import forward_kinematics
-from rig.sim.physics.article import ChainArticle
+from rig.sim.physics.link import ChainArticle
 
 MAX_YIELDS_PER_UPDATE = 64  # slips resolved per update (each moves one joint; a few suffice)
 

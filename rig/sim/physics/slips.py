@@ -28,7 +28,7 @@ from typing import Protocol, assert_never
 import numpy as np
 
 from rig.sim.kinds import SlipKind
-from rig.sim.physics.article import ChainArticle
+from rig.sim.physics.link import ChainArticle
 from rig.sim.physics.winch_line import WinchLine
 from rig.sim.truth import SlipPlan, SlipTruth
 

@@ -20,8 +20,8 @@ from typing import assert_never
 import numpy as np
 
 from rig.sim.kinds import SlipKind
-from rig.sim.physics.article import ChainArticle
-from rig.sim.physics.article_presets import STREAM_SLIP_KIND, STREAM_TRIAL_CAPACITY, SimPreset, stream_rng
+from rig.sim.physics.link import ChainArticle
+from rig.sim.physics.link_presets import STREAM_SLIP_KIND, STREAM_TRIAL_CAPACITY, SimPreset, stream_rng
 from rig.sim.truth import SlipPlan
 
 MIN_CAPACITY_FACTOR = 0.05

@@ -54,9 +54,9 @@ from typing import Protocol
 import numpy as np
 
 from rig.sim.kinds import ArticleSetup, SlipKind
-from rig.sim.physics.article import ChainArticle
-from rig.sim.physics.article_presets import STREAM_BEND, SimPreset, stream_rng
 from rig.sim.physics.forks import ForkFixture, ShaftDrivenForks
+from rig.sim.physics.link import ChainArticle
+from rig.sim.physics.link_presets import STREAM_BEND, SimPreset, stream_rng
 from rig.sim.physics.slips import ActiveSlip, SlipBehaviour, SlipRecord, Sudden, behaviour_for
 from rig.sim.physics.tension_history import TensionHistory
 from rig.sim.physics.trial_draws import TrialDraws

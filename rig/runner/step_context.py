@@ -9,10 +9,10 @@ from rig.hw.session import RigSession
 from rig.protocol import Protocol
 from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, RigConfig
 from rig.runner.control_loop import ControlLoop
-from rig.runner.estimation import RunEstimator
 from rig.runner.link_view import LinkView
 from rig.runner.recorder import RunRecorder
 from rig.runner.release import LineRelease
+from rig.runner.run_estimates import RunEstimator
 
 BENDER_SPEED_RAD_S = 2.0
 

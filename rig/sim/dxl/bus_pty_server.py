@@ -24,8 +24,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from rig.sim.dxl.bus import Reply
-from rig.sim.pty_link import PtyLink, Stop
+from rig.sim.dxl.emulated_bus import Reply
+from rig.sim.pty_port import PtyLink, Stop
 
 IDLE_POLL_MS = 50  # how often the loop looks at the stop flag when nothing happens
 

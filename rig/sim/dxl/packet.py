@@ -20,7 +20,7 @@ from array import array
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-from rig.hw.dxl import errors as _errors
+from rig.hw.dxl import error_codes as _errors
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE

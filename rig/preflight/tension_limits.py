@@ -10,7 +10,7 @@ the one the rest of the rig applies, called rather than restated: the cap is
 from __future__ import annotations
 
 from rig.errors import ConfigError
-from rig.preflight.context import CheckContext
+from rig.preflight.check_context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
 from rig.rig_config import RigConfig, check_tension_cap
 from rig.runner.limits import limit_checks

@@ -21,8 +21,8 @@ import math
 
 from dynamixel_sdk import PortHandler
 
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl.bus import EmulatedBus, Reply
+from rig.sim.dxl.emulated_bus import EmulatedBus, Reply
+from rig.sim.virtual_clock import VirtualClock
 
 IDLE_STEP_NS = 10_000  # minimum virtual-time step when the SDK polls with nothing due and no deadline ahead
 DEADLINE_MARGIN_NS = 1_000  # step just past the SDK's deadline so its `>` comparison fires

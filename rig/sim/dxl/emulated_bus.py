@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from rig.hw.dxl.control_table import ControlTable, table_for_model
-from rig.sim.dxl import protocol as p
+from rig.sim.dxl import packet as p
 from rig.sim.dxl.faults import ReplyFaults
 from rig.sim.dxl.servo import Result, Servo
 

@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 import rig
-from model.estimate_summary import EstimateSummary
 from model.fit import FitSummary
+from model.fit_keys import EstimateSummary
 from model.payload_errors import PayloadErrorStats
 from rig.errors import ExitCode, InputError
 from rig.files import atomic_write_text, check_out_dir
@@ -37,7 +37,6 @@ from rig.log.records import JointCapacity, LogLevel, LogMessage, TrialResult
 from rig.log.writer import LogWriteError, RunLogger
 from rig.protocol import Protocol, TrialPlan, for_loadcell_rate, load_protocol
 from rig.rig_config import DEFAULT_RIG_CONFIG, RigConfig, load_rig_config, nominal_loadcell_rate_hz
-from rig.runner.estimation import RunEstimator, load_estimates_file
 from rig.runner.file_changes import describe_changes
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
@@ -45,6 +44,7 @@ from rig.runner.planning import AdaptiveSummary, TrialSchedule
 from rig.runner.progress import ProgressReporter
 from rig.runner.results import percentage_error_stats
 from rig.runner.rig_to_run import GroundTruth, RigToRun, TruthSnapshot
+from rig.runner.run_estimates import RunEstimator, load_estimates_file
 from rig.runner.runlock import RunLock
 from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held

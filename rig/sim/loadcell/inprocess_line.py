@@ -20,7 +20,6 @@ from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.hw.loadcell.calibration import Calibration, indicator_calibration
 from rig.hw.loadcell.driver import DEFAULT_BOOT_GRACE_S, SerialLoadCell
 from rig.hw.loadcell.formats import MICRONEWTONS_PER_N, IndicatorStCodec, ValueUnitCodec
-from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import (
     BITS_PER_BYTE,
@@ -33,6 +32,7 @@ from rig.sim.loadcell.emulator import (
     wrong_baud_garbage,
 )
 from rig.sim.settings import SimulatedCell
+from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import LoadCellFormatName
 
 DEFAULT_RX_BUFFER_BYTES = 65536

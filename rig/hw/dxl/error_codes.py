@@ -35,7 +35,7 @@ HARDWARE_ERROR_BITS: dict[int, str] = {
     ct.HW_ERROR_OVERLOAD: "overload",
 }
 
-# Protocol 2.0 status ERR byte, bits 0-6 (the emulator, rig.sim.dxl.protocol, answers with these).
+# Protocol 2.0 status ERR byte, bits 0-6 (the emulator, rig.sim.dxl.packet, answers with these).
 ERRNUM_RESULT_FAIL = 1
 ERRNUM_INSTRUCTION = 2
 ERRNUM_CRC = 3

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from rig.sim.dxl.bus import BITS_PER_BYTE, Reply
+from rig.sim.dxl.emulated_bus import BITS_PER_BYTE, Reply
 from rig.sim.dxl.servo import Result, Servo
 
 HEADER = b"\xff\xff"

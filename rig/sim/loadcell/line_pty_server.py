@@ -9,7 +9,7 @@ it would on a real UART, so a wrong `--baud` shows up as corrupt data rather tha
 A client opening the port is the host opening it (`LoadCellEmulator.host_opened`): with a DTR
 reset (`dtr_reset_s`) the board falls silent, then sends its banner and starts seq and its clock
 from 0, as an Arduino does when pyserial asserts DTR. The open is seen through the pty's
-`ClientOpens` watch (Linux inotify; rig/sim/pty_link.py), which also wakes the loop at once, so no
+`ClientOpens` watch (Linux inotify; rig/sim/pty_port.py), which also wakes the loop at once, so no
 line of the old boot reaches the client after its open. Not verified against a real board.
 """
 
@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from rig.sim.loadcell.emulator import LoadCellEmulator, wrong_baud_garbage
-from rig.sim.pty_link import ClientEvent, PtyLink, Stop
+from rig.sim.pty_port import ClientEvent, PtyLink, Stop
 
 MAX_SLEEP_S = 0.05  # bounds how late a stop request is noticed
 MIN_SLEEP_S = 0.0005

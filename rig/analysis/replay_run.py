@@ -25,8 +25,8 @@ from typing import Any, Protocol
 
 import pandas as pd
 
-from model.estimate_summary import EstimateSummary
-from model.estimators import ESTIMATOR_NAMES, EstimatorName
+from model.fit_keys import EstimateSummary
+from model.k_estimators import ESTIMATOR_NAMES, EstimatorName
 from model.slip_detector import DetectorParams
 from rig.analysis import redetect as rd
 from rig.analysis.gaps import gap_warning, trial_gaps

@@ -1,6 +1,6 @@
 """One estimator's fit as the `rig fit --json` keys, with the paper's fit beside it (docs/formats.md §4).
 
-`summarize_estimate` turns a `model.estimators.KEstimate` into the same `FitSummary` keys the paper's
+`summarize_estimate` turns a `model.k_estimators.KEstimate` into the same `FitSummary` keys the paper's
 fit has always had (so every consumer of those keys keeps working), and keeps the paper's own
 `FitSummary` next to it: whichever estimator is chosen, the paper's numbers stay visible.
 
@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from model.estimators import EstimatorName, KEstimate, estimate_k
 from model.fit import (
     FitSummary,
     InverseFit,
@@ -28,6 +27,7 @@ from model.fit import (
     fit_summary,
 )
 from model.joint import CapacityConstant
+from model.k_estimators import EstimatorName, KEstimate, estimate_k
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,8 +1,8 @@
 """The run's estimates: the joint-estimation fit, per-joint capacities, and predictions.
 
 Glue between the runner and `model/`: it feeds each finished trial into the pure functions
-(`model.online_fit` for the paper's fit, `model.estimate_summary` for the protocol's estimator,
-`model.joint_capacity_estimation`), predicts the next trial's slip load from the estimates **the rig
+(`model.online_fit` for the paper's fit, `model.fit_keys` for the protocol's estimator,
+`model.capacity_grid_filter`), predicts the next trial's slip load from the estimates **the rig
 itself made** (never from simulator truth), and gives the estimate as one
 `rig.log.records.Estimate` for the log, the progress line and the report. Slips feed the fit; a
 joint-estimation trial that ended without a slip enters it as a lower bound on the slip mass
@@ -22,11 +22,7 @@ from typing import Any, assert_never
 
 import numpy as np
 
-from model.chain import planar_transforms, predict_slip
-from model.estimate_summary import EstimateSummary, summarize_estimate
-from model.estimators import DEFAULT_ESTIMATOR, EstimatorName
-from model.fit import FitSummary, capacity_from_fit, fit_summary
-from model.joint_capacity_estimation import (
+from model.capacity_grid_filter import (
     DEFAULT_OBS_SD_LOG,
     LinkEstimatorState,
     PerJointEstimates,
@@ -34,6 +30,10 @@ from model.joint_capacity_estimation import (
     link_estimator_init,
     link_estimator_update,
 )
+from model.chain import planar_transforms, predict_slip
+from model.fit import FitSummary, capacity_from_fit, fit_summary
+from model.fit_keys import EstimateSummary, summarize_estimate
+from model.k_estimators import DEFAULT_ESTIMATOR, EstimatorName
 from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
 from rig.errors import InputError
 from rig.files import load_json_file

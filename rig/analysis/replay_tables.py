@@ -13,9 +13,9 @@ from typing import Any
 
 import pandas as pd
 
-from model.estimate_summary import EstimateSummary
 from model.fit import FitSummary
-from rig.analysis.replay import ReplayResult
+from model.fit_keys import EstimateSummary
+from rig.analysis.replay_run import ReplayResult
 from rig.log.records import Estimate
 from rig.vocabulary import TrialKind
 

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from rig.hw.usb_latency import latency_timer_path
-from rig.preflight.context import CheckContext
+from rig.preflight.check_context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
 
 SECTION = "ports"
