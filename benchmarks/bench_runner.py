@@ -48,7 +48,7 @@ def instrument_parts() -> collections.Counter[str]:
     """Wrap the runner's per-tick calls to add up the calling thread's CPU time per part."""
     from rig.hw.dxl.bus import DynamixelServoBus
     from rig.hw.loadcell.driver import SerialLoadCell
-    from rig.log.writer import RunLogger
+    from rig.log.writing.writer import RunLogger
     from rig.runner.control_loop import ControlLoop
     from rig.sim.virtual_clock import VirtualClock
 

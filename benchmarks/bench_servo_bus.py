@@ -23,7 +23,7 @@ from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler
 from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from rig.hw.dxl.bus import DynamixelServoBus
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 from rig.sim.dxl.emulated_bus import EmulatedBus
 from rig.sim.dxl.inprocess_port import SimPortHandler
 from rig.sim.virtual_clock import VirtualClock

@@ -6,12 +6,9 @@ __version__ = "0.1.0"
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
     "errors",
-    "files",
-    "linkfile",
-    "protocol",
-    "rig_config",
+    "inputs",
+    "records",
     "rigs",
-    "servo_ratings",
-    "validate",
+    "safety",
     "vocabulary",
 ]

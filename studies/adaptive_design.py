@@ -54,12 +54,12 @@ from model.design import (
 )
 from model.fit import t_quantile
 from model.k_estimators import ESTIMATOR_NAMES, KEstimate, check_estimator, estimate_k
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
 from rig.study.statistics import clopper_pearson
 
 K_TRUE = 0.1615  # link 1 of the paper [kg·m]
 G = 9.8
-# The largest share of the force limit a protocol may let the planner aim at (rig/protocol.py's
+# The largest share of the force limit a protocol may let the planner aim at (rig/inputs/protocol.py's
 # upper limit of max_force_fraction), for the force-limited floor.
 MAX_FORCE_FRACTION_ALLOWED = 0.95
 RANGE_M = (0.03, 0.25)

@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 
 from model.chain import lever_arms_m, planar_transforms
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
 from rig.runner.run_estimates import RunEstimator
 
 REPO = Path(__file__).resolve().parents[1]

@@ -48,7 +48,7 @@ from dynamixel_sdk import PacketHandler
 from rig.cli import main as cli_main
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.loadcell.calibration import Calibration
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 from rig.rigs import open_simulated_rig
 from rig.runner.execute import RunReport, RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
@@ -58,7 +58,7 @@ from rig.sim.simulated_rig import SimulatedRig
 from rig.sim.virtual_clock import VirtualClock
 from tests.helpers import s32, u32
 
-# Every payload a test logs is checked against its topic schema (rig/log/schemas.py).
+# Every payload a test logs is checked against its topic schema (rig/log/format/schemas.py).
 os.environ.setdefault("RIG_LOG_STRICT", "1")
 
 

@@ -21,8 +21,8 @@ from rig.hw.configuration import factory
 from rig.hw.configuration.file_source import FileConfigurationSource, MeasuredAnglesFile
 from rig.hw.configuration.operator_source import OperatorConfigurationSource, parse_angles_deg
 from rig.hw.seams import MeasurementRequest
-from rig.log import schemas
-from rig.rig_config import DEFAULT_RIG_CONFIG, configuration_source_kind, parse_rig_config
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, configuration_source_kind, parse_rig_config
+from rig.log.format import schemas
 from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import ConfigurationSourceKind
 

@@ -16,9 +16,9 @@ from model.fit_keys import summarize_estimate
 from model.k_estimators import auto_batch, crlb_k, estimate_k
 from rig.cli import main
 from rig.errors import ConfigError
-from rig.log.records import Estimate
-from rig.protocol import parse_protocol
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.inputs.protocol import parse_protocol
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.records import Estimate
 from rig.runner.run_estimates import RunEstimator
 
 K = 0.1615

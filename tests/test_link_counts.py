@@ -10,8 +10,8 @@ import pytest
 from rig.cli import main
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
-from rig.log import schemas
-from rig.log.records import TrialLinkStats
+from rig.log.format import schemas
+from rig.records import TrialLinkStats
 
 ROOT = Path(__file__).resolve().parent.parent
 

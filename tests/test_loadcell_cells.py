@@ -8,7 +8,7 @@ import yaml
 
 from rig.errors import ConfigError, StaleDataError
 from rig.hw.loadcell.formats import FORCE_UNITS_N
-from rig.rig_config import default_stale_timeout_s, load_rig_config, parse_rig_config
+from rig.inputs.rig_config import default_stale_timeout_s, load_rig_config, parse_rig_config
 from rig.sim.loadcell.emulator import LoadCellEmulator
 from rig.sim.loadcell.inprocess_line import simulated_load_cell
 from rig.sim.loadcell.profiles import ConstantTension

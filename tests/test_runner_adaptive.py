@@ -12,7 +12,7 @@ import json
 import pytest
 from mcap.reader import make_reader
 
-from rig.log import schemas
+from rig.log.format import schemas
 from rig.runner.execute import RunRequest, prepare_run
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress

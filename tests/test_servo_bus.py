@@ -23,7 +23,7 @@ from rig.hw.dxl.control_table import XL430_W250
 from rig.hw.dxl.error_codes import InstructionRejected, ServoHardwareFault
 from rig.hw.dxl.transport import BusOwnershipError
 from rig.hw.seams import OperatingMode, ServoBus
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 from rig.sim.dxl.emulated_bus import EmulatedBus
 from rig.sim.dxl.inprocess_port import SimPortHandler
 from rig.sim.dxl.servo import Servo

@@ -20,7 +20,7 @@ from rig.hw.dxl.error_codes import (
     hardware_error_words,
     hardware_fault,
 )
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 
 
 @pytest.mark.parametrize(

@@ -14,8 +14,8 @@ import pytest
 from model.design import StopReason
 from model.k_estimators import ESTIMATOR_NAMES
 from rig.cli import main
-from rig.files import parse_yaml
-from rig.protocol import parse_protocol
+from rig.inputs.files import parse_yaml
+from rig.inputs.protocol import parse_protocol
 from rig.study.executor import run_local
 from rig.study.series import score_series
 from rig.study.statistics import clopper_pearson, summarise

@@ -11,8 +11,8 @@ import pytest
 from rig.errors import ConfigError
 from rig.hw.dxl.control_table import CURRENT_UNIT_A, RAD_S_PER_VELOCITY_UNIT
 from rig.hw.seams import OperatingMode
-from rig.log.records import TrialOutcome
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
+from rig.records import TrialOutcome
 from rig.rigs import open_rig
 from rig.runner.execute import RunReport, RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress

@@ -46,9 +46,9 @@ from rig.analysis.trials import trial_table
 from rig.errors import InputError
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
-from rig.log import schemas
-from rig.log.reader import mcap_files
-from rig.log.records import ConfigurationMeasurement, ControlTickStats
+from rig.log.format import schemas
+from rig.log.reading.reader import mcap_files
+from rig.records import ConfigurationMeasurement, ControlTickStats
 
 _PART_SUFFIX = re.compile(r"\.part[0-9]+$")  # a resumed run's later files: RUN_ID.partN.mcap
 LOADCELL_COLUMNS = ("time_s", "force_n", "trial_id", "part")

@@ -50,8 +50,8 @@ from rig.analysis.runlog import (
 )
 from rig.analysis.samples import trial_samples
 from rig.analysis.trials import TrialRecord, decoded_messages, records_json, trial_records, trial_table
-from rig.log import schemas
-from rig.log.records import Estimate, TrialLinkStats
+from rig.log.format import schemas
+from rig.records import Estimate, TrialLinkStats
 from rig.vocabulary import TrialKind
 
 

@@ -16,7 +16,7 @@ import pandas as pd
 from model.fit import FitSummary
 from model.fit_keys import EstimateSummary
 from rig.analysis.replay_run import ReplayResult
-from rig.log.records import Estimate
+from rig.records import Estimate
 from rig.vocabulary import TrialKind
 
 Table = tuple[list[str], list[list[Any]]]

@@ -40,8 +40,8 @@ from rig.analysis.replay_run import ReplayResult
 from rig.analysis.samples import loadcell_samples
 from rig.analysis.trials import TrialRecord, slipped_rows, write_trial_table
 from rig.errors import InputError
-from rig.files import current_umask
-from rig.log.records import TrialKind
+from rig.inputs.files import current_umask
+from rig.records import TrialKind
 
 DPI = 110
 MEASURED_COLOR = "#1f77b4"

@@ -18,7 +18,7 @@ from model.joint import CapacityConstant, resolve_constant
 from model.k_estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, check_estimator
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
-from rig.files import read_text_file
+from rig.inputs.files import read_text_file
 
 DISTANCE_COLUMN = "distance_m"
 MASS_COLUMN = "mass_kg"

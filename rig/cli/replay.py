@@ -117,9 +117,9 @@ def _serve(args: argparse.Namespace) -> int:
     import time
 
     from rig.errors import InputError
-    from rig.log import schemas
-    from rig.log.live import LivePublisher, serve_log
-    from rig.log.reader import mcap_files
+    from rig.log.format import schemas
+    from rig.log.live.publisher import LivePublisher, serve_log
+    from rig.log.reading.reader import mcap_files
 
     if not (args.speed > 0 and math.isfinite(args.speed)):
         raise InputError(f"--speed {args.speed}: allowed: a positive number (1 = real time)")

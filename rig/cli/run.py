@@ -13,8 +13,8 @@ from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
-from rig.files import check_out_dir
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
+from rig.inputs.files import check_out_dir
 from rig.sim.kinds import DeviceLevel
 from rig.vocabulary import ConfigurationSourceKind, RigKind, StepKind
 
@@ -22,9 +22,9 @@ if TYPE_CHECKING:
     from model.fit import FitSummary
     from model.fit_keys import EstimateSummary
     from model.payload_errors import PayloadErrorStats
-    from rig.log.live import LivePublisher
-    from rig.protocol import Protocol
-    from rig.rig_config import RigConfig
+    from rig.inputs.protocol import Protocol
+    from rig.inputs.rig_config import RigConfig
+    from rig.log.live.publisher import LivePublisher
     from rig.runner.execute import RunReport, RunRequest
     from rig.sim.truth import RunTruth
 
@@ -171,7 +171,7 @@ def _start_live(args: argparse.Namespace) -> LivePublisher | None:
         return None
     if not 0 <= args.live_port <= 65535:
         raise InputError(f"--live-port {args.live_port}: allowed: 0 to 65535")
-    from rig.log.live import LivePublisher
+    from rig.log.live.publisher import LivePublisher
 
     live = LivePublisher(host=args.live_host, port=args.live_port)
     if not args.json:

@@ -10,12 +10,12 @@ from typing import TYPE_CHECKING
 from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import ExitCode, InputError
-from rig.files import check_out_dir
+from rig.inputs.files import check_out_dir
 from rig.sim.kinds import DeviceLevel
 from rig.vocabulary import RigKind, TrialKind
 
 if TYPE_CHECKING:
-    from rig.protocol import Protocol
+    from rig.inputs.protocol import Protocol
     from rig.study.statistics import StudySummary
     from rig.study.worker import RunRecord, StudySpec
 

@@ -6,7 +6,6 @@ __all__ = [
     "bending",
     "clock",
     "hardware_rig",
-    "interrupts",
     "seams",
     "session",
     "usb_latency",

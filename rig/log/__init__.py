@@ -1,13 +1,10 @@
-"""MCAP logging: topic schemas, the queued writer and the tolerant reader."""
+"""MCAP logging, by job: the format (topic schemas), writing, the live view and reading."""
 
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
-    "frames",
-    "link_scene",
+    "format",
     "live",
-    "reader",
-    "records",
-    "schemas",
-    "writer",
+    "reading",
+    "writing",
 ]

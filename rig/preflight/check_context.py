@@ -16,8 +16,8 @@ from rig.errors import HandshakeError, RigError
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import Clock, LoadCell, LoadCellSample
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
-from rig.protocol import Protocol
-from rig.rig_config import RigConfig
+from rig.inputs.protocol import Protocol
+from rig.inputs.rig_config import RigConfig
 
 LISTEN_POLL_S = 0.02  # how often the listening window drains the load cell (the runner's tick)
 

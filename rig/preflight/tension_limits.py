@@ -3,18 +3,18 @@
 protocol ceiling <= rig ceiling (`limits.force_ceiling_n`) < the winch's stall tension (its current
 limit on its drum) <= 1.25 x the rig ceiling < the load cell's rated capacity. Every check here is
 the one the rest of the rig applies, called rather than restated: the cap is
-`rig.rig_config.check_tension_cap`, a protocol's checks are `rig.runner.limits.limit_checks`
+`rig.inputs.rig_config.check_tension_cap`, a protocol's checks are `rig.runner.limits.limit_checks`
 (what `rig run --dry-run` prints); only the load cell's capacity is new.
 """
 
 from __future__ import annotations
 
 from rig.errors import ConfigError
+from rig.inputs.rig_config import RigConfig, check_tension_cap
+from rig.inputs.servo_ratings import STALL_TENSION_CEILING_RATIO
 from rig.preflight.check_context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
-from rig.rig_config import RigConfig, check_tension_cap
 from rig.runner.limits import limit_checks
-from rig.servo_ratings import STALL_TENSION_CEILING_RATIO
 
 SECTION = "limits"
 

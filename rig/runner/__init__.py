@@ -3,11 +3,13 @@
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
 __all__ = [
+    "control_loop",
     "execute",
     "journal",
     "limits",
     "planning",
     "progress",
+    "recorder",
     "rig_to_run",
     "safety",
     "trial_runner",

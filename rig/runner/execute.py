@@ -28,15 +28,15 @@ from model.fit import FitSummary
 from model.fit_keys import EstimateSummary
 from model.payload_errors import PayloadErrorStats
 from rig.errors import ExitCode, InputError
-from rig.files import atomic_write_text, check_out_dir
 from rig.hw.session import RigSession
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
-from rig.log import schemas
-from rig.log.live import LivePublisher
-from rig.log.records import JointCapacity, LogLevel, LogMessage, TrialResult
-from rig.log.writer import LogWriteError, RunLogger
-from rig.protocol import Protocol, TrialPlan, for_loadcell_rate, load_protocol
-from rig.rig_config import DEFAULT_RIG_CONFIG, RigConfig, load_rig_config, nominal_loadcell_rate_hz
+from rig.inputs.files import atomic_write_text, check_out_dir
+from rig.inputs.protocol import Protocol, TrialPlan, for_loadcell_rate, load_protocol
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, RigConfig, load_rig_config, nominal_loadcell_rate_hz
+from rig.log.format import schemas
+from rig.log.live.publisher import LivePublisher
+from rig.log.writing.writer import LogWriteError, RunLogger
+from rig.records import JointCapacity, LogLevel, LogMessage, TrialResult
 from rig.runner.file_changes import describe_changes
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
@@ -46,9 +46,9 @@ from rig.runner.results import percentage_error_stats
 from rig.runner.rig_to_run import GroundTruth, RigToRun, TruthSnapshot
 from rig.runner.run_estimates import RunEstimator, load_estimates_file
 from rig.runner.runlock import RunLock
-from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held
 from rig.runner.trial_runner import RunOutcome, TrialRunner
+from rig.safety.safe_state import enter_safe_state
 from rig.vocabulary import RigKind
 
 # Run ids name files in --out (RUN_ID.mcap, RUN_ID.partN.mcap, RUN_ID.journal.json, ...): no path

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from rig.log.records import TrialPhase
+from rig.records import TrialPhase
 
 # The phase names are part of the MCAP contract (`/rig/trial/state`), so they live with the schemas.
 Phase = TrialPhase

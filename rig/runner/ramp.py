@@ -24,18 +24,18 @@ from model.slipped_joint import moved_joint, noise_threshold_rad
 from rig.errors import InterlockTripped, StepTimeoutError
 from rig.hw.configuration.factory import sees_slips
 from rig.hw.dxl.units import RAD_PER_PULSE, RAD_S_PER_VELOCITY_UNIT
-from rig.log import schemas
-from rig.log.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcome
-from rig.protocol import TrialPlan
+from rig.inputs.protocol import TrialPlan
+from rig.log.format import schemas
+from rig.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcome
 from rig.runner.control_loop import ControlLoop
 from rig.runner.direction_check import ReelDirectionCheck
 from rig.runner.measuring import measure_configuration
 from rig.runner.phases import Phase
 from rig.runner.ramp_speed import BAND_Z, SPEED_STEP, RampSpeeds
 from rig.runner.results import TrialMeasurements, slip_outcome
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD
 from rig.runner.step_context import StepContext
 from rig.runner.unloading import release_after_slip
+from rig.safety.safe_state import POSITION_TOLERANCE_RAD
 from rig.vocabulary import StepKind, TrialKind
 
 # How far ahead of the winch its ramp goal is kept, in seconds of motion at the ramp's speed.

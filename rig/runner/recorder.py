@@ -12,9 +12,9 @@ from collections.abc import Iterator, Mapping
 from operator import attrgetter, itemgetter
 
 from rig.hw.seams import Clock, LoadCellSample, ServoState
-from rig.log import schemas
-from rig.log.records import LogLevel, LogMessage, ServoCommand, ServoCommandName, TrialState
-from rig.log.writer import LogWriteError, RunLogger
+from rig.log.format import schemas
+from rig.log.writing.writer import LogWriteError, RunLogger
+from rig.records import LogLevel, LogMessage, ServoCommand, ServoCommandName, TrialState
 from rig.runner.phases import Phase, PhaseMachine
 from rig.runner.progress import ProgressReporter
 from rig.vocabulary import ServoRole

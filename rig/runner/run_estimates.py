@@ -4,7 +4,7 @@ Glue between the runner and `model/`: it feeds each finished trial into the pure
 (`model.online_fit` for the paper's fit, `model.fit_keys` for the protocol's estimator,
 `model.capacity_grid_filter`), predicts the next trial's slip load from the estimates **the rig
 itself made** (never from simulator truth), and gives the estimate as one
-`rig.log.records.Estimate` for the log, the progress line and the report. Slips feed the fit; a
+`rig.records.Estimate` for the log, the progress line and the report. Slips feed the fit; a
 joint-estimation trial that ended without a slip enters it as a lower bound on the slip mass
 (censored; the paper's fit leaves it out). Replaying the same results rebuilds the same state,
 which is how `--resume` restores it.
@@ -36,9 +36,9 @@ from model.fit_keys import EstimateSummary, summarize_estimate
 from model.k_estimators import DEFAULT_ESTIMATOR, EstimatorName
 from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
 from rig.errors import InputError
-from rig.files import load_json_file
-from rig.log.records import Estimate, JointCapacity, TrialKind, TrialOutcome, TrialResult
-from rig.rig_config import ArticleConfig
+from rig.inputs.files import load_json_file
+from rig.inputs.rig_config import ArticleConfig
+from rig.records import Estimate, JointCapacity, TrialKind, TrialOutcome, TrialResult
 
 # How much the joints of one link are taken to differ from the joint that was fitted (log sd):
 # the paper assumed identical joints; 10 % is the spread a hand-made link plausibly has.

@@ -1,6 +1,6 @@
 """Keeping Ctrl-C from skipping the safe-state sequence.
 
-`interrupts_deferred()` (defined in `rig.hw.interrupts`, shared with the servo bus) wraps the
+`interrupts_deferred()` (defined in `rig.safety.interrupts`, shared with the servo bus) wraps the
 release/torque-off/flush sequence: a SIGINT (or SIGTERM) arriving inside it is remembered, not
 raised, and re-raised as KeyboardInterrupt once the block is done. A second Ctrl-C therefore cannot
 leave the line under tension or the torque on. `interrupts_held()` defers them the same way but
@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-from rig.hw.interrupts import interrupts_deferred, signals_deferred
+from rig.safety.interrupts import interrupts_deferred, signals_deferred
 
 __all__ = ["interrupts_deferred", "interrupts_held", "terminate_as_interrupt"]
 

@@ -6,13 +6,13 @@ from dataclasses import dataclass
 
 from model.slip_detector import DetectorParams
 from rig.hw.session import RigSession
-from rig.protocol import Protocol
-from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, RigConfig
+from rig.inputs.protocol import Protocol
+from rig.inputs.rig_config import DEFAULT_LOADCELL_RATE_HZ, RigConfig
 from rig.runner.control_loop import ControlLoop
 from rig.runner.link_view import LinkView
 from rig.runner.recorder import RunRecorder
-from rig.runner.release import LineRelease
 from rig.runner.run_estimates import RunEstimator
+from rig.safety.release import LineRelease
 
 BENDER_SPEED_RAD_S = 2.0
 
@@ -36,7 +36,7 @@ class StepContext:
     reel_direction_verified: bool = False  # a ramp of this invocation saw the tension rise as it reeled in
 
     def line_release(self) -> LineRelease:
-        """A release starting from a copy of what the loop saw last (`rig.runner.release`)."""
+        """A release starting from a copy of what the loop saw last (`rig.safety.release`)."""
         return LineRelease(
             self.session,
             self.recorder,

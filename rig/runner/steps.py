@@ -16,15 +16,15 @@ from typing import assert_never
 from rig.errors import InterlockTripped, StaleDataError
 from rig.hw.bending import BendStage, fork_components, unreached_warning
 from rig.hw.session import OperatorRequest, OperatorTask
-from rig.log.records import LogLevel, ServoCommandName
-from rig.protocol import StepSpec, TrialPlan
+from rig.inputs.protocol import StepSpec, TrialPlan
+from rig.records import LogLevel, ServoCommandName
 from rig.runner.measuring import measure_configuration
 from rig.runner.phases import Phase
 from rig.runner.ramp import ramp_until_slip
 from rig.runner.results import TrialMeasurements
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
 from rig.runner.step_context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.unloading import release_before_waiting, unload_line
+from rig.safety.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
 from rig.vocabulary import ServoRole, StepKind
 
 StepUnit = Callable[[StepContext, StepSpec, TrialPlan, TrialMeasurements], None]

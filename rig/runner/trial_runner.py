@@ -4,13 +4,13 @@ The parts, one job each: the control loop ticks (`rig.runner.control_loop`: read
 waits); each step of the protocol's per-trial template is a function in the table
 `rig.runner.steps.STEPS` (the ramp, with its winch drive and detector feed, is
 `rig.runner.ramp`); the recorder writes phases, commands and notes (`rig.runner.recorder`); the
-release after a failure keeps its own state (`rig.runner.release`). This module connects the rig,
+release after a failure keeps its own state (`rig.safety.release`). This module connects the rig,
 runs each trial (repeating it after a device fault that clears) and ends the run.
 
 Whatever ends the run (success, interlock, fault, exception, Ctrl-C), `run()` finishes in the safe
 state: line tension released, then torque off, inside a block that a second Ctrl-C cannot
 interrupt, then the log is finished and the journal saved. The stages of the safe state are
-`rig.runner.safe_state`; the trial's record is built by `rig.runner.results`.
+`rig.safety.safe_state`; the trial's record is built by `rig.runner.results`.
 """
 
 from __future__ import annotations
@@ -34,13 +34,12 @@ from rig.errors import (
 )
 from rig.hw.seams import OperatingMode
 from rig.hw.session import RigSession
-from rig.log import schemas
-from rig.log.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOutcome, TrialResult
-from rig.log.writer import RunLogger
-from rig.protocol import Protocol, TrialPlan
-from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
+from rig.inputs.protocol import Protocol, TrialPlan
+from rig.inputs.rig_config import RigConfig, nominal_loadcell_rate_hz
+from rig.log.format import schemas
+from rig.log.writing.writer import RunLogger
+from rig.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOutcome, TrialResult
 from rig.runner.control_loop import ControlLoop
-from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.journal import RunJournal
 from rig.runner.link_view import LinkView
 from rig.runner.loaded_at_connect import PayoutVerdict, pay_out_verified
@@ -48,14 +47,15 @@ from rig.runner.phases import Phase
 from rig.runner.progress import ProgressReporter
 from rig.runner.recorder import RunRecorder
 from rig.runner.recovery import MAX_TRIAL_RETRIES, is_device_fault, recover
-from rig.runner.release import LineRelease
 from rig.runner.results import TrialMeasurements, nothing_measured, trial_result
 from rig.runner.run_estimates import RunEstimator
-from rig.runner.safe_state import enter_safe_state
 from rig.runner.safety import interrupts_held
 from rig.runner.step_context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.steps import STEPS
 from rig.runner.wire_counts import TrialLinkCounter
+from rig.safety.interlocks import CurrentAtLimit, ForceCeiling
+from rig.safety.release import LineRelease
+from rig.safety.safe_state import enter_safe_state
 from rig.vocabulary import ServoRole, TrialKind
 
 LINE_MAY_BE_LOADED = (

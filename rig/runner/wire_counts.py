@@ -13,7 +13,7 @@ from collections.abc import Callable
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import BusStatsSource, LineStatsSource, LoadCellLineStats
 from rig.hw.session import RigSession
-from rig.log.records import ControlTickStats, TrialLinkStats
+from rig.records import ControlTickStats, TrialLinkStats
 
 
 class TrialLinkCounter:

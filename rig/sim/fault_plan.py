@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import assert_never
 
-from rig.rig_config import RigConfig
+from rig.inputs.rig_config import RigConfig
 from rig.sim.dxl.emulated_bus import EmulatedBus
 from rig.sim.kinds import (
     FaultDevice,

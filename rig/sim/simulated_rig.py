@@ -38,7 +38,7 @@ from rig.hw.configuration.factory import hardware_configuration_source
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import ConfigurationSource, LoadCell, ServoBus
 from rig.hw.session import OperatorRequest, OperatorTask, RigSession
-from rig.rig_config import RigConfig, configuration_source_kind
+from rig.inputs.rig_config import RigConfig, configuration_source_kind
 from rig.sim.dxl.emulated_bus import EmulatedBus
 from rig.sim.dxl.inprocess_port import SimPortHandler
 from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults, log_limit_bytes

@@ -39,8 +39,8 @@ from pathlib import Path
 
 from rig.errors import ConfigError
 from rig.hw.loadcell.calibration import Calibration
-from rig.protocol import Protocol
-from rig.rig_config import RigConfig
+from rig.inputs.protocol import Protocol
+from rig.inputs.rig_config import RigConfig
 from rig.sim.dxl.bus_pty_server import serve
 from rig.sim.dxl.emulated_bus import EmulatedBus, Reply
 from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults

@@ -22,8 +22,8 @@ from model.design import StopReason
 from model.fit import DEFAULT_LEVEL
 from model.k_estimators import ESTIMATOR_NAMES, check_estimator, crlb_k, estimate_k
 from rig.errors import ExitCode
-from rig.log.records import TrialKind, TrialOutcome, TrialResult
-from rig.log.writer import RunLogger
+from rig.log.writing.writer import RunLogger
+from rig.records import TrialKind, TrialOutcome, TrialResult
 from rig.rigs import open_simulated_rig
 from rig.runner.execute import RunRequest, prepare_run
 from rig.runner.journal import RunJournal

@@ -21,9 +21,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.errors import InputError
-from rig.files import atomic_write_text, read_text_file
 from rig.hw.camera.marker_map import DICTIONARY_SIZES
 from rig.hw.camera.opencv import require_cv2
+from rig.inputs.files import atomic_write_text, read_text_file
 
 IMAGE_SIDE_RANGE_PX = (16, 20000)
 MIN_VIEWS = 3

@@ -65,9 +65,9 @@ from rig.hw.dxl.error_codes import (
     servo_label,
 )
 from rig.hw.dxl.transport import BusStats, Transport
-from rig.hw.interrupts import signals_deferred
 from rig.hw.seams import Clock, OperatingMode, ServoState
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT, is_slow, latency_timer_cause, read_latency_timer_ms
+from rig.safety.interrupts import signals_deferred
 
 STATUS_RETURN_ALL = 2
 # The handshake pings each servo up to this many rounds (each with the transport's retries), pausing

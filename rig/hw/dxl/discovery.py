@@ -23,7 +23,7 @@ from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHand
 from rig.errors import CommunicationError, InputError, NotConnectedError
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.error_codes import comm_result_name
-from rig.servo_ratings import MX_PROTOCOL_2_NAMES, PROTOCOL_1_MODELS
+from rig.inputs.servo_ratings import MX_PROTOCOL_2_NAMES, PROTOCOL_1_MODELS
 
 WIZARD = "DYNAMIXEL Wizard 2.0 (ROBOTIS)"
 ADDR_PROTOCOL_1_FIRMWARE = 2  # Firmware Version in the AX/MX Protocol 1.0 tables

@@ -1,6 +1,6 @@
 """The tolerant run reader: the MCAP files of one run (finished, crashed or damaged) as a `RunLog`.
 
-Each file is scanned within bounds by `rig.log.mcap_scan` (its docstring says how damage is
+Each file is scanned within bounds by `rig.log.reading.mcap_scan` (its docstring says how damage is
 survived and what is bounded); `read_run` puts the scans of a run's files together, in log-time
 order, and `RunLog` is the view of the run: per-topic DataFrames decoded on first use, metadata,
 attachments, counts and the warnings of what was lost.
@@ -24,9 +24,9 @@ import numpy as np
 import pandas as pd
 
 from rig.errors import InputError
-from rig.log.frames import DEFAULT_BATCH_SIZE, TopicBatches, empty_frame, frame_payloads
-from rig.log.log_format import log_format_version
-from rig.log.mcap_scan import (
+from rig.log.format.log_format import log_format_version
+from rig.log.reading.frames import DEFAULT_BATCH_SIZE, TopicBatches, empty_frame, frame_payloads
+from rig.log.reading.mcap_scan import (
     ALL_TIMES,
     Attachment,
     FileReport,
@@ -102,7 +102,7 @@ class RunLog:
             elif not self._was_kept(name) and self.message_counts.get(name):
                 self._frames[name] = self.window(name, *ALL_TIMES)
             else:
-                from rig.log import schemas
+                from rig.log.format import schemas
 
                 if name not in schemas.TOPICS and name not in self.message_counts:
                     raise KeyError(
@@ -142,7 +142,7 @@ class RunLog:
 
     @property
     def format_versions(self) -> dict[Path, str]:
-        """Each file's log format version (`rig.log.log_format`)."""
+        """Each file's log format version (`rig.log.format.log_format`)."""
         return {path: log_format_version(path, meta) for path, meta in self.metadata_by_file.items()}
 
     def records(

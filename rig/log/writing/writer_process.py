@@ -1,7 +1,7 @@
 """The run logger's writer process: JSON encoding, MCAP chunking, compression and file I/O.
 
-`RunLogger` (rig.log.writer) starts this module as a child process (`python -m
-rig.log.writer_process ...`) so that the encoding work does not share the acquisition loop's GIL.
+`RunLogger` (rig.log.writing.writer) starts this module as a child process (`python -m
+rig.log.writing.writer_process ...`) so that the encoding work does not share the acquisition loop's GIL.
 It reads pickled requests from one pipe and answers on another.
 
 Requests (parent -> child), and the replies (child -> parent) they get:
@@ -37,8 +37,8 @@ from typing import Any, BinaryIO
 
 from mcap.writer import CompressionType, Writer
 
-from rig.log import schemas
-from rig.log.log_format import METADATA_NAME, format_metadata
+from rig.log.format import schemas
+from rig.log.format.log_format import METADATA_NAME, format_metadata
 
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 

@@ -23,7 +23,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.json as pa_json
 
-from rig.log import schemas
+from rig.log.format import schemas
 
 DEFAULT_BATCH_SIZE = 100_000
 MAX_PENDING_BYTES = 64 << 20
@@ -328,7 +328,7 @@ def _plain(value: Any) -> Any:
 def frame_payloads(frame: pd.DataFrame) -> list[tuple[int, dict[str, Any]]]:
     """The messages of a topic frame as `(log_time_ns, payload)`: flattened `a.b` columns nested again.
 
-    For the low-rate topics that replay decodes into records (`rig.log.records`); missing values
+    For the low-rate topics that replay decodes into records (`rig.records`); missing values
     are None, numbers plain Python numbers.
     """
     columns = [c for c in frame.columns if c not in TIME_COLUMNS]

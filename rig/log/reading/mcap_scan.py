@@ -21,7 +21,7 @@ from an unfinished file, `StreamReader` stops at the first bad record,
 record classes are used, on record bodies already read within bounds.)
 
 `scan_file` fills a `FileScan`: messages per topic as raw payloads, decoded in column batches
-(`rig.log.frames`), with the file's metadata, attachments and what was lost. `rig.log.reader`
+(`rig.log.reading.frames`), with the file's metadata, attachments and what was lost. `rig.log.reading.reader`
 makes a run's `RunLog` from the scans of its files.
 
 A scan also notes where the messages it read are (`Span`: a chunk, or a run of top-level records,
@@ -56,7 +56,7 @@ from mcap.records import (
 )
 
 from rig.errors import InputError
-from rig.log.frames import TopicBatches
+from rig.log.reading.frames import TopicBatches
 
 try:
     import lz4.frame as lz4_frame

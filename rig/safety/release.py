@@ -1,6 +1,6 @@
 """The release of the line when something failed: the winch back to its zero-tension angle, whatever broke.
 
-It runs in the safe state that ends every run (`rig.runner.safe_state.enter_safe_state`, before
+It runs in the safe state that ends every run (`rig.safety.safe_state.enter_safe_state`, before
 torque goes off) and after a device fault inside a trial. It keeps its own state: it starts from
 a copy of what the control loop saw last and reads the rig itself from then on, so nothing a step
 or the ramp does to the loop's readings can change what it sees or waits for. `reading()` hands
@@ -25,11 +25,11 @@ import math
 from rig.errors import NotConnectedError, RigError, StepTimeoutError
 from rig.hw.seams import LoadCellSample, WatchdogTripSource
 from rig.hw.session import RigSession
-from rig.log.records import LogLevel, ServoCommandName
-from rig.protocol import RampSettings
+from rig.inputs.protocol import RampSettings
+from rig.records import LogLevel, ServoCommandName
 from rig.runner.control_loop import Reading, tare_corrected
 from rig.runner.recorder import RunRecorder
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
+from rig.safety.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
 
 # The safe state waits this long beyond the winch's travel time: interlocks are off by then, and
 # the load cell may be what failed, so arrival at the zero-tension angle is all it waits for.

@@ -23,15 +23,15 @@ from model.field_spec import choice, custom, inline_text, integer, number, numbe
 from model.field_spec import text as text_field
 from model.gravity import PAPER_G_M_S2
 from rig.errors import ConfigError
-from rig.files import parse_yaml, read_text_file
-from rig.servo_ratings import (
+from rig.inputs.files import parse_yaml, read_text_file
+from rig.inputs.servo_ratings import (
     MOTOR_RATINGS,
     STALL_TENSION_CEILING_RATIO,
     current_for_tension_a,
     stall_tension_n,
     winch_models,
 )
-from rig.validate import Section, read_field, read_fields, reject_undeclared
+from rig.inputs.validate import Section, read_field, read_fields, reject_undeclared
 from rig.vocabulary import (
     LOADCELL_FORMAT_TRAITS,
     SERVO_BAUDS,

@@ -1,7 +1,7 @@
 """The docs' tables of settings fields, written from the fields' declarations (`model.field_spec`).
 
 Each table sits in a docs page between `<!-- fields: NAME -->` and `<!-- /fields -->`.
-`python -m rig.config_docs` rewrites them in place; `python -m rig.config_docs --check` (and
+`python -m tools.config_docs` rewrites them in place; `python -m tools.config_docs --check` (and
 tests/test_config_docs.py) fails when a page and the declarations differ. So a field's range,
 default and unit are written once, on the dataclass, and the docs cannot drift from the parser.
 """
@@ -24,8 +24,8 @@ from model.field_spec import (
     value_text,
 )
 from model.slip_detector import DetectorParams
-from rig.protocol import AdaptiveBlockFields, FixedBlockFields, LinkValidationBlockFields, Protocol
-from rig.rig_config import RigConfig, SimulationSection
+from rig.inputs.protocol import AdaptiveBlockFields, FixedBlockFields, LinkValidationBlockFields, Protocol
+from rig.inputs.rig_config import RigConfig, SimulationSection
 from rig.sim.settings import SimulationConfig
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -130,13 +130,15 @@ def stale_pages(root: Path = ROOT) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     """Rewrite the tables (or, with --check, exit 1 naming the pages that differ)."""
-    parser = argparse.ArgumentParser(prog="python -m rig.config_docs", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m tools.config_docs", description=__doc__)
     parser.add_argument("--check", action="store_true", help="only check; exit 1 if a page differs")
     args = parser.parse_args(argv)
     stale = stale_pages()
     if args.check:
         for page in stale:
-            print(f"{page}: its settings tables differ from the declarations; run python -m rig.config_docs")
+            print(
+                f"{page}: its settings tables differ from the declarations; run python -m tools.config_docs"
+            )
         return 1 if stale else 0
     for page in stale:
         path = ROOT / page

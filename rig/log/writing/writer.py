@@ -2,7 +2,7 @@
 
 The acquisition loop calls `RunLogger.log(topic, log_time_ns, payload)`, which only timestamps the
 call (publish time) and appends to a batch; batches go over a pipe to the writer process
-(`rig.log.writer_process`), which does the JSON serialization, chunking, zstd and writes without
+(`rig.log.writing.writer_process`), which does the JSON serialization, chunking, zstd and writes without
 sharing the acquisition loop's GIL. A batch is sent when it holds `BATCH_MESSAGES` messages or spans
 `BATCH_LOG_TIME_NS` of log time, and before every flush, metadata, attachment and finish. The writer
 process closes the open chunk (flush) about every second of log time or wall time and whenever the
@@ -34,12 +34,12 @@ from mcap.writer import __version__ as MCAP_VERSION
 import rig
 from rig.errors import RigError, RigTimeoutError
 from rig.hw.seams import Clock
-from rig.log import schemas
 from rig.log.child_process import start_child
-from rig.log.writer_process import COMPRESSION
+from rig.log.format import schemas
+from rig.log.writing.writer_process import COMPRESSION
 
 if TYPE_CHECKING:
-    from rig.log.live import LivePublisher
+    from rig.log.live.publisher import LivePublisher
 
 LIBRARY = f"rig-logger/{rig.__version__} mcap-python/{MCAP_VERSION}"
 DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes; periodic flushes usually close chunks first
@@ -80,7 +80,7 @@ class RunLogger:
     :param max_file_bytes: the most the file may hold; the writer's writes beyond it fail (as on a
         full disk) and the logger raises `LogWriteError`. None: no limit but the disk's.
     :param live: a live view that gets every batch too (the bytes pickled for the writer process,
-        while a client subscribes to something; `rig.log.live`).
+        while a client subscribes to something; `rig.log.live.publisher`).
     """
 
     def __init__(
@@ -126,7 +126,7 @@ class RunLogger:
 
         file_fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         child = start_child(
-            "rig.log.writer_process",
+            "rig.log.writing.writer_process",
             [
                 LIBRARY,
                 str(chunk_size),
@@ -153,7 +153,7 @@ class RunLogger:
         """Enqueue one message; never waits on encoding, compression or I/O (unless back-pressure).
 
         `log_time_ns` is the epoch time of sampling. `payload` must not be changed afterwards (the
-        builders in `rig.log.schemas` return fresh dicts).
+        builders in `rig.log.format.schemas` return fresh dicts).
         """
         self.log_many(topic, ((log_time_ns, payload),))
 

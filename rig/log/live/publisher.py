@@ -1,7 +1,7 @@
 """Live view: the run's topics served over the Foxglove WebSocket protocol (`foxglove-sdk`).
 
-`LivePublisher` starts the server in a child process (`rig.log.live_process`) that advertises every
-topic of `rig.log.schemas.TOPICS` (the same schema names and JSON Schemas as the MCAP file). A
+`LivePublisher` starts the server in a child process (`rig.log.live.server_process`) that advertises every
+topic of `rig.log.format.schemas.TOPICS` (the same schema names and JSON Schemas as the MCAP file). A
 `RunLogger` given the publisher hands it each batch exactly as it pickled it for the MCAP writer
 (`publish_pickled`), one pipe write per batch and only while some client subscribes to something:
 the JSON encoding, the subscription checks and the hand-over to the server all happen in the child,
@@ -37,15 +37,15 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader
 
 from rig.errors import InputError
-from rig.log import schemas
 from rig.log.child_process import start_child
+from rig.log.format import schemas
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
 CLIENT_BACKLOG = 4096  # messages the server buffers per client before dropping its oldest
 PIPE_BYTES = 1 << 20  # data pipe capacity (about 25,000 load-cell rows) before batches are dropped
 START_TIMEOUT_S = 30.0
-_FRAME_HEADER = struct.Struct("<Q")  # as rig.log.live_process.FRAME_HEADER
+_FRAME_HEADER = struct.Struct("<Q")  # as rig.log.live.server_process.FRAME_HEADER
 
 Message = tuple[int, Mapping[str, Any] | tuple[Any, ...]]
 
@@ -118,7 +118,7 @@ class LivePublisher:
     ) -> None:
         port = _free_port(host, port)  # a port in use is an InputError now, before anything moves
         child = start_child(
-            "rig.log.live_process",
+            "rig.log.live.server_process",
             [host, str(port), name, str(client_backlog), "1" if playback else "0", str(stop_timeout_s)],
             pipe_bytes=pipe_bytes,
         )

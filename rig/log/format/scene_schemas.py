@@ -5,7 +5,7 @@ The 3D panel of Foxglove and Lichtblick recognises a channel by its schema *name
 fields the other panels show. Each schema here has the properties, types and `required` lists of
 Foxglove's published JSON Schemas (the npm package `@foxglove/schemas`, `jsonschema` export, 2.1),
 so a payload that validates against ours validates against theirs: every property is required, as
-there, and `rig.log.link_scene` fills every one (empty arrays for the primitives it does not draw).
+there, and `rig.log.format.link_scene` fills every one (empty arrays for the primitives it does not draw).
 `tests/test_log_foxglove_schemas.py` validates logged messages against the official schemas with
 Ajv and compares the `required` lists. Enums are numbers; times are `{sec, nsec}`.
 """

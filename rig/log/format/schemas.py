@@ -2,9 +2,9 @@
 
 Every topic is JSON-encoded with a `jsonschema` schema whose top level is an object (Foxglove needs
 that). The schemas are not written by hand: each is derived from the fields and type hints of the
-record that makes the payload (`rig.log.records`, and the seams' `ServoState` and `LoadCellSample`),
+record that makes the payload (`rig.records`, and the seams' `ServoState` and `LoadCellSample`),
 so a field added to a record appears in its schema. Conventions: every schema stays inside the
-subset Foxglove's and Lichtblick's schema reader understands (`rig.log.viewer_schema`: one `type`
+subset Foxglove's and Lichtblick's schema reader understands (`rig.log.format.viewer_schema`: one `type`
 string per field, enums of numbers as `oneOf` consts); a missing value (`X | None` in the record, a
 non-finite number) is an *absent field*, never null and never NaN, so optional fields are left out
 of `required`; every integer stays below 2**53 so that JavaScript readers see it exactly; a
@@ -31,7 +31,8 @@ from model.fit import FitSummary
 from model.slip_detector import SlipEvent
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats, LoadCellSample, ServoState
-from rig.log.records import (
+from rig.log.format.scene_schemas import frame_transforms_schema, scene_update_schema
+from rig.records import (
     ConfigurationMeasurement,
     ControlTickStats,
     Estimate,
@@ -48,7 +49,6 @@ from rig.log.records import (
     present,
     stamp_name,
 )
-from rig.log.scene_schemas import frame_transforms_schema, scene_update_schema
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"

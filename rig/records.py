@@ -1,7 +1,7 @@
 """What a run produces, as typed records: one frozen dataclass per thing, the single source of its shapes.
 
 Each record is built once by the runner and then shown in several places: the MCAP payload
-(`to_payload`, whose JSON Schema `rig.log.schemas` derives from the record's fields), the run
+(`to_payload`, whose JSON Schema `rig.log.format.schemas` derives from the record's fields), the run
 journal and `rig run --json` (`TrialResult.to_json`), the progress line (`Estimate.text`), and
 replay, which decodes the logged payload back into the very same record (`from_payload`).
 
@@ -10,8 +10,8 @@ Payload conventions: a record's fields appear under their own names, except that
 named without the suffix (`start_time_ns` → `start`): Foxglove's time type, and no payload integer
 beyond 2^53 for JavaScript readers. A missing value (None, a non-finite number) is an absent field,
 not null: the JSON Schema readers of Foxglove and Lichtblick accept one type per field
-(`rig.log.viewer_schema`). Decoders read the payloads of the current log format
-(`rig.log.log_format`); in a payload read back from a table, a missing value is None.
+(`rig.log.format.viewer_schema`). Decoders read the payloads of the current log format
+(`rig.log.format.log_format`); in a payload read back from a table, a missing value is None.
 """
 
 from __future__ import annotations

@@ -8,9 +8,9 @@ from model.fit import FitSummary
 from model.slip_detector import SlipEvent
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
-from rig.log import schemas as S
-from rig.log.link_scene import LinkGeometry, LinkScene
-from rig.log.records import (
+from rig.log.format import schemas as S
+from rig.log.format.link_scene import LinkGeometry, LinkScene
+from rig.records import (
     ConfigurationMeasurement,
     Estimate,
     JointCapacity,

@@ -30,8 +30,8 @@ from model.field_spec import text as text_field
 from model.k_estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, EstimatorName, check_estimator
 from model.slip_detector import DetectorParams, params_for_rate
 from rig.errors import ConfigError
-from rig.files import parse_yaml, read_text_file
-from rig.validate import Section, read_field, read_fields, reject_undeclared
+from rig.inputs.files import parse_yaml, read_text_file
+from rig.inputs.validate import Section, read_field, read_fields, reject_undeclared
 from rig.vocabulary import StepKind, TrialKind
 
 PROTOCOL_FORMAT = "rig-protocol/1"

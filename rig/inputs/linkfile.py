@@ -20,7 +20,7 @@ from model.chain import check_rigid_motion, pose_from_xyz_rpy
 from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, joint_capacity_nm, resolve_constant
 from rig.errors import InputError
-from rig.files import load_yaml_file
+from rig.inputs.files import load_yaml_file
 
 _TOP_KEYS = ("g", "joints", "load")
 _JOINT_KEYS = ("transform", "xyz", "rpy", "capacity_nm", "radius_m", "mu_delta0_pa", "constant")

@@ -1,14 +1,14 @@
 """The live view's server process: the Foxglove WebSocket server (`foxglove-sdk`) and the JSON encoding.
 
-`LivePublisher` (rig.log.live) starts this module as a child process (`python -m
-rig.log.live_process ...`), so that neither encoding nor handing messages to the server shares the
+`LivePublisher` (rig.log.live.publisher) starts this module as a child process (`python -m
+rig.log.live.server_process ...`), so that neither encoding nor handing messages to the server shares the
 acquisition loop's GIL: the run's process only copies the batches it already pickled for the MCAP
-writer into a pipe (`rig.log.writer`). It imports nothing of the rig but this module, so that it
+writer into a pipe (`rig.log.writing.writer`). It imports nothing of the rig but this module, so that it
 starts quickly. Frames on the data pipe (parent -> child) are an 8-byte little-endian length and a
 pickled tuple; the first is always
 
 * ``("topics", [(topic, schema_name, schema_bytes), ...], {topic: row_fields})``: the channels to
-  advertise (`rig.log.schemas.TOPICS`) and the topics whose payloads may be rows
+  advertise (`rig.log.format.schemas.TOPICS`) and the topics whose payloads may be rows
 
 and then any of
 

@@ -1,7 +1,7 @@
 """The link in 3D for Foxglove and Lichtblick: each component's frame and the scene drawn on them.
 
 Two topics, both with Foxglove's well-known schema names so that the 3D panel draws them without a
-plugin (`rig.log.scene_schemas`):
+plugin (`rig.log.format.scene_schemas`):
 
 * `/rig/link/frames` (`foxglove.FrameTransforms`): `world → base → joint_1 → … → joint_J`. The pose
   of `joint_i` in `joint_{i-1}` is the model's `T_i` (docs/model.md §1) at the trial's configuration,
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from model.chain import forward_kinematics, planar_transforms
-from rig.log.records import stamp
+from rig.records import stamp
 
 WORLD_FRAME = "world"
 BASE_FRAME = "base"
