@@ -11,8 +11,7 @@ from __future__ import annotations
 from rig.errors import InterlockTripped, RigError, StepTimeoutError
 from rig.hw.seams import ServoState
 from rig.inputs.protocol import TrialPlan
-from rig.records import LogLevel
-from rig.runner.phases import Phase
+from rig.records import LogLevel, TrialPhase
 from rig.runner.step_context import StepContext
 from rig.safety.safe_state import POSITION_TOLERANCE_RAD
 
@@ -36,7 +35,7 @@ def recover(ctx: StepContext, trial: TrialPlan, exc: RigError) -> bool:
     loop, note = ctx.loop, ctx.recorder.note
     clock, session = loop.clock, ctx.session
     note(LogLevel.WARNING, f"trial {trial.trial_id} stopped: {exc}; releasing the line")
-    ctx.recorder.phase(Phase.UNLOADING, trial.trial_id, "recover")
+    ctx.recorder.phase(TrialPhase.UNLOADING, trial.trial_id, "recover")
     zero = ctx.winch_zero_rad
     if zero is None:
         return False

@@ -38,12 +38,11 @@ from rig.inputs.protocol import Protocol, TrialPlan
 from rig.inputs.rig_config import RigConfig, nominal_loadcell_rate_hz
 from rig.log.format import schemas
 from rig.log.writing.writer import RunLogger
-from rig.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOutcome, TrialResult
+from rig.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOutcome, TrialPhase, TrialResult
 from rig.runner.control_loop import ControlLoop
 from rig.runner.journal import RunJournal
 from rig.runner.link_view import LinkView
 from rig.runner.loaded_at_connect import PayoutVerdict, pay_out_verified
-from rig.runner.phases import Phase
 from rig.runner.progress import ProgressReporter
 from rig.runner.recorder import RunRecorder
 from rig.runner.recovery import MAX_TRIAL_RETRIES, is_device_fault, recover
@@ -141,7 +140,7 @@ class TrialRunner:
             self._connect()
             for trial in trials:
                 outcome.new_results.append(self._run_trial_until_done(trial))
-            self.recorder.phase(Phase.DONE, None)
+            self.recorder.phase(TrialPhase.DONE, None)
         except KeyboardInterrupt:
             outcome = RunOutcome(
                 ExitCode.INTERRUPTED, "interrupted", "interrupted by the operator", outcome.new_results
@@ -167,11 +166,14 @@ class TrialRunner:
                 elif self.tension_unmeasured is not None and outcome.reason is not None:
                     outcome.reason = f"{outcome.reason}; then {self.tension_unmeasured}"
                 if outcome.exit_code != ExitCode.OK and self.recorder.phases.phase not in (
-                    Phase.ABORTED,
-                    Phase.FAULTED,
+                    TrialPhase.ABORTED,
+                    TrialPhase.FAULTED,
                 ):
                     self.recorder.phase(
-                        Phase.ABORTED if outcome.exit_code == ExitCode.INTERRUPTED else Phase.FAULTED, None
+                        TrialPhase.ABORTED
+                        if outcome.exit_code == ExitCode.INTERRUPTED
+                        else TrialPhase.FAULTED,
+                        None,
                     )
                 if late:
                     note(LogLevel.WARNING, "Ctrl-C/SIGTERM in the safe state: held until it ended")
@@ -190,7 +192,7 @@ class TrialRunner:
 
     def _connect(self) -> None:
         recorder = self.recorder
-        recorder.phase(Phase.CONNECTING, None)
+        recorder.phase(TrialPhase.CONNECTING, None)
         servos = self.session.servos
         servos.connect()
         self.connected = True
@@ -221,7 +223,7 @@ class TrialRunner:
         self.ctx.winch_zero_rad = self.loop.states[winch].position_rad
         self._verify_zero()
         self.loop.check_interlocks()
-        recorder.phase(Phase.IDLE, None)
+        recorder.phase(TrialPhase.IDLE, None)
         recorder.note(
             LogLevel.INFO,
             f"connected: servos {sorted(self.session.roles)}; winch zero {self.ctx.winch_zero_rad:.4f} rad",
@@ -387,7 +389,7 @@ class TrialRunner:
         def release() -> None:
             if never_loaded or zero is None:
                 return
-            self.recorder.phase_quiet(Phase.UNLOADING, self.trial.trial_id if self.trial else None)
+            self.recorder.phase_quiet(TrialPhase.UNLOADING, self.trial.trial_id if self.trial else None)
             releases.append(self.ctx.line_release())
             try:
                 releases[0].run(zero)

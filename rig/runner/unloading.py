@@ -12,8 +12,7 @@ The release after a failure, which must not depend on the load cell or on replie
 from __future__ import annotations
 
 from rig.inputs.protocol import TrialPlan
-from rig.records import LogLevel, ServoCommandName
-from rig.runner.phases import Phase
+from rig.records import LogLevel, ServoCommandName, TrialPhase
 from rig.runner.step_context import StepContext
 from rig.safety.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
 from rig.vocabulary import StepKind
@@ -37,7 +36,7 @@ def unload_line(ctx: StepContext, trial: TrialPlan) -> None:
 
     StepTimeoutError if the winch is not home with the line slack within the move's timeout.
     """
-    ctx.recorder.phase(Phase.UNLOADING, trial.trial_id, StepKind.UNLOAD)
+    ctx.recorder.phase(TrialPhase.UNLOADING, trial.trial_id, StepKind.UNLOAD)
     loop = ctx.loop
     winch = ctx.session.winch_id
     zero = ctx.winch_zero_rad
