@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 from rig import __version__
 from rig.errors import ExitCode, InputError, RigError, one_line
-from rig.runner.safety import interrupts_held, terminate_as_interrupt
+from rig.safety.interrupts import interrupts_held, terminate_as_interrupt
 
 # What other code may use: the entry point (its command modules are private to this package).
 __all__ = ["main"]

@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     from rig.runner.execute import execute_run, prepare_run
     from rig.runner.journal import MAX_SEED
     from rig.runner.progress import make_progress
-    from rig.runner.safety import interrupts_held
+    from rig.safety.interrupts import interrupts_held
     from rig.sim.settings import check_simulation
 
     if not 0 <= args.seed <= MAX_SEED:

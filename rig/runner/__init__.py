@@ -11,6 +11,5 @@ __all__ = [
     "progress",
     "recorder",
     "rig_to_run",
-    "safety",
     "trial_runner",
 ]

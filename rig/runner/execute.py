@@ -46,8 +46,8 @@ from rig.runner.results import percentage_error_stats
 from rig.runner.rig_to_run import GroundTruth, RigToRun, TruthSnapshot
 from rig.runner.run_estimates import RunEstimator, load_estimates_file
 from rig.runner.runlock import RunLock
-from rig.runner.safety import interrupts_held
 from rig.runner.trial_runner import RunOutcome, TrialRunner
+from rig.safety.interrupts import interrupts_held
 from rig.safety.safe_state import enter_safe_state
 from rig.vocabulary import RigKind
 

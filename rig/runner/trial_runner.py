@@ -48,11 +48,11 @@ from rig.runner.recorder import RunRecorder
 from rig.runner.recovery import MAX_TRIAL_RETRIES, is_device_fault, recover
 from rig.runner.results import TrialMeasurements, nothing_measured, trial_result
 from rig.runner.run_estimates import RunEstimator
-from rig.runner.safety import interrupts_held
 from rig.runner.step_context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.steps import STEPS
 from rig.runner.wire_counts import TrialLinkCounter
 from rig.safety.interlocks import CurrentAtLimit, ForceCeiling
+from rig.safety.interrupts import interrupts_held
 from rig.safety.release import LineRelease
 from rig.safety.safe_state import enter_safe_state
 from rig.vocabulary import ServoRole, TrialKind

@@ -1,11 +1,14 @@
 """Holding Ctrl-C (and SIGTERM) back while the rig is being made safe.
 
-What this module owns: the one implementation of signal deferral. `signals_deferred` remembers
-the given signals instead of acting on them for the duration of a block and tells the caller
-which came; `interrupts_deferred` is the runner's form, which re-raises them as KeyboardInterrupt
-once the block is done. The servo bus uses the first around its torque-off, the runner the second
-around its release/torque-off/flush sequence, so a second Ctrl-C cannot leave the torque on.
-Signal handlers can be set only from the main thread; elsewhere both are no-ops.
+What this module owns: the one implementation of signal deferral and its three forms.
+`signals_deferred` remembers the given signals instead of acting on them for the duration of a
+block and tells the caller which came. `interrupts_deferred` re-raises them as KeyboardInterrupt
+once the block is done: the servo bus uses the first around its torque-off, the runner the second
+around its release/torque-off/flush sequence, so a second Ctrl-C cannot leave the line under
+tension or the torque on. `interrupts_held` defers them the same way but drops them after the
+block: for the end of a run, which must go on to write its journal and report (docs/design.md §6).
+`terminate_as_interrupt` makes a `kill` end the run the same way as Ctrl-C.
+Signal handlers can be set only from the main thread; elsewhere all of them are no-ops.
 """
 
 from __future__ import annotations
@@ -52,3 +55,24 @@ def interrupts_deferred() -> Iterator[None]:
         yield
     if received:
         raise KeyboardInterrupt
+
+
+@contextmanager
+def interrupts_held() -> Iterator[list[int]]:
+    """Defer SIGINT/SIGTERM until the block ends and do not raise then; yields the ones received.
+
+    For work that ends a run once its outcome is decided (the safe state, the log, the journal, the
+    report): an interrupt arriving then has nothing left to stop.
+    """
+    with signals_deferred(signal.SIGINT, signal.SIGTERM) as received:
+        yield received
+
+
+def terminate_as_interrupt() -> None:
+    """Make SIGTERM behave like Ctrl-C for the run (so a `kill` also ends in the safe state)."""
+    if threading.current_thread() is threading.main_thread():
+
+        def raise_interrupt(signum: int, frame: FrameType | None) -> None:
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, raise_interrupt)
