@@ -60,11 +60,11 @@ def canned_replies() -> tuple[bytes, bytes]:
 
 def serve_canned(link: str) -> None:
     """Child mode: answer every complete packet with the canned reply, nothing else."""
-    from rig.sim.pty_port import PtyLink, StopFlag
+    from rig.sim.pty_port import PtyPort, StopFlag
 
     _, reply = canned_replies()
     stop = StopFlag()
-    with PtyLink(link) as pty:
+    with PtyPort(link) as pty:
         print(f"PTY {pty.slave_name} LINK {link}", flush=True)
         framer = p.Framer()
         poller = select.poll()

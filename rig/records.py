@@ -615,8 +615,11 @@ __all__ = [
 
 
 @dataclass(frozen=True, slots=True)
-class TrialLinkStats:
-    """What the device links delivered and lost during one trial (`/rig/trial/links`).
+class TrialWireStats:
+    """What the device wires delivered and lost during one trial (`/rig/trial/links`).
+
+    The topic and its schema name (`rig.TrialLinkStats`) keep their names: they are the log
+    contract (docs/formats.md); "wire" is the code's word for a device connection.
 
     `bus`: the servo bus's exchanges (retries, timeouts, corrupt replies, reboots, Bus Watchdog
     trips, ...); `loadcell`: the load cell's serial lines; `control`: the control loop's ticks and
@@ -645,7 +648,7 @@ class TrialLinkStats:
         return out
 
     @classmethod
-    def from_payload(cls, payload: Mapping[str, Any]) -> TrialLinkStats:
+    def from_payload(cls, payload: Mapping[str, Any]) -> TrialWireStats:
         """Decode a `/rig/trial/links` payload (a part read back from a table as all-missing is absent)."""
 
         def counts(name: str, kind: type[Any]) -> Any:

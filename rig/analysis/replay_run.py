@@ -51,7 +51,7 @@ from rig.analysis.runlog import (
 from rig.analysis.samples import trial_samples
 from rig.analysis.trials import TrialRecord, decoded_messages, records_json, trial_records, trial_table
 from rig.log.format import schemas
-from rig.records import Estimate, TrialLinkStats
+from rig.records import Estimate, TrialWireStats
 from rig.vocabulary import TrialKind
 
 
@@ -107,7 +107,7 @@ class ReplayResult:
     percentage_errors: PayloadErrors | None
     base_moments: BaseMoments | None
     warnings: list[str] = field(default_factory=list)
-    links: list[TrialLinkStats] = field(default_factory=list)  # per trial; logs before 2026-11-27 have none
+    links: list[TrialWireStats] = field(default_factory=list)  # per trial; logs before 2026-11-27 have none
 
     @property
     def files(self) -> list[Path]:
@@ -182,7 +182,7 @@ class ScannedRun:
     settings: RunSettings
     records: list[TrialRecord]
     estimates: list[Estimate]  # the logged /rig/estimate messages, in run order
-    links: list[TrialLinkStats]  # per trial; logs before 2026-11-27 have none
+    links: list[TrialWireStats]  # per trial; logs before 2026-11-27 have none
     warnings: list[str]
 
 
@@ -242,7 +242,7 @@ def scan_run(paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -
         link
         for part in parts
         if part.log.message_counts.get(schemas.TRIAL_LINKS)
-        for link in decoded_messages(part, schemas.TRIAL_LINKS, TrialLinkStats.from_payload, warnings)
+        for link in decoded_messages(part, schemas.TRIAL_LINKS, TrialWireStats.from_payload, warnings)
     ]
     return ScannedRun(parts, settings, records, estimates, links, warnings)
 

@@ -38,7 +38,7 @@ from rig.inputs.protocol import Protocol, TrialPlan
 from rig.inputs.rig_config import RigConfig, nominal_loadcell_rate_hz
 from rig.log.format import schemas
 from rig.log.writing.writer import RunLogger
-from rig.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOutcome, TrialPhase, TrialResult
+from rig.records import LogLevel, ServoCommandName, TrialOutcome, TrialPhase, TrialResult, TrialWireStats
 from rig.runner.control_loop import ControlLoop
 from rig.runner.journal import RunJournal
 from rig.runner.link_view import LinkView
@@ -50,7 +50,7 @@ from rig.runner.results import TrialMeasurements, nothing_measured, trial_result
 from rig.runner.run_estimates import RunEstimator
 from rig.runner.step_context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.steps import STEPS
-from rig.runner.wire_counts import TrialLinkCounter
+from rig.runner.wire_counts import TrialWireCounter
 from rig.safety.interlocks import CurrentAtLimit, ForceCeiling
 from rig.safety.interrupts import interrupts_held
 from rig.safety.release import LineRelease
@@ -279,7 +279,7 @@ class TrialRunner:
         within `RECOVERY_GRACE_S`, the trial starts again from its first step; the retry is logged
         and counted in the journal. Otherwise the fault ends the run (exit 1).
         """
-        links = TrialLinkCounter(self.session, self.loop.take_tick_stats)  # over every attempt
+        links = TrialWireCounter(self.session, self.loop.take_tick_stats)  # over every attempt
         for retries in range(MAX_TRIAL_RETRIES + 1):
             try:
                 return self._run_trial(trial, links)
@@ -307,7 +307,7 @@ class TrialRunner:
             )
         raise AssertionError("unreachable")
 
-    def _run_trial(self, trial: TrialPlan, links: TrialLinkCounter) -> TrialResult:
+    def _run_trial(self, trial: TrialPlan, links: TrialWireCounter) -> TrialResult:
         self.trial = trial
         start_ns = self.clock.time_ns()
         self.progress.trial_started(trial.trial_id, _describe(trial))
@@ -349,7 +349,7 @@ class TrialRunner:
         found.reason = str(exc)
         self.recorder.note(LogLevel.WARNING, f"trial {trial.trial_id}: aborted ({exc}); the run goes on")
 
-    def _log_links(self, links: TrialLinkStats) -> None:
+    def _log_links(self, links: TrialWireStats) -> None:
         """Log the trial's link counts; late control ticks and what the load cell lost as notes."""
         self.recorder.write(schemas.TRIAL_LINKS, links.to_payload())
         ticks = links.control

@@ -112,12 +112,12 @@ class ClientOpens:
             self.fd = None
 
 
-class PtyLink:
+class PtyPort:
     """A raw pty pair whose slave is symlinked at `link_path`; removes the link on close."""
 
     @classmethod
-    def for_cli(cls, link_path: str) -> PtyLink:
-        """`PtyLink(link_path)` for the `--link` option: a path where no link can be made is an InputError."""
+    def for_cli(cls, link_path: str) -> PtyPort:
+        """`PtyPort(link_path)` for the `--link` option: a path where no link can be made is an InputError."""
         try:
             return cls(link_path)
         except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
@@ -188,7 +188,7 @@ class PtyLink:
                 with contextlib.suppress(OSError):
                     os.close(fd)
 
-    def __enter__(self) -> PtyLink:
+    def __enter__(self) -> PtyPort:
         return self
 
     def __exit__(

@@ -49,7 +49,7 @@ from rig.sim.loadcell.emulator import LoadCellEmulator
 from rig.sim.loadcell.inprocess_line import ideal_calibration, simulated_load_cell
 from rig.sim.loadcell.line_pty_server import serve_loadcell
 from rig.sim.physics.world import SimWorld
-from rig.sim.pty_port import PtyLink, Stop
+from rig.sim.pty_port import PtyPort, Stop
 from rig.sim.settings import simulation_section
 from rig.sim.simulated_rig import (
     config_preset,
@@ -265,10 +265,10 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
     return Twin(config, clock, bus, world, emulator, schedule, hand, lock, reference, seed)
 
 
-def serve_link(path: Path, field_name: str, config: RigConfig) -> PtyLink:
+def serve_link(path: Path, field_name: str, config: RigConfig) -> PtyPort:
     """A pty symlinked at a port the config names (a ConfigError naming the field if it cannot be made)."""
     try:
-        return PtyLink(path)
+        return PtyPort(path)
     except (OSError, ValueError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         raise ConfigError(
@@ -325,20 +325,20 @@ def serve_twin(
         thread.start()
         return thread
 
-    def serve_bus(link: PtyLink, device_stop: Stop) -> object:
+    def serve_bus(link: PtyPort, device_stop: Stop) -> object:
         return serve(_LockedBus(twin), link, device_stop)
 
-    def serve_cell(link: PtyLink, device_stop: Stop) -> object:
+    def serve_cell(link: PtyPort, device_stop: Stop) -> object:
         return serve_loadcell(twin.loadcell, link, device_stop)
 
-    def drop_owed_lines(_: PtyLink) -> None:  # the cell's lines of the time it was not served are lost
+    def drop_owed_lines(_: PtyPort) -> None:  # the cell's lines of the time it was not served are lost
         twin.loadcell.lines_until(time.monotonic_ns())
 
     ports: dict[TwinDevice, ServedPort] = {}
     feeder: threading.Thread | None = None
     with contextlib.ExitStack() as stack:
 
-        def open_port(field_name: str, path: str) -> Callable[[], PtyLink]:
+        def open_port(field_name: str, path: str) -> Callable[[], PtyPort]:
             return lambda: serve_link(Path(path), field_name, config)
 
         ports[TwinDevice.SERVOS] = ServedPort(
@@ -402,7 +402,7 @@ def _served(port: ServedPort) -> Served:
     return Served(port.link.link_path, port.link.slave_name)
 
 
-def _drop_host_bytes(link: PtyLink) -> None:
+def _drop_host_bytes(link: PtyPort) -> None:
     """What the host wrote to a port that did not pass it on (frozen) never reaches the servos."""
     while link.read():
         pass

@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
-from rig.sim.pty_port import PtyLink, Stop
+from rig.sim.pty_port import PtyPort, Stop
 
 
 class TwinDevice(StrEnum):
@@ -124,16 +124,16 @@ class ServedPort:
 
     def __init__(
         self,
-        open_link: Callable[[], PtyLink],
-        serve: Callable[[PtyLink, Stop], object],
-        resume: Callable[[PtyLink], None],
+        open_link: Callable[[], PtyPort],
+        serve: Callable[[PtyPort, Stop], object],
+        resume: Callable[[PtyPort], None],
         start: Callable[[Callable[[], object]], threading.Thread],
     ) -> None:
         self._open_link = open_link
         self._serve = serve
         self._resume = resume
         self._start = start
-        self.link: PtyLink | None = open_link()
+        self.link: PtyPort | None = open_link()
         self.path = self.link.link_path  # where the config's port is, plugged in or not
         self.condition = PortCondition.FROZEN  # open, not yet served
         self._stop = Stop()
@@ -164,7 +164,7 @@ class ServedPort:
             self.link.close()
             self.link = None
 
-    def _serve_now(self, link: PtyLink) -> None:
+    def _serve_now(self, link: PtyPort) -> None:
         stop = self._stop = Stop()
         self._thread = self._start(lambda: self._serve(link, stop))
 

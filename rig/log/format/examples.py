@@ -20,11 +20,11 @@ from rig.records import (
     ServoCommandName,
     SlipMessage,
     TrialKind,
-    TrialLinkStats,
     TrialOutcome,
     TrialPhase,
     TrialResult,
     TrialState,
+    TrialWireStats,
 )
 from rig.vocabulary import ConfigurationSourceKind, MeasurementStage, ServoRole
 
@@ -107,7 +107,7 @@ def example_payloads(time_ns: int = EXAMPLE_TIME_NS) -> dict[str, dict[str, Any]
             tare_n=0.01,
         ).to_payload(),
         S.ESTIMATE: Estimate(3, fit, (JointCapacity(1, 1.6, 1.4, 1.8),)).to_payload(),
-        S.TRIAL_LINKS: TrialLinkStats(
+        S.TRIAL_LINKS: TrialWireStats(
             3,
             BusStats(operations=220, attempts=223, retries=3, timeouts=1, corrupt=2, recovered=3),
             LoadCellLineStats(4100, 1, 0, 3, 2, 0),

@@ -40,9 +40,9 @@ from rig.records import (
     LogLevel,
     ServoCommand,
     SlipMessage,
-    TrialLinkStats,
     TrialResult,
     TrialState,
+    TrialWireStats,
     finite_number,
     integer,
     integer_or_none,
@@ -220,10 +220,11 @@ def _trial_links() -> dict[str, Any]:
             "additionalProperties": False,
         }
 
+    # The schema name is the log contract (docs/formats.md) and keeps "Link"; the record is TrialWireStats.
     return _rig_object(
         "rig.TrialLinkStats",
         "What the device links delivered and lost during one trial; a device that keeps no counts is absent.",
-        _field_schemas(TrialLinkStats, exclude=("bus", "loadcell", "control"))
+        _field_schemas(TrialWireStats, exclude=("bus", "loadcell", "control"))
         + Fields(
             {
                 "bus": counts(BusStats, "the servo bus's exchanges during the trial"),

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from rig.sim.dxl.emulated_bus import Reply
-from rig.sim.pty_port import PtyLink, Stop
+from rig.sim.pty_port import PtyPort, Stop
 
 IDLE_POLL_MS = 50  # how often the loop looks at the stop flag when nothing happens
 
@@ -52,7 +52,7 @@ class ServeStats:
 
 def serve(
     bus: ServedBus,
-    link: PtyLink,
+    link: PtyPort,
     stop: Stop,
     *,
     wire_timing: bool = False,

@@ -1,6 +1,6 @@
 """The pty transport of the load-cell emulator: real time, meant to run in its own process.
 
-`serve_loadcell` writes each sample's line to the master side of a `PtyLink` as its sample time
+`serve_loadcell` writes each sample's line to the master side of a `PtyPort` as its sample time
 passes on `time.monotonic_ns`, until a `Stop` is set. Like a real device it never waits for
 the host: when nobody reads and the pty buffer is full, lines are lost (counted). When the client
 has configured a different baud rate than the device's, the client receives framing garbage, as
@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from rig.sim.loadcell.emulator import LoadCellEmulator, wrong_baud_garbage
-from rig.sim.pty_port import ClientEvent, PtyLink, Stop
+from rig.sim.pty_port import ClientEvent, PtyPort, Stop
 
 MAX_SLEEP_S = 0.05  # bounds how late a stop request is noticed
 MIN_SLEEP_S = 0.0005
@@ -57,7 +57,7 @@ def write_nonblocking(fd: int, data: bytes) -> int:
 
 def serve_loadcell(
     emulator: LoadCellEmulator,
-    link: PtyLink,
+    link: PtyPort,
     stop: Stop,
     *,
     monotonic_ns: Callable[[], int] = time.monotonic_ns,

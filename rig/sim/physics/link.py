@@ -1,6 +1,6 @@
-"""The simulated test article: a chain of spherical joints, its geometry and each joint's slip criterion.
+"""The simulated link: a chain of spherical joints, its geometry and each joint's slip criterion.
 
-`ChainArticle` holds the current configuration (transforms `T_i`, docs/model.md §1), the capacities in
+`ChainLink` holds the current configuration (transforms `T_i`, docs/model.md §1), the capacities in
 force for the current trial, the acting point Q (tip frame) and the line direction u (base frame,
 constant: the winch is far from the link, so the line keeps its direction as Q moves). The statics
 come from `model.chain`; this module only adds what a simulator needs on top:
@@ -52,7 +52,7 @@ def rotation_about_axis(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     )
 
 
-class ChainArticle:
+class ChainLink:
     """A chain of J spherical joints under a line load; geometry plus per-joint slip criteria."""
 
     def __init__(
