@@ -265,7 +265,7 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
     return Twin(config, clock, bus, world, emulator, schedule, hand, lock, reference, seed)
 
 
-def serve_link(path: Path, field_name: str, config: RigConfig) -> PtyPort:
+def serve_pty(path: Path, field_name: str, config: RigConfig) -> PtyPort:
     """A pty symlinked at a port the config names (a ConfigError naming the field if it cannot be made)."""
     try:
         return PtyPort(path)
@@ -325,11 +325,11 @@ def serve_twin(
         thread.start()
         return thread
 
-    def serve_bus(link: PtyPort, device_stop: Stop) -> object:
-        return serve(_LockedBus(twin), link, device_stop)
+    def serve_bus(pty: PtyPort, device_stop: Stop) -> object:
+        return serve(_LockedBus(twin), pty, device_stop)
 
-    def serve_cell(link: PtyPort, device_stop: Stop) -> object:
-        return serve_loadcell(twin.loadcell, link, device_stop)
+    def serve_cell(pty: PtyPort, device_stop: Stop) -> object:
+        return serve_loadcell(twin.loadcell, pty, device_stop)
 
     def drop_owed_lines(_: PtyPort) -> None:  # the cell's lines of the time it was not served are lost
         twin.loadcell.lines_until(time.monotonic_ns())
@@ -339,7 +339,7 @@ def serve_twin(
     with contextlib.ExitStack() as stack:
 
         def open_port(field_name: str, path: str) -> Callable[[], PtyPort]:
-            return lambda: serve_link(Path(path), field_name, config)
+            return lambda: serve_pty(Path(path), field_name, config)
 
         ports[TwinDevice.SERVOS] = ServedPort(
             open_port("servos.port", config.servos.port),
@@ -375,7 +375,7 @@ def serve_twin(
                 now_ns = time.monotonic_ns()
                 for device, port in ports.items():
                     if port.settle(twin.port_wanted(device, now_ns)) and changed is not None:
-                        changed(device, port.condition, None if port.link is None else _served(port))
+                        changed(device, port.condition, None if port.pty is None else _served(port))
                 time.sleep(TICK_S)
         finally:
             stop.stopped = True
@@ -398,11 +398,11 @@ def _check_firmware_faults(config: RigConfig) -> None:
 
 
 def _served(port: ServedPort) -> Served:
-    assert port.link is not None
-    return Served(port.link.link_path, port.link.slave_name)
+    assert port.pty is not None
+    return Served(port.pty.link_path, port.pty.slave_name)
 
 
-def _drop_host_bytes(link: PtyPort) -> None:
+def _drop_host_bytes(pty: PtyPort) -> None:
     """What the host wrote to a port that did not pass it on (frozen) never reaches the servos."""
-    while link.read():
+    while pty.read():
         pass

@@ -52,7 +52,7 @@ class ServeStats:
 
 def serve(
     bus: ServedBus,
-    link: PtyPort,
+    pty: PtyPort,
     stop: Stop,
     *,
     wire_timing: bool = False,
@@ -67,7 +67,7 @@ def serve(
     latency_ns = round(latency_of() * 1e9)
     stats = ServeStats()
     poller = select.poll()
-    poller.register(link.master_fd, select.POLLIN)
+    poller.register(pty.master_fd, select.POLLIN)
     pending: list[tuple[int, int, bytes]] = []  # (monotonic due ns, seq, bytes)
     seq = 0
     monotonic_ns = time.monotonic_ns
@@ -75,12 +75,12 @@ def serve(
         wait_ms = max(0, (pending[0][0] - monotonic_ns()) // 1_000_000) if pending else IDLE_POLL_MS
         events = poller.poll(wait_ms)
         if events:
-            data = link.read()
+            data = pty.read()
             if data:
                 now = monotonic_ns()
                 latency_ns = round(latency_of() * 1e9)
                 stats.bytes_in += len(data)
-                baud = link.client_baud()
+                baud = pty.client_baud()
                 if baud is None:
                     stats.chunks_ignored_for_baud += 1
                 else:
@@ -88,7 +88,7 @@ def serve(
                     for reply in bus.feed(data, now):
                         due = (reply.due_ns if wire_timing else now + reply.extra_delay_ns) + latency_ns
                         if due <= now and not pending:
-                            link.write(reply.data)
+                            pty.write(reply.data)
                             stats.bytes_out += len(reply.data)
                             stats.replies += 1
                         else:
@@ -100,7 +100,7 @@ def serve(
             now = monotonic_ns()
             while pending and pending[0][0] <= now:
                 out = heapq.heappop(pending)[2]
-                link.write(out)
+                pty.write(out)
                 stats.bytes_out += len(out)
                 stats.replies += 1
     return stats

@@ -57,32 +57,32 @@ def write_nonblocking(fd: int, data: bytes) -> int:
 
 def serve_loadcell(
     emulator: LoadCellEmulator,
-    link: PtyPort,
+    pty: PtyPort,
     stop: Stop,
     *,
     monotonic_ns: Callable[[], int] = time.monotonic_ns,
 ) -> ServeCounts:
     """Stream `emulator`'s lines to `link` in real time until `stop.stopped`."""
     counts = ServeCounts()
-    opens = link.client_opens()
+    opens = pty.client_opens()
     while not stop.stopped:
         for event in opens.events():
             if event is ClientEvent.OPENED:
                 counts.client_opens += 1
                 emulator.host_opened(monotonic_ns())
         now_ns = monotonic_ns()
-        client_baud = link.client_baud()  # one tcgetattr: cheap enough to follow the client closely
+        client_baud = pty.client_baud()  # one tcgetattr: cheap enough to follow the client closely
         lines = emulator.lines_until(now_ns)
         if lines:
             data = b"".join(chunk for _, chunk in lines)
             if client_baud is not None and client_baud != emulator.baud:
                 data = wrong_baud_garbage(data)
                 counts.wrong_baud_bytes += len(data)
-            n = write_nonblocking(link.master_fd, data)
+            n = write_nonblocking(pty.master_fd, data)
             counts.bytes_written += n
             counts.bytes_dropped += len(data) - n
             counts.lines_written += len(lines)
-        commands = link.read()  # a streaming device ignores them; a polled one answers each poll
+        commands = pty.read()  # a streaming device ignores them; a polled one answers each poll
         if commands:
             emulator.receive(commands, monotonic_ns())
         wait_s = (emulator.next_sample_ns - monotonic_ns()) / 1e9
