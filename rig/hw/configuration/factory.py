@@ -69,7 +69,7 @@ def camera_configuration_source(config: RigConfig, clock: Clock) -> Configuratio
     section = config.configuration
     try:
         source = importlib.import_module(f"{CAMERA_PACKAGE}.source")
-        calibration = importlib.import_module(f"{CAMERA_PACKAGE}.calibration")
+        calibration = importlib.import_module(f"{CAMERA_PACKAGE}.camera_calibration")
         marker_map = importlib.import_module(f"{CAMERA_PACKAGE}.marker_map")
     except ImportError as exc:
         raise ConfigError(
