@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import sys
 from pathlib import Path
 
 import pytest
@@ -11,9 +12,10 @@ import yaml
 from model.field_spec import FieldType, declared_fields, section_type
 from rig.errors import ConfigError
 from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, RigConfig, parse_rig_config
-from tools.config_docs import TABLES, field_rows, rendered, stale_pages
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # tools/ is not part of the installed package
+from tools.config_docs import TABLES, field_rows, rendered, stale_pages  # noqa: E402
 
 
 def test_docs_tables_match_the_declarations():
