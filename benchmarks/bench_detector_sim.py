@@ -51,14 +51,14 @@ from model.slip_detector import DetectorParams, SlipEvent, detector_init, detect
 from rig.analysis.runlog import read_parts, run_settings
 from rig.cli import main as rig_main
 from rig.hw.loadcell.formats import LineDecoder
-from rig.log import schemas
-from rig.log.frames import frame_payloads
-from rig.log.records import SlipMessage
-from rig.protocol import load_protocol
-from rig.rig_config import load_rig_config
+from rig.inputs.protocol import load_protocol
+from rig.inputs.rig_config import load_rig_config
+from rig.log.format import schemas
+from rig.log.reading.frames import frame_payloads
+from rig.records import SlipMessage
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
-from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
+from rig.sim.physics.link_presets import STREAM_LOADCELL_ARTEFACTS, make_preset, stream_rng
 from rig.sim.settings import LoadCellArtefacts, require_simulated
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -39,10 +39,10 @@ from dynamixel_sdk import (
 from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from rig.hw.dxl import control_table as ct
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl import protocol as p
-from rig.sim.dxl.bus import EmulatedBus
-from rig.sim.dxl.inprocess import SimPortHandler
+from rig.sim.dxl import packet as p
+from rig.sim.dxl.emulated_bus import EmulatedBus
+from rig.sim.dxl.inprocess_port import SimPortHandler
+from rig.sim.virtual_clock import VirtualClock
 
 IDS = (1, 2, 3)
 ADDR, LENGTH = 126, 10  # Present Current, Velocity, Position
@@ -60,11 +60,11 @@ def canned_replies() -> tuple[bytes, bytes]:
 
 def serve_canned(link: str) -> None:
     """Child mode: answer every complete packet with the canned reply, nothing else."""
-    from rig.sim.pty_link import PtyLink, StopFlag
+    from rig.sim.pty_port import PtyPort, StopFlag
 
     _, reply = canned_replies()
     stop = StopFlag()
-    with PtyLink(link) as pty:
+    with PtyPort(link) as pty:
         print(f"PTY {pty.slave_name} LINK {link}", flush=True)
         framer = p.Framer()
         poller = select.poll()

@@ -5,7 +5,7 @@ Timed side by side in one process (best of `--rounds`), on the paper's design (0
 shuffled, proportional scatter):
 
 * paper: the exact O(1) online fit (`model.online_fit`), update + estimate after every trial;
-* weighted, auto: `model.estimators.estimate_k` of all points so far after every trial;
+* weighted, auto: `model.k_estimators.estimate_k` of all points so far after every trial;
 * auto with censoring: the same with every fifth trial a no-slip lower bound (Tobit likelihood).
 
 Run: .venv/bin/python benchmarks/bench_estimators.py [--trials 24 96] [--rounds 3]
@@ -20,8 +20,8 @@ from collections.abc import Callable
 import numpy as np
 from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
-from model.estimators import estimate_k
 from model.fit import t_quantile
+from model.k_estimators import estimate_k
 from model.online_fit import online_fit_estimate, online_fit_init, online_fit_update
 
 

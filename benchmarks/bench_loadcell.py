@@ -34,9 +34,9 @@ from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.loadcell.formats import DeviceReading, RigLc1Codec
-from rig.sim.clock import VirtualClock
-from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.loadcell.inprocess_line import simulated_load_cell
 from rig.sim.loadcell.profiles import SawtoothTension
+from rig.sim.virtual_clock import VirtualClock
 
 PTY_BAUD = 921_600
 CAL = Calibration(1.25e-5, 120000.0, None, STANDARD_GRAVITY_M_S2, "2026-01-01", "", "rig-lc1")

@@ -4,7 +4,7 @@ Writes a log of 1,000,000 load-cell messages (RunLogger, as the rig writes it) i
 each variant in a fresh subprocess, so that the RSS high-water mark (ru_maxrss) is the variant's own:
   bare_stream   mcap StreamReader(f).records, json.loads of every Message into per-field lists
   bare_indexed  make_reader(f).iter_messages() (log-time order), json.loads into per-field lists
-  read_run      rig.log.reader.read_run(path).topic("/rig/loadcell"): a DataFrame indexed by time
+  read_run      rig.log.reading.reader.read_run(path).topic("/rig/loadcell"): a DataFrame indexed by time
 
 With --default-run, the log is instead that of the default run (`rig run protocols/joint_estimation.yaml
 --seed 0`, 1000 load-cell samples/s, every topic), and the variants are the analysis library's:
@@ -44,8 +44,8 @@ DEFAULT_PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"
 
 
 def generate(path: Path, n: int) -> None:
-    from rig.log import schemas as S
-    from rig.log.writer import RunLogger
+    from rig.log.format import schemas as S
+    from rig.log.writing.writer import RunLogger
 
     with RunLogger(path) as log:
         for i in range(n):
@@ -149,7 +149,7 @@ def run_variant(name: str, path: Path) -> dict[str, float]:
                 _columns_append(columns, message.data)
         count = len(log_times)
     elif name == "read_run":
-        from rig.log.reader import read_run
+        from rig.log.reading.reader import read_run
 
         frame = read_run(path).topic("/rig/loadcell")
         count = len(frame)
@@ -181,7 +181,7 @@ def main() -> None:
         import pandas  # noqa: F401
         import pyarrow.json  # noqa: F401
 
-        import rig.log.reader  # noqa: F401
+        import rig.log.reading.reader  # noqa: F401
 
         print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
         return

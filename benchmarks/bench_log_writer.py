@@ -29,8 +29,8 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
-from rig.log import schemas as S
-from rig.log.writer import DEFAULT_CHUNK_SIZE, RunLogger
+from rig.log.format import schemas as S
+from rig.log.writing.writer import DEFAULT_CHUNK_SIZE, RunLogger
 
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000

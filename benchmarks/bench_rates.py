@@ -45,11 +45,11 @@ from model.slip_detector import detector_init, detector_run, params_for_rate
 from rig.analysis.runlog import read_parts, run_settings
 from rig.cli import main as rig_main
 from rig.hw.loadcell.formats import LineDecoder
-from rig.log import schemas
-from rig.protocol import load_protocol
+from rig.inputs.protocol import load_protocol
+from rig.log.format import schemas
 from rig.runner.ramp_speed import RampSpeeds
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
-from rig.sim.physics.article_presets import make_preset
+from rig.sim.physics.link_presets import make_preset
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"

@@ -41,9 +41,9 @@ from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.session import RigSession
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 from rig.runner.control_loop import ControlLoop
-from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
+from rig.safety.interlocks import CurrentAtLimit, ForceCeiling
 from rig.vocabulary import RigKind, ServoModel, ServoRole
 
 PERIOD_S = 0.02  # the protocol's default control_period_s

@@ -24,8 +24,8 @@ from typing import Any
 import yaml
 
 from rig.rigs import open_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -48,9 +48,9 @@ def instrument_parts() -> collections.Counter[str]:
     """Wrap the runner's per-tick calls to add up the calling thread's CPU time per part."""
     from rig.hw.dxl.bus import DynamixelServoBus
     from rig.hw.loadcell.driver import SerialLoadCell
-    from rig.log.writer import RunLogger
+    from rig.log.writing.writer import RunLogger
     from rig.runner.control_loop import ControlLoop
-    from rig.sim.clock import VirtualClock
+    from rig.sim.virtual_clock import VirtualClock
 
     totals: collections.Counter[str] = collections.Counter()
 

@@ -23,10 +23,10 @@ from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler
 from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from rig.hw.dxl.bus import DynamixelServoBus
-from rig.rig_config import ServoSpec
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl.bus import EmulatedBus
-from rig.sim.dxl.inprocess import SimPortHandler
+from rig.inputs.rig_config import ServoSpec
+from rig.sim.dxl.emulated_bus import EmulatedBus
+from rig.sim.dxl.inprocess_port import SimPortHandler
+from rig.sim.virtual_clock import VirtualClock
 
 IDS = (1, 2, 3)
 BLOCK_START, BLOCK_LENGTH = 122, 14

@@ -23,7 +23,7 @@ from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
 from rig.hw.dxl import control_table as ct
 from rig.sim.dxl.servo import Servo
-from rig.sim.physics.article_presets import make_preset
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.physics.world import SimWorld
 
 MS = 1_000_000

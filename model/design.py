@@ -1,6 +1,6 @@
 """Adaptive design of a joint-estimation series: which distance next, and when to stop (pure).
 
-The model is `m = k / l` with slip masses scattered as sd(m)² = a² + (b·m)² (`model.estimators`).
+The model is `m = k / l` with slip masses scattered as sd(m)² = a² + (b·m)² (`model.k_estimators`).
 One trial at distance l then carries the Fisher information I(l) = 1 / (a²·l² + (b·k)²) on k: with
 additive or mixed scatter (a > 0) short distances carry more, with purely multiplicative scatter
 (a = 0) every distance carries the same. The 99 % bound's half-width is about t·(Σ I)^(-1/2), so the
@@ -9,7 +9,7 @@ trial that most shrinks it is the one with the largest I(l) among the distances 
 `plan_next` turns the data of a series so far into one `DesignStep`:
 
 1. **Estimate**: k and the scatter come in from the caller, normally `current_estimate` (the
-   series' estimator through `model.estimators.estimate_k`).
+   series' estimator through `model.k_estimators.estimate_k`).
 2. **Lack of fit** of the 1/l law (`lack_of_fit`), reported after every trial: a weighted
    pure-error F test once distances are repeated, else a t test of an offset c in m = k/l + c.
 3. **Stop** when the bound's half-width is at most `target_half_width_rel` of k even with the
@@ -51,8 +51,8 @@ from typing import Final
 
 import numpy as np
 
-from model.estimators import EstimatorName, KEstimate, check_estimator, estimate_k
 from model.fit import DEFAULT_LEVEL, check_level, t_quantile
+from model.k_estimators import EstimatorName, KEstimate, check_estimator, estimate_k
 
 NEAR_BEST_INFORMATION: Final = 0.9  # a candidate within 10 % of the best information per trial is "near best"
 PRIOR_RELATIVE_SD: Final = 0.25  # scatter of m·l assumed before a fit, for the force filter only

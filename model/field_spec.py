@@ -2,8 +2,8 @@
 
 A settings dataclass declares a field as `name: float = field(default=1.0, metadata=number(0, 10,
 unit="s", doc="..."))`; the dataclass default is the field's default. These are declarations only
-(pure, no I/O): `rig.validate.read_fields` parses a file's section from them and refuses keys that no
-field declares, `rig.config_docs` writes the docs tables from them, and `model.slip_detector`
+(pure, no I/O): `rig.inputs.validate.read_fields` parses a file's section from them and refuses keys that no
+field declares, `tools.config_docs` writes the docs tables from them, and `model.slip_detector`
 checks `DetectorParams` against them. A declaration is a `FieldSpec` under `SPEC_KEY` in the field's
 metadata; fields without one (a config's source path, say) are not read from the file.
 """
@@ -270,7 +270,7 @@ def keys_within(cls: type, within: str) -> tuple[str, ...]:
     return tuple(d.key for d in declared_fields(cls) if d.spec.within == within)
 
 
-# Text for the docs tables (rig.config_docs renders them; a declaration may use them for its own docs).
+# Text for the docs tables (tools.config_docs renders them; a declaration may use them for its own docs).
 
 
 def default_text(declared: Declared) -> str:

@@ -10,9 +10,9 @@ from typing import assert_never
 
 from rig.hw.hardware_rig import hardware_session, rig_calibration
 from rig.hw.session import RigSession
-from rig.rig_config import RigConfig
+from rig.inputs.rig_config import RigConfig
+from rig.runner.execute import PreparedRun
 from rig.runner.rig_to_run import BareRig, RigToRun
-from rig.runner.run import PreparedRun
 from rig.sim.kinds import DeviceLevel
 from rig.sim.simulated_rig import SimulatedRig, simulated_rig
 from rig.vocabulary import RigKind

@@ -117,7 +117,7 @@ class ServoModel(StrEnum):
     """The Dynamixel models the rig supports (Protocol 2.0 firmware): the name as ROBOTIS writes it.
 
     Their facts (model number, current sensing, stall point, voltage range) are data in
-    `rig.servo_ratings`; their control tables are built in `rig.hw.dxl.control_table`.
+    `rig.inputs.servo_ratings`; their control tables are built in `rig.hw.dxl.control_table`.
     """
 
     XM430_W350 = "XM430-W350"

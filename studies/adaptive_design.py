@@ -39,7 +39,7 @@ import numpy as np
 from scatter_shapes import scenario_shapes
 from scipy import stats
 
-from model import estimators
+from model import k_estimators as estimators
 from model.design import (
     DEFAULT_MIN_SPREAD_FRACTION,
     DEFAULT_STARTUP_TRIALS,
@@ -52,14 +52,14 @@ from model.design import (
     information_per_trial,
     plan_next,
 )
-from model.estimators import ESTIMATOR_NAMES, KEstimate, check_estimator, estimate_k
 from model.fit import t_quantile
-from rig.rig_config import load_rig_config
-from rig.study.summary import clopper_pearson
+from model.k_estimators import ESTIMATOR_NAMES, KEstimate, check_estimator, estimate_k
+from rig.inputs.rig_config import load_rig_config
+from rig.study.statistics import clopper_pearson
 
 K_TRUE = 0.1615  # link 1 of the paper [kg·m]
 G = 9.8
-# The largest share of the force limit a protocol may let the planner aim at (rig/protocol.py's
+# The largest share of the force limit a protocol may let the planner aim at (rig/inputs/protocol.py's
 # upper limit of max_force_fraction), for the force-limited floor.
 MAX_FORCE_FRACTION_ALLOWED = 0.95
 RANGE_M = (0.03, 0.25)

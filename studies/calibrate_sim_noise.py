@@ -23,7 +23,7 @@ import numpy as np
 
 from model.fit import fit_inverse_distance
 from model.slip_detector import DetectorParams, detect_slips
-from rig.sim.physics.article_presets import PRESET_NAMES, make_preset
+from rig.sim.physics.link_presets import PRESET_NAMES, make_preset
 from rig.sim.physics.world import SimWorld
 
 PAPER = {  # docs/model.md §4: k, SSE, R², RMSE

@@ -2,13 +2,13 @@
 
 Bare statistics, no simulator: for each design and scatter model, `--datasets` synthetic data sets
 m_i = k/l_i + e_i with e_i ~ N(0, a² + (b·k/l_i)²) (k = 0.1615 kg·m, link 1 of the paper) are fitted by
-the three estimators of `model.estimators`, vectorised over the data sets (paper: the cftool formulas,
-weighted: the mean of m·l, auto: `model.estimators.auto_batch`), each checked against `estimate_k`
+the three estimators of `model.k_estimators`, vectorised over the data sets (paper: the cftool formulas,
+weighted: the mean of m·l, auto: `model.k_estimators.auto_batch`), each checked against `estimate_k`
 on the first few data sets. The scatter models are the simulated rig's scenario shapes (additive
 a = 0.1 kg, multiplicative b = 0.085, mixed a = 0.07 kg and b = 0.06, read from their configs) and
 two sized like the paper's fits (additive a = 0.126 kg, mixed a = b = 0.06). Printed per case and
 estimator: the coverage of the 99 % bounds with its 95 % binomial (Wilson) interval, the relative bias,
-MSE / CRLB (`model.estimators.crlb_k`) and the RMSE relative to k (which compares the designs: the CRLB
+MSE / CRLB (`model.k_estimators.crlb_k`) and the RMSE relative to k (which compares the designs: the CRLB
 differs between them).
 
     .venv/bin/python studies/estimator_coverage.py [--datasets 100000] [--seed 0]
@@ -22,8 +22,8 @@ import math
 import numpy as np
 from scatter_shapes import scenario_shapes
 
-from model.estimators import auto_batch, crlb_k, estimate_k
 from model.fit import t_quantile
+from model.k_estimators import auto_batch, crlb_k, estimate_k
 
 K_TRUE = 0.1615  # kg·m
 LEVEL = 0.99

@@ -29,9 +29,9 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import yaml
 
-from model.estimators import ESTIMATOR_NAMES
 from model.fit import DEFAULT_LEVEL
-from rig.study.summary import summarise
+from model.k_estimators import ESTIMATOR_NAMES
+from rig.study.statistics import summarise
 from rig.study.worker import RunRecord, score_joint
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -13,10 +13,10 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from rig.analysis.replay import replay
+from rig.analysis.replay_run import replay
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 
 ROOT = Path(__file__).resolve().parents[1]
 

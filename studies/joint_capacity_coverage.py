@@ -1,7 +1,7 @@
 """Coverage of the per-joint capacity bounds a run gives after link validation (the runner's own glue).
 
 Synthetic, no devices: it follows the simulated rig's model of the test article (rig.sim's link1
-preset) and feeds the trials through `rig.runner.estimation.RunEstimator`, the very code a run uses:
+preset) and feeds the trials through `rig.runner.run_estimates.RunEstimator`, the very code a run uses:
 
 * true joint capacities C_j = C0·(1 + 0.10·z_j) (z clipped to ±3; C0 = 0.1615 kg·m · 9.8 m/s²), the
   joint-estimation specimen at C0;
@@ -29,8 +29,8 @@ import numpy as np
 import yaml
 
 from model.chain import lever_arms_m, planar_transforms
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
-from rig.runner.estimation import RunEstimator
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.runner.run_estimates import RunEstimator
 
 REPO = Path(__file__).resolve().parents[1]
 K_NOMINAL = 0.1615  # kg·m (link 1)

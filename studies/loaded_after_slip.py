@@ -17,11 +17,11 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from rig.log.reader import read_run
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
+from rig.log.reading.reader import read_run
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 
 ROOT = Path(__file__).resolve().parents[1]
 PROTOCOLS = ("joint_estimation", "link_validation", "smoke")

@@ -15,8 +15,8 @@ import tempfile
 from pathlib import Path
 
 from rig.rigs import open_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 
 ROOT = Path(__file__).resolve().parent.parent
 

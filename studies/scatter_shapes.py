@@ -16,8 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from rig.rig_config import load_rig_config
-from rig.sim.physics.article_presets import make_preset
+from rig.inputs.rig_config import load_rig_config
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.settings import require_simulated
 
 SCENARIOS_DIR = Path(__file__).resolve().parent.parent / "protocols" / "rigs" / "scenarios"

@@ -39,10 +39,10 @@ import numpy as np
 from rig.analysis.runlog import read_parts, run_settings
 from rig.cli import main as rig_main
 from rig.hw.dxl.units import RAD_PER_PULSE
-from rig.log import schemas
-from rig.log.frames import frame_payloads
-from rig.log.records import SlipMessage
-from rig.rig_config import load_rig_config, nominal_loadcell_rate_hz
+from rig.inputs.rig_config import load_rig_config, nominal_loadcell_rate_hz
+from rig.log.format import schemas
+from rig.log.reading.frames import frame_payloads
+from rig.records import SlipMessage
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOL = ROOT / "protocols" / "joint_estimation.yaml"

@@ -48,17 +48,17 @@ from dynamixel_sdk import PacketHandler
 from rig.cli import main as cli_main
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.loadcell.calibration import Calibration
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import RunReport, RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl.bus import EmulatedBus
-from rig.sim.dxl.inprocess import SimPortHandler
+from rig.sim.dxl.emulated_bus import EmulatedBus
+from rig.sim.dxl.inprocess_port import SimPortHandler
 from rig.sim.simulated_rig import SimulatedRig
+from rig.sim.virtual_clock import VirtualClock
 from tests.helpers import s32, u32
 
-# Every payload a test logs is checked against its topic schema (rig/log/schemas.py).
+# Every payload a test logs is checked against its topic schema (rig/log/format/schemas.py).
 os.environ.setdefault("RIG_LOG_STRICT", "1")
 
 

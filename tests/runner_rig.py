@@ -26,8 +26,8 @@ import pytest
 from rig.hw.seams import LoadCellSample
 from rig.hw.session import RigSession
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import PreparedRun, RunReport, execute_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import PreparedRun, RunReport, execute_run
 from rig.sim.kinds import DeviceLevel
 from rig.sim.physics.world import SimWorld
 from rig.sim.simulated_rig import SimulatedRig

@@ -13,10 +13,10 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from rig.hw.dxl.bus import DynamixelServoBus
-from rig.log import schemas
+from rig.log.format import schemas
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 
 ROOT = Path(__file__).resolve().parents[1]
 PAUSE = """\

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from rig.cli import main
-from rig.rig_config import DEFAULT_RIG_CONFIG
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG
 
 RIGS = Path(__file__).resolve().parent.parent / "protocols" / "rigs"
 

@@ -26,7 +26,7 @@ if not hasattr(cv2, "aruco") or not hasattr(cv2.aruco, "ArucoDetector"):  # prag
 from model.chain import planar_transforms, pose_from_xyz_rpy  # noqa: E402
 from rig.cli import main  # noqa: E402
 from rig.errors import InputError, NotConnectedError  # noqa: E402
-from rig.hw.camera.calibration import (  # noqa: E402
+from rig.hw.camera.camera_calibration import (  # noqa: E402
     Board,
     BoardKind,
     CameraCalibration,

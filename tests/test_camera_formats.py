@@ -20,7 +20,7 @@ LINK1_MARKERS = ROOT / "protocols" / "link1_markers.yaml"
 
 
 def test_the_shipped_link1_map_matches_the_link1_preset():
-    from rig.sim.physics.article_presets import make_preset
+    from rig.sim.physics.link_presets import make_preset
 
     marker_map = load_marker_map(LINK1_MARKERS)
     preset = make_preset("link1", seed=0)

@@ -15,15 +15,15 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from rig.analysis.replay import replay
-from rig.errors import ConfigError, InputError
+from rig.analysis.replay_run import replay
+from rig.errors import ConfigError, InputError, RigError
 from rig.hw.configuration import factory
 from rig.hw.configuration.file_source import FileConfigurationSource, MeasuredAnglesFile
 from rig.hw.configuration.operator_source import OperatorConfigurationSource, parse_angles_deg
 from rig.hw.seams import MeasurementRequest
-from rig.log import schemas
-from rig.rig_config import DEFAULT_RIG_CONFIG, configuration_source_kind, parse_rig_config
-from rig.sim.clock import VirtualClock
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, configuration_source_kind, parse_rig_config
+from rig.log.format import schemas
+from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import ConfigurationSourceKind
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -227,7 +227,7 @@ def test_the_camera_source_is_imported_only_when_chosen_and_missing_it_is_a_clea
     source = types.ModuleType("fake_camera.source")
     source.CameraDevice = lambda index: ("device", index)  # type: ignore[attr-defined]
     source.CameraConfigurationSource = lambda *args: ("source", args)  # type: ignore[attr-defined]
-    calibration = types.ModuleType("fake_camera.calibration")
+    calibration = types.ModuleType("fake_camera.camera_calibration")
     calibration.load_calibration = lambda path: ("calibration", path)  # type: ignore[attr-defined]
     marker_map = types.ModuleType("fake_camera.marker_map")
     marker_map.load_marker_map = lambda path: ("markers", path)  # type: ignore[attr-defined]
@@ -240,6 +240,18 @@ def test_the_camera_source_is_imported_only_when_chosen_and_missing_it_is_a_clea
         "source",
         (("device", 3), ("calibration", tmp_path / "cal.yaml"), ("markers", tmp_path / "map.yaml"), clock),
     )
+
+
+def test_the_real_camera_package_has_every_module_the_factory_imports(tmp_path: Path) -> None:
+    """With the extra installed, the imports succeed: what fails next is the device or the config's files."""
+    pytest.importorskip("cv2")
+    data = config(
+        configuration={"source": "camera", "camera": "cal.yaml", "markers": "map.yaml", "device": 3}
+    )
+    parsed = parse_rig_config(data, source=str(tmp_path / "r.yaml"), base_dir=tmp_path)
+    with pytest.raises(RigError) as raised:
+        factory.hardware_configuration_source(parsed, VirtualClock())  # no camera 3, no cal.yaml
+    assert "needs the camera extra" not in str(raised.value)
 
 
 # --- a run: every measurement on its topic, the prediction from the measurement ---------------------

@@ -20,7 +20,7 @@ from model.design import (
     predicted_slip_mass_kg,
     scale_upper_factor,
 )
-from model.estimators import KEstimate
+from model.k_estimators import KEstimate
 
 K = 0.1615  # kg·m
 G = 9.8

@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
-from rig.protocol import load_protocol
-from rig.rig_config import load_rig_config
+from rig.inputs.protocol import load_protocol
+from rig.inputs.rig_config import load_rig_config
 from rig.runner.limits import estimated_trial_s, ramp_speeds
 from rig.runner.ramp_speed import RampSpeeds
 

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rig.hw.dxl.control_table import table_for_model
-from rig.sim.dxl import protocol as p
+from rig.sim.dxl import packet as p
 from rig.sim.dxl.actuator import (
     ActuatorCommand,
     ActuatorState,

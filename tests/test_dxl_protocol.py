@@ -7,7 +7,7 @@ from dynamixel_sdk import PacketHandler
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig.sim.dxl import protocol as p
+from rig.sim.dxl import packet as p
 
 SDK = PacketHandler(2.0)
 

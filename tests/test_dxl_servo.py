@@ -17,7 +17,7 @@ from dynamixel_sdk import (
 )
 
 from rig.hw.dxl.control_table import RAD_PER_PULSE, XM430_W350
-from rig.sim.dxl import protocol as p
+from rig.sim.dxl import packet as p
 from tests.helpers import s16, s32, u32
 
 ACCESS, LIMIT, RANGE, LENGTH, FAIL, INSTRUCTION, CRC = 7, 6, 4, 5, 1, 2, 3

@@ -10,16 +10,16 @@ import math
 import numpy as np
 import pytest
 
-from model import estimators
-from model.estimate_summary import summarize_estimate
-from model.estimators import auto_batch, crlb_k, estimate_k
+from model import k_estimators as estimators
 from model.fit import fit_inverse_distance
+from model.fit_keys import summarize_estimate
+from model.k_estimators import auto_batch, crlb_k, estimate_k
 from rig.cli import main
 from rig.errors import ConfigError
-from rig.log.records import Estimate
-from rig.protocol import parse_protocol
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
-from rig.runner.estimation import RunEstimator
+from rig.inputs.protocol import parse_protocol
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.records import Estimate
+from rig.runner.run_estimates import RunEstimator
 
 K = 0.1615
 PAPER_DESIGN = np.repeat(np.linspace(0.03, 0.25, 8), 3)

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 
 ROOT = Path(__file__).resolve().parents[1]
 FAULTS = ROOT / "protocols" / "rigs" / "faults"

@@ -4,7 +4,8 @@ import stat
 import pytest
 
 from rig.errors import InputError
-from rig.files import (
+from rig.hw.loadcell.calibration import Calibration
+from rig.inputs.files import (
     MAX_NESTING,
     MAX_YAML_BYTES,
     atomic_write_text,
@@ -13,7 +14,6 @@ from rig.files import (
     parse_yaml,
     read_text_file,
 )
-from rig.hw.loadcell.calibration import Calibration
 from rig.runner.runlock import RunLock
 
 
@@ -125,7 +125,7 @@ def test_json_may_allow_nan():
 
 
 def test_one_out_dir_rule(tmp_path):
-    from rig.files import check_out_dir
+    from rig.inputs.files import check_out_dir
 
     blocker = tmp_path / "file"
     blocker.write_text("")

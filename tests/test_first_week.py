@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from rig.hw.loadcell.driver import FIRMWARE_BAUD
-from rig.rig_config import DEFAULT_RIG_CONFIG, StaleTimeoutFit, load_rig_config
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, StaleTimeoutFit, load_rig_config
 
 REPO = Path(__file__).parent.parent
 TEMPLATE = REPO / "protocols" / "rigs" / "hardware.example.yaml"

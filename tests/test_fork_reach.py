@@ -15,7 +15,7 @@ from typing import Any
 
 from mcap.reader import make_reader
 
-from rig.log import schemas
+from rig.log.format import schemas
 from tests.helpers import quick_then_link_validation
 
 RIG = """\

@@ -8,17 +8,17 @@ from dataclasses import replace
 import numpy as np
 
 from rig.hw.bending import ForkBending
-from rig.sim.physics.article import ChainArticle
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.forks import ForkFixture
+from rig.sim.physics.link import ChainLink
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.physics.world import SimWorld
 from tests.helpers import ScriptedShaft, set_up_trial
 
 MS = 1_000_000
 
 
-def link(capacities: list[float]) -> ChainArticle:
-    return ChainArticle([0.03] * len(capacities), (0.0, 0.0, 0.03), (0.0, -1.0, 0.0), capacities)
+def link(capacities: list[float]) -> ChainLink:
+    return ChainLink([0.03] * len(capacities), (0.0, 0.0, 0.03), (0.0, -1.0, 0.0), capacities)
 
 
 def push(fixture: ForkFixture, component: int, travel_rad: float, steps: int = 40) -> None:
@@ -28,7 +28,7 @@ def push(fixture: ForkFixture, component: int, travel_rad: float, steps: int = 4
     fixture.active = None
 
 
-def forks(article: ChainArticle, components: list[int]) -> ForkFixture:
+def forks(article: ChainLink, components: list[int]) -> ForkFixture:
     return ForkFixture(
         article, components, pinion_radius_m=0.01, contact_stiffness_n_per_m=1e5, kinetic_ratio=0.8
     )

@@ -27,13 +27,13 @@ from rig.cli import main
 from rig.cli.sim_loadcell import build_emulator
 from rig.cli.sim_servos import build_bus, parse_ids
 from rig.errors import InputError
-from rig.files import parse_json, parse_yaml
 from rig.hw.loadcell.calibration import Calibration
-from rig.linkfile import load_link_file
-from rig.protocol import load_protocol
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
-from rig.runner.estimation import RunEstimator, load_estimates_file
+from rig.inputs.files import parse_json, parse_yaml
+from rig.inputs.linkfile import load_link_file
+from rig.inputs.protocol import load_protocol
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
 from rig.runner.journal import RunJournal
+from rig.runner.run_estimates import RunEstimator, load_estimates_file
 from rig.sim.dxl.faults import parse_fault as parse_dxl_fault
 from rig.sim.loadcell.emulator import FaultPlan
 from rig.sim.loadcell.emulator import parse_fault as parse_loadcell_fault

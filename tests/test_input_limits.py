@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from rig.errors import InputError
-from rig.rig_config import DEFAULT_RIG_CONFIG
-from rig.runner.estimation import load_estimates_file
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG
 from rig.runner.journal import JOURNAL_FORMAT, RunJournal, content_hash
+from rig.runner.run_estimates import load_estimates_file
 from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, quick_protocol
 
 REPO = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from rig.hw.interrupts import interrupts_deferred, signals_deferred
+from rig.safety.interrupts import interrupts_deferred, signals_deferred
 
 
 def test_signals_deferred_remembers_the_signal_and_restores_the_handler():

@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from model.fit import capacity_from_fit, fit_inverse_distance
-from model.joint_capacity_estimation import (
+from model.capacity_grid_filter import (
     LinkCapacityPrior,
     link_estimator_estimates,
     link_estimator_init,
     link_estimator_update,
 )
+from model.fit import capacity_from_fit, fit_inverse_distance
 
 
 def simulate_link_trials(seed, *, identify, n_trials=8, level=0.9, sigma=0.05, prior_sd=0.3):

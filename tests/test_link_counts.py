@@ -10,8 +10,8 @@ import pytest
 from rig.cli import main
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
-from rig.log import schemas
-from rig.log.records import TrialLinkStats
+from rig.log.format import schemas
+from rig.records import TrialWireStats
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -38,17 +38,17 @@ def test_a_flaky_bus_shows_its_retries_per_trial_in_the_log_and_in_replay(tmp_pa
 
 
 def test_a_device_without_counts_is_absent_not_null():
-    alone = TrialLinkStats(trial_id=3)
+    alone = TrialWireStats(trial_id=3)
     assert alone.to_payload() == {"trial_id": 3}
     schemas.check_payload(schemas.TRIAL_LINKS, alone.to_payload())
-    both = TrialLinkStats(
+    both = TrialWireStats(
         3, BusStats(operations=5, attempts=6, retries=1), LoadCellLineStats(9, 0, 1, 2, 1, 0)
     )
     schemas.check_payload(schemas.TRIAL_LINKS, both.to_payload())
-    assert TrialLinkStats.from_payload(both.to_payload()) == both
+    assert TrialWireStats.from_payload(both.to_payload()) == both
     # A table read back gives an absent part as all-missing values: decoded as absent.
     assert (
-        TrialLinkStats.from_payload({"trial_id": 3, "bus": dict.fromkeys(both.to_payload()["bus"])}) == alone
+        TrialWireStats.from_payload({"trial_id": 3, "bus": dict.fromkeys(both.to_payload()["bus"])}) == alone
     )
     schema = schemas.TOPICS[schemas.TRIAL_LINKS].schema
     assert schema["required"] == ["trial_id"]

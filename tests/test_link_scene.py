@@ -12,8 +12,8 @@ from mcap.reader import make_reader
 from scipy.spatial.transform import Rotation
 
 from model.chain import forward_kinematics, planar_transforms
-from rig.log import schemas
-from rig.log.link_scene import (
+from rig.log.format import schemas
+from rig.log.format.link_scene import (
     BASE_FRAME,
     WORLD_FRAME,
     LinkGeometry,

@@ -19,11 +19,11 @@ import websockets
 from mcap.reader import make_reader
 
 from rig.errors import InputError
-from rig.log import schemas
-from rig.log.live import LivePublisher, serve_log
+from rig.log.format import schemas
+from rig.log.live.publisher import LivePublisher, serve_log
 from rig.rigs import open_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 from tests.helpers import QUICK_PROTOCOL, quick_protocol
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk speaks the first
@@ -193,7 +193,7 @@ def test_a_port_in_use_is_an_input_error():
 
 
 def test_a_port_taken_after_the_check_is_reported_by_the_view_not_hung_on(monkeypatch):
-    import rig.log.live as live_module
+    import rig.log.live.publisher as live_module
 
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
@@ -379,7 +379,7 @@ def test_the_foxglove_layout_names_only_logged_topics_and_fields():
     [(1, 120268, 0.00335, 2000), (2, -5, None, 3), (3, 0, -0.0, 4), (4, 1, 1.5e-7, 5), (5, 1, 1e300, 6)],
 )
 def test_a_load_cell_row_is_published_as_the_object_the_file_holds(row):
-    from rig.log.live_process import row_encoder
+    from rig.log.live.server_process import row_encoder
 
     fields = schemas.ROW_FIELDS[schemas.LOADCELL]
     assert json.loads(row_encoder(fields)(row)) == schemas.row_payload(schemas.LOADCELL, row)

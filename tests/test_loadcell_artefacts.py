@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rig.hw.loadcell.formats import LineDecoder
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
 from rig.sim.loadcell.profiles import ConstantTension

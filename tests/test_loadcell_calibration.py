@@ -19,9 +19,9 @@ from rig.hw.loadcell.calibration import (
     two_point,
 )
 from rig.hw.seams import LoadCellSample
-from rig.sim.clock import VirtualClock
-from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.loadcell.inprocess_line import simulated_load_cell
 from rig.sim.loadcell.profiles import StepTension
+from rig.sim.virtual_clock import VirtualClock
 
 CAL = Calibration(
     factor_n_per_count=1.25e-5,

@@ -8,12 +8,12 @@ import yaml
 
 from rig.errors import ConfigError, StaleDataError
 from rig.hw.loadcell.formats import FORCE_UNITS_N
-from rig.rig_config import default_stale_timeout_s, load_rig_config, parse_rig_config
-from rig.sim.clock import VirtualClock
+from rig.inputs.rig_config import default_stale_timeout_s, load_rig_config, parse_rig_config
 from rig.sim.loadcell.emulator import LoadCellEmulator
-from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.loadcell.inprocess_line import simulated_load_cell
 from rig.sim.loadcell.profiles import ConstantTension
 from rig.sim.settings import SIMULATED_CELLS, check_simulation, require_simulated
+from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName
 from tests.test_sim_scenarios import CELL_NAMES, SCENARIOS
 

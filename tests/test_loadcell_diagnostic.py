@@ -12,10 +12,10 @@ from rig.hw.loadcell.driver import LoadCellStats, SerialLoadCell
 from rig.hw.seams import LoadCellSample
 from rig.preflight.loadcell import CellListening, clock_skew_ppm, diagnose, listen
 from rig.preflight.verdicts import Verdict
-from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.emulator import LoadCellEmulator
-from rig.sim.loadcell.inprocess import ideal_calibration, in_process_serial_factory
+from rig.sim.loadcell.inprocess_line import ideal_calibration, in_process_serial_factory
 from rig.sim.loadcell.profiles import ConstantTension
+from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import LoadCellFormatName
 from tests.helpers import build_firmware
 from tests.test_loadcell_pty import sim_loadcell

@@ -14,10 +14,10 @@ from rig.hw.loadcell.device_time import OFFSET_LEAK_NS
 from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.loadcell.formats import DeviceReading, RigLc1Codec
 from rig.hw.seams import LineStatsSource, LoadCell, LoadCellLineStats
-from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator, SignalModel
-from rig.sim.loadcell.inprocess import in_process_serial_factory, simulated_load_cell
+from rig.sim.loadcell.inprocess_line import in_process_serial_factory, simulated_load_cell
 from rig.sim.loadcell.profiles import ConstantTension, SawtoothTension
+from rig.sim.virtual_clock import VirtualClock
 
 
 def run_for(load_cell, clock, seconds, step_s=0.01):

@@ -8,10 +8,10 @@ import pytest
 
 from rig.errors import InputError
 from rig.hw.loadcell.formats import DeviceReading, IndicatorStCodec, LineDecoder, RigLc1Codec
-from rig.sim.clock import VirtualClock
 from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator, SignalModel, parse_fault
-from rig.sim.loadcell.inprocess import InProcessLoadCellSerial
+from rig.sim.loadcell.inprocess_line import InProcessLoadCellSerial
 from rig.sim.loadcell.profiles import ConstantTension, SawtoothTension, StepTension, parse_profile
+from rig.sim.virtual_clock import VirtualClock
 
 
 def decode_all(emulator, until_ns, codec=None):

@@ -2,7 +2,7 @@
 
 pyserial asserts DTR on open, which resets an Arduino-class board: silent while it boots, then its
 banner, then seq and its clock from 0. On a pty the emulator sees the open through inotify
-(rig/sim/pty_link.py, Linux only). The run's boot grace (`loadcell.boot_grace_s`, 3 s by default)
+(rig/sim/pty_port.py, Linux only). The run's boot grace (`loadcell.boot_grace_s`, 3 s by default)
 must cover the silence; a grace shorter than the boot ends the wait with a StaleDataError.
 """
 
@@ -27,7 +27,7 @@ from rig.cli import main
 from rig.errors import StaleDataError
 from rig.hw.loadcell.driver import DEFAULT_BOOT_GRACE_S, SerialLoadCell
 from rig.hw.seams import LoadCellSample
-from rig.sim.pty_link import ClientEvent, ClientOpens
+from rig.sim.pty_port import ClientEvent, ClientOpens
 
 pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys and inotify"),

@@ -7,10 +7,10 @@ from mcap.writer import Writer
 
 import rig
 from rig.errors import InputError
-from rig.log.log_format import LOG_FORMAT_VERSION, METADATA_NAME, UNVERSIONED, format_metadata
-from rig.log.reader import read_run
-from rig.log.writer import RunLogger
-from rig.sim.clock import VirtualClock
+from rig.log.format.log_format import LOG_FORMAT_VERSION, METADATA_NAME, UNVERSIONED, format_metadata
+from rig.log.reading.reader import read_run
+from rig.log.writing.writer import RunLogger
+from rig.sim.virtual_clock import VirtualClock
 
 T0_NS = 1_767_225_600_000_000_000
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.log import schemas as S
+from rig.log.format import schemas as S
 from tests.test_replay import LINK
 
 TS_READER = Path(__file__).parent / "ts_reader"

@@ -14,11 +14,11 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from rig.errors import InputError
-from rig.log import schemas as S
-from rig.log.log_format import METADATA_NAME as FORMAT_RECORD
-from rig.log.log_format import format_metadata
-from rig.log.reader import read_run
-from rig.log.writer import RunLogger
+from rig.log.format import schemas as S
+from rig.log.format.log_format import METADATA_NAME as FORMAT_RECORD
+from rig.log.format.log_format import format_metadata
+from rig.log.reading.reader import read_run
+from rig.log.writing.writer import RunLogger
 
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000

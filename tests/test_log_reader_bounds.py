@@ -28,10 +28,10 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from rig.errors import InputError
-from rig.log import schemas as S
-from rig.log.frames import MAX_JSON_DEPTH
-from rig.log.mcap_scan import MAX_CHUNK_UNCOMPRESSED_BYTES, MAX_COMPRESSION_RATIO
-from rig.log.reader import RunLog, read_run
+from rig.log.format import schemas as S
+from rig.log.reading.frames import MAX_JSON_DEPTH
+from rig.log.reading.mcap_scan import MAX_CHUNK_UNCOMPRESSED_BYTES, MAX_COMPRESSION_RATIO
+from rig.log.reading.reader import RunLog, read_run
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 T0_NS = 1_767_225_600_000_000_000

@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from rig.hw.seams import LoadCellSample, ServoState
-from rig.log import schemas as S
-from rig.log.examples import example_payloads
-from rig.log.records import (
+from rig.log.format import schemas as S
+from rig.log.format.examples import example_payloads
+from rig.records import (
     Estimate,
     JointCapacity,
     LogLevel,

@@ -15,11 +15,11 @@ from pathlib import Path
 import pytest
 from mcap.writer import Writer
 
-from rig.log import schemas as S
-from rig.log.examples import example_payloads
-from rig.log.log_format import METADATA_NAME as FORMAT_RECORD
-from rig.log.reader import read_run
-from rig.log.writer import RunLogger
+from rig.log.format import schemas as S
+from rig.log.format.examples import example_payloads
+from rig.log.format.log_format import METADATA_NAME as FORMAT_RECORD
+from rig.log.reading.reader import read_run
+from rig.log.writing.writer import RunLogger
 
 TS_READER = Path(__file__).parent / "ts_reader"
 T0_NS = 1_767_225_600_000_000_000

@@ -10,9 +10,9 @@ import pandas as pd
 import pytest
 from mcap.writer import CompressionType, Writer
 
-from rig.log import schemas as S
-from rig.log.reader import RunLog, read_run
-from rig.log.writer import RunLogger
+from rig.log.format import schemas as S
+from rig.log.reading.reader import RunLog, read_run
+from rig.log.writing.writer import RunLogger
 
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000

@@ -18,15 +18,15 @@ import pytest
 from mcap.reader import make_reader
 
 from rig.errors import RigError
-from rig.log import schemas as S
-from rig.log.examples import EXAMPLE_TIME_NS, example_payloads
-from rig.log.frames import frame_payloads
-from rig.log.log_format import METADATA_NAME as FORMAT_RECORD
-from rig.log.log_format import format_metadata
-from rig.log.reader import read_run
-from rig.log.records import SlipMessage, TrialPhase, TrialState
-from rig.log.writer import LIBRARY, LogWriteError, RunLogger
-from rig.sim.clock import VirtualClock
+from rig.log.format import schemas as S
+from rig.log.format.examples import EXAMPLE_TIME_NS, example_payloads
+from rig.log.format.log_format import METADATA_NAME as FORMAT_RECORD
+from rig.log.format.log_format import format_metadata
+from rig.log.reading.frames import frame_payloads
+from rig.log.reading.reader import read_run
+from rig.log.writing.writer import LIBRARY, LogWriteError, RunLogger
+from rig.records import SlipMessage, TrialPhase, TrialState
+from rig.sim.virtual_clock import VirtualClock
 
 T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
@@ -252,9 +252,9 @@ def test_flush_with_fsync_and_the_messages_it_covers_are_on_disk(tmp_path):
 KILLED_WRITER = textwrap.dedent(
     """
     import os, signal, sys
-    from rig.log import schemas as S
-    from rig.log.records import TrialKind, TrialOutcome, TrialResult
-    from rig.log.writer import RunLogger
+    from rig.log.format import schemas as S
+    from rig.records import TrialKind, TrialOutcome, TrialResult
+    from rig.log.writing.writer import RunLogger
 
     path, blocks = sys.argv[1], int(sys.argv[2])
     log = RunLogger(path, flush_interval_s=3600)  # only the explicit flushes close chunks
@@ -313,7 +313,7 @@ def test_a_run_killed_with_sigkill_keeps_every_flushed_message(tmp_path):
 
 
 def test_the_writer_process_encodes_load_cell_rows_exactly_as_the_json_encoder():
-    from rig.log.writer_process import _DUMPS, _loadcell_row_json
+    from rig.log.writing.writer_process import _DUMPS, _loadcell_row_json
 
     fields = S.ROW_FIELDS[S.LOADCELL]
     floats = [0.0, -0.0, 5e-324, 1.7976931348623157e308, 0.1 + 0.2, -7.25, 1e16, 1e-7, 123456.789]

@@ -8,9 +8,9 @@ from pathlib import Path
 
 from rig.hw.bending import ManualBending
 from rig.hw.session import OperatorTask
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 from rig.sim.kinds import DeviceLevel
 from rig.sim.object_devices import ObjectServoBus
 from rig.sim.simulated_rig import SimulatedPerson, simulated_rig

@@ -10,7 +10,7 @@ import pytest
 
 from rig.cli import main
 from rig.errors import InputError
-from rig.linkfile import load_link_file, parse_link
+from rig.inputs.linkfile import load_link_file, parse_link
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "protocols" / "example_link.yaml"

@@ -6,8 +6,8 @@ import pytest
 
 from model.design import DEFAULT_STOP_SCALE_CONFIDENCE
 from rig.errors import ConfigError
-from rig.files import parse_yaml
-from rig.protocol import AdaptiveBlock, TrialPlan, load_protocol, parse_protocol
+from rig.inputs.files import parse_yaml
+from rig.inputs.protocol import AdaptiveBlock, TrialPlan, load_protocol, parse_protocol
 
 HEAD = """\
 format: rig-protocol/1

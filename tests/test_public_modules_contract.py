@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import inspect
 import pkgutil
 import sys
 from pathlib import Path
@@ -37,12 +38,12 @@ def _check(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, files: dict[str, str
 
 
 TOY = {
-    "toypkg/__init__.py": "__all__ = ['api', 'inner']\n",
+    "toypkg/__init__.py": "PUBLIC_MODULES = ('api', 'inner')\n",
     "toypkg/api.py": "from toypkg.inner import shown\n",
-    "toypkg/inner/__init__.py": "__all__ = ['shown']\n",
+    "toypkg/inner/__init__.py": "PUBLIC_MODULES = ('shown',)\n",
     "toypkg/inner/shown.py": "from toypkg.inner import hidden\n",  # a sibling: allowed
     "toypkg/inner/hidden.py": "X = 1\n",
-    "toypkg/inner/deeper/__init__.py": "__all__ = []\n",
+    "toypkg/inner/deeper/__init__.py": "PUBLIC_MODULES: tuple[str, ...] = ()\n",
     "toypkg/inner/deeper/user.py": "from toypkg.inner.hidden import X\n",  # inside the package: allowed
 }
 
@@ -59,7 +60,7 @@ def test_an_import_of_a_private_module_from_outside_its_package_breaks_it(tmp_pa
         "toypkg/other.py": "import toypkg.api\n",
     }
     check = _check(
-        tmp_path, monkeypatch, {**leaky, "toypkg/__init__.py": "__all__ = ['api', 'inner', 'other']\n"}
+        tmp_path, monkeypatch, {**leaky, "toypkg/__init__.py": "PUBLIC_MODULES = ('api', 'inner', 'other')\n"}
     )
     assert not check.kept
     ((importer, imported, line),) = [
@@ -69,7 +70,7 @@ def test_an_import_of_a_private_module_from_outside_its_package_breaks_it(tmp_pa
     assert check.metadata["undeclared"] == []
 
 
-def test_a_package_without_all_breaks_it(tmp_path, monkeypatch):
+def test_a_package_without_public_modules_breaks_it(tmp_path, monkeypatch):
     check = _check(
         tmp_path, monkeypatch, {**TOY, "toypkg/inner/deeper/__init__.py": '"""No surface named."""\n'}
     )
@@ -84,12 +85,25 @@ def _packages() -> list[str]:
 
 
 @pytest.mark.parametrize("package", _packages())
-def test_every_name_in_a_packages_all_is_one_of_its_modules_or_defined_there(package):
+def test_every_public_module_a_package_names_is_one_of_its_modules(package):
     init = importlib.import_module(package)
     public = declared_public(Path(init.__file__))
     assert public is not None, f"{package} names no public modules"
     submodules = {m.name for m in pkgutil.iter_modules(init.__path__)}
     for name in public:
-        assert name in submodules or hasattr(init, name), (
-            f"{package}.__all__ names {name!r}, which does not exist"
+        assert name in submodules, f"{package}.PUBLIC_MODULES names {name!r}, which is not one of its modules"
+
+
+@pytest.mark.parametrize("package", _packages())
+def test_every_name_in_a_packages_all_is_a_name_users_import_not_a_module(package):
+    init = importlib.import_module(package)
+    names = init.__all__
+    assert names, f"{package}.__all__ is empty"
+    for name in names:
+        value = getattr(init, name)  # loaded from its defining module on first use (rig.exports)
+        assert not inspect.ismodule(value), (
+            f"{package}.__all__ names the module {name!r}, not a name users import"
         )
+    star: dict[str, object] = {}
+    exec(f"from {package} import *", star)
+    assert set(names) <= set(star)

@@ -18,7 +18,7 @@ import pytest
 from rig.analysis.runlog import read_parts, run_settings
 from rig.cli import main
 from rig.hw.dxl.units import RAD_PER_PULSE, RAD_S_PER_VELOCITY_UNIT
-from rig.log import schemas
+from rig.log.format import schemas
 from rig.runner.ramp_speed import SAMPLING_ERROR_FRACTION, RampSpeeds
 from tests.helpers import write_joint_1_protocol
 

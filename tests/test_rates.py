@@ -21,9 +21,9 @@ from model.slip_detector import (
 from rig.analysis.runlog import read_parts
 from rig.cli import main
 from rig.errors import InputError
-from rig.log import schemas
-from rig.protocol import for_loadcell_rate, load_protocol
-from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, load_rig_config, nominal_loadcell_rate_hz
+from rig.inputs.protocol import for_loadcell_rate, load_protocol
+from rig.inputs.rig_config import DEFAULT_LOADCELL_RATE_HZ, load_rig_config, nominal_loadcell_rate_hz
+from rig.log.format import schemas
 from rig.runner.ramp_speed import SAMPLING_ERROR_FRACTION, RampSpeeds
 from tests.helpers import write_joint_1_protocol
 

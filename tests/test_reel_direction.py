@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 
 from rig.errors import ConfigError
-from rig.log.reader import read_run
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
+from rig.log.reading.reader import read_run
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import RunReport, RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
 from rig.sim.simulated_rig import SimulatedRig
 
 ROOT = Path(__file__).resolve().parent.parent

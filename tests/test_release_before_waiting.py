@@ -15,11 +15,11 @@ import pytest
 
 from rig.errors import InputError
 from rig.hw.seams import ConfigurationReading, ConfigurationSource, MeasurementRequest
-from rig.log.reader import read_run
-from rig.protocol import load_protocol
+from rig.inputs.protocol import load_protocol
+from rig.log.reading.reader import read_run
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, execute_run, prepare_run
 from rig.sim.physics.world import SimWorld
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -18,12 +18,12 @@ from mcap.stream_reader import breakup_chunk
 from model.chain import lever_arms_m, planar_transforms
 from rig.analysis import redetect as rd
 from rig.analysis import report as report_module
-from rig.analysis.replay import replay
+from rig.analysis.replay_run import replay
 from rig.analysis.trials import load_trial_table
 from rig.cli import main
-from rig.log import schemas as S
-from rig.log.reader import RunLog, read_run
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
+from rig.log.format import schemas as S
+from rig.log.reading.reader import RunLog, read_run
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 

@@ -13,11 +13,11 @@ import pandas as pd
 import pytest
 
 from rig.analysis import LoggedRuns, LogWarning, Refit, open_log, open_logs
-from rig.analysis.replay import replay
+from rig.analysis.replay_run import replay
 from rig.analysis.trials import TRIAL_COLUMNS, load_trial_table
 from rig.errors import InputError
-from rig.log import schemas as S
-from rig.log.reader import read_run
+from rig.log.format import schemas as S
+from rig.log.reading.reader import read_run
 from tests.test_replay import LINK, PROTOCOLS
 
 
@@ -170,8 +170,8 @@ def test_a_file_that_is_not_a_rig_log_raises(tmp_path):
 
 def test_payloads_that_do_not_decode_are_counted_in_one_warning(tmp_path, run_cli):
     # A pre-release payload (integer times, no `start` stamp) is skipped with a warning, no traceback.
-    from rig.log.examples import EXAMPLE_TIME_NS, example_payloads
-    from rig.log.writer import RunLogger
+    from rig.log.format.examples import EXAMPLE_TIME_NS, example_payloads
+    from rig.log.writing.writer import RunLogger
 
     payloads = example_payloads()
     result = {k: v for k, v in payloads[S.TRIAL_RESULT].items() if k not in ("start", "end")}

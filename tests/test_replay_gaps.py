@@ -9,7 +9,7 @@ import pytest
 
 from rig.analysis import redetect as rd
 from rig.analysis.gaps import sequence_gaps, trial_sample_gaps
-from rig.analysis.replay import replay
+from rig.analysis.replay_run import replay
 from rig.hw.seams import LineStatsSource
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"

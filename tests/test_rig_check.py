@@ -17,14 +17,14 @@ from typing import Any
 import pytest
 
 from rig.hw.dxl.bus import DynamixelServoBus, ServoHealthReport, ServoInfo
+from rig.inputs.rig_config import load_rig_config
+from rig.preflight.check_context import CheckContext, CheckDevices, CheckOptions
 from rig.preflight.config_update import updated_text
-from rig.preflight.context import CheckContext, CheckDevices, CheckOptions
 from rig.preflight.jog import fitted_slope
-from rig.preflight.ports import check_port, latency_row
+from rig.preflight.port_checks import check_port, latency_row
 from rig.preflight.sections import run_sections
 from rig.preflight.servos import servo_checks
 from rig.preflight.verdicts import CheckRow, Verdict
-from rig.rig_config import load_rig_config
 from rig.sim.simulated_rig import SimulatedRig, simulated_rig
 
 pytestmark = pytest.mark.slow

@@ -16,7 +16,7 @@ pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
 
 
 # What `rig check` reads beyond the shared hardware rig (`hardware_rig`): the cell's rate and
-# capacity, and a ceiling and winch current limit that pass its limit chain (rig/preflight/limits.py).
+# capacity, and a ceiling and winch current limit that pass its limit chain (rig/preflight/tension_limits.py).
 CHECK_KEYS: dict[str, Any] = {
     "loadcell": {"rate_hz": 200, "capacity_n": 98},
     "limits": {"force_ceiling_n": 75, "winch_current_limit_a": 0.52},

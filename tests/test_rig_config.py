@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from rig.errors import ConfigError, InputError
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
 from rig.sim.settings import load_checked_rig_config
 
 RIGS = Path(__file__).resolve().parent.parent / "protocols" / "rigs"
@@ -70,7 +70,7 @@ def test_a_file_name_too_long_for_the_file_system_is_named(tmp_path, name):
 def test_a_hardware_config_may_describe_its_twin_and_its_own_commands_ignore_it(tmp_path):
     # `rig sim rig` serves a hardware config's `simulation:` section behind its ports (issue 30);
     # the rig's run and checks go on as without it: no simulated cell rate, no simulated rig.
-    from rig.rig_config import DEFAULT_LOADCELL_RATE_HZ, nominal_loadcell_rate_hz
+    from rig.inputs.rig_config import DEFAULT_LOADCELL_RATE_HZ, nominal_loadcell_rate_hz
     from rig.sim.settings import require_simulated, simulation_section
 
     text = (RIGS / "hardware.example.yaml").read_text(encoding="utf-8")

@@ -25,9 +25,9 @@ import rig.rigs as composition
 from rig.cli import build_parser
 from rig.cli import main as cli_main
 from rig.errors import InputError
+from rig.runner.execute import RunReport, RunRequest, prepare_run
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunReport, RunRequest, prepare_run
 from rig.runner.runlock import RunInProgressError
 from tests.helpers import QUICK_PROTOCOL
 from tests.runner_rig import RunnerRig, assert_released_then_torque_off, execute_on, runner_rig

@@ -11,7 +11,7 @@ import pytest
 from model.fit import SUMMARY_KEYS
 from rig.cli import main
 from rig.errors import InputError
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
 from rig.runner.journal import RunJournal
 from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, quick_protocol
 

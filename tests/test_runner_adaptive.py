@@ -12,10 +12,10 @@ import json
 import pytest
 from mcap.reader import make_reader
 
-from rig.log import schemas
+from rig.log.format import schemas
+from rig.runner.execute import RunRequest, prepare_run
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, prepare_run
 from tests.runner_rig import execute_on, runner_rig
 
 MAX_SLIP_FORCE_N = 0.8 * 70.0  # max_force_fraction x max_force_n

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.log.reader import read_run
+from rig.log.reading.reader import read_run
 from rig.runner.journal import RunJournal
 
 ROOT = Path(__file__).resolve().parent.parent

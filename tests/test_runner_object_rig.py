@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 
 from model.chain import planar_transforms
-from rig.analysis.replay import replay
+from rig.analysis.replay_run import replay
 from rig.errors import CommunicationError, NotConnectedError, StaleDataError
 from rig.hw.dxl.control_table import RAD_PER_PULSE
 from rig.hw.seams import ConfigurationReading
+from rig.runner.execute import RunRequest, prepare_run
 from rig.runner.journal import RunJournal
 from rig.runner.ramp import RAMP_GOAL_LEAD_S
-from rig.runner.run import RunRequest, prepare_run
 from rig.sim.kinds import SlipKind
 from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, quick_protocol
 from tests.runner_rig import EXACT_RIG, RunnerRig, assert_released_then_torque_off, execute_on, runner_rig

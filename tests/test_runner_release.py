@@ -6,14 +6,14 @@ import dataclasses
 from typing import Any, cast
 
 from rig.hw.session import RigSession
-from rig.log.writer import RunLogger
-from rig.protocol import RampSettings
-from rig.rig_config import load_rig_config
+from rig.inputs.protocol import RampSettings
+from rig.inputs.rig_config import load_rig_config
+from rig.log.writing.writer import RunLogger
 from rig.runner.control_loop import ControlLoop
-from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.progress import SilentProgress
 from rig.runner.recorder import RunRecorder
-from rig.runner.release import LineRelease
+from rig.safety.interlocks import CurrentAtLimit, ForceCeiling
+from rig.safety.release import LineRelease
 from rig.sim.kinds import DeviceLevel
 from rig.sim.simulated_rig import simulated_rig
 from rig.testing.recording import RecordingServoBus

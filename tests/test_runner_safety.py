@@ -8,8 +8,8 @@ import signal
 import pytest
 
 from rig.hw.seams import ServoState
-from rig.runner.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
-from rig.runner.safety import interrupts_deferred
+from rig.safety.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
+from rig.safety.interrupts import interrupts_deferred
 
 
 def state(current_a: float = 0.0, hardware_error: int = 0) -> ServoState:

@@ -99,7 +99,7 @@ def test_scan_names_a_protocol_1_servo_and_how_to_switch_it(dxl_server, capsys):
 
 
 def test_protocol_1_advice_per_kind_of_servo():
-    from rig.hw.dxl.scan import protocol1_advice, protocol1_model_name
+    from rig.hw.dxl.discovery import protocol1_advice, protocol1_model_name
 
     assert protocol1_model_name(29) == "MX-28" and "MX-28(2.0)" in protocol1_advice(29)
     assert "Firmware Recovery" in protocol1_advice(29) and "does not support" not in protocol1_advice(29)

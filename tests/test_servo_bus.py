@@ -20,14 +20,14 @@ from rig.errors import (
 from rig.hw.dxl import units as units
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.dxl.control_table import XL430_W250
-from rig.hw.dxl.errors import InstructionRejected, ServoHardwareFault
+from rig.hw.dxl.error_codes import InstructionRejected, ServoHardwareFault
 from rig.hw.dxl.transport import BusOwnershipError
 from rig.hw.seams import OperatingMode, ServoBus
-from rig.rig_config import ServoSpec
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl.bus import EmulatedBus
-from rig.sim.dxl.inprocess import SimPortHandler
+from rig.inputs.rig_config import ServoSpec
+from rig.sim.dxl.emulated_bus import EmulatedBus
+from rig.sim.dxl.inprocess_port import SimPortHandler
 from rig.sim.dxl.servo import Servo
+from rig.sim.virtual_clock import VirtualClock
 
 
 @pytest.fixture

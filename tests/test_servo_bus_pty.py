@@ -16,7 +16,7 @@ from rig.errors import HandshakeError
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import OperatingMode
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 
 pytestmark = [pytest.mark.pty, pytest.mark.subprocess]
 

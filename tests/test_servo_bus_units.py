@@ -13,14 +13,14 @@ from rig.hw.dxl import control_table as ct
 from rig.hw.dxl import units as units
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.dxl.control_table import model_name_for, model_number_for
-from rig.hw.dxl.errors import (
+from rig.hw.dxl.error_codes import (
     comm_result_name,
     describe_hardware_error,
     error_number_name,
     hardware_error_words,
     hardware_fault,
 )
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 
 
 @pytest.mark.parametrize(

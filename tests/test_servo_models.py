@@ -8,8 +8,8 @@ import pytest
 
 from rig.errors import ConfigError
 from rig.hw.dxl.control_table import MODELS, MODELS_BY_NUMBER, model_name_for, table_for_model
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
-from rig.servo_ratings import MOTOR_RATINGS, PROTOCOL_1_MODELS, stall_tension_n, winch_models
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
+from rig.inputs.servo_ratings import MOTOR_RATINGS, PROTOCOL_1_MODELS, stall_tension_n, winch_models
 from rig.sim.settings import load_checked_rig_config
 from rig.vocabulary import ServoModel
 

@@ -13,7 +13,7 @@ from typing import Any
 
 from rig.hw.hardware_rig import hardware_session
 from rig.hw.session import RigSession
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
 from rig.sim.simulated_rig import simulated_rig
 
 MAX_FIELDS = 12

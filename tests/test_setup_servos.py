@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from rig.cli import main
-from rig.rig_config import DEFAULT_RIG_CONFIG
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG
 
 pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
 

@@ -8,13 +8,13 @@ import random
 import pytest
 
 from rig.hw.seams import LoadCellSample, load_cell_samples
-from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.sim.kinds import SlipKind
 from rig.sim.loadcell.emulator import SignalModel
 from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus, gauss_draws
-from rig.sim.physics.article_presets import make_preset
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.physics.world import SimWorld
 from rig.sim.settings import SlipKindMix
+from rig.sim.virtual_clock import DEFAULT_EPOCH_NS, VirtualClock
 from tests.helpers import set_up_trial
 
 

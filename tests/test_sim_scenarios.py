@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from rig.analysis.runlog import read_parts, run_settings
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
 from rig.sim.kinds import SlipKind
 from rig.sim.settings import require_simulated
 from tests.helpers import QUICK_PROTOCOL

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from rig.sim.kinds import SlipKind
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.physics.world import SimWorld
 from rig.sim.settings import CapacityScatter, SlipKindMix
 from rig.vocabulary import TrialKind

@@ -23,12 +23,12 @@ import yaml
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 from rig.errors import ConfigError, InputError
-from rig.log.reader import read_run
-from rig.protocol import load_protocol
-from rig.rig_config import load_rig_config
-from rig.sim.dxl.pty_server import IDLE_POLL_MS
+from rig.inputs.protocol import load_protocol
+from rig.inputs.rig_config import load_rig_config
+from rig.log.reading.reader import read_run
+from rig.sim.dxl.bus_pty_server import IDLE_POLL_MS
 from rig.sim.kinds import ArticleSetup, SlipKind
-from rig.sim.pty_link import Stop
+from rig.sim.pty_port import Stop
 from rig.sim.twin import TICK_S, build_twin, serve_twin
 from rig.sim.twin_console import ReferenceLoad, run_console
 from rig.sim.twin_hand import SLACK_DWELL_S
@@ -348,7 +348,7 @@ def test_trial_n_at_the_console_puts_the_hand_on_the_trial_the_run_repeats(tmp_p
 def test_a_port_without_a_path_is_refused_naming_it(tmp_path):
     # The built-in simulated rig's ports are in-process (sim://dxl): the twin would have made a
     # directory `sim:` in the working directory and a link in it.
-    from rig.rig_config import DEFAULT_RIG_CONFIG
+    from rig.inputs.rig_config import DEFAULT_RIG_CONFIG
 
     with pytest.raises(
         ConfigError, match=r"simulated.yaml: servos.port: sim://dxl; allowed in `rig sim rig`"
@@ -395,7 +395,7 @@ def _ping(link: Path) -> int:
 
 
 # A port asked to change is brought to it on the twin's next tick, once its serving thread has seen
-# its stop (the bus server looks every 50 ms, rig.sim.dxl.pty_server.IDLE_POLL_MS).
+# its stop (the bus server looks every 50 ms, rig.sim.dxl.bus_pty_server.IDLE_POLL_MS).
 SETTLED_S = TICK_S + IDLE_POLL_MS / 1000 + 0.05
 
 

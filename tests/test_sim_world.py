@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from model.chain import planar_transforms, predict_slip
 from model.joint import PAPER_CONSTANT
-from rig.sim.physics.article_presets import PRESET_NAMES, SimPreset, make_preset
+from rig.sim.physics.link_presets import PRESET_NAMES, SimPreset, make_preset
 from rig.sim.physics.world import SimWorld, TrialKind
 from rig.sim.truth import WorldTruth
 from tests.helpers import ScriptedShaft, set_up_trial

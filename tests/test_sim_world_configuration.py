@@ -10,10 +10,10 @@ import pytest
 
 from model.chain import planar_transforms
 from rig.hw.seams import ConfigurationSource
-from rig.sim.clock import VirtualClock
-from rig.sim.physics.article_presets import make_preset
 from rig.sim.physics.configuration_source import SimConfigurationSource
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.physics.world import SimWorld
+from rig.sim.virtual_clock import VirtualClock
 from tests.helpers import ScriptedShaft, set_up_trial
 
 MS = 1_000_000

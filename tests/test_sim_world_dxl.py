@@ -8,10 +8,10 @@ from dataclasses import replace
 import pytest
 
 from rig.hw.dxl import control_table as ct
-from rig.sim.clock import VirtualClock
 from rig.sim.dxl.servo import Servo
-from rig.sim.physics.article_presets import make_preset
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.physics.world import SimWorld
+from rig.sim.virtual_clock import VirtualClock
 from tests.helpers import set_up_trial
 
 MS = 1_000_000

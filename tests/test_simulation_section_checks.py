@@ -1,6 +1,6 @@
 """A bad `simulation:` section stops every command that loads the rig config: exit 2, one line.
 
-The section is the simulator's (issue 30): `rig.rig_config` keeps it as written and
+The section is the simulator's (issue 30): `rig.inputs.rig_config` keeps it as written and
 `rig.sim.settings` parses it, so each command that loads a config for a rig has to have it checked.
 """
 
@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from rig.errors import ConfigError
-from rig.rig_config import parse_rig_config
+from rig.inputs.rig_config import parse_rig_config
 from rig.sim.settings import check_simulation
 from tests.helpers import QUICK_PROTOCOL
 

@@ -391,7 +391,7 @@ def test_no_false_alarm_on_a_hold_with_drift_and_spikes(seed):
 
 
 def test_event_kind_round_trips_through_the_slip_message():
-    from rig.log.records import SlipMessage
+    from rig.records import SlipMessage
 
     event = SlipEvent(1, 2, 1, 5.0, 4.0, 0.2, "creep", kind="creep")
     message = SlipMessage(trial_id=3, event=event, detector=DetectorParams().to_mapping())

@@ -16,13 +16,13 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from model.estimators import ESTIMATOR_NAMES, crlb_k, estimate_k
+from model.k_estimators import ESTIMATOR_NAMES, crlb_k, estimate_k
 from rig.cli import main
 from rig.errors import InputError
 from rig.study import table as table_module
 from rig.study.executor import run_local, seed_chunks
 from rig.study.seeds import parse_seeds
-from rig.study.summary import clopper_pearson, summarise
+from rig.study.statistics import clopper_pearson, summarise
 from rig.study.table import TABLE_NAME, write_table
 from rig.study.worker import EstimatorResult, JointResult, RunRecord, StudySpec
 

@@ -12,13 +12,13 @@ import pyarrow.parquet as pq
 import pytest
 
 from model.design import StopReason
-from model.estimators import ESTIMATOR_NAMES
+from model.k_estimators import ESTIMATOR_NAMES
 from rig.cli import main
-from rig.files import parse_yaml
-from rig.protocol import parse_protocol
+from rig.inputs.files import parse_yaml
+from rig.inputs.protocol import parse_protocol
 from rig.study.executor import run_local
 from rig.study.series import score_series
-from rig.study.summary import clopper_pearson, summarise
+from rig.study.statistics import clopper_pearson, summarise
 from rig.study.table import TABLE_NAME
 from rig.study.worker import EstimatorResult, JointResult, RunRecord, StudySpec
 

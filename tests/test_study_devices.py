@@ -11,18 +11,18 @@ import pytest
 from rig.errors import ConfigError
 from rig.hw.dxl.control_table import CURRENT_UNIT_A, RAD_S_PER_VELOCITY_UNIT
 from rig.hw.seams import OperatingMode
-from rig.log.records import TrialOutcome
-from rig.rig_config import load_rig_config
+from rig.inputs.rig_config import load_rig_config
+from rig.records import TrialOutcome
 from rig.rigs import open_rig
+from rig.runner.execute import RunReport, RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunReport, RunRequest, execute_run, prepare_run
-from rig.sim.clock import VirtualClock
 from rig.sim.kinds import DeviceLevel
 from rig.sim.loadcell.emulator import SignalModel
-from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.loadcell.inprocess_line import simulated_load_cell
 from rig.sim.object_devices import ObjectLoadCell
-from rig.sim.physics.article_presets import make_preset
+from rig.sim.physics.link_presets import make_preset
 from rig.sim.simulated_rig import simulated_rig
+from rig.sim.virtual_clock import VirtualClock
 
 REPO = Path(__file__).resolve().parents[1]
 JOINT_ESTIMATION = REPO / "protocols" / "joint_estimation.yaml"

@@ -18,8 +18,8 @@ import yaml
 
 from rig.cli import main
 from rig.errors import ConfigError
-from rig.rig_config import DEFAULT_RIG_CONFIG, load_rig_config, parse_rig_config
-from rig.servo_ratings import MOTOR_RATINGS, STALL_TENSION_CEILING_RATIO, stall_tension_n
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config, parse_rig_config
+from rig.inputs.servo_ratings import MOTOR_RATINGS, STALL_TENSION_CEILING_RATIO, stall_tension_n
 
 ROOT = Path(__file__).resolve().parent.parent
 RIGS = ROOT / "protocols" / "rigs"

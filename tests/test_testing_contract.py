@@ -20,8 +20,8 @@ def test_every_rig_module_but_the_test_doubles_is_a_source_of_the_contract() -> 
 
 
 def test_every_module_of_rig_testing_is_public() -> None:
-    """Tests import each of them; `__all__` (the "private modules stay private" contract) names them all."""
+    """Tests import each of them; `PUBLIC_MODULES` ("private modules stay private") names them all."""
     import rig.testing
 
     modules = {m.name for m in pkgutil.iter_modules(rig.testing.__path__)}
-    assert set(rig.testing.__all__) == modules
+    assert set(rig.testing.PUBLIC_MODULES) == modules

@@ -9,8 +9,8 @@ from rig.errors import CommunicationError, StaleDataError
 from rig.hw.dxl.control_table import RAD_PER_PULSE
 from rig.hw.seams import LoadCell, OperatingMode, ServoBus
 from rig.hw.session import OperatorRequest, OperatorTask
-from rig.protocol import TrialPlan
-from rig.rig_config import load_rig_config
+from rig.inputs.protocol import TrialPlan
+from rig.inputs.rig_config import load_rig_config
 from rig.sim.kinds import DeviceLevel
 from rig.sim.simulated_rig import simulated_rig
 from rig.testing.injected_errors import ErrorInjector

@@ -1,7 +1,7 @@
 """Every schema the rig advertises stays inside the subset Foxglove's and Lichtblick's reader accepts.
 
 The reader turns a channel's JSON Schema into panel fields and refuses the whole channel on one
-construct it does not know (`rig.log.viewer_schema`). These tests check the advertised schemas, the
+construct it does not know (`rig.log.format.viewer_schema`). These tests check the advertised schemas, the
 checker itself (each refused construct is caught), and the messages of a real run: no null
 anywhere, since a missing value is an absent field.
 """
@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from rig.log import schemas
-from rig.log.viewer_schema import problems
+from rig.log.format import schemas
+from rig.log.format.viewer_schema import problems
 
 
 @pytest.mark.parametrize("topic", list(schemas.TOPICS))

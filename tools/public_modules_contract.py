@@ -1,9 +1,10 @@
-"""An import-linter contract type: a package's modules not named in its `__all__` are private.
+"""An import-linter contract type: a package's modules not named in its `PUBLIC_MODULES` are private.
 
-Each package's `__init__.py` lists, in `__all__`, the submodules other packages may import. Any
-other submodule is private to its package: only modules inside that package (its siblings and its
-subpackages' modules) may import it. `__all__` is read from the source, not imported, so checking
-costs no import of the rig. Registered in pyproject.toml under `[tool.importlinter]`.
+Each package's `__init__.py` lists, in `PUBLIC_MODULES`, the submodules other packages may import
+(its `__all__` lists the names users import, which is another list). Any other submodule is private
+to its package: only modules inside that package (its siblings and its subpackages' modules) may
+import it. `PUBLIC_MODULES` is read from the source, not imported, so checking costs no import of
+the rig. Registered in pyproject.toml under `[tool.importlinter]`.
 """
 
 from __future__ import annotations
@@ -25,15 +26,24 @@ class PrivateImport:
     line_number: int
 
 
+# The name of the list, in a package's `__init__.py`, of its modules other packages may import.
+PUBLIC_MODULES = "PUBLIC_MODULES"
+
+
 def declared_public(init_file: Path) -> tuple[str, ...] | None:
-    """The names in a package's `__all__` (a literal list or tuple of strings), or None without one."""
+    """The names in a package's `PUBLIC_MODULES` (a literal tuple or list of strings), or None without one."""
     tree = ast.parse(init_file.read_text(encoding="utf-8"), filename=str(init_file))
     for node in tree.body:
-        targets = node.targets if isinstance(node, ast.Assign) else []
-        if any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets):
+        if isinstance(node, ast.Assign):
+            targets = node.targets
+        elif isinstance(node, ast.AnnAssign) and node.value is not None:
+            targets = [node.target]
+        else:
+            targets = []
+        if any(isinstance(t, ast.Name) and t.id == PUBLIC_MODULES for t in targets):
             value = ast.literal_eval(node.value)
             if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-                raise ValueError(f"{init_file}: __all__ must be a literal list of strings")
+                raise ValueError(f"{init_file}: {PUBLIC_MODULES} must be a literal tuple of strings")
             return tuple(value)
     return None
 
@@ -56,9 +66,9 @@ def _inside(module: str, package: str) -> bool:
 
 
 class PublicModulesContract(Contract):
-    """Packages under `containers` whose `__init__` has `__all__`: their other modules stay private.
+    """Packages under `containers` whose `__init__` has `PUBLIC_MODULES`: their other modules stay private.
 
-    A package without `__all__` fails the contract, so a new package has to name its surface.
+    A package without `PUBLIC_MODULES` fails the contract, so a new package has to name its surface.
     """
 
     containers = fields.ListField(subfield=fields.ModuleField())
@@ -90,12 +100,13 @@ class PublicModulesContract(Contract):
 
     def render_broken_contract(self, check: ContractCheck) -> None:
         for package in check.metadata["undeclared"]:
-            output.print_error(f"{package} has no __all__ naming its public modules.", bold=False)
+            output.print_error(f"{package} has no {PUBLIC_MODULES} naming its public modules.", bold=False)
             output.new_line()
         for v in check.metadata["violations"]:
             output.print_error(
                 f"{v.importer} (l. {v.line_number}) imports {v.imported}, which is private: "
-                f"add it to {v.imported.rsplit('.', 1)[0]}.__all__ or import a public module instead.",
+                f"add it to {v.imported.rsplit('.', 1)[0]}.{PUBLIC_MODULES} "
+                "or import a public module instead.",
                 bold=False,
             )
             output.new_line()

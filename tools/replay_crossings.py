@@ -8,7 +8,7 @@ Python call from a function of one `rig`/`model` module into a function of anoth
   `rig.analysis` and the other in `rig.log` (either way), i.e. the places where the path goes
   between the two packages;
 * frames entries: the distinct (caller function, callee function) pairs that enter
-  `rig.log.frames` from another module.
+  `rig.log.reading.frames` from another module.
 
 Counts are of distinct call sites seen at run time, so they do not grow with the log. Run it with
 the tree to measure first on the path, e.g.
@@ -70,7 +70,7 @@ def main() -> int:
         return ".".join(module.split(".")[:2])
 
     crossings = sorted(e for e in edges if {package(e[0]), package(e[2])} == {"rig.analysis", "rig.log"})
-    frames_entries = sorted(e for e in edges if e[2] == "rig.log.frames")
+    frames_entries = sorted(e for e in edges if e[2] == "rig.log.reading.frames")
     result = {
         "modules": len(modules),
         "crossings": len(crossings),

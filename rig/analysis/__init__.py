@@ -6,18 +6,22 @@ re-detection, the report); `open_logs(paths)` several, as `LoggedRuns`.
 
 from rig.analysis.logged_run import LoggedRun, LoggedRuns, LogWarning, Refit, open_log, open_logs
 
-# The modules other packages may import (the others are private to this package: import-linter
-# contract "private modules stay private", pyproject.toml), then the library's names.
+# The modules other packages may import; the others are private to this package
+# (import-linter contract "private modules stay private", pyproject.toml).
+PUBLIC_MODULES = (
+    "logged_run",
+    "redetect",
+    "replay_run",
+    "replay_tables",
+    "report",
+)
+
+# The names users import (`from rig.analysis import open_log`).
 __all__ = [
     "LogWarning",
     "LoggedRun",
     "LoggedRuns",
     "Refit",
-    "logged_run",
     "open_log",
     "open_logs",
-    "redetect",
-    "replay",
-    "report",
-    "summary",
 ]

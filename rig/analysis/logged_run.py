@@ -4,7 +4,7 @@
 they go, each problem a `LogWarning`) into a `LoggedRun`; `open_logs(paths)` reads several runs
 into `LoggedRuns`, whose tables carry a `run_id` column and whose `refit` pools their trials.
 
-The stages are those of `rig replay` (`rig.analysis.replay`): scan and records when a run is
+The stages are those of `rig replay` (`rig.analysis.replay_run`): scan and records when a run is
 opened; re-detection, refit and the comparisons on first use of what needs them (`trials`,
 `replay_result`); the report on request. The tables are DataFrames with units in their column
 names; the estimates are typed records (`Refit`). The high-rate tables (`loadcell`, `servos`) are
@@ -26,12 +26,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from model.estimate_summary import EstimateSummary
-from model.estimators import ESTIMATOR_NAMES, EstimatorName
 from model.fit import FitSummary
+from model.fit_keys import EstimateSummary
+from model.k_estimators import ESTIMATOR_NAMES, EstimatorName
 from rig.analysis import redetect as rd
 from rig.analysis.refit import BaseMoments, EstimateAgreement, PayloadErrors, joint_estimation_points
-from rig.analysis.replay import (
+from rig.analysis.replay_run import (
     FitSettings,
     RedetectionSummary,
     ReplayResult,
@@ -46,9 +46,9 @@ from rig.analysis.trials import trial_table
 from rig.errors import InputError
 from rig.hw.dxl.transport import BusStats
 from rig.hw.seams import LoadCellLineStats
-from rig.log import schemas
-from rig.log.reader import mcap_files
-from rig.log.records import ConfigurationMeasurement, ControlTickStats
+from rig.log.format import schemas
+from rig.log.reading.reader import mcap_files
+from rig.records import ConfigurationMeasurement, ControlTickStats
 
 _PART_SUFFIX = re.compile(r"\.part[0-9]+$")  # a resumed run's later files: RUN_ID.partN.mcap
 LOADCELL_COLUMNS = ("time_s", "force_n", "trial_id", "part")

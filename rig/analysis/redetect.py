@@ -48,8 +48,8 @@ from model.slip_detector import (
 from rig.analysis.samples import TrialSamples, analysis_span, trial_samples
 from rig.analysis.trials import TrialRecord
 from rig.errors import InputError
-from rig.log import schemas
-from rig.log.reader import RunLog
+from rig.log.format import schemas
+from rig.log.reading.reader import RunLog
 from rig.vocabulary import ServoRole
 
 WINCH_BACKING_OFF_RAD_S = -0.05  # the runner's `_confirmed_by_winch` threshold

@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from model.estimate_summary import EstimateSummary, summarize_estimate
-from model.estimators import EstimatorName
 from model.fit import FitSummary
+from model.fit_keys import EstimateSummary, summarize_estimate
+from model.k_estimators import EstimatorName
 from model.payload_errors import PayloadErrorStats, payload_error_stats
 from rig.analysis.trials import slipped_rows
 from rig.vocabulary import TrialKind

@@ -35,13 +35,13 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from model.fit import t_quantile
-from rig.analysis import summary
-from rig.analysis.replay import ReplayResult
+from rig.analysis import replay_tables as summary
+from rig.analysis.replay_run import ReplayResult
 from rig.analysis.samples import loadcell_samples
 from rig.analysis.trials import TrialRecord, slipped_rows, write_trial_table
 from rig.errors import InputError
-from rig.files import current_umask
-from rig.log.records import TrialKind
+from rig.inputs.files import current_umask
+from rig.records import TrialKind
 
 DPI = 110
 MEASURED_COLOR = "#1f77b4"

@@ -1,6 +1,6 @@
 """A logged run as replay sees it: its MCAP parts in order, and the settings recorded in them.
 
-Each file of a run is read on its own (`rig.log.reader.read_run`) and kept as a `LogPart`: a resumed
+Each file of a run is read on its own (`rig.log.reading.reader.read_run`) and kept as a `LogPart`: a resumed
 run's parts may share log times (a simulated run restarts its virtual clock at the same epoch), so
 the samples of one part must never be interleaved with another's. Parts are ordered by the
 `session.invocation` metadata, then by their first log time, then by name. The high-rate
@@ -26,11 +26,11 @@ import yaml
 from model.fit import DEFAULT_G, DEFAULT_LEVEL
 from model.slip_detector import DetectorParams
 from rig.errors import InputError, RigError
-from rig.files import parse_json, parse_yaml
-from rig.log import schemas
-from rig.log.reader import RunLog, mcap_files, read_run
-from rig.protocol import parse_protocol
-from rig.rig_config import ArticleConfig, parse_rig_config
+from rig.inputs.files import parse_json, parse_yaml
+from rig.inputs.protocol import parse_protocol
+from rig.inputs.rig_config import ArticleConfig, parse_rig_config
+from rig.log.format import schemas
+from rig.log.reading.reader import RunLog, mcap_files, read_run
 
 DEFAULT_CONSTANT = "paper"
 # Read by time span, a trial at a time, never whole: their memory would grow with the run.

@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from rig.analysis.trials import TrialRecord
-from rig.log import schemas
-from rig.log.reader import RunLog
+from rig.log.format import schemas
+from rig.log.reading.reader import RunLog
 
 
 @dataclass(frozen=True)

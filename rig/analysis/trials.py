@@ -28,8 +28,8 @@ from model.payload_errors import signed_percentage_error
 from model.slip_detector import SlipEvent
 from rig.analysis.runlog import LogPart, RunSettings
 from rig.errors import InputError
-from rig.log import schemas
-from rig.log.records import (
+from rig.log.format import schemas
+from rig.records import (
     SLIP_LIKE,
     ConfigurationMeasurement,
     SlipMessage,

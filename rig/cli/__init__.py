@@ -15,9 +15,11 @@ from collections.abc import Sequence
 
 from rig import __version__
 from rig.errors import ExitCode, InputError, RigError, one_line
-from rig.runner.safety import interrupts_held, terminate_as_interrupt
+from rig.safety.interrupts import interrupts_held, terminate_as_interrupt
 
-# What other code may use: the entry point (its command modules are private to this package).
+# What other code may use: the entry point; its command modules are private to this package
+# (import-linter contract "private modules stay private", pyproject.toml).
+PUBLIC_MODULES: tuple[str, ...] = ()
 __all__ = ["main"]
 
 # Each module `rig.cli.<name>` (a `-` in the command is a `_` in the module) defines

@@ -271,10 +271,10 @@ def _report(args: argparse.Namespace, calibration: Calibration) -> None:
 
 def _simulated(args: argparse.Namespace, prompt: PromptFn) -> tuple[LoadCell, Clock, PromptFn]:
     """The in-process emulator on a virtual clock; the prompts move the simulated mass."""
-    from rig.sim.clock import VirtualClock
     from rig.sim.loadcell.emulator import DEFAULT_RATE_HZ, LoadCellEmulator
-    from rig.sim.loadcell.inprocess import SIM_PORT, in_process_serial_factory
+    from rig.sim.loadcell.inprocess_line import SIM_PORT, in_process_serial_factory
     from rig.sim.loadcell.profiles import StepTension
+    from rig.sim.virtual_clock import VirtualClock
 
     clock = VirtualClock()
     # The line starts with an unknown load on it: the operator has to take it off for the tare.

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
-from rig.hw.camera.calibration import Board, BoardKind, calibrate, check_board, write_calibration
+from rig.hw.camera.camera_calibration import Board, BoardKind, calibrate, check_board, write_calibration
 from rig.hw.camera.marker_map import DICTIONARY_SIZES
 from rig.hw.camera.source import read_grey_image
 

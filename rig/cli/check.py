@@ -13,7 +13,7 @@ from rig.errors import ExitCode, InputError
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
 
 if TYPE_CHECKING:
-    from rig.preflight.context import CheckContext
+    from rig.preflight.check_context import CheckContext
     from rig.preflight.verdicts import CheckRow
 
 DESCRIPTION = """\
@@ -113,13 +113,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Run the sections, print the rows, offer to write the jog's findings; returns the exit code."""
-    from rig.files import parse_yaml, read_text_file
-    from rig.preflight.context import CheckContext, CheckOptions
+    from rig.inputs.files import parse_yaml, read_text_file
+    from rig.inputs.protocol import load_protocol
+    from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, parse_rig_config
+    from rig.preflight.check_context import CheckContext, CheckOptions
     from rig.preflight.devices import check_devices
     from rig.preflight.sections import run_sections
     from rig.preflight.verdicts import Verdict, exit_code
-    from rig.protocol import load_protocol
-    from rig.rig_config import DEFAULT_RIG_CONFIG, parse_rig_config
     from rig.sim.settings import check_simulation
 
     if args.write and not args.move:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from rig.cli.output import emit_json, format_table
 from rig.errors import ExitCode, InputError, RigError, one_line
-from rig.hw.camera.calibration import load_calibration
+from rig.hw.camera.camera_calibration import load_calibration
 from rig.hw.camera.marker_map import load_marker_map
 from rig.hw.camera.measure import CameraMeasurement, MarkerDetector, measure_image
 from rig.hw.camera.source import read_grey_image

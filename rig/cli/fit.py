@@ -11,14 +11,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from model.estimate_summary import EstimateSummary, summarize_estimate
-from model.estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, check_estimator
 from model.fit import DEFAULT_LEVEL, FitSummary, degenerate_reasons, nonnegative_bounds
+from model.fit_keys import EstimateSummary, summarize_estimate
 from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, resolve_constant
+from model.k_estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, check_estimator
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
-from rig.files import read_text_file
+from rig.inputs.files import read_text_file
 
 DISTANCE_COLUMN = "distance_m"
 MASS_COLUMN = "mass_kg"

@@ -10,7 +10,7 @@ import numpy as np
 
 from model.chain import SlipPrediction, joint_moment_norms, predict_slip
 from rig.cli.output import emit_json, format_table
-from rig.linkfile import LinkSpec, load_link_file
+from rig.inputs.linkfile import LinkSpec, load_link_file
 
 DESCRIPTION = """\
 Predict, from the static model (docs/model.md §3), the moment each joint of a link must hold,

@@ -10,7 +10,7 @@ from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 
 if TYPE_CHECKING:
-    from rig.analysis.replay import ReplayResult
+    from rig.analysis.replay_run import ReplayResult
 
 DESCRIPTION = """\
 Replay a run's MCAP log(s): rebuild the trial table from /rig/trial/result, run the slip detector
@@ -117,9 +117,9 @@ def _serve(args: argparse.Namespace) -> int:
     import time
 
     from rig.errors import InputError
-    from rig.log import schemas
-    from rig.log.live import LivePublisher, serve_log
-    from rig.log.reader import mcap_files
+    from rig.log.format import schemas
+    from rig.log.live.publisher import LivePublisher, serve_log
+    from rig.log.reading.reader import mcap_files
 
     if not (args.speed > 0 and math.isfinite(args.speed)):
         raise InputError(f"--speed {args.speed}: allowed: a positive number (1 = real time)")
@@ -152,7 +152,7 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _text(result: ReplayResult) -> str:
-    from rig.analysis.summary import (
+    from rig.analysis.replay_tables import (
         base_moments_table,
         estimates_table,
         links_table,

@@ -13,19 +13,19 @@ from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
-from rig.files import check_out_dir
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
+from rig.inputs.files import check_out_dir
 from rig.sim.kinds import DeviceLevel
 from rig.vocabulary import ConfigurationSourceKind, RigKind, StepKind
 
 if TYPE_CHECKING:
-    from model.estimate_summary import EstimateSummary
     from model.fit import FitSummary
+    from model.fit_keys import EstimateSummary
     from model.payload_errors import PayloadErrorStats
-    from rig.log.live import LivePublisher
-    from rig.protocol import Protocol
-    from rig.rig_config import RigConfig
-    from rig.runner.run import RunReport, RunRequest
+    from rig.inputs.protocol import Protocol
+    from rig.inputs.rig_config import RigConfig
+    from rig.log.live.publisher import LivePublisher
+    from rig.runner.execute import RunReport, RunRequest
     from rig.sim.truth import RunTruth
 
 DESCRIPTION = """\
@@ -125,10 +125,10 @@ def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
     # The runner is imported here, not at the top, so that `rig --help` stays quick.
     from rig.rigs import check_session_inputs, open_rig
+    from rig.runner.execute import execute_run, prepare_run
     from rig.runner.journal import MAX_SEED
     from rig.runner.progress import make_progress
-    from rig.runner.run import execute_run, prepare_run
-    from rig.runner.safety import interrupts_held
+    from rig.safety.interrupts import interrupts_held
     from rig.sim.settings import check_simulation
 
     if not 0 <= args.seed <= MAX_SEED:
@@ -171,7 +171,7 @@ def _start_live(args: argparse.Namespace) -> LivePublisher | None:
         return None
     if not 0 <= args.live_port <= 65535:
         raise InputError(f"--live-port {args.live_port}: allowed: 0 to 65535")
-    from rig.log.live import LivePublisher
+    from rig.log.live.publisher import LivePublisher
 
     live = LivePublisher(host=args.live_host, port=args.live_port)
     if not args.json:
@@ -185,8 +185,8 @@ def _dry_run(args: argparse.Namespace) -> int:
     The same `prepare_run` as a real run (it writes nothing), and the files the session would read.
     """
     from rig.rigs import check_session_inputs
+    from rig.runner.execute import prepare_run
     from rig.runner.limits import plan_summary
-    from rig.runner.run import prepare_run
     from rig.sim.settings import check_simulation
 
     prepared = prepare_run(_request(args), dry_run=True)
@@ -278,7 +278,7 @@ def _calibration_not_made_yet(config: RigConfig) -> list[str]:
 
 
 def _request(args: argparse.Namespace) -> RunRequest:
-    from rig.runner.run import RunRequest
+    from rig.runner.execute import RunRequest
 
     return RunRequest(
         protocol_path=args.protocol,

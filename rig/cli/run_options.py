@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rig.rig_config import DEFAULT_RIG_CONFIG
+from rig.inputs.rig_config import DEFAULT_RIG_CONFIG
 
 
 def add_protocol_and_rig(

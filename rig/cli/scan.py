@@ -9,7 +9,7 @@ import time
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.hw.dxl.control_table import SDK_BAUDS
-from rig.hw.dxl.scan import scan_port
+from rig.hw.dxl.discovery import scan_port
 from rig.hw.dxl.setup import SETTABLE_BAUDS
 
 DEFAULT_BAUDS = (57_600, 1_000_000)

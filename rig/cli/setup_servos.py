@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 from rig.errors import InputError, RigError
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.setup import assign_id_and_baud, describe_found, find_single_servo, search_order
-from rig.rig_config import ServoSpec
+from rig.inputs.rig_config import ServoSpec
 from rig.sim.settings import load_checked_rig_config
 
 DESCRIPTION = """\

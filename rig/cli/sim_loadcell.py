@@ -20,10 +20,10 @@ from rig.sim.loadcell.emulator import (
     firmware_banner,
     parse_fault,
 )
-from rig.sim.loadcell.inprocess import cell_emulator_options
+from rig.sim.loadcell.inprocess_line import cell_emulator_options
+from rig.sim.loadcell.line_pty_server import serve_loadcell
 from rig.sim.loadcell.profiles import parse_profile
-from rig.sim.loadcell.pty_server import serve_loadcell
-from rig.sim.pty_link import PtyLink, StopFlag
+from rig.sim.pty_port import PtyPort, StopFlag
 from rig.sim.settings import SIMULATED_CELLS
 
 MAX_SEED = 2**64 - 1
@@ -168,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; returns 0."""
     emulator = build_emulator(args, time.monotonic_ns())
     stop = StopFlag()
-    with PtyLink.for_cli(args.link) as link:
+    with PtyPort.for_cli(args.link) as link:
         print(
             f"PTY {link.link_path} {link.slave_name} loadcell format={args.format} rate={args.rate:g}Hz "
             f"baud={args.baud}",

@@ -9,9 +9,9 @@ import threading
 from pathlib import Path
 
 from rig.errors import InputError
-from rig.files import atomic_write_text
-from rig.protocol import load_protocol
-from rig.sim.pty_link import StopFlag
+from rig.inputs.files import atomic_write_text
+from rig.inputs.protocol import load_protocol
+from rig.sim.pty_port import StopFlag
 from rig.sim.settings import load_checked_rig_config
 from rig.sim.twin import Served, build_twin, serve_twin
 from rig.sim.twin_console import HELP, run_console

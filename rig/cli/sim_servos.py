@@ -16,12 +16,12 @@ from typing import assert_never
 from rig.errors import InputError, one_line
 from rig.hw.clock import SystemClock
 from rig.hw.dxl.control_table import BAUD_REGISTER_BY_RATE, MODELS
-from rig.sim.dxl.bus import EmulatedBus
+from rig.sim.dxl.bus_pty_server import ServedBus, serve
+from rig.sim.dxl.emulated_bus import EmulatedBus
 from rig.sim.dxl.faults import FaultSpec, parse_fault
-from rig.sim.dxl.protocol1 import Protocol1Bus
-from rig.sim.dxl.pty_server import ServedBus, serve
+from rig.sim.dxl.packet1 import Protocol1Bus
 from rig.sim.kinds import ServoFaultFlag
-from rig.sim.pty_link import PtyLink, StopFlag
+from rig.sim.pty_port import PtyPort, StopFlag
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "protocol", "2.0") == "1.0":
         served = Protocol1Bus(bus.servos, baud=bus.baud)
     stop = StopFlag()
-    with PtyLink.for_cli(args.link) as link:
+    with PtyPort.for_cli(args.link) as link:
         latency_file = _write_latency_timer(args, link.slave_name)
         print(f"PTY {link.slave_name} LINK {link.link_path}", flush=True)
         try:

@@ -10,13 +10,13 @@ from typing import TYPE_CHECKING
 from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import ExitCode, InputError
-from rig.files import check_out_dir
+from rig.inputs.files import check_out_dir
 from rig.sim.kinds import DeviceLevel
 from rig.vocabulary import RigKind, TrialKind
 
 if TYPE_CHECKING:
-    from rig.protocol import Protocol
-    from rig.study.summary import StudySummary
+    from rig.inputs.protocol import Protocol
+    from rig.study.statistics import StudySummary
     from rig.study.worker import RunRecord, StudySpec
 
 DESCRIPTION = """\
@@ -117,10 +117,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Handle `rig study`."""
-    from model.estimators import ESTIMATOR_NAMES
+    from model.k_estimators import ESTIMATOR_NAMES
     from rig.study.executor import require_dask, run_dask, run_local
     from rig.study.seeds import parse_seeds
-    from rig.study.summary import summarise
+    from rig.study.statistics import summarise
     from rig.study.table import write_table
 
     seeds = parse_seeds(args.seeds)
@@ -156,7 +156,7 @@ def _jobs(jobs: int | None) -> int:
 def _checked_spec(args: argparse.Namespace) -> StudySpec:
     """Everything a run will read, validated once here (exit 2 before any worker starts)."""
     from rig.rigs import check_session_inputs
-    from rig.runner.run import RunRequest, prepare_run
+    from rig.runner.execute import RunRequest, prepare_run
     from rig.sim.settings import check_simulation, require_simulated
     from rig.study.worker import StudySpec
 

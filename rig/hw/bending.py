@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from model.chain import forward_kinematics, planar_transforms
-from rig.rig_config import RigConfig, configuration_source_kind
+from rig.inputs.rig_config import RigConfig, configuration_source_kind
 from rig.vocabulary import ConfigurationSourceKind
 
 

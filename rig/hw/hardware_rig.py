@@ -21,7 +21,7 @@ from rig.hw.loadcell.driver import SerialLoadCell
 from rig.hw.seams import Clock
 from rig.hw.session import OperatorRequest, RigSession
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
-from rig.rig_config import RigConfig, configuration_source_kind
+from rig.inputs.rig_config import RigConfig, configuration_source_kind
 from rig.vocabulary import RigKind
 
 

@@ -16,7 +16,7 @@ from typing import Protocol
 
 from rig.hw.bending import BendStage
 from rig.hw.seams import Clock, ConfigurationSource, LoadCell, ServoBus
-from rig.protocol import TrialPlan
+from rig.inputs.protocol import TrialPlan
 from rig.vocabulary import ConfigurationSourceKind, RigKind, ServoRole
 
 

@@ -12,8 +12,8 @@ import re
 from pathlib import Path
 
 from rig.errors import ConfigError
-from rig.files import atomic_write_text, parse_yaml
-from rig.rig_config import RigConfig, parse_rig_config
+from rig.inputs.files import atomic_write_text, parse_yaml
+from rig.inputs.rig_config import RigConfig, parse_rig_config
 from rig.sim.settings import check_simulation
 
 _ANCHOR = "spool_radius_m"

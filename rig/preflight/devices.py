@@ -13,8 +13,8 @@ from rig.hw.clock import SystemClock
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.hardware_rig import config_load_cell, config_servo_bus
 from rig.hw.loadcell.calibration import Calibration
-from rig.preflight.context import CheckDevices
-from rig.rig_config import RigConfig
+from rig.inputs.rig_config import RigConfig
+from rig.preflight.check_context import CheckDevices
 from rig.rigs import open_check_session
 from rig.vocabulary import RigKind
 

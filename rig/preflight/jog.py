@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from rig.errors import InterlockTripped, RigError
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import Clock, LoadCell, OperatingMode
-from rig.preflight.context import CheckContext, JogFindings
+from rig.preflight.check_context import CheckContext, JogFindings
 from rig.preflight.verdicts import CheckRow, Verdict
 
 SECTION = "move"

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import statistics
 
-from rig.preflight.context import CheckContext
+from rig.preflight.check_context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
 
 SECTION = "line"

@@ -27,9 +27,9 @@ from rig.errors import NotConnectedError, StaleDataError
 from rig.hw.loadcell.driver import LoadCellStats, SerialLoadCell, baud_and_firmware
 from rig.hw.loadcell.formats import InfoLine
 from rig.hw.seams import Clock, LoadCellSample
-from rig.preflight.context import CheckContext
+from rig.inputs.rig_config import RigConfig, StaleTimeoutFit
+from rig.preflight.check_context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
-from rig.rig_config import RigConfig, StaleTimeoutFit
 from rig.vocabulary import LoadCellFormatName
 
 SECTION = "loadcell"

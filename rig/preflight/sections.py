@@ -9,13 +9,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from rig.preflight.context import CheckContext
+from rig.preflight.check_context import CheckContext
 from rig.preflight.jog import jog_rows
-from rig.preflight.limits import limit_rows
 from rig.preflight.line import slack_rows
 from rig.preflight.loadcell import loadcell_rows
-from rig.preflight.ports import port_rows
+from rig.preflight.port_checks import port_rows
 from rig.preflight.servos import servo_rows
+from rig.preflight.tension_limits import limit_rows
 from rig.preflight.verdicts import CheckRow
 
 SectionFn = Callable[[CheckContext], list[CheckRow]]

@@ -4,7 +4,7 @@ The bus is connected as a run connects it (the handshake pings every configured 
 model number; the connect writes Return Delay Time, Status Return Level and the Bus Watchdog, and
 moves nothing). Then, per servo: the firmware against the Bus Watchdog's minimum (v38, ROBOTIS
 e-manual) and Fast Sync Read's (v45); Present Input Voltage (144) against the model's specified
-range (`rig.servo_ratings.INPUT_VOLTAGE_RANGE_V`); Present Temperature (146) against the model's
+range (`rig.inputs.servo_ratings.INPUT_VOLTAGE_RANGE_V`); Present Temperature (146) against the model's
 default Temperature Limit (31); Hardware Error Status (70); and the operating mode its role needs
 (the winch current-based position, 5; a bender extended position, 4). Not verified on hardware.
 """
@@ -14,12 +14,12 @@ from __future__ import annotations
 from rig.errors import HandshakeError
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.bus import ServoHealthReport, ServoInfo
-from rig.hw.dxl.errors import describe_hardware_error
+from rig.hw.dxl.error_codes import describe_hardware_error
 from rig.hw.seams import OperatingMode
-from rig.preflight.context import CheckContext
+from rig.inputs.rig_config import RigConfig
+from rig.inputs.servo_ratings import BUS_WATCHDOG_MIN_FIRMWARE, INPUT_VOLTAGE_RANGE_V
+from rig.preflight.check_context import CheckContext
 from rig.preflight.verdicts import CheckRow, Verdict
-from rig.rig_config import RigConfig
-from rig.servo_ratings import BUS_WATCHDOG_MIN_FIRMWARE, INPUT_VOLTAGE_RANGE_V
 from rig.vocabulary import ServoModel, ServoRole
 
 SECTION = "servos"

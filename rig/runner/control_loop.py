@@ -3,7 +3,7 @@
 A tick waits for its period, reads the servo states (one sync read), drains the load cell (never
 blocking), hands both to the recorder and checks the interlocks; the steps read what the tick saw
 (`states`, `tick_samples`, `force_n`) and wait with `ticks_for` / `wait_until`. The safe state's
-release does not tick here: it keeps its own readings (`rig.runner.release`) and hands them back
+release does not tick here: it keeps its own readings (`rig.safety.release`) and hands them back
 when it ends (`adopt`).
 
 Two things the loop sees about time are logged, not absorbed: a tick that starts more than a
@@ -26,9 +26,9 @@ from rig.errors import BusWatchdogTripped, InterlockTripped, StepTimeoutError
 from rig.hw.seams import LoadCellSample, PortLatencySource, ServoState, WatchdogTripSource
 from rig.hw.session import RigSession
 from rig.hw.usb_latency import is_slow, latency_timer_cause
-from rig.log.records import ControlTickStats, LogLevel
-from rig.runner.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
+from rig.records import ControlTickStats, LogLevel
 from rig.runner.recorder import RunRecorder
+from rig.safety.interlocks import CurrentAtLimit, ForceCeiling, ServoHealth
 
 # A tick is late when it starts more than this fraction of a period after its scheduled time.
 LATE_TICK_FRACTION = 0.1

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 
 from rig.errors import WinchDirectionError
-from rig.rig_config import RigConfig
+from rig.inputs.rig_config import RigConfig
 
 
 class ReelDirectionCheck:

@@ -11,7 +11,7 @@ import json
 from typing import Any
 
 from rig.errors import InputError
-from rig.files import parse_yaml
+from rig.inputs.files import parse_yaml
 
 MAX_CHANGES_SHOWN = 5
 _MAX_VALUE_CHARS = 40

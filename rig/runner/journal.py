@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import Any, assert_never
 
 from rig.errors import InputError
-from rig.files import MAX_YAML_BYTES, atomic_write_text, load_json_file
-from rig.log.records import TrialKind, TrialResult
-from rig.protocol import MAX_TRIALS
+from rig.inputs.files import MAX_YAML_BYTES, atomic_write_text, load_json_file
+from rig.inputs.protocol import MAX_TRIALS
+from rig.records import TrialKind, TrialResult
 
 JOURNAL_FORMAT = "rig-journal/1"
 RUN_STATUSES = ("running", "completed", "aborted", "faulted", "interrupted")

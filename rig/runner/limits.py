@@ -14,8 +14,8 @@ from typing import Any, assert_never
 
 from rig.errors import InputError
 from rig.hw.bending import unreached_warning
-from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
-from rig.rig_config import (
+from rig.inputs.protocol import AdaptiveBlock, Protocol, TrialPlan
+from rig.inputs.rig_config import (
     MIN_STALE_SAMPLE_PERIODS,
     RigConfig,
     StaleTimeoutFit,

@@ -1,4 +1,4 @@
-"""The runner's side of the 3D view: when to log the link's frames and scene (`rig.log.link_scene`).
+"""The runner's side of the 3D view: when to log the link's frames and scene (`rig.log.format.link_scene`).
 
 Logged when the ramp starts (the configuration is known then: measured, else commanded), once a
 second of the ramp with the tension, at a slip (the slipped joint red) and when the trial ends.
@@ -9,10 +9,10 @@ log rows (`rig study`).
 
 from __future__ import annotations
 
-from rig.log import schemas
-from rig.log.link_scene import LinkGeometry, LinkScene
-from rig.protocol import TrialPlan
-from rig.rig_config import ArticleConfig
+from rig.inputs.protocol import TrialPlan
+from rig.inputs.rig_config import ArticleConfig
+from rig.log.format import schemas
+from rig.log.format.link_scene import LinkGeometry, LinkScene
 from rig.runner.recorder import RunRecorder
 from rig.runner.results import TrialMeasurements
 from rig.vocabulary import TrialKind

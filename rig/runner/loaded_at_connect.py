@@ -18,9 +18,9 @@ import math
 from dataclasses import dataclass
 from enum import StrEnum
 
-from rig.log.records import LogLevel, ServoCommandName
-from rig.runner.context import StepContext
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
+from rig.records import LogLevel, ServoCommandName
+from rig.runner.step_context import StepContext
+from rig.safety.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
 
 # A step is sized to lower the tension by this share of the zero tolerance at the nominal stiffness.
 STEP_TOLERANCE_SHARE = 0.5

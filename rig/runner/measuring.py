@@ -1,6 +1,6 @@
 """One configuration measurement during a trial: asked of the session's source and logged.
 
-Each goes on `/rig/configuration/measured` (`rig.log.records.ConfigurationMeasurement`) with the
+Each goes on `/rig/configuration/measured` (`rig.records.ConfigurationMeasurement`) with the
 commanded angles beside it, so a log shows what was asked for and what the link took.
 """
 
@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from rig.errors import InputError
 from rig.hw.seams import ConfigurationReading, MeasurementRequest, RequestAwareSource
-from rig.log import schemas
-from rig.log.records import ConfigurationMeasurement
-from rig.protocol import TrialPlan
-from rig.runner.context import StepContext
+from rig.inputs.protocol import TrialPlan
+from rig.log.format import schemas
+from rig.records import ConfigurationMeasurement
+from rig.runner.step_context import StepContext
 from rig.vocabulary import ConfigurationSourceKind, MeasurementStage
 
 

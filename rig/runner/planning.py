@@ -18,9 +18,9 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from model.design import DesignStep, Observation, StopReason, current_estimate, plan_next
-from rig.log.records import TrialOutcome, TrialResult
-from rig.protocol import AdaptiveBlock, Protocol, TrialPlan
-from rig.rig_config import RigConfig
+from rig.inputs.protocol import AdaptiveBlock, Protocol, TrialPlan
+from rig.inputs.rig_config import RigConfig
+from rig.records import TrialOutcome, TrialResult
 from rig.runner.journal import RunJournal
 from rig.runner.limits import max_slip_force_n
 

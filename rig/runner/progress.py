@@ -14,7 +14,7 @@ from rich.live import Live
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from rig.log.records import Estimate, TrialOutcome, TrialResult
+from rig.records import Estimate, TrialOutcome, TrialResult
 
 
 class ProgressReporter(Protocol):

@@ -24,18 +24,17 @@ from model.slipped_joint import moved_joint, noise_threshold_rad
 from rig.errors import InterlockTripped, StepTimeoutError
 from rig.hw.configuration.factory import sees_slips
 from rig.hw.dxl.units import RAD_PER_PULSE, RAD_S_PER_VELOCITY_UNIT
-from rig.log import schemas
-from rig.log.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcome
-from rig.protocol import TrialPlan
-from rig.runner.context import StepContext
+from rig.inputs.protocol import TrialPlan
+from rig.log.format import schemas
+from rig.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcome, TrialPhase
 from rig.runner.control_loop import ControlLoop
 from rig.runner.direction_check import ReelDirectionCheck
 from rig.runner.measuring import measure_configuration
-from rig.runner.phases import Phase
 from rig.runner.ramp_speed import BAND_Z, SPEED_STEP, RampSpeeds
 from rig.runner.results import TrialMeasurements, slip_outcome
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD
+from rig.runner.step_context import StepContext
 from rig.runner.unloading import release_after_slip
+from rig.safety.safe_state import POSITION_TOLERANCE_RAD
 from rig.vocabulary import StepKind, TrialKind
 
 # How far ahead of the winch its ramp goal is kept, in seconds of motion at the ramp's speed.
@@ -312,7 +311,10 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         ctx.detector_params, start_ns, loop.tick_samples, lambda e: _confirmed_by_winch(ctx, e)
     )
     recorder.phase(
-        Phase.RAMP_FAST if fast else Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP, start_ns
+        TrialPhase.RAMP_FAST if fast else TrialPhase.RAMP_SLOW,
+        trial.trial_id,
+        StepKind.RAMP_UNTIL_SLIP,
+        start_ns,
     )
     drive.set_speed(ramp.fast_speed_rad_s if fast else slow_speed(loop.force_n))
     view = ctx.link_view
@@ -342,7 +344,7 @@ def ramp_until_slip(ctx: StepContext, trial: TrialPlan, found: TrialMeasurements
         if fast and force_n >= switch_n:
             fast = False
             drive.set_speed(slow_speed(loop.force_n))
-            recorder.phase(Phase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP)
+            recorder.phase(TrialPhase.RAMP_SLOW, trial.trial_id, StepKind.RAMP_UNTIL_SLIP)
         elif not fast and _speed_moved(drive.speed_rad_s, slow_speed(loop.force_n)):
             drive.set_speed(slow_speed(loop.force_n))
         else:

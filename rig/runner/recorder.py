@@ -12,10 +12,10 @@ from collections.abc import Iterator, Mapping
 from operator import attrgetter, itemgetter
 
 from rig.hw.seams import Clock, LoadCellSample, ServoState
-from rig.log import schemas
-from rig.log.records import LogLevel, LogMessage, ServoCommand, ServoCommandName, TrialState
-from rig.log.writer import LogWriteError, RunLogger
-from rig.runner.phases import Phase, PhaseMachine
+from rig.log.format import schemas
+from rig.log.writing.writer import LogWriteError, RunLogger
+from rig.records import LogLevel, LogMessage, ServoCommand, ServoCommandName, TrialPhase, TrialState
+from rig.runner.phases import PhaseMachine
 from rig.runner.progress import ProgressReporter
 from rig.vocabulary import ServoRole
 
@@ -114,13 +114,13 @@ class RunRecorder:
         self.write(schemas.SERVO_COMMAND, ServoCommand(servo_id, role, command, value, unit).to_payload())
 
     def phase(
-        self, phase: Phase, trial_id: int | None, step: str | None = None, at_ns: int | None = None
+        self, phase: TrialPhase, trial_id: int | None, step: str | None = None, at_ns: int | None = None
     ) -> None:
         """Change phase (RuntimeError for a transition that would skip a safety step); logged if new."""
         if self.phases.to(phase):
             self.write(schemas.TRIAL_STATE, TrialState(trial_id, phase, step).to_payload(), at_ns)
 
-    def phase_quiet(self, phase: Phase, trial_id: int | None) -> None:
+    def phase_quiet(self, phase: TrialPhase, trial_id: int | None) -> None:
         """Best-effort phase change during cleanup (never raises)."""
         with contextlib.suppress(RuntimeError):
             self.phase(phase, trial_id, "safe_state")

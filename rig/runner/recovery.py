@@ -1,7 +1,7 @@
 """After a device fault in a trial: may it clear, and does the rig recover once the line is released.
 
 A device fault (a servo or load cell not answering, stale data, a latched hardware error) stops
-the attempt in a trial-level safe state: the line is released (`rig.runner.release`; a faulted
+the attempt in a trial-level safe state: the line is released (`rig.safety.release`; a faulted
 winch is rebooted first). The rig has recovered when, within `RECOVERY_GRACE_S`, every servo
 answers without a hardware error, the winch is home and the load cell delivers fresh samples.
 """
@@ -10,11 +10,10 @@ from __future__ import annotations
 
 from rig.errors import InterlockTripped, RigError, StepTimeoutError
 from rig.hw.seams import ServoState
-from rig.log.records import LogLevel
-from rig.protocol import TrialPlan
-from rig.runner.context import StepContext
-from rig.runner.phases import Phase
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD
+from rig.inputs.protocol import TrialPlan
+from rig.records import LogLevel, TrialPhase
+from rig.runner.step_context import StepContext
+from rig.safety.safe_state import POSITION_TOLERANCE_RAD
 
 # After a device fault in a trial: how many times the trial may be repeated, and how long the rig
 # has to answer healthily again (servos without a hardware error, fresh load-cell samples).
@@ -36,7 +35,7 @@ def recover(ctx: StepContext, trial: TrialPlan, exc: RigError) -> bool:
     loop, note = ctx.loop, ctx.recorder.note
     clock, session = loop.clock, ctx.session
     note(LogLevel.WARNING, f"trial {trial.trial_id} stopped: {exc}; releasing the line")
-    ctx.recorder.phase(Phase.UNLOADING, trial.trial_id, "recover")
+    ctx.recorder.phase(TrialPhase.UNLOADING, trial.trial_id, "recover")
     zero = ctx.winch_zero_rad
     if zero is None:
         return False

@@ -14,8 +14,8 @@ from typing import assert_never
 from model.payload_errors import PayloadErrorStats, payload_error_stats, signed_percentage_error
 from model.slip_detector import SlipEvent, SlipEventKind
 from rig.hw.seams import ConfigurationReading
-from rig.log.records import SLIP_LIKE, TrialKind, TrialOutcome, TrialResult
-from rig.protocol import TrialPlan
+from rig.inputs.protocol import TrialPlan
+from rig.records import SLIP_LIKE, TrialKind, TrialOutcome, TrialResult
 
 
 @dataclass

@@ -16,15 +16,14 @@ from typing import assert_never
 from rig.errors import InterlockTripped, StaleDataError
 from rig.hw.bending import BendStage, fork_components, unreached_warning
 from rig.hw.session import OperatorRequest, OperatorTask
-from rig.log.records import LogLevel, ServoCommandName
-from rig.protocol import StepSpec, TrialPlan
-from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
+from rig.inputs.protocol import StepSpec, TrialPlan
+from rig.records import LogLevel, ServoCommandName, TrialPhase
 from rig.runner.measuring import measure_configuration
-from rig.runner.phases import Phase
 from rig.runner.ramp import ramp_until_slip
 from rig.runner.results import TrialMeasurements
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
+from rig.runner.step_context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.unloading import release_before_waiting, unload_line
+from rig.safety.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
 from rig.vocabulary import ServoRole, StepKind
 
 StepUnit = Callable[[StepContext, StepSpec, TrialPlan, TrialMeasurements], None]
@@ -33,7 +32,7 @@ StepUnit = Callable[[StepContext, StepSpec, TrialPlan, TrialMeasurements], None]
 def prompt(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
     """Ask the operator to do what the prompt says (the loop ticks while waiting)."""
     release_before_waiting(ctx, trial)
-    ctx.recorder.phase(Phase.PROMPTING, trial.trial_id, StepKind.PROMPT)
+    ctx.recorder.phase(TrialPhase.PROMPTING, trial.trial_id, StepKind.PROMPT)
     request = OperatorRequest(OperatorTask.FOLLOW_PROMPT, trial.prompt_text(step.text or ""), trial)
     ctx.session.operator.confirm(request, ctx.loop.tick)
 
@@ -42,7 +41,7 @@ def tare(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
     """Average the load cell over `duration_s`: the force the later readings are taken relative to."""
     loop = ctx.loop
     settle_s = step.duration_s
-    ctx.recorder.phase(Phase.TARING, trial.trial_id, StepKind.TARE)
+    ctx.recorder.phase(TrialPhase.TARING, trial.trial_id, StepKind.TARE)
     loop.tare_n = 0.0
     raw_forces: list[float] = []
     end = loop.clock.monotonic_ns() + round(settle_s * 1e9)
@@ -67,7 +66,7 @@ def tare(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
 
 def bend(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
     """Bend the link to the trial's configuration: by the forks, base to tip, or by the operator's hands."""
-    ctx.recorder.phase(Phase.BENDING, trial.trial_id, StepKind.BEND)
+    ctx.recorder.phase(TrialPhase.BENDING, trial.trial_id, StepKind.BEND)
     angles = trial.joint_angles_rad or ()
     fixture = ctx.session.fixture
     straight = (0.0,) * len(angles)  # a bend starts from the reset (straight) link
@@ -169,7 +168,7 @@ def unload(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasu
 
 def reset(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
     """Straighten the link: by the fixture's servos, or by the operator."""
-    ctx.recorder.phase(Phase.RESETTING, trial.trial_id, StepKind.RESET)
+    ctx.recorder.phase(TrialPhase.RESETTING, trial.trial_id, StepKind.RESET)
     goals = ctx.session.fixture.home_goals()
     if not goals:
         text = "Straighten the link (reset), then confirm."
@@ -180,7 +179,7 @@ def reset(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasur
 
 def pause(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasurements) -> None:
     """Wait `duration_s`, ticking."""
-    ctx.recorder.phase(Phase.PAUSING, trial.trial_id, StepKind.PAUSE)
+    ctx.recorder.phase(TrialPhase.PAUSING, trial.trial_id, StepKind.PAUSE)
     ctx.loop.ticks_for(step.duration_s)
 
 

@@ -4,13 +4,13 @@ The parts, one job each: the control loop ticks (`rig.runner.control_loop`: read
 waits); each step of the protocol's per-trial template is a function in the table
 `rig.runner.steps.STEPS` (the ramp, with its winch drive and detector feed, is
 `rig.runner.ramp`); the recorder writes phases, commands and notes (`rig.runner.recorder`); the
-release after a failure keeps its own state (`rig.runner.release`). This module connects the rig,
+release after a failure keeps its own state (`rig.safety.release`). This module connects the rig,
 runs each trial (repeating it after a device fault that clears) and ends the run.
 
 Whatever ends the run (success, interlock, fault, exception, Ctrl-C), `run()` finishes in the safe
 state: line tension released, then torque off, inside a block that a second Ctrl-C cannot
 interrupt, then the log is finished and the journal saved. The stages of the safe state are
-`rig.runner.safe_state`; the trial's record is built by `rig.runner.results`.
+`rig.safety.safe_state`; the trial's record is built by `rig.runner.results`.
 """
 
 from __future__ import annotations
@@ -34,28 +34,27 @@ from rig.errors import (
 )
 from rig.hw.seams import OperatingMode
 from rig.hw.session import RigSession
-from rig.log import schemas
-from rig.log.records import LogLevel, ServoCommandName, TrialLinkStats, TrialOutcome, TrialResult
-from rig.log.writer import RunLogger
-from rig.protocol import Protocol, TrialPlan
-from rig.rig_config import RigConfig, nominal_loadcell_rate_hz
-from rig.runner.context import BENDER_SPEED_RAD_S, StepContext
+from rig.inputs.protocol import Protocol, TrialPlan
+from rig.inputs.rig_config import RigConfig, nominal_loadcell_rate_hz
+from rig.log.format import schemas
+from rig.log.writing.writer import RunLogger
+from rig.records import LogLevel, ServoCommandName, TrialOutcome, TrialPhase, TrialResult, TrialWireStats
 from rig.runner.control_loop import ControlLoop
-from rig.runner.estimation import RunEstimator
-from rig.runner.interlocks import CurrentAtLimit, ForceCeiling
 from rig.runner.journal import RunJournal
-from rig.runner.link_counts import TrialLinkCounter
 from rig.runner.link_view import LinkView
 from rig.runner.loaded_at_connect import PayoutVerdict, pay_out_verified
-from rig.runner.phases import Phase
 from rig.runner.progress import ProgressReporter
 from rig.runner.recorder import RunRecorder
 from rig.runner.recovery import MAX_TRIAL_RETRIES, is_device_fault, recover
-from rig.runner.release import LineRelease
 from rig.runner.results import TrialMeasurements, nothing_measured, trial_result
-from rig.runner.safe_state import enter_safe_state
-from rig.runner.safety import interrupts_held
+from rig.runner.run_estimates import RunEstimator
+from rig.runner.step_context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.steps import STEPS
+from rig.runner.wire_counts import TrialWireCounter
+from rig.safety.interlocks import CurrentAtLimit, ForceCeiling
+from rig.safety.interrupts import interrupts_held
+from rig.safety.release import LineRelease
+from rig.safety.safe_state import enter_safe_state
 from rig.vocabulary import ServoRole, TrialKind
 
 LINE_MAY_BE_LOADED = (
@@ -141,7 +140,7 @@ class TrialRunner:
             self._connect()
             for trial in trials:
                 outcome.new_results.append(self._run_trial_until_done(trial))
-            self.recorder.phase(Phase.DONE, None)
+            self.recorder.phase(TrialPhase.DONE, None)
         except KeyboardInterrupt:
             outcome = RunOutcome(
                 ExitCode.INTERRUPTED, "interrupted", "interrupted by the operator", outcome.new_results
@@ -167,11 +166,14 @@ class TrialRunner:
                 elif self.tension_unmeasured is not None and outcome.reason is not None:
                     outcome.reason = f"{outcome.reason}; then {self.tension_unmeasured}"
                 if outcome.exit_code != ExitCode.OK and self.recorder.phases.phase not in (
-                    Phase.ABORTED,
-                    Phase.FAULTED,
+                    TrialPhase.ABORTED,
+                    TrialPhase.FAULTED,
                 ):
                     self.recorder.phase(
-                        Phase.ABORTED if outcome.exit_code == ExitCode.INTERRUPTED else Phase.FAULTED, None
+                        TrialPhase.ABORTED
+                        if outcome.exit_code == ExitCode.INTERRUPTED
+                        else TrialPhase.FAULTED,
+                        None,
                     )
                 if late:
                     note(LogLevel.WARNING, "Ctrl-C/SIGTERM in the safe state: held until it ended")
@@ -190,7 +192,7 @@ class TrialRunner:
 
     def _connect(self) -> None:
         recorder = self.recorder
-        recorder.phase(Phase.CONNECTING, None)
+        recorder.phase(TrialPhase.CONNECTING, None)
         servos = self.session.servos
         servos.connect()
         self.connected = True
@@ -221,7 +223,7 @@ class TrialRunner:
         self.ctx.winch_zero_rad = self.loop.states[winch].position_rad
         self._verify_zero()
         self.loop.check_interlocks()
-        recorder.phase(Phase.IDLE, None)
+        recorder.phase(TrialPhase.IDLE, None)
         recorder.note(
             LogLevel.INFO,
             f"connected: servos {sorted(self.session.roles)}; winch zero {self.ctx.winch_zero_rad:.4f} rad",
@@ -277,7 +279,7 @@ class TrialRunner:
         within `RECOVERY_GRACE_S`, the trial starts again from its first step; the retry is logged
         and counted in the journal. Otherwise the fault ends the run (exit 1).
         """
-        links = TrialLinkCounter(self.session, self.loop.take_tick_stats)  # over every attempt
+        links = TrialWireCounter(self.session, self.loop.take_tick_stats)  # over every attempt
         for retries in range(MAX_TRIAL_RETRIES + 1):
             try:
                 return self._run_trial(trial, links)
@@ -305,7 +307,7 @@ class TrialRunner:
             )
         raise AssertionError("unreachable")
 
-    def _run_trial(self, trial: TrialPlan, links: TrialLinkCounter) -> TrialResult:
+    def _run_trial(self, trial: TrialPlan, links: TrialWireCounter) -> TrialResult:
         self.trial = trial
         start_ns = self.clock.time_ns()
         self.progress.trial_started(trial.trial_id, _describe(trial))
@@ -347,7 +349,7 @@ class TrialRunner:
         found.reason = str(exc)
         self.recorder.note(LogLevel.WARNING, f"trial {trial.trial_id}: aborted ({exc}); the run goes on")
 
-    def _log_links(self, links: TrialLinkStats) -> None:
+    def _log_links(self, links: TrialWireStats) -> None:
         """Log the trial's link counts; late control ticks and what the load cell lost as notes."""
         self.recorder.write(schemas.TRIAL_LINKS, links.to_payload())
         ticks = links.control
@@ -387,7 +389,7 @@ class TrialRunner:
         def release() -> None:
             if never_loaded or zero is None:
                 return
-            self.recorder.phase_quiet(Phase.UNLOADING, self.trial.trial_id if self.trial else None)
+            self.recorder.phase_quiet(TrialPhase.UNLOADING, self.trial.trial_id if self.trial else None)
             releases.append(self.ctx.line_release())
             try:
                 releases[0].run(zero)

@@ -6,16 +6,15 @@ which joint moved, a camera capture), and any step that waits for the operator f
 line the winch still holds away from its zero. A release after a slip is timed from the
 detection to the cell reading the line slack, against `limits.max_loaded_after_slip_s`.
 The release after a failure, which must not depend on the load cell or on replies, is
-`rig.runner.release`.
+`rig.safety.release`.
 """
 
 from __future__ import annotations
 
-from rig.log.records import LogLevel, ServoCommandName
-from rig.protocol import TrialPlan
-from rig.runner.context import StepContext
-from rig.runner.phases import Phase
-from rig.runner.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
+from rig.inputs.protocol import TrialPlan
+from rig.records import LogLevel, ServoCommandName, TrialPhase
+from rig.runner.step_context import StepContext
+from rig.safety.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
 from rig.vocabulary import StepKind
 
 # How the log names the time from a slip's detection to the line slack (studies/loaded_after_slip.py).
@@ -37,7 +36,7 @@ def unload_line(ctx: StepContext, trial: TrialPlan) -> None:
 
     StepTimeoutError if the winch is not home with the line slack within the move's timeout.
     """
-    ctx.recorder.phase(Phase.UNLOADING, trial.trial_id, StepKind.UNLOAD)
+    ctx.recorder.phase(TrialPhase.UNLOADING, trial.trial_id, StepKind.UNLOAD)
     loop = ctx.loop
     winch = ctx.session.winch_id
     zero = ctx.winch_zero_rad

@@ -24,9 +24,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import assert_never
 
-from rig.rig_config import RigConfig
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl.bus import EmulatedBus
+from rig.inputs.rig_config import RigConfig
+from rig.sim.dxl.emulated_bus import EmulatedBus
 from rig.sim.kinds import (
     FaultDevice,
     HostFaultKind,
@@ -37,6 +36,7 @@ from rig.sim.kinds import (
 )
 from rig.sim.loadcell.emulator import FaultPlan, LoadCellEmulator
 from rig.sim.settings import FaultConfig
+from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import ServoRole
 
 OVERLOAD_BIT = 0x20

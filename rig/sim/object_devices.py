@@ -35,12 +35,12 @@ from rig.hw.dxl import control_table as ct
 from rig.hw.dxl import units
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.seams import LoadCellSample, OperatingMode, ServoState, load_cell_samples
-from rig.sim.clock import VirtualClock
 from rig.sim.dxl.actuator import POSITION_MODES, ActuatorCommand, ActuatorState, MotorParams, ProfiledActuator
 from rig.sim.dxl.servo import DEFAULT_BOOT_TIME_S, DEFAULT_OVERLOAD_TIME_S, OVERLOAD_FRACTION
 from rig.sim.dxl.shaft_motion import IntegratedShaft
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import MAX_RATE_HZ, MIN_RATE_HZ, SignalModel, TensionSource
+from rig.sim.virtual_clock import VirtualClock
 
 _SUPPORTED_MODES = frozenset(int(m) for m in POSITION_MODES)
 

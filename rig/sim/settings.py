@@ -4,14 +4,14 @@ The simulated world's preset, its slip kinds, capacity scatter, load-cell artefa
 faults. On `kind: hardware` only `rig sim rig` reads it (rig/sim/twin.py). Users' docs in
 protocols/README.md.
 
-`rig.rig_config` keeps the section as written (`SimulationSection`); `simulation_settings` parses it
+`rig.inputs.rig_config` keeps the section as written (`SimulationSection`); `simulation_settings` parses it
 and checks it against the rest of the config. Every command that loads a config for a rig does so
 through `load_checked_rig_config` (or `check_simulation`), so that a bad section fails there, before
 anything starts, naming the file and the field.
 
 Each settings field is declared once on its dataclass (`model.field_spec`): its bounds, default and
 doc drive `parse_simulation`, the refusal of unknown keys, the dataclasses' own checks and the docs
-table (`rig.config_docs`).
+table (`tools.config_docs`).
 """
 
 from __future__ import annotations
@@ -31,12 +31,13 @@ from model.field_spec import (
     section,
 )
 from rig.errors import ConfigError
-from rig.rig_config import (
+from rig.inputs.rig_config import (
     SIMULATED_LOADCELL_RATE_FIELD,
     SIMULATED_LOADCELL_RATE_HZ,
     RigConfig,
     load_rig_config,
 )
+from rig.inputs.validate import Section, read_field, read_fields, reject_undeclared
 from rig.sim.kinds import (
     FaultDevice,
     FaultKind,
@@ -46,7 +47,6 @@ from rig.sim.kinds import (
     ServoFaultKind,
     SlipKind,
 )
-from rig.validate import Section, read_field, read_fields, reject_undeclared
 from rig.vocabulary import RigKind, ServoModel
 
 SIM_PRESETS = ("link1", "link2")
@@ -584,7 +584,7 @@ def check_simulation(config: RigConfig) -> None:
 
 
 def load_checked_rig_config(path: str | Path | None = None) -> RigConfig:
-    """`rig.rig_config.load_rig_config`, with the `simulation:` section checked too."""
+    """`rig.inputs.rig_config.load_rig_config`, with the `simulation:` section checked too."""
     config = load_rig_config(path)
     check_simulation(config)
     return config

@@ -38,21 +38,21 @@ from rig.hw.configuration.factory import hardware_configuration_source
 from rig.hw.dxl.bus import DynamixelServoBus
 from rig.hw.seams import ConfigurationSource, LoadCell, ServoBus
 from rig.hw.session import OperatorRequest, OperatorTask, RigSession
-from rig.rig_config import RigConfig, configuration_source_kind
-from rig.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
-from rig.sim.dxl.bus import EmulatedBus
-from rig.sim.dxl.inprocess import SimPortHandler
+from rig.inputs.rig_config import RigConfig, configuration_source_kind
+from rig.sim.dxl.emulated_bus import EmulatedBus
+from rig.sim.dxl.inprocess_port import SimPortHandler
 from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults, log_limit_bytes
 from rig.sim.kinds import DeviceLevel
 from rig.sim.loadcell.artefacts import ArtefactModel
 from rig.sim.loadcell.emulator import LoadCellEmulator, SignalModel
-from rig.sim.loadcell.inprocess import simulated_load_cell
+from rig.sim.loadcell.inprocess_line import simulated_load_cell
 from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
-from rig.sim.physics.article_presets import STREAM_LOADCELL_ARTEFACTS, SimPreset, make_preset, stream_rng
 from rig.sim.physics.configuration_source import SimConfigurationSource
+from rig.sim.physics.link_presets import STREAM_LOADCELL_ARTEFACTS, SimPreset, make_preset, stream_rng
 from rig.sim.physics.world import ShaftLike, SimWorld
 from rig.sim.settings import require_simulated, simulation_section, simulation_settings
 from rig.sim.truth import RunTruth
+from rig.sim.virtual_clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.vocabulary import ConfigurationSourceKind, RigKind, TrialKind
 
 
@@ -149,7 +149,7 @@ class SimulatedDevices:
 class SimulatedRig:
     """A simulated rig: the session the runner drives, its truth beside it, the devices behind it.
 
-    It is what `rig.runner.run.execute_run` takes (`rig.runner.rig_to_run.RigToRun`).
+    It is what `rig.runner.execute.execute_run` takes (`rig.runner.rig_to_run.RigToRun`).
     """
 
     session: RigSession

@@ -4,8 +4,8 @@ The same world as the in-process simulated rig (rig/sim/simulated_rig.py: `SimWo
 `EmulatedBus` with every configured servo as its own model, and a `LoadCellEmulator` of the line's
 tension), but in real time and reached only through pseudo-terminals symlinked at the config's
 `servos.port` and `loadcell.port`, so a hardware config's own commands drive it as they would the
-rig. The existing pty servers do the serving, each in its own thread: `rig.sim.dxl.pty_server.serve`
-for the bus and `rig.sim.loadcell.pty_server.serve_loadcell` for the cell, or, with `firmware`,
+rig. The existing pty servers do the serving, each in its own thread: `rig.sim.dxl.bus_pty_server.serve`
+for the bus and `rig.sim.loadcell.line_pty_server.serve_loadcell` for the cell, or, with `firmware`,
 the built firmware image under simavr fed the world's tension (rig/sim/twin_firmware.py).
 
 Time: the world's `VirtualClock` reads the host's monotonic clock (its epoch makes `time_ns` the
@@ -39,18 +39,17 @@ from pathlib import Path
 
 from rig.errors import ConfigError
 from rig.hw.loadcell.calibration import Calibration
-from rig.protocol import Protocol
-from rig.rig_config import RigConfig
-from rig.sim.clock import VirtualClock
-from rig.sim.dxl.bus import EmulatedBus, Reply
-from rig.sim.dxl.pty_server import serve
+from rig.inputs.protocol import Protocol
+from rig.inputs.rig_config import RigConfig
+from rig.sim.dxl.bus_pty_server import serve
+from rig.sim.dxl.emulated_bus import EmulatedBus, Reply
 from rig.sim.fault_plan import FaultSchedule, apply_faults, loadcell_rate_faults
 from rig.sim.kinds import FaultDevice
 from rig.sim.loadcell.emulator import LoadCellEmulator
-from rig.sim.loadcell.inprocess import ideal_calibration, simulated_load_cell
-from rig.sim.loadcell.pty_server import serve_loadcell
+from rig.sim.loadcell.inprocess_line import ideal_calibration, simulated_load_cell
+from rig.sim.loadcell.line_pty_server import serve_loadcell
 from rig.sim.physics.world import SimWorld
-from rig.sim.pty_link import PtyLink, Stop
+from rig.sim.pty_port import PtyPort, Stop
 from rig.sim.settings import simulation_section
 from rig.sim.simulated_rig import (
     config_preset,
@@ -64,6 +63,7 @@ from rig.sim.twin_console import ReferenceLoad
 from rig.sim.twin_firmware import feed_firmware, harness_command, start_firmware_cell, stop_firmware_cell
 from rig.sim.twin_hand import HandTrial, TwinHand, hand_trials
 from rig.sim.twin_ports import PortAction, PortCondition, PortRequests, ServedPort, TwinDevice
+from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS
 
 TICK_S = 0.01  # how often the main thread brings the world up to the wall clock when nothing else does
@@ -265,10 +265,10 @@ def build_twin(config: RigConfig, *, seed: int = 0, protocol: Protocol | None = 
     return Twin(config, clock, bus, world, emulator, schedule, hand, lock, reference, seed)
 
 
-def serve_link(path: Path, field_name: str, config: RigConfig) -> PtyLink:
+def serve_pty(path: Path, field_name: str, config: RigConfig) -> PtyPort:
     """A pty symlinked at a port the config names (a ConfigError naming the field if it cannot be made)."""
     try:
-        return PtyLink(path)
+        return PtyPort(path)
     except (OSError, ValueError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         raise ConfigError(
@@ -325,21 +325,21 @@ def serve_twin(
         thread.start()
         return thread
 
-    def serve_bus(link: PtyLink, device_stop: Stop) -> object:
-        return serve(_LockedBus(twin), link, device_stop)
+    def serve_bus(pty: PtyPort, device_stop: Stop) -> object:
+        return serve(_LockedBus(twin), pty, device_stop)
 
-    def serve_cell(link: PtyLink, device_stop: Stop) -> object:
-        return serve_loadcell(twin.loadcell, link, device_stop)
+    def serve_cell(pty: PtyPort, device_stop: Stop) -> object:
+        return serve_loadcell(twin.loadcell, pty, device_stop)
 
-    def drop_owed_lines(_: PtyLink) -> None:  # the cell's lines of the time it was not served are lost
+    def drop_owed_lines(_: PtyPort) -> None:  # the cell's lines of the time it was not served are lost
         twin.loadcell.lines_until(time.monotonic_ns())
 
     ports: dict[TwinDevice, ServedPort] = {}
     feeder: threading.Thread | None = None
     with contextlib.ExitStack() as stack:
 
-        def open_port(field_name: str, path: str) -> Callable[[], PtyLink]:
-            return lambda: serve_link(Path(path), field_name, config)
+        def open_port(field_name: str, path: str) -> Callable[[], PtyPort]:
+            return lambda: serve_pty(Path(path), field_name, config)
 
         ports[TwinDevice.SERVOS] = ServedPort(
             open_port("servos.port", config.servos.port),
@@ -375,7 +375,7 @@ def serve_twin(
                 now_ns = time.monotonic_ns()
                 for device, port in ports.items():
                     if port.settle(twin.port_wanted(device, now_ns)) and changed is not None:
-                        changed(device, port.condition, None if port.link is None else _served(port))
+                        changed(device, port.condition, None if port.pty is None else _served(port))
                 time.sleep(TICK_S)
         finally:
             stop.stopped = True
@@ -398,11 +398,11 @@ def _check_firmware_faults(config: RigConfig) -> None:
 
 
 def _served(port: ServedPort) -> Served:
-    assert port.link is not None
-    return Served(port.link.link_path, port.link.slave_name)
+    assert port.pty is not None
+    return Served(port.pty.link_path, port.pty.slave_name)
 
 
-def _drop_host_bytes(link: PtyLink) -> None:
+def _drop_host_bytes(pty: PtyPort) -> None:
     """What the host wrote to a port that did not pass it on (frozen) never reaches the servos."""
-    while link.read():
+    while pty.read():
         pass

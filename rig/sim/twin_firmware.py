@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rig.errors import ConfigError, InputError, RigError
-from rig.rig_config import RigConfig
+from rig.inputs.rig_config import RigConfig
 from rig.sim.loadcell.emulator import SignalModel
 from rig.vocabulary import LoadCellFormatName
 

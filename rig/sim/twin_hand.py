@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from rig.errors import InputError
-from rig.protocol import Protocol
+from rig.inputs.protocol import Protocol
 from rig.sim.physics.world import SimWorld
 from rig.vocabulary import TrialKind
 

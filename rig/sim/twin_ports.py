@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 
-from rig.sim.pty_link import PtyLink, Stop
+from rig.sim.pty_port import PtyPort, Stop
 
 
 class TwinDevice(StrEnum):
@@ -116,25 +116,25 @@ def _allowed_actions(condition: PortCondition) -> str:
 class ServedPort:
     """One device's pty at its config path and the thread serving it, in the condition it is brought to.
 
-    Only the twin's main thread calls `settle` and `close`. `open_link` makes the pty and its link;
-    `serve(link, stop)` serves it until `stop.stopped`; `resume(link)` drops what a frozen or
+    Only the twin's main thread calls `settle` and `close`. `open_pty` makes the pty and its link;
+    `serve(pty, stop)` serves it until `stop.stopped`; `resume(pty)` drops what a frozen or
     unplugged port did not pass before serving starts again; `start(target)` runs the serving in a
     thread (the twin's, which hands an error to the main thread).
     """
 
     def __init__(
         self,
-        open_link: Callable[[], PtyLink],
-        serve: Callable[[PtyLink, Stop], object],
-        resume: Callable[[PtyLink], None],
+        open_pty: Callable[[], PtyPort],
+        serve: Callable[[PtyPort, Stop], object],
+        resume: Callable[[PtyPort], None],
         start: Callable[[Callable[[], object]], threading.Thread],
     ) -> None:
-        self._open_link = open_link
+        self._open_pty = open_pty
         self._serve = serve
         self._resume = resume
         self._start = start
-        self.link: PtyLink | None = open_link()
-        self.path = self.link.link_path  # where the config's port is, plugged in or not
+        self.pty: PtyPort | None = open_pty()
+        self.path = self.pty.link_path  # where the config's port is, plugged in or not
         self.condition = PortCondition.FROZEN  # open, not yet served
         self._stop = Stop()
         self._thread: threading.Thread | None = None
@@ -145,28 +145,28 @@ class ServedPort:
             return False
         self._stop_serving()
         if wanted is PortCondition.UNPLUGGED:
-            assert self.link is not None
-            self.link.close()
-            self.link = None
+            assert self.pty is not None
+            self.pty.close()
+            self.pty = None
         else:
-            if self.link is None:  # plugged back: a new pty at the same path
-                self.link = self._open_link()
+            if self.pty is None:  # plugged back: a new pty at the same path
+                self.pty = self._open_pty()
             if wanted is PortCondition.SERVED:
-                self._resume(self.link)
-                self._serve_now(self.link)
+                self._resume(self.pty)
+                self._serve_now(self.pty)
         self.condition = wanted
         return True
 
     def close(self) -> None:
         """Stop serving and remove the pty and its link."""
         self._stop_serving()
-        if self.link is not None:
-            self.link.close()
-            self.link = None
+        if self.pty is not None:
+            self.pty.close()
+            self.pty = None
 
-    def _serve_now(self, link: PtyLink) -> None:
+    def _serve_now(self, pty: PtyPort) -> None:
         stop = self._stop = Stop()
-        self._thread = self._start(lambda: self._serve(link, stop))
+        self._thread = self._start(lambda: self._serve(pty, stop))
 
     def _stop_serving(self) -> None:
         self._stop.stopped = True

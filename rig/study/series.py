@@ -15,8 +15,8 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from model.design import StopReason
-from rig.log.records import TrialResult
-from rig.protocol import AdaptiveBlock
+from rig.inputs.protocol import AdaptiveBlock
+from rig.records import TrialResult
 
 if TYPE_CHECKING:
     from rig.study.worker import JointResult

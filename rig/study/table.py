@@ -19,7 +19,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from rig.files import plain_file_mode
+from rig.inputs.files import plain_file_mode
 from rig.study.worker import RunRecord
 
 TABLE_NAME = "study.parquet"

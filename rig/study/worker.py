@@ -19,16 +19,16 @@ from pathlib import Path
 from typing import Any, cast
 
 from model.design import StopReason
-from model.estimators import ESTIMATOR_NAMES, check_estimator, crlb_k, estimate_k
 from model.fit import DEFAULT_LEVEL
+from model.k_estimators import ESTIMATOR_NAMES, check_estimator, crlb_k, estimate_k
 from rig.errors import ExitCode
-from rig.log.records import TrialKind, TrialOutcome, TrialResult
-from rig.log.writer import RunLogger
+from rig.log.writing.writer import RunLogger
+from rig.records import TrialKind, TrialOutcome, TrialResult
 from rig.rigs import open_simulated_rig
+from rig.runner.execute import RunRequest, prepare_run
 from rig.runner.journal import RunJournal
 from rig.runner.planning import TrialSchedule
 from rig.runner.progress import SilentProgress
-from rig.runner.run import RunRequest, prepare_run
 from rig.runner.trial_runner import TrialRunner
 from rig.sim.kinds import DeviceLevel
 from rig.sim.truth import WorldTruth

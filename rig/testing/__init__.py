@@ -7,12 +7,26 @@ An import-linter contract in pyproject.toml ("test doubles are not used at runti
 other rig module from importing this package.
 """
 
+from rig.exports import lazy_names
+
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
-__all__ = [
+PUBLIC_MODULES = (
     "camera_images",
     "camera_scenes",
     "injected_errors",
     "prompts",
     "recording",
-]
+)
+
+# The names users import (`from rig.testing import ErrorInjector`), each with the module that
+# defines it, loaded on first use (rig.exports).
+NAMES = {
+    "ErrorInjector": "injected_errors",
+    "random_scene": "camera_scenes",
+    "RecordingOperator": "prompts",
+    "RecordingServoBus": "recording",
+    "SyntheticCamera": "camera_images",
+}
+__all__ = sorted(NAMES)
+__getattr__ = lazy_names(__name__, NAMES)

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from model.chain import forward_kinematics
-from rig.hw.camera.calibration import Board, BoardKind
+from rig.hw.camera.camera_calibration import Board, BoardKind
 from rig.hw.camera.marker_map import MarkerMap
 from rig.hw.camera.opencv import require_cv2
 

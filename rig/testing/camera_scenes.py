@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from model.chain import forward_kinematics, planar_transforms
-from rig.hw.camera.calibration import CameraCalibration
+from rig.hw.camera.camera_calibration import CameraCalibration
 from rig.hw.camera.marker_map import MarkerMap
 from rig.testing.camera_images import (
     Rendering,

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from rig.hw.session import Operator, OperatorRequest
-from rig.protocol import TrialPlan
+from rig.inputs.protocol import TrialPlan
 
 
 class RecordingOperator:

@@ -663,7 +663,7 @@ async function readPanels(page, panels, png) {
         Object.assign(result, { state: "empty", detail: "no log lines" });
       }
     } else if (panel.type === "3D") {
-      // The rig's scene draws the line as an orange arrow (rig/log/link_scene.py); the viewer's own
+      // The rig's scene draws the line as an orange arrow (rig/log/format/link_scene.py); the viewer's own
       // grid and frame axes are blue, red, green and grey, so orange pixels mean the scene is drawn.
       let orange = 0;
       if (d.canvasRect) {

@@ -18,8 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from model.chain import pose_from_xyz_rpy
-from rig.files import load_yaml_file
-from rig.validate import Section
+from rig.inputs.files import load_yaml_file
+from rig.inputs.validate import Section
 
 # OpenCV's predefined ArUco dictionaries and how many markers each holds (cv2.aruco.DICT_*;
 # tests/test_camera.py checks the counts against the installed OpenCV).

@@ -40,7 +40,7 @@ from model.joint_rotation import (
     rotation_angle_rad,
 )
 from rig.errors import InputError, RigError
-from rig.hw.camera.calibration import CameraCalibration
+from rig.hw.camera.camera_calibration import CameraCalibration
 from rig.hw.camera.edges import EdgeCorners, EdgeRefiner
 from rig.hw.camera.marker_map import ComponentMarker, CornerRefinement, MarkerMap
 from rig.hw.camera.opencv import require_cv2

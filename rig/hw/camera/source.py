@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.errors import InputError, NotConnectedError
-from rig.hw.camera.calibration import CameraCalibration
+from rig.hw.camera.camera_calibration import CameraCalibration
 from rig.hw.camera.marker_map import MarkerMap
 from rig.hw.camera.measure import CameraMeasurement, MarkerDetector, measure_image
 from rig.hw.camera.opencv import require_cv2

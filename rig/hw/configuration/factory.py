@@ -15,7 +15,7 @@ from rig.errors import ConfigError
 from rig.hw.configuration.file_source import FileConfigurationSource, MeasuredAnglesFile
 from rig.hw.configuration.operator_source import OperatorConfigurationSource
 from rig.hw.seams import Clock, ConfigurationSource
-from rig.rig_config import RigConfig, configuration_source_kind
+from rig.inputs.rig_config import RigConfig, configuration_source_kind
 from rig.vocabulary import ConfigurationSourceKind
 
 # The camera source (the `camera` extra, rig/hw/camera/): these modules are imported only when a
@@ -69,7 +69,7 @@ def camera_configuration_source(config: RigConfig, clock: Clock) -> Configuratio
     section = config.configuration
     try:
         source = importlib.import_module(f"{CAMERA_PACKAGE}.source")
-        calibration = importlib.import_module(f"{CAMERA_PACKAGE}.calibration")
+        calibration = importlib.import_module(f"{CAMERA_PACKAGE}.camera_calibration")
         marker_map = importlib.import_module(f"{CAMERA_PACKAGE}.marker_map")
     except ImportError as exc:
         raise ConfigError(

@@ -15,9 +15,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rig.errors import InputError
-from rig.files import parse_yaml, read_text_file
 from rig.hw.configuration.angles import angle_problem, planar_reading_transforms
 from rig.hw.seams import Clock, ConfigurationReading, MeasurementRequest
+from rig.inputs.files import parse_yaml, read_text_file
 
 FILE_FORMAT = "rig-configurations/1"
 MAX_CONFIGURATIONS = 10_000

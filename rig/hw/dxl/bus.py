@@ -3,7 +3,7 @@
 What this module owns: the servos' meaning. The handshake, SI units at its boundary, limits
 checked before anything is sent, hardware-fault detection and reboot recovery, and a shutdown that
 cannot be skipped. Every exchange goes through `rig.hw.dxl.transport.Transport` (retries, reply
-checks, counters, one owner); discovery without a config is `rig.hw.dxl.scan`.
+checks, counters, one owner); discovery without a config is `rig.hw.dxl.discovery`.
 
 Design decisions (see docs/design.md §7 for the facts behind them):
 
@@ -55,7 +55,7 @@ from rig.errors import (
 )
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl import units as units
-from rig.hw.dxl.errors import (
+from rig.hw.dxl.error_codes import (
     ALERT_BIT,
     ERROR_NUMBER_MASK,
     InstructionRejected,
@@ -65,9 +65,9 @@ from rig.hw.dxl.errors import (
     servo_label,
 )
 from rig.hw.dxl.transport import BusStats, Transport
-from rig.hw.interrupts import signals_deferred
 from rig.hw.seams import Clock, OperatingMode, ServoState
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT, is_slow, latency_timer_cause, read_latency_timer_ms
+from rig.safety.interrupts import signals_deferred
 
 STATUS_RETURN_ALL = 2
 # The handshake pings each servo up to this many rounds (each with the transport's retries), pausing

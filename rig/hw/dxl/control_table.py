@@ -8,7 +8,7 @@ dynamixel-sdk can set), model name <-> number lookup, and two's-complement decod
 
 Models: every `ServoModel`, one table each built from one X430 layout (`_x430_fields`, from the
 XM430-W350 and XL430-W250 e-manual pages, summarised in docs/design.md §7): the model's number and
-motor constants come from `rig.servo_ratings`, where it differs from the XM430-W350 (limits,
+motor constants come from `rig.inputs.servo_ratings`, where it differs from the XM430-W350 (limits,
 defaults) from `_TABLE_DEFAULTS`. A model without current sensing (XL430, XC430, their 2X
 versions, MX-28(2.0)) has no Current Limit (38) or Goal Current (102), reports Present Load (0.1 %
 of stall torque) at 126 instead of Present Current, and supports operating modes 1, 3, 4 and 16
@@ -29,7 +29,7 @@ from types import MappingProxyType
 from typing import Literal
 
 from rig.errors import InputError
-from rig.servo_ratings import MOTOR_RATINGS
+from rig.inputs.servo_ratings import MOTOR_RATINGS
 from rig.vocabulary import SERVO_BAUDS, ServoModel
 
 # Conversion constants for raw control-table units.
@@ -415,7 +415,7 @@ _TABLE_DEFAULTS: Mapping[ServoModel, _TableDefaults] = MappingProxyType(
 
 
 def control_table(model: ServoModel) -> ControlTable:
-    """The control table of one model, from its facts (`rig.servo_ratings`) and table defaults."""
+    """The control table of one model, from its facts (`rig.inputs.servo_ratings`) and table defaults."""
     rating = MOTOR_RATINGS[model]
     defaults = _TABLE_DEFAULTS[model]
     has_current = rating.current_sensing

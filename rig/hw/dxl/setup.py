@@ -20,8 +20,8 @@ from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 from rig.errors import CommunicationError, NotConnectedError
 from rig.hw.dxl import control_table as ct
-from rig.hw.dxl.errors import comm_result_name, error_number_name
-from rig.hw.dxl.scan import ScannedServo, scan_port
+from rig.hw.dxl.discovery import ScannedServo, scan_port
+from rig.hw.dxl.error_codes import comm_result_name, error_number_name
 
 # The order the bauds are tried in: the target first, then a new servo's 57600, then the rest.
 FACTORY_BAUD = 57_600

@@ -38,7 +38,7 @@ from dynamixel_sdk import (
 )
 
 from rig.errors import CommunicationError, NotConnectedError, RigError, RigTimeoutError
-from rig.hw.dxl.errors import (
+from rig.hw.dxl.error_codes import (
     ERRNUM_CRC,
     ERROR_NUMBER_MASK,
     InstructionRejected,

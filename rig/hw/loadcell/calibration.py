@@ -20,8 +20,8 @@ from typing import Any
 
 from model.gravity import STANDARD_GRAVITY_M_S2
 from rig.errors import InputError, RigError
-from rig.files import atomic_write_text, load_json_file
 from rig.hw.seams import Clock, LoadCell, LoadCellSample
+from rig.inputs.files import atomic_write_text, load_json_file
 
 CALIBRATION_KIND = "rig.loadcell.calibration"
 CALIBRATION_VERSION = 1

@@ -46,7 +46,7 @@ from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.device_time import DeviceClockMapper
 from rig.hw.loadcell.formats import InfoLine, LineDecoder, get_codec
 from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample, load_cell_samples
-from rig.rig_config import default_stale_timeout_s
+from rig.inputs.rig_config import default_stale_timeout_s
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName
 
 # The baud rate the project's firmware sends at (RIG_BAUD in firmware/rig_hx711/rig_hx711.ino, the

@@ -1,7 +1,7 @@
 """One emulated Dynamixel X-series servo: memory image, instruction semantics, faults, motion state.
 
 Pure and clock-free: every entry point takes `now_ns` (integer ns on the bus's clock). The bus
-(`rig.sim.dxl.bus`) frames packets and decides who answers and when; this class decides what a
+(`rig.sim.dxl.emulated_bus`) frames packets and decides who answers and when; this class decides what a
 servo does with one instruction and what it answers.
 
 Semantics (docs/design.md §7; *assumption* where the manual is silent):
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.control_table import ControlTable, Field
-from rig.sim.dxl import protocol as p
+from rig.sim.dxl import packet as p
 from rig.sim.dxl.actuator import ActuatorCommand, ActuatorState, MotorParams, ProfiledActuator
 from rig.sim.dxl.shaft_motion import IntegratedShaft
 

@@ -35,8 +35,8 @@ from model.chain import planar_transforms
 from model.slipped_joint import moved_joint
 from rig.hw.seams import Clock, ConfigurationReading
 from rig.sim.kinds import ArticleSetup, SlipKind
-from rig.sim.physics.article import rotation_about_axis
-from rig.sim.physics.article_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
+from rig.sim.physics.link import rotation_about_axis
+from rig.sim.physics.link_presets import STREAM_MEASUREMENT, STREAM_SLIP_REPORT, stream_rng
 from rig.sim.physics.world import SimWorld
 
 SEEN_ROTATION_RAD = 1e-9  # the simulator sees any rotation of a joint between two measurements

@@ -29,7 +29,7 @@ from typing import Protocol
 import numpy as np
 
 from model.chain import forward_kinematics
-from rig.sim.physics.article import ChainArticle
+from rig.sim.physics.link import ChainLink
 
 MAX_YIELDS_PER_UPDATE = 64  # slips resolved per update (each moves one joint; a few suffice)
 
@@ -45,11 +45,11 @@ class Fork:
 
 
 class ForkFixture:
-    """Forks on a `ChainArticle`; see the module docstring."""
+    """Forks on a `ChainLink`; see the module docstring."""
 
     def __init__(
         self,
-        link: ChainArticle,
+        link: ChainLink,
         components: list[int],
         *,
         pinion_radius_m: float,

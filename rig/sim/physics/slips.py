@@ -28,7 +28,7 @@ from typing import Protocol, assert_never
 import numpy as np
 
 from rig.sim.kinds import SlipKind
-from rig.sim.physics.article import ChainArticle
+from rig.sim.physics.link import ChainLink
 from rig.sim.physics.winch_line import WinchLine
 from rig.sim.truth import SlipPlan, SlipTruth
 
@@ -62,7 +62,7 @@ class SlipHost(Protocol):
     line: WinchLine
 
     @property
-    def article(self) -> ChainArticle:
+    def article(self) -> ChainLink:
         """The article the line is hooked to."""
         ...
 
@@ -93,7 +93,7 @@ class SlipHost(Protocol):
 
 
 def _relief(
-    article: ChainArticle, joint: int, excess_n: float, stiffness: float
+    article: ChainLink, joint: int, excess_n: float, stiffness: float
 ) -> tuple[np.ndarray, float] | None:
     """Axis and angle that lower the tension by `excess_n`; None if the joint cannot relieve it."""
     axis, take_up_per_rad = article.slip_flow(joint)

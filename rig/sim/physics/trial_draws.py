@@ -20,8 +20,8 @@ from typing import assert_never
 import numpy as np
 
 from rig.sim.kinds import SlipKind
-from rig.sim.physics.article import ChainArticle
-from rig.sim.physics.article_presets import STREAM_SLIP_KIND, STREAM_TRIAL_CAPACITY, SimPreset, stream_rng
+from rig.sim.physics.link import ChainLink
+from rig.sim.physics.link_presets import STREAM_SLIP_KIND, STREAM_TRIAL_CAPACITY, SimPreset, stream_rng
 from rig.sim.truth import SlipPlan
 
 MIN_CAPACITY_FACTOR = 0.05
@@ -51,7 +51,7 @@ class TrialDraws:
         self._capacity_rng = stream_rng(seed, STREAM_TRIAL_CAPACITY)
         self._kind_rng = stream_rng(seed, STREAM_SLIP_KIND)
 
-    def draw(self, article: ChainArticle, *, joint_estimation: bool, specimen_joint: int | None) -> TrialDraw:
+    def draw(self, article: ChainLink, *, joint_estimation: bool, specimen_joint: int | None) -> TrialDraw:
         """Draw a loading's capacities, set them on `article` as it is posed now, and its slip plan.
 
         The specimen (joint estimation) is joint `specimen_joint` of the link, or the preset's
@@ -76,7 +76,7 @@ class TrialDraws:
             plan = replace(plan, other_load_n=plan.other_load_n * article.slip_threshold_n)
         return TrialDraw(capacity, plan)
 
-    def capacity_factors(self, nominal_nm: np.ndarray, article: ChainArticle) -> CapacityDraw:
+    def capacity_factors(self, nominal_nm: np.ndarray, article: ChainLink) -> CapacityDraw:
         """Factors for the capacities `nominal_nm` of the joints of `article` as it is posed now."""
         preset = self.preset
         draws = np.clip(self._capacity_rng.standard_normal(len(nominal_nm)), -3.0, 3.0)

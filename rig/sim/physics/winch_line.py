@@ -6,7 +6,7 @@ line). The line is taut from θ_slack on:
     tension = k_eff · max(0, r_drum · (θ − θ_slack) − take_up)
 
 where `take_up` is how far the acting point has moved toward the winch since the reference
-configuration (slips and bending, from `ChainArticle.take_up_m`) and `k_eff` is the line and the
+configuration (slips and bending, from `ChainLink.take_up_m`) and `k_eff` is the line and the
 spring in series, `1/k_eff = 1/k_line + 1/k_spring`. The line only pulls (tension ≥ 0) and has no
 mass or damping. The tension acts on the drum as an **external torque of −tension·r_drum** on the
 winch shaft: it opposes reeling in (a positive torque would turn the shaft toward larger θ).

@@ -54,9 +54,9 @@ from typing import Protocol
 import numpy as np
 
 from rig.sim.kinds import ArticleSetup, SlipKind
-from rig.sim.physics.article import ChainArticle
-from rig.sim.physics.article_presets import STREAM_BEND, SimPreset, stream_rng
 from rig.sim.physics.forks import ForkFixture, ShaftDrivenForks
+from rig.sim.physics.link import ChainLink
+from rig.sim.physics.link_presets import STREAM_BEND, SimPreset, stream_rng
 from rig.sim.physics.slips import ActiveSlip, SlipBehaviour, SlipRecord, Sudden, behaviour_for
 from rig.sim.physics.tension_history import TensionHistory
 from rig.sim.physics.trial_draws import TrialDraws
@@ -132,7 +132,7 @@ class SimWorld:
         self._draws = TrialDraws(preset, seed)
         self.run_clock_offset_ns = int(run_clock_offset_ns)
 
-        self.link = ChainArticle(
+        self.link = ChainLink(
             preset.segment_lengths_m,
             preset.point_m,
             preset.direction_w,
@@ -140,7 +140,7 @@ class SimWorld:
             torsion_weak_joint=preset.torsion_weak_joint,
             torsion_ratio=preset.torsion_ratio,
         )
-        self.specimen = ChainArticle(
+        self.specimen = ChainLink(
             (0.0,),
             (0.0, 0.0, preset.joint_estimation_distances_m[0]),
             specimen_direction(preset.direction_w),
@@ -216,7 +216,7 @@ class SimWorld:
         return self._hook_distance_m if self._article is self.specimen else None
 
     @property
-    def article(self) -> ChainArticle:
+    def article(self) -> ChainLink:
         """The article the line is hooked to."""
         return self._article
 
