@@ -290,9 +290,10 @@ def test_rig_calibrate_on_the_twin_with_a_mass_hung_at_its_console(tmp_path):
     found = json.loads((tmp_path / "cal.json").read_text())
     ideal = json.loads((tmp_path / "ideal.json").read_text())
     assert found["factor_n_per_count"] == pytest.approx(ideal["factor_n_per_count"], rel=0.002)
-    assert found["offset_counts"] == pytest.approx(
-        ideal["offset_counts"], abs=200
-    )  # the noise, 400 counts RMS
+    # The offset is a mean of the cell's samples at rest, with 400 counts RMS of noise each: within
+    # 4 standard errors of a mean of 10 or more (a loaded machine lets fewer samples through; 259
+    # counts off was seen at load 10, 2 standard errors of 10 samples).
+    assert found["offset_counts"] == pytest.approx(ideal["offset_counts"], abs=500)
 
 
 def _until(stream, word: bytes, seen: bytes, timeout_s: float = 30.0) -> bytes:
