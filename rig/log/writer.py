@@ -153,11 +153,7 @@ class RunLogger:
         `log_time_ns` is the epoch time of sampling. `payload` must not be changed afterwards (the
         builders in `rig.log.schemas` return fresh dicts). Rows go through `log_columns`.
         """
-        if isinstance(payload, tuple):
-            raise TypeError(
-                f"{topic}: a payload must be a mapping (rows go through log_columns): {payload!r}"
-            )
-        self._enqueue(topic, ((log_time_ns, payload),))
+        self._enqueue(topic, ((log_time_ns, payload),), rows=False)
 
     def log_columns(self, topic: str, times_ns: Iterable[int], **columns: Iterable[Any]) -> None:
         """Enqueue one message per time of a row topic, from one column per field, named as the fields.
@@ -172,14 +168,16 @@ class RunLogger:
         if fields is None or columns.keys() != set(fields):
             raise TypeError(f"{topic}: columns {sorted(columns)}; allowed: exactly the fields {fields}")
         rows = zip(*map(columns.__getitem__, fields), strict=True)
-        self._enqueue(topic, zip(times_ns, rows, strict=True))
+        self._enqueue(topic, zip(times_ns, rows, strict=True), rows=True)
 
     def _enqueue(
         self,
         topic: str,
         messages: Iterable[tuple[int, Mapping[str, Any] | tuple[Any, ...]]],
+        *,
+        rows: bool,
     ) -> None:
-        """Add messages of one topic to the batch: payload dicts (`log`), or rows in `ROW_FIELDS` order."""
+        """Add messages of one topic to the batch: payload mappings, or `rows` in `ROW_FIELDS` order."""
         self._check_loggable(topic)
         publish_ns = self._now_ns()
         strict = self._strict
@@ -188,9 +186,13 @@ class RunLogger:
         for log_time_ns, payload in messages:
             if type(log_time_ns) is not int:
                 log_time_ns = operator.index(log_time_ns)  # numpy ints are fine, floats are not
-            if strict:  # a row field by field, by its name
-                checked = schemas.row_payload(topic, payload) if isinstance(payload, tuple) else payload
-                schemas.check_payload(topic, checked)
+            if isinstance(payload, tuple):
+                if not rows:  # a tuple through `log`: its fields' order would be unchecked
+                    raise TypeError(f"{topic}: a payload must be a mapping (rows go through log_columns)")
+                if strict:  # a row field by field, by its name
+                    schemas.check_payload(topic, schemas.row_payload(topic, payload))
+            elif strict:
+                schemas.check_payload(topic, payload)
             if not batch:
                 self._batch_start_ns = log_time_ns
             batch.append((topic, log_time_ns, publish_ns, payload))
