@@ -5,14 +5,12 @@ Variants (same payload dicts, zstd, 512 KiB chunks, all in this process):
                chunking as RunLogger, whose writer process flushes every second of log time
   bare         json.dumps + Writer.add_message, chunks closed by size only
   logger       RunLogger.log() for every message, then finish(); caller-side time = the log() calls
-  logger_rows  RunLogger.log_many() with rows (schemas.LoadCellRow), 20 messages per call (1 kHz and a
-               20 ms control period), then finish()
-  logger_cols  RunLogger.log_columns() with one column per row field, 20 messages per call (the
-               runner's way since rig.runner.recorder logs a tick's samples as columns), then finish()
+  logger_cols  RunLogger.log_columns() with one column per row field, 20 messages per call (1 kHz and
+               a 20 ms control period: the runner's way, rig.runner.recorder), then finish()
 
-The samples are built once as rows of the current row type (every field of `schemas.ROW_FIELDS`,
-as the driver gives them, device time included); the payload dicts and the columns are made from
-them by field name, so a field added to the row type is in every variant.
+The samples are built once as the driver gives them (`LoadCellSample`, device time included); the
+payload dicts and the columns are made from them by the names in `schemas.ROW_FIELDS`, so a field
+added to the sample is in every variant.
 
 Run: .venv/bin/python benchmarks/bench_log_writer.py [--messages 200000] [--repeats 3] [--smoke]
 """
@@ -29,6 +27,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 from smoke_mode import SMOKE_HELP  # benchmarks/ is the script's directory
 
+from rig.hw.seams import LoadCellSample
 from rig.log.format import schemas as S
 from rig.log.writing.writer import DEFAULT_CHUNK_SIZE, RunLogger
 
@@ -36,22 +35,24 @@ T0_NS = 1_767_225_600_000_000_000
 MS = 1_000_000
 
 
-def make_rows(n: int) -> list[tuple[int, S.LoadCellRow]]:
-    """`n` load-cell samples at 1 kHz as (log time, row), the device clock ticking with them."""
+def make_samples(n: int) -> list[LoadCellSample]:
+    """`n` load-cell samples at 1 kHz, the device clock ticking with them."""
     return [
-        (
-            T0_NS + i * MS,
-            S.LoadCellRow(
-                seq=i, raw=100_000 + (i * 37) % 5000, force_n=1.5 + (i % 997) * 1e-3, device_time_us=i * 1000
-            ),
+        LoadCellSample(
+            time_ns=T0_NS + i * MS,
+            raw=100_000 + (i * 37) % 5000,
+            force_n=1.5 + (i % 997) * 1e-3,
+            seq=i,
+            device_time_us=i * 1000,
         )
         for i in range(n)
     ]
 
 
-def make_messages(rows: list[tuple[int, S.LoadCellRow]]) -> list[tuple[int, dict]]:
-    """The same samples as payload dicts, as `RunLogger.log` takes them."""
-    return [(t, S.row_payload(S.LOADCELL, row)) for t, row in rows]
+def make_messages(samples: list[LoadCellSample]) -> list[tuple[int, dict]]:
+    """The same samples as (log time, payload dict), as `RunLogger.log` takes them."""
+    fields = S.ROW_FIELDS[S.LOADCELL]
+    return [(s.time_ns, S.row_payload(S.LOADCELL, tuple(getattr(s, f) for f in fields))) for s in samples]
 
 
 def run_bare(path: Path, messages: list[tuple[int, dict]], flush_every: int | None) -> dict[str, float]:
@@ -84,26 +85,11 @@ def run_logger(path: Path, messages: list[tuple[int, dict]]) -> dict[str, float]
     return {"caller_s": caller, "total_s": total, "bytes": path.stat().st_size}
 
 
-def run_logger_rows(
-    path: Path, rows: list[tuple[int, S.LoadCellRow]], per_call: int = 20
-) -> dict[str, float]:
-    start = time.perf_counter()
-    logger = RunLogger(path)
-    for i in range(0, len(rows), per_call):
-        logger.log_many(S.LOADCELL, rows[i : i + per_call])
-    caller = time.perf_counter() - start
-    logger.finish()
-    total = time.perf_counter() - start
-    return {"caller_s": caller, "total_s": total, "bytes": path.stat().st_size}
-
-
-def run_logger_columns(
-    path: Path, rows: list[tuple[int, S.LoadCellRow]], per_call: int = 20
-) -> dict[str, float]:
+def run_logger_columns(path: Path, samples: list[LoadCellSample], per_call: int = 20) -> dict[str, float]:
     fields = S.ROW_FIELDS[S.LOADCELL]
     calls = [
-        ([t for t, _ in chunk], {f: [getattr(row, f) for _, row in chunk] for f in fields})
-        for chunk in (rows[i : i + per_call] for i in range(0, len(rows), per_call))
+        ([s.time_ns for s in chunk], {f: [getattr(s, f) for s in chunk] for f in fields})
+        for chunk in (samples[i : i + per_call] for i in range(0, len(samples), per_call))
     ]
     start = time.perf_counter()
     logger = RunLogger(path)
@@ -124,7 +110,7 @@ def loadcell_messages(path: Path) -> int:
     return sum(summary.statistics.channel_message_counts.get(i, 0) for i in ids)
 
 
-VARIANTS = ("bare_flush", "bare", "logger", "logger_rows", "logger_cols")
+VARIANTS = ("bare_flush", "bare", "logger", "logger_cols")
 
 
 def main() -> None:
@@ -135,8 +121,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.smoke:
         args.messages, args.repeats = 2_000, 1
-    rows = make_rows(args.messages)
-    messages = make_messages(rows)
+    samples = make_samples(args.messages)
+    messages = make_messages(samples)
     n = args.messages
     best: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -145,10 +131,8 @@ def main() -> None:
                 path = Path(tmp) / f"{name}-{repeat}.mcap"
                 if name == "logger":
                     result = run_logger(path, messages)
-                elif name == "logger_rows":
-                    result = run_logger_rows(path, rows)
                 elif name == "logger_cols":
-                    result = run_logger_columns(path, rows)
+                    result = run_logger_columns(path, samples)
                 else:
                     result = run_bare(path, messages, 1000 if name == "bare_flush" else None)
                 written = loadcell_messages(path)
@@ -169,8 +153,9 @@ def main() -> None:
         f"ratio total logger / bare_flush: {logger['total_s'] / bare_flush['total_s']:.2f}x (target <= 1.3x)"
     )
     print(f"ratio total logger / bare:       {logger['total_s'] / bare['total_s']:.2f}x")
-    for name in ("logger_rows", "logger_cols"):
-        print(f"ratio total {name} / bare_flush: {best[name]['total_s'] / bare_flush['total_s']:.2f}x")
+    print(
+        f"ratio total logger_cols / bare_flush: {best['logger_cols']['total_s'] / bare_flush['total_s']:.2f}x"
+    )
     print(f"ratio caller-side logger / bare_flush total: {logger['caller_s'] / bare_flush['total_s']:.2f}x")
 
 

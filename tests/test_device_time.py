@@ -1,8 +1,6 @@
 import itertools
 import random
 
-import pytest
-
 from rig.hw.loadcell.device_time import DEVICE_CLOCK_WRAP_US, OFFSET_LEAK_NS, DeviceClockMapper
 
 
@@ -114,47 +112,3 @@ def test_stamps_never_go_back_when_a_new_rate_estimate_re_anchors_the_offset():
         for seed in range(2):
             stamps = _stamps_with_irregular_reads(DeviceClockMapper(), 1000.0, clock_error, 120, seed)
             assert all(a <= b for a, b in itertools.pairwise(stamps)), (clock_error, seed)
-
-
-def _mapper(plain: bool) -> DeviceClockMapper:
-    mapper = DeviceClockMapper()
-    mapper.plain_rate_window = plain
-    return mapper
-
-
-def _state(mapper):
-    return {name: value for name, value in vars(mapper).items() if name != "plain_rate_window"}
-
-
-def test_the_inlined_rate_window_equals_the_plain_one():
-    # Fast path guard (docs/design.md §10): sample_times_ns keeps the rate window in locals; with
-    # plain_rate_window every sample goes through _window_sample. Same stamps, same state, for
-    # clocks fast, slow, exact and barely off (the deadband), at 10/s and 1 kHz, over many windows.
-    for rate_hz, seconds in ((1000.0, 40), (10.0, 400)):
-        for clock_error in (0.01, -0.01, 0.0, 2e-5, 1e-4):
-            for seed in range(2):
-                fast, plain = _mapper(False), _mapper(True)
-                stamps = _stamps_with_irregular_reads(fast, rate_hz, clock_error, seconds, seed)
-                assert stamps == _stamps_with_irregular_reads(plain, rate_hz, clock_error, seconds, seed)
-                assert _state(fast) == _state(plain)
-                if clock_error in (0.01, -0.01):
-                    assert fast.applied_skew_ppm != 0.0  # the windows closed and re-anchored
-    # Reads at a fixed latency: the lowest observed value recurs, and the first of equals is kept.
-    for device_period_us in (1000, 1010):  # the clock exact and 1 % slow
-        fast, plain = _mapper(False), _mapper(True)
-        for mapper in (fast, plain):
-            for read in range(2000):  # 10 samples per read at 1 kHz
-                device_us = [(read * 10 + k) * device_period_us for k in range(10)]
-                mapper.sample_times_ns(device_us, 10**12 + (read + 1) * 10_000_000 + 300_000)
-        assert _state(fast) == _state(plain)
-        assert (fast.applied_skew_ppm != 0.0) == (device_period_us != 1000)
-    # A device clock that wraps and restarts (reset), and a batch refused half-way.
-    fast, plain = _mapper(False), _mapper(True)
-    for mapper in (fast, plain):
-        mapper.sample_times_ns([DEVICE_CLOCK_WRAP_US - 2000 + k * 1000 for k in range(4)], 10**12)
-        mapper.reset()
-        mapper.sample_times_ns([k * 1000 for k in range(5)], 2 * 10**12)
-        with pytest.raises(TypeError):
-            mapper.sample_times_ns([6000, None], 3 * 10**12)
-    assert _state(fast) == _state(plain)
-    assert fast.sample_times_ns([7000, 8000], 4 * 10**12) == plain.sample_times_ns([7000, 8000], 4 * 10**12)

@@ -222,6 +222,12 @@ def test_missing_values_read_back_from_a_table_as_none_decode():
     assert command.value is None
 
 
+def test_a_load_cell_row_holds_every_field_of_a_sample_but_its_time():
+    """The one sample shape: a `LoadCellSample` is logged as a row of its fields, its time the log time."""
+    assert set(S.ROW_FIELDS[S.LOADCELL]) == set(LoadCellSample._fields) - {"time_ns"}
+    assert S.ROW_FIELDS[S.LOADCELL] == tuple(S.loadcell_sample(raw=1, force_n=1.0, seq=2, device_time_us=3))
+
+
 def test_builders_coerce_numpy():
     payload = S.loadcell_sample(raw=np.int32(5), force_n=np.float32(1.5), seq=np.int64(9))
     assert type(payload["raw"]) is int and type(payload["force_n"]) is float and type(payload["seq"]) is int
@@ -231,7 +237,8 @@ def test_builders_coerce_numpy():
 
 def test_builders_convert_hardware_value_types():
     sample = LoadCellSample(time_ns=EPOCH_NS, raw=-12, force_n=0.5, seq=None, device_time_us=1000)
-    assert S.loadcell_payload(sample) == {"raw": -12, "force_n": 0.5, "device_time_us": 1000}
+    row = tuple(getattr(sample, name) for name in S.ROW_FIELDS[S.LOADCELL])
+    assert S.row_payload(S.LOADCELL, row) == {"raw": -12, "force_n": 0.5, "device_time_us": 1000}
     state = ServoState(1, 0.1, 0.2, 0.3, 4, False, EPOCH_NS)
     payload = S.servo_state_payload(state, "winch")
     assert payload["hardware_error"] == 4 and payload["moving"] is False and payload["role"] == "winch"

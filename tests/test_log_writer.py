@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import pickle
 import signal
 import subprocess
 import sys
@@ -12,7 +11,6 @@ import textwrap
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 from mcap.reader import make_reader
@@ -210,31 +208,36 @@ def test_back_pressure_bounds_the_queue_and_loses_nothing(tmp_path):
     assert list(frame["raw"]) == list(range(3000))
 
 
-def test_log_many_writes_what_log_would_in_order_with_one_publish_time_per_call(tmp_path):
+def _loadcell_columns(payloads: list[dict]) -> dict[str, list]:
+    """`log_columns`' keyword columns for these `/rig/loadcell` payloads (a missing field as None)."""
+    return {name: [p.get(name) for p in payloads] for name in S.ROW_FIELDS[S.LOADCELL]}
+
+
+def test_log_columns_writes_what_log_would_in_order_with_one_publish_time_per_call(tmp_path):
     clock = VirtualClock()
     path = tmp_path / "a.mcap"
     with RunLogger(path, clock=clock, strict=True) as log:
         log.log(S.LOADCELL, T0_NS, S.loadcell_sample(raw=0, force_n=0.0, seq=0))
         for tick in range(3):
             clock.advance_ns(20 * MS)
-            samples = [
-                (T0_NS + (20 * tick + i) * MS, S.loadcell_sample(raw=i, force_n=0.25 * i, seq=i))
-                for i in range(1, 21)
-            ]
-            log.log_many(S.LOADCELL, samples)
-        log.log_many(S.LOADCELL, [])
+            times = [T0_NS + (20 * tick + i) * MS for i in range(1, 21)]
+            payloads = [S.loadcell_sample(raw=i, force_n=0.25 * i, seq=i) for i in range(1, 21)]
+            log.log_columns(S.LOADCELL, times, **_loadcell_columns(payloads))
+        log.log_columns(S.LOADCELL, [], **_loadcell_columns([]))
         assert log.messages_logged == 61
-        with pytest.raises(KeyError, match="unknown topic"):
-            log.log_many("/rig/nope", samples)
+        with pytest.raises(TypeError, match="exactly the fields"):
+            log.log_columns("/rig/nope", times, **_loadcell_columns(payloads))
         with pytest.raises(TypeError):
-            log.log_many(S.LOADCELL, [(1.5, samples[0][1])])  # log times are integer ns
+            log.log_columns(S.LOADCELL, [1.5], **_loadcell_columns(payloads[:1]))  # log times are integer ns
     messages = mcap_messages(path)
     assert len(messages) == 61
+    assert [m[4] for m in messages[1:21]] == [
+        S.loadcell_sample(raw=i, force_n=0.25 * i, seq=i) for i in range(1, 21)
+    ]
     log_times = [m[2] for m in messages]
     assert log_times == sorted(log_times) and log_times[-1] == T0_NS + 60 * MS
     publish = [m[3] for m in messages[1:]]
     assert publish == [clock.time_ns() - (2 - tick) * 20 * MS for tick in range(3) for _ in range(20)]
-    assert [m[4]["raw"] for m in messages[1:21]] == list(range(1, 21))
 
 
 def test_flush_with_fsync_and_the_messages_it_covers_are_on_disk(tmp_path):
@@ -334,22 +337,17 @@ def test_the_writer_process_encodes_load_cell_rows_exactly_as_the_json_encoder()
     assert [_loadcell_row_json(row) for row in unusual] == [None] * len(unusual)
 
 
-def test_log_many_takes_rows_for_the_load_cell_and_writes_the_same_json(tmp_path):
+def test_log_columns_rows_write_the_same_json_as_log_and_a_bad_row_is_reported(tmp_path):
     path = tmp_path / "a.mcap"
     with RunLogger(path, strict=False) as log:  # strict would stop the NaN row in the caller
-        log.log_many(
-            S.LOADCELL,
-            [(T0_NS + i * MS, S.LoadCellRow(i, i, i / 4, None)) for i in range(5)],
-        )
+        payloads = [S.loadcell_sample(raw=i, force_n=i / 4, seq=i) for i in range(5)]
+        log.log_columns(S.LOADCELL, [T0_NS + i * MS for i in range(5)], **_loadcell_columns(payloads))
         log.log(S.LOADCELL, T0_NS + 5 * MS, S.loadcell_sample(raw=5, force_n=1.25, seq=5))
-        with pytest.raises(TypeError, match="row"):
-            log.log_many(S.SERVO_STATE, [(T0_NS, (1, 2, 3))])
-        with pytest.raises(TypeError, match="row"):
-            log.log_many(S.LOADCELL, [(T0_NS, (1, 2, 3))])
-        with pytest.raises(TypeError, match="LoadCellRow"):
-            log.log_many(S.LOADCELL, [(T0_NS, (7, 1, 1.0, None))])  # a plain tuple: whose order?
-        nan_row = S.LoadCellRow(6, 6, float("nan"), None)
-        log.log_many(S.LOADCELL, [(T0_NS + 6 * MS, nan_row)])  # reported at the next call
+        with pytest.raises(TypeError, match="log_columns"):
+            log.log(S.LOADCELL, T0_NS, (7, 1, 1.0, None))  # type: ignore[arg-type]  # a tuple: whose order?
+        log.log_columns(
+            S.LOADCELL, [T0_NS + 6 * MS], seq=[6], raw=[6], force_n=[float("nan")], device_time_us=[None]
+        )
         with pytest.raises(LogWriteError, match="not written: Out of range float"):
             log.flush()  # waits for the writer process, which reports the NaN row
         log.log(S.LOADCELL, T0_NS + 7 * MS, S.loadcell_sample(raw=7, force_n=1.75, seq=7))
@@ -358,90 +356,42 @@ def test_log_many_takes_rows_for_the_load_cell_and_writes_the_same_json(tmp_path
     assert len(payloads) == 7 and payloads[-1]["raw"] == 7
 
 
-def test_strict_mode_checks_rows_against_the_schema(tmp_path):
-    with RunLogger(tmp_path / "a.mcap", strict=True) as log, pytest.raises(ValueError, match="raw"):
-        log.log_many(S.LOADCELL, [(T0_NS, S.LoadCellRow(1, "x", 1.0, None))])  # type: ignore[arg-type]
-
-
 def test_strict_mode_checks_each_named_field_of_a_row(tmp_path):
-    """seq and raw swapped by a producer: the named row puts a None raw where the schema wants an int."""
+    """seq and raw swapped by a producer: the named column puts a None raw where the schema wants an int."""
     sample = S.loadcell_sample(raw=123456, force_n=1.5, seq=None)
     with RunLogger(tmp_path / "a.mcap", strict=True) as log:
-        log.log_many(S.LOADCELL, [(T0_NS, S.LoadCellRow(sample.get("seq"), sample["raw"], 1.5, None))])
+        log.log_columns(S.LOADCELL, [T0_NS], **_loadcell_columns([sample]))
         with pytest.raises(ValueError, match="raw"):
-            swapped = S.LoadCellRow(
-                seq=sample["raw"], raw=sample.get("seq"), force_n=1.5, device_time_us=None
+            log.log_columns(
+                S.LOADCELL,
+                [T0_NS + MS],
+                seq=[sample["raw"]],
+                raw=[None],
+                force_n=[1.5],
+                device_time_us=[None],
             )
-            log.log_many(S.LOADCELL, [(T0_NS + MS, swapped)])
-        with pytest.raises(TypeError, match="LoadCellRow"):  # the positional tuple is refused outright
-            log.log_many(S.LOADCELL, [(T0_NS + MS, (sample["raw"], sample.get("seq"), 1.5, None))])
+        with pytest.raises(ValueError, match="raw"):
+            log.log_columns(
+                S.LOADCELL, [T0_NS + MS], seq=[1], raw=["x"], force_n=[1.5], device_time_us=[None]
+            )
 
 
-def test_log_columns_writes_what_log_many_writes_and_checks_the_names(tmp_path):
-    """The runner's path: one column per LoadCellRow field, by name; the same messages as rows."""
+def test_log_columns_checks_the_names(tmp_path):
+    """The runner's path: one column per `ROW_FIELDS` name, in any order; the same messages as `log`."""
     samples = [S.loadcell_sample(raw=i - 2, force_n=i / 8, seq=i, device_time_us=1000 * i) for i in range(6)]
     times = [T0_NS + i * MS for i in range(6)]
-    with RunLogger(tmp_path / "rows.mcap", strict=True) as log:
-        log.log_many(S.LOADCELL, [(t, S.LoadCellRow(**p)) for t, p in zip(times, samples, strict=True)])
+    with RunLogger(tmp_path / "dicts.mcap", strict=True) as log:
+        for t, payload in zip(times, samples, strict=True):
+            log.log(S.LOADCELL, t, payload)
     with RunLogger(tmp_path / "columns.mcap", strict=True) as log:
-        columns = {name: [p[name] for p in samples] for name in S.ROW_FIELDS[S.LOADCELL]}
+        columns = _loadcell_columns(samples)
         log.log_columns(S.LOADCELL, iter(times), **{k: iter(v) for k, v in reversed(columns.items())})
         with pytest.raises(TypeError, match="exactly the fields"):
             log.log_columns(S.LOADCELL, times, seq=[1], raw=[2], force_n=[0.5])  # one missing
         with pytest.raises(TypeError, match="exactly the fields"):
             log.log_columns(S.SERVO_STATE, times, seq=[1])
-        with pytest.raises(ValueError, match="raw"):  # strict: each row field by field
-            log.log_columns(S.LOADCELL, [T0_NS], seq=[7], raw=[None], force_n=[0.5], device_time_us=[None])
-    rows = [(m[2], m[4]) for m in mcap_messages(tmp_path / "rows.mcap")]
+    rows = [(m[2], m[4]) for m in mcap_messages(tmp_path / "dicts.mcap")]
     assert rows == [(m[2], m[4]) for m in mcap_messages(tmp_path / "columns.mcap")]
     assert [p for _, p in rows] == samples
-
-
-def _column_requests(path: Path, *, plain: bool) -> tuple[list[bytes], int, list[tuple]]:
-    """Every request `log_columns` sends to the writer process (pickled), over ticks of all kinds."""
-    clock = VirtualClock(epoch_ns=T0_NS)
-    requests: list[bytes] = []
-    with RunLogger(path, clock=clock, strict=False, max_pending=600) as log:
-        log.plain_columns = plain
-        write_request = log._write_request
-
-        def record(request: tuple, count: int) -> None:
-            requests.append(pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL))
-            write_request(request, count)
-
-        log._write_request = record  # type: ignore[method-assign]
-        for tick in range(120):
-            clock.advance_ns(20 * MS)
-            n = tick % 23  # empty ticks too; batches fill up and are sent mid-run
-            spacing_ns = 15 * MS if tick % 11 == 1 else MS  # some ticks span a batch's log time
-            times = [T0_NS + 400 * tick * MS + i * spacing_ns for i in range(n)]
-            if tick % 7 == 3:
-                times = [np.int64(t) for t in times]  # numpy ints take the plain path's index()
-            device = [None] * n if tick % 5 == 0 else [1000 * (20 * tick + i) for i in range(n)]
-            log.log_columns(
-                S.LOADCELL,
-                iter(times),
-                seq=iter(range(n)),
-                raw=[i - 3 for i in range(n)],
-                force_n=[i / 8 for i in range(n)],
-                device_time_us=device,
-            )
-            if tick % 2:  # a message between: the next call finds the batch empty or not
-                log.log(S.LOADCELL, times[-1] if times else T0_NS, S.loadcell_sample(raw=tick, force_n=0.5))
-        with pytest.raises(ValueError):  # columns of unequal length
-            log.log_columns(
-                S.LOADCELL, [T0_NS, T0_NS], seq=[1], raw=[2, 3], force_n=[0.5, 1], device_time_us=[1, 2]
-            )
-        with pytest.raises(TypeError):  # log times are integer ns
-            log.log_columns(S.LOADCELL, [1.5], seq=[1], raw=[2], force_n=[0.5], device_time_us=[None])
-        logged = log.messages_logged
-    return requests, logged, [m[2:] for m in mcap_messages(path)]
-
-
-def test_log_columns_fast_path_sends_what_the_plain_path_sends(tmp_path):
-    # Fast path guard (docs/design.md §10): without strict mode log_columns extends the batch with
-    # zip; with plain_columns every row goes through _enqueue's loop. Same requests, byte for byte.
-    fast = _column_requests(tmp_path / "fast.mcap", plain=False)
-    plain = _column_requests(tmp_path / "plain.mcap", plain=True)
-    assert fast == plain
-    assert len(fast[0]) > 5 and len(fast[2]) > 1000  # batches sent mid-run; messages written
+    with RunLogger(tmp_path / "unequal.mcap") as log, pytest.raises(ValueError):  # columns of unequal length
+        log.log_columns(S.LOADCELL, times[:2], seq=[1], raw=[2, 3], force_n=[0.5, 1], device_time_us=[1, 2])

@@ -7,7 +7,7 @@ import random
 
 import pytest
 
-from rig.hw.seams import LoadCellSample, load_cell_samples
+from rig.hw.seams import LoadCellSample
 from rig.sim.kinds import SlipKind
 from rig.sim.loadcell.emulator import SignalModel
 from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus, gauss_draws
@@ -221,15 +221,3 @@ def test_gauss_draws_equal_random_gauss() -> None:
         expected = [plain.gauss(0.0, 1.0) for _ in range(size)]
         assert gauss_draws(fast, size) == expected
         assert fast.getstate() == plain.getstate() and fast.gauss_next == plain.gauss_next
-
-
-def test_load_cell_samples_equal_the_named_constructor() -> None:
-    """The batch constructor builds the very samples `LoadCellSample(*fields)` builds, of that type."""
-    fields = [
-        (10**18 + k, k - 3, 0.25 * k, None if k % 2 else k, None if k % 3 else 1000 * k) for k in range(7)
-    ]
-    samples = load_cell_samples(iter(fields))
-    assert samples == [LoadCellSample(*f) for f in fields]
-    assert all(type(s) is LoadCellSample for s in samples)
-    assert [s.seq for s in samples] == [f[3] for f in fields]
-    assert load_cell_samples([]) == []

@@ -7,10 +7,9 @@ units (rad, rad/s, A, N, s) with epoch-nanosecond timestamps.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
-from itertools import repeat
 from typing import TYPE_CHECKING, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
@@ -56,18 +55,6 @@ class LoadCellSample(NamedTuple):
     force_n: float  # calibrated line tension
     seq: int | None = None  # device sequence counter, when the format has one
     device_time_us: int | None = None  # device clock, when the format has one
-
-
-def load_cell_samples(
-    fields: Iterable[tuple[int, int, float, int | None, int | None]],
-) -> list[LoadCellSample]:
-    """`[LoadCellSample(*f) for f in fields]` without a Python-level call per sample.
-
-    A NamedTuple's `__new__` is `tuple.__new__(cls, fields)` behind a Python function; mapping
-    `tuple.__new__` itself over the field tuples builds the very same samples at about half the cost
-    (the load-cell drivers make 1000 a second; tests/test_sim_fast_paths.py holds them equal).
-    """
-    return list(map(tuple.__new__, repeat(LoadCellSample), fields))
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import operator
 from collections.abc import Callable
 from dataclasses import dataclass
-from itertools import repeat
 
 from rig.errors import BusWatchdogTripped, InterlockTripped, StepTimeoutError
 from rig.hw.seams import LoadCellSample, PortLatencySource, ServoState, WatchdogTripSource
@@ -35,15 +34,12 @@ LATE_TICK_FRACTION = 0.1
 # Warnings for late ticks: one per tick late by at least a period, up to this many per trial.
 MAX_LATE_TICK_NOTES = 10
 
-_TIME_NS, _FORCE_N = operator.attrgetter("time_ns"), operator.attrgetter("force_n")
 _SECOND = operator.itemgetter(1)
 
 
 def tare_corrected(samples: list[LoadCellSample], tare_n: float) -> list[tuple[int, float]]:
     """(time_ns, force minus tare) of each sample."""
-    # `[(s.time_ns, s.force_n - tare_n) for s in samples]`, with no bytecode per sample (1 kHz).
-    forces_n = map(operator.sub, map(_FORCE_N, samples), repeat(tare_n))
-    return list(zip(map(_TIME_NS, samples), forces_n, strict=False))
+    return [(s.time_ns, s.force_n - tare_n) for s in samples]
 
 
 @dataclass(frozen=True)

@@ -66,7 +66,7 @@ class RunRecorder:
             return
         try:
             if samples:
-                # One column per `schemas.LoadCellRow` field, by name: no dict or object per sample.
+                # One column per `schemas.ROW_FIELDS` field, by name: no dict or object per sample.
                 self.log.log_columns(
                     schemas.LOADCELL,
                     map(_FIRST, tick_samples),

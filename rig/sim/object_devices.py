@@ -34,7 +34,7 @@ from rig.errors import HardwareFault, LimitError
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl import units
 from rig.hw.loadcell.calibration import Calibration
-from rig.hw.seams import LoadCellSample, OperatingMode, ServoState, load_cell_samples
+from rig.hw.seams import LoadCellSample, OperatingMode, ServoState
 from rig.sim.dxl.actuator import POSITION_MODES, ActuatorCommand, ActuatorState, MotorParams, ProfiledActuator
 from rig.sim.dxl.servo import DEFAULT_BOOT_TIME_S, DEFAULT_OVERLOAD_TIME_S, OVERLOAD_FRACTION
 from rig.sim.dxl.shaft_motion import IntegratedShaft
@@ -449,12 +449,8 @@ class ObjectLoadCell:
         offset, factor = self.calibration.offset_counts, self.calibration.factor_n_per_count
         # Calibration.force_n spelled out: (raw - offset) * factor; no seq or device time.
         self._pending.extend(
-            load_cell_samples(
-                [
-                    (t_ns + epoch_offset, c, (c - offset) * factor, None, None)
-                    for t_ns, c in zip(times, counts, strict=True)
-                ]
-            )
+            LoadCellSample(t_ns + epoch_offset, c, (c - offset) * factor)
+            for t_ns, c in zip(times, counts, strict=True)
         )
 
     def open(self) -> None:

@@ -47,11 +47,6 @@ RATE_DEADBAND_PPM = 10.0
 class DeviceClockMapper:
     """Maps wrapping 32-bit device microseconds onto host epoch nanoseconds (offset and rate)."""
 
-    # True: every sample's rate-window step goes through `_window_sample` (the plain twin of the
-    # fast path in `sample_times_ns`, which keeps the window in locals: its call per sample was 2 %
-    # of the bytecodes of a simulated 1 kHz run, benchmarks/bench_runner_bytecodes.py).
-    plain_rate_window = False
-
     def __init__(self, track_rate: bool = True) -> None:
         self.track_rate = track_rate
         self._offset_ns: int | None = None
@@ -105,78 +100,39 @@ class DeviceClockMapper:
         # leak, observed)` is `observed`; no stamp is below -inf.
         offset_ns: float = math.inf if offset is None else offset
         previous_ns: float = -math.inf if previous is None else previous
-        # The rate window (FAST PATH, docs/design.md §10: `_window_sample` spelled out on locals,
-        # written back at the end). Per sample only two comparisons: a sample is a new minimum of
-        # `observed = receipt - device` iff `device > receipt - minimum` (`low_after_ns`), and the
-        # window can close only once `device - start >= RATE_WINDOW_S` (`close_at_ns`); the
-        # samples counted are the window's count before this batch plus those stamped since
-        # `counted_from` (`len(times)`). With no window yet, the first sample opens one; with
-        # `plain_rate_window` every sample takes the `_window_sample` branch.
-        plain = self.plain_rate_window
-        window_ns = math.ceil(RATE_WINDOW_S * 1e9)
-        start_ns, count, counted_from = self._window_start_ns, self._window_samples, 0
-        low_device_ns, low_observed_ns = self._window_min or (0, 0)
-        close_at_ns: float = math.inf  # rate not tracked: neither branch is ever taken
-        low_after_ns: float = math.inf
-        if self.track_rate:
-            if plain or start_ns is None:
-                close_at_ns = -math.inf
-            else:
-                close_at_ns = start_ns + window_ns
-                low_after_ns = receipt_ns - low_observed_ns
+        track_rate = self.track_rate
         times: list[int] = []
         append = times.append
-        try:
-            for device_time_us in device_times_us:
-                if device_time_us is None:
-                    raise TypeError("device times of one batch must all be set or all be None")
-                if last is not None and device_time_us < last and last - device_time_us > half_wrap:
-                    wraps += 1
-                    unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
-                last = device_time_us
-                device_ns = (device_time_us + unwrap_us) * 1000
-                if device_ns >= close_at_ns:
-                    changed = False
-                    if plain:
-                        changed = self._window_sample(device_ns, receipt_ns - device_ns)
-                    elif start_ns is None or count + len(times) - counted_from >= RATE_WINDOW_SAMPLES:
-                        if start_ns is not None:
-                            self._window_min = (low_device_ns, receipt_ns - int(low_after_ns))
-                            changed = self._close_window()
-                        start_ns, count, counted_from = device_ns, 0, len(times)
-                        close_at_ns = device_ns + window_ns
-                        low_device_ns = low_after_ns = device_ns
-                    if changed:  # a new rate estimate: the offset is re-anchored in the corrected frame
-                        skew = self._skew
-                        assert self._first_min is not None
-                        ref_ns, offset_ns = self._first_min
-                if device_ns > low_after_ns:  # a new minimum of `observed` in the window
-                    low_device_ns = low_after_ns = device_ns
-                if skew:
-                    device_ns += round(skew * (device_ns - ref_ns))
-                observed = receipt_ns - device_ns
-                offset_ns += OFFSET_LEAK_NS  # min(offset + OFFSET_LEAK_NS, observed) without a call
-                if observed < offset_ns:
-                    offset_ns = observed
-                stamp = offset_ns + device_ns
-                if stamp < previous_ns:
-                    stamp = previous_ns
-                append(stamp)  # type: ignore[arg-type]  # an int: the stand-ins are gone by now
-                previous_ns = stamp
-        finally:
-            if self.track_rate and not plain and start_ns is not None:
-                self._window_start_ns, self._window_samples = start_ns, count + len(times) - counted_from
-                self._window_min = (low_device_ns, receipt_ns - int(low_after_ns))
+        for device_time_us in device_times_us:
+            if device_time_us is None:
+                raise TypeError("device times of one batch must all be set or all be None")
+            if last is not None and device_time_us < last and last - device_time_us > half_wrap:
+                wraps += 1
+                unwrap_us = wraps * DEVICE_CLOCK_WRAP_US
+            last = device_time_us
+            device_ns = (device_time_us + unwrap_us) * 1000
+            if track_rate and self._window_sample(device_ns, receipt_ns - device_ns):
+                # A new rate estimate: the offset is re-anchored in the corrected frame.
+                skew = self._skew
+                assert self._first_min is not None
+                ref_ns, offset_ns = self._first_min
+            if skew:
+                device_ns += round(skew * (device_ns - ref_ns))
+            observed = receipt_ns - device_ns
+            offset_ns += OFFSET_LEAK_NS  # min(offset + OFFSET_LEAK_NS, observed) without a call
+            if observed < offset_ns:
+                offset_ns = observed
+            stamp = offset_ns + device_ns
+            if stamp < previous_ns:
+                stamp = previous_ns
+            append(stamp)  # type: ignore[arg-type]  # an int: the stand-ins are gone by now
+            previous_ns = stamp
         self._offset_ns, self._last_raw_us, self._wraps = int(offset_ns), last, wraps
         self._last_stamp_ns = int(previous_ns)
         return times
 
     def _window_sample(self, device_ns: int, observed_ns: int) -> bool:
-        """Follow the lower envelope; True when the applied rate changed with this sample.
-
-        The plain twin of the rate window spelled out in `sample_times_ns` (used when
-        `plain_rate_window` is set; tests/test_device_time.py holds the two equal).
-        """
+        """Follow the lower envelope; True when the applied rate changed with this sample."""
         start = self._window_start_ns
         if start is None:
             self._window_start_ns, self._window_samples = device_ns, 0

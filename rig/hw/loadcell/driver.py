@@ -45,7 +45,7 @@ from rig.hw.clock import SystemClock
 from rig.hw.loadcell.calibration import Calibration
 from rig.hw.loadcell.device_time import DeviceClockMapper
 from rig.hw.loadcell.formats import InfoLine, LineDecoder, get_codec
-from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample, load_cell_samples
+from rig.hw.seams import Clock, LoadCellLineStats, LoadCellSample
 from rig.inputs.rig_config import default_stale_timeout_s
 from rig.vocabulary import LOADCELL_FORMAT_TRAITS, LoadCellFormatName
 
@@ -364,9 +364,7 @@ class SerialLoadCell:
             else:
                 factor, offset = cal.factor_n_per_count, cal.offset_counts
                 forces = [(raw - offset) * factor for raw in raws]
-            # One batch constructor: part of the fast path that benchmarks/bench_loadcell.py
-            # (simulated chain) demanded, with `feed_columns`.
-            samples = load_cell_samples(zip(times_ns, raws, forces, seqs, device_times_us, strict=True))
+            samples = list(map(LoadCellSample, times_ns, raws, forces, seqs, device_times_us))
             queue = self._queue
             overflow = len(queue) + len(samples) - self._queue_samples
             if overflow > 0:

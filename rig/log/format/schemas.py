@@ -12,7 +12,7 @@ record's epoch-nanosecond field `*_time_ns` appears as a `{sec, nsec}` timestamp
 suffix (Foxglove's time type). `/rig/log` is Foxglove's well-known `foxglove.Log`, kept field for
 field.
 
-`/rig/loadcell` (1 kHz) is logged as rows (`ROW_FIELDS`), not records: no object per sample.
+`/rig/loadcell` (1 kHz) is logged as rows (`ROW_FIELDS`), not records: no dict per sample.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, is_dataclass
 from enum import Enum
-from typing import Any, NamedTuple
+from typing import Any
 
 from model.fit import FitSummary
 from model.slip_detector import SlipEvent
@@ -432,32 +432,15 @@ def loadcell_sample(
     )
 
 
-class LoadCellRow(NamedTuple):
-    """A `/rig/loadcell` payload as a row: the fields of `loadcell_sample`, without a dict per sample."""
-
-    seq: int | None
-    raw: int
-    force_n: float
-    device_time_us: int | None
-
-
-# Topics whose payload may also be given as a row of this type (no dict to build and pickle per
-# message at 1 kHz). `RunLogger.log_many` accepts rows (checked by type, and field by field in
-# strict mode) and sends them on as plain tuples; the file holds the same JSON object either way.
-ROW_TYPES: dict[str, type[LoadCellRow]] = {LOADCELL: LoadCellRow}
-ROW_FIELDS: dict[str, tuple[str, ...]] = {topic: row._fields for topic, row in ROW_TYPES.items()}
+# `/rig/loadcell` (1 kHz) goes to the writer as rows (`RunLogger.log_columns`): a `LoadCellSample`'s
+# fields but its time (the log time), in the order of `loadcell_sample`'s JSON object; no dict per
+# sample. The writer process and the live view encode a row as that object.
+ROW_FIELDS: dict[str, tuple[str, ...]] = {LOADCELL: ("seq", "raw", "force_n", "device_time_us")}
 
 
 def row_payload(topic: str, row: tuple[Any, ...]) -> dict[str, Any]:
     """The payload of a row of `topic` (`ROW_FIELDS`): its fields by name, None values left out."""
     return present(dict(zip(ROW_FIELDS[topic], row, strict=True)))
-
-
-def loadcell_payload(sample: LoadCellSample) -> dict[str, Any]:
-    """A `/rig/loadcell` payload from the hardware seam's value type (log it at `sample.time_ns`)."""
-    return loadcell_sample(
-        raw=sample.raw, force_n=sample.force_n, seq=sample.seq, device_time_us=sample.device_time_us
-    )
 
 
 def servo_state(

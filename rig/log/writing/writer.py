@@ -118,8 +118,6 @@ class RunLogger:
         self._finish_lock = threading.Lock()
         self._finished = False
         self.messages_logged = 0  # accepted by log()
-        # True: `log_columns` always goes through `_enqueue` (the plain twin of its fast path).
-        self.plain_columns = False
         self.live = live
         if live is not None:  # what is still in the batch when the view closes goes to it first
             live.add_close_hook(self._send_batch)
@@ -153,85 +151,46 @@ class RunLogger:
         """Enqueue one message; never waits on encoding, compression or I/O (unless back-pressure).
 
         `log_time_ns` is the epoch time of sampling. `payload` must not be changed afterwards (the
-        builders in `rig.log.format.schemas` return fresh dicts).
+        builders in `rig.log.format.schemas` return fresh dicts). Rows go through `log_columns`.
         """
-        self.log_many(topic, ((log_time_ns, payload),))
-
-    def log_many(
-        self, topic: str, messages: Iterable[tuple[int, Mapping[str, Any] | tuple[Any, ...]]]
-    ) -> None:
-        """Enqueue `(log_time_ns, payload)` messages of one topic, in order, as `log` would one by one.
-
-        The checks and the publish time are per call, not per message. For a topic in
-        `schemas.ROW_TYPES` a payload may be a row of that type (`schemas.LoadCellRow`): the file
-        holds the same JSON object. A plain tuple is refused (its order would be unchecked); the
-        1 kHz load-cell samples go through `log_columns`.
-        """
-        self._enqueue(topic, messages, plain_rows=False)
+        self._enqueue(topic, ((log_time_ns, payload),), rows=False)
 
     def log_columns(self, topic: str, times_ns: Iterable[int], **columns: Iterable[Any]) -> None:
         """Enqueue one message per time of a row topic, from one column per field, named as the fields.
 
         The names must be exactly those of `schemas.ROW_FIELDS[topic]` (any order): a column under
-        the wrong name is a `TypeError`, not a swapped field, and the rows are built without an
-        object per sample (one call per control period for the 1 kHz load-cell samples). The same
-        messages as `log_many` with a row per time; strict mode checks each row field by field.
+        the wrong name is a `TypeError`, not a swapped field. The rows go to the writer process as
+        plain tuples, without a dict per sample (one call per control period for the load-cell
+        samples); the file holds the JSON object `log` would write for the row's payload. Strict mode
+        checks each row field by field.
         """
         fields = schemas.ROW_FIELDS.get(topic)
         if fields is None or columns.keys() != set(fields):
             raise TypeError(f"{topic}: columns {sorted(columns)}; allowed: exactly the fields {fields}")
-        if self._strict or self.plain_columns:
-            rows = zip(*map(columns.__getitem__, fields), strict=True)
-            self._enqueue(topic, zip(times_ns, rows, strict=True), plain_rows=True)
-            return
-        # FAST PATH (docs/design.md §10): `_enqueue`'s loop for rows that need no check, done by
-        # `zip` in C. Its plain twin is the `_enqueue` call above; anything else goes there too
-        # (columns of unequal length, a time that is not an `int`), which raises as it does.
-        times = list(times_ns)
-        values = [list(columns[name]) for name in fields]
-        if len({len(times), *map(len, values)}) > 1 or not set(map(type, times)) <= {int}:
-            rows = zip(*values, strict=True)
-            self._enqueue(topic, zip(times, rows, strict=True), plain_rows=True)
-            return
-        self._check_loggable(topic)
-        publish_ns = self._now_ns()
-        if not times:
-            return
-        batch = self._batch
-        if not batch:
-            self._batch_start_ns = times[0]
-        batch.extend(
-            zip(itertools.repeat(topic), times, itertools.repeat(publish_ns), zip(*values, strict=True))
-        )
-        self.messages_logged += len(times)
-        self._maybe_send(times[-1])
+        rows = zip(*map(columns.__getitem__, fields), strict=True)
+        self._enqueue(topic, zip(times_ns, rows, strict=True), rows=True)
 
     def _enqueue(
         self,
         topic: str,
         messages: Iterable[tuple[int, Mapping[str, Any] | tuple[Any, ...]]],
         *,
-        plain_rows: bool,
+        rows: bool,
     ) -> None:
+        """Add messages of one topic to the batch: payload mappings, or `rows` in `ROW_FIELDS` order."""
         self._check_loggable(topic)
         publish_ns = self._now_ns()
         strict = self._strict
-        row_type = schemas.ROW_TYPES.get(topic)
         batch = self._batch
         count = len(batch)
         for log_time_ns, payload in messages:
             if type(log_time_ns) is not int:
                 log_time_ns = operator.index(log_time_ns)  # numpy ints are fine, floats are not
-            if type(payload) is tuple and plain_rows:  # built by log_columns, in the fields' order
-                if strict:
+            if isinstance(payload, tuple):
+                if not rows:  # a tuple through `log`: its fields' order would be unchecked
+                    raise TypeError(f"{topic}: a payload must be a mapping (rows go through log_columns)")
+                if strict:  # a row field by field, by its name
                     schemas.check_payload(topic, schemas.row_payload(topic, payload))
-            elif row_type is not None and type(payload) is row_type:
-                if strict:  # each named field against the schema
-                    schemas.check_payload(topic, schemas.row_payload(topic, payload))
-                payload = payload[:]  # a plain tuple: pickled to the writer at a fifth of the cost
-            elif isinstance(payload, tuple):
-                want = "no rows" if row_type is None else f"a {row_type.__name__} {row_type._fields}"
-                raise TypeError(f"{topic}: a row payload must be {want}; got {payload!r}")
             elif strict:
                 schemas.check_payload(topic, payload)
             if not batch:
