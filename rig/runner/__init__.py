@@ -10,5 +10,6 @@ __all__ = [
     "rig_to_run",
     "run",
     "safety",
+    "sinks",
     "trial_runner",
 ]
