@@ -412,7 +412,7 @@ def _end_sinks(
         for note in notes:
             for sink in sinks:
                 sink.log(schemas.LOG, note.time_ns, note.to_payload())
-        if session is not None and truth is not None:
+        if sinks and session is not None and truth is not None:
             truth_json = json.dumps(truth.snapshot().to_json(), allow_nan=False)
             for sink in sinks:
                 sink.metadata("sim_truth", {"json": truth_json})
