@@ -24,6 +24,7 @@ from rig.log.live.publisher import LivePublisher, serve_log
 from rig.rigs import open_rig
 from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
+from rig.runner.sinks import LiveSink
 from tests.helpers import QUICK_PROTOCOL, quick_protocol
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]  # foxglove-sdk speaks the first
@@ -110,7 +111,7 @@ def test_a_live_run_serves_the_logged_topics_with_their_schemas(tmp_path, protoc
         while not all(live.wants(t) for t in WATCHED):
             assert time.monotonic() < deadline, "the client did not subscribe"
             time.sleep(0.01)
-        report = execute_run(prepared, open_rig(prepared), SilentProgress(), live=live)
+        report = execute_run(prepared, open_rig(prepared), SilentProgress(), LiveSink(live))
         stats = live.close()
     client.join()
     assert report.exit_code == 0, report.reason

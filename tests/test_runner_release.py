@@ -8,10 +8,9 @@ from typing import Any, cast
 from rig.hw.session import RigSession
 from rig.inputs.protocol import RampSettings
 from rig.inputs.rig_config import load_rig_config
-from rig.log.writing.writer import RunLogger
 from rig.runner.control_loop import ControlLoop
-from rig.runner.progress import SilentProgress
 from rig.runner.recorder import RunRecorder
+from rig.runner.sinks import NullSink
 from rig.safety.interlocks import CurrentAtLimit, ForceCeiling
 from rig.safety.release import LineRelease
 from rig.sim.kinds import DeviceLevel
@@ -28,25 +27,24 @@ RAMP = RampSettings(
 )
 
 
-class _Log:
+class _Log(NullSink):
+    wants_ticks = True
+
     def __init__(self) -> None:
         self.messages: list[tuple[str, int, Any]] = []
 
     def log(self, topic: str, time_ns: int, payload: Any) -> None:
         self.messages.append((topic, time_ns, payload))
 
-    def log_many(self, topic: str, rows: Any) -> None:
-        self.messages.append((topic, 0, list(rows)))
-
-    def log_columns(self, topic: str, times_ns: Any, **columns: Any) -> None:
-        self.messages.append((topic, 0, [list(times_ns), {k: list(v) for k, v in columns.items()}]))
+    def tick_rows(self, samples: Any, tick_samples: Any, states: Any, roles: Any) -> None:
+        self.messages.append(("ticks", 0, [list(samples), list(tick_samples), dict(states)]))
 
 
 def _loop_on_a_simulated_rig() -> tuple[RigSession, ControlLoop, RunRecorder]:
     """The control loop on the object-level simulated rig (servo calls recorded), connected, one tick in."""
     rig = simulated_rig(load_rig_config(None), devices=DeviceLevel.OBJECT)
     session = dataclasses.replace(rig.session, servos=RecordingServoBus(rig.devices.bus))
-    recorder = RunRecorder(cast(RunLogger, _Log()), session.clock, SilentProgress(), session.roles)
+    recorder = RunRecorder([_Log()], session.clock, session.roles)
     loop = ControlLoop(
         session,
         recorder,

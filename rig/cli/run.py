@@ -14,7 +14,6 @@ from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
-from rig.inputs.files import check_out_dir
 from rig.sim.kinds import DeviceLevel
 from rig.vocabulary import ConfigurationSourceKind, RigKind, StepKind
 
@@ -25,7 +24,7 @@ if TYPE_CHECKING:
     from rig.inputs.protocol import Protocol
     from rig.inputs.rig_config import RigConfig
     from rig.log.live.publisher import LivePublisher
-    from rig.runner.execute import RunReport, RunRequest
+    from rig.runner.execute import PreparedRun, RunReport, RunRequest
     from rig.sim.truth import RunTruth
 
 DESCRIPTION = """\
@@ -125,9 +124,10 @@ def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
     # The runner is imported here, not at the top, so that `rig --help` stays quick.
     from rig.rigs import check_session_inputs, open_rig
-    from rig.runner.execute import execute_run, prepare_run
+    from rig.runner.execute import claim_run, execute_run, validate_run
     from rig.runner.journal import MAX_SEED
     from rig.runner.progress import make_progress
+    from rig.runner.sinks import LiveSink, RunSink
     from rig.safety.interrupts import interrupts_held
     from rig.sim.settings import check_simulation
 
@@ -137,21 +137,23 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--resume and --run-id: give one of them (a resumed run keeps its id)")
     if args.protocol is None and args.resume is None:
         raise InputError("PROTOCOL: required to start a run (`rig run --resume RUN_ID` continues one)")
-    check_out_dir(args.out)
+    # Everything is validated before anything is written (the --out directory, the lock, the journal),
+    # with the files the session will read; then the run is claimed.
+    prepared = validate_run(_request(args))
     if args.dry_run:
-        return _dry_run(args)
-    # Everything is validated before anything is written (the --out directory, the lock, the journal):
-    # first as a dry run, with the files the session will read; then for real.
-    checked = prepare_run(_request(args), dry_run=True)
-    check_simulation(checked.config)  # the simulator's section, which the runner keeps as written
-    check_session_inputs(checked.config)
-    _require_a_terminal_for_prompts(checked.protocol, checked.config)
+        return _dry_run(args, prepared)
+    check_simulation(prepared.config)  # the simulator's section, which the runner keeps as written
+    check_session_inputs(prepared.config)
+    _require_a_terminal_for_prompts(prepared.protocol, prepared.config)
     live = _start_live(args)  # a port in use is an InputError before anything is written or moves
     try:
-        prepared = prepare_run(_request(args))  # locks the run; InputError -> exit 2
+        claim_run(prepared)  # makes --out, locks the run; InputError -> exit 2
         try:
             rig = open_rig(prepared, devices=DeviceLevel(args.devices))
-            report = execute_run(prepared, rig, make_progress(args.json), live=live)
+            sinks: list[RunSink] = [make_progress(args.json)]
+            if live is not None:
+                sinks.append(LiveSink(live))
+            report = execute_run(prepared, rig, *sinks)
         finally:
             prepared.release()
     finally:
@@ -179,17 +181,16 @@ def _start_live(args: argparse.Namespace) -> LivePublisher | None:
     return live
 
 
-def _dry_run(args: argparse.Namespace) -> int:
+def _dry_run(args: argparse.Namespace, prepared: PreparedRun) -> int:
     """Validate what a real run validates, then print the plan; no device is opened, nothing written.
 
-    The same `prepare_run` as a real run (it writes nothing), and the files the session would read.
+    `prepared` is validated as a real run's is (and not claimed); the files the session would read
+    are checked too.
     """
     from rig.rigs import check_session_inputs
-    from rig.runner.execute import prepare_run
     from rig.runner.limits import plan_summary
     from rig.sim.settings import check_simulation
 
-    prepared = prepare_run(_request(args), dry_run=True)
     check_simulation(prepared.config)
     notes = _calibration_not_made_yet(prepared.config)
     if not notes:

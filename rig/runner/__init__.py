@@ -13,6 +13,7 @@ PUBLIC_MODULES = (
     "progress",
     "recorder",
     "rig_to_run",
+    "sinks",
     "trial_runner",
 )
 
@@ -23,6 +24,7 @@ NAMES = {
     "prepare_run": "execute",
     "RunReport": "execute",
     "RunRequest": "execute",
+    "RunSink": "sinks",
     "TrialRunner": "trial_runner",
 }
 __all__ = sorted(NAMES)

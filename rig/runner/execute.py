@@ -1,17 +1,18 @@
-"""One `rig run` invocation: run ids, the journal, the MCAP file, the session, and the final report.
+"""One run invocation: run ids, the journal, the run's sinks, and the final report.
 
-`prepare_run` validates everything (protocol, rig config, limits, resume consistency, the run id
-and the `--out` directory) before any device is opened, and locks the run against other
-invocations; invalid input raises `InputError` and nothing but the lock file is written.
-`execute_run` then opens a new MCAP file for this invocation, writes the metadata and
-attachments, runs the remaining trials through `TrialRunner`, saves the journal and estimates,
-releases the lock, and returns a `RunReport` whose `as_json()` is the `rig run --json` object
+`validate_run` checks everything (`--out`, protocol, rig config, limits, resume consistency, the
+run id) once, before any device is opened, and writes nothing; `claim_run` then makes `--out` and
+locks the run against other invocations (`prepare_run` is the two in one). Invalid input raises
+`InputError`, and nothing but the directory and the lock file is written.
+`execute_run` is the one way a run happens: it runs the remaining trials through `TrialRunner`,
+emitting the run to its sinks (`rig.runner.sinks`: the MCAP file unless `log_file=False`, and those
+the caller gives: the progress display, the live view), saves the journal and estimates, releases
+the lock, and returns a `RunReport` whose `as_json()` is the `rig run --json` object
 (docs/design.md §5).
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import platform
 import re
@@ -34,18 +35,17 @@ from rig.inputs.files import atomic_write_text, check_out_dir
 from rig.inputs.protocol import Protocol, TrialPlan, for_loadcell_rate, load_protocol
 from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, RigConfig, load_rig_config, nominal_loadcell_rate_hz
 from rig.log.format import schemas
-from rig.log.live.publisher import LivePublisher
-from rig.log.writing.writer import LogWriteError, RunLogger
-from rig.records import JointCapacity, LogLevel, LogMessage, TrialResult
+from rig.log.writing.writer import LogWriteError
+from rig.records import JointCapacity, TrialResult
 from rig.runner.file_changes import describe_changes
 from rig.runner.journal import RunJournal, content_hash
 from rig.runner.limits import check_limits
 from rig.runner.planning import AdaptiveSummary, TrialSchedule
-from rig.runner.progress import ProgressReporter
 from rig.runner.results import percentage_error_stats
 from rig.runner.rig_to_run import GroundTruth, RigToRun, TruthSnapshot
 from rig.runner.run_estimates import RunEstimator, load_estimates_file
 from rig.runner.runlock import RunLock
+from rig.runner.sinks import McapSink, RunSink
 from rig.runner.trial_runner import RunOutcome, TrialRunner
 from rig.safety.interrupts import interrupts_held
 from rig.safety.safe_state import enter_safe_state
@@ -134,7 +134,8 @@ class PreparedRun:
     remaining: list[TrialPlan]  # the fixed trials not done yet (adaptive blocks choose theirs as they run)
     log_path: Path  # this invocation's MCAP file
     estimates_path: Path
-    lock: RunLock | None = None
+    journal_hash: str | None  # a resumed run's journal file as validated (None: a new run)
+    lock: RunLock | None = None  # taken by `claim_run`
 
     def release(self) -> None:
         """Give up the run's lock (`execute_run` does it when it returns); idempotent."""
@@ -143,18 +144,24 @@ class PreparedRun:
 
 
 def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
-    """Validate the request, lock the run, and load or create its journal; raises InputError on bad input.
+    """Validate the request, then (unless `dry_run`) claim the run (`claim_run`); InputError on bad input.
 
-    The lock (`OUT/RUN_ID.lock`) is held until `execute_run` returns or `PreparedRun.release()`.
     A dry run validates the same and writes nothing: no directory, no lock.
     """
+    prepared = validate_run(request)
+    return prepared if dry_run else claim_run(prepared)
+
+
+def validate_run(request: RunRequest) -> PreparedRun:
+    """Check everything the run needs (the protocol parsed and limit-checked once); write nothing.
+
+    The result holds no lock yet: `claim_run` makes `--out` and takes it. InputError on bad input.
+    """
+    check_out_dir(request.out_dir, must_exist=request.resume is not None)
     if request.resume is not None:
         run_id = _check_run_id(request.resume, "--resume")
-        check_out_dir(request.out_dir, must_exist=True)
-        lock = None if dry_run else _lock_run(request.out_dir, run_id)
-        with _released_on_error(lock):
-            protocol, config, journal = _resumed_journal(request, run_id)
-            return _prepared(request, protocol, config, journal, lock)
+        protocol, config, journal, journal_hash = _resumed_journal(request, run_id)
+        return _prepared(request, protocol, config, journal, journal_hash)
     if request.protocol_path is None:
         raise InputError("PROTOCOL: required to start a run (`rig run --resume RUN_ID` continues one)")
     config = load_rig_config(request.rig_path)
@@ -168,40 +175,75 @@ def prepare_run(request: RunRequest, *, dry_run: bool = False) -> PreparedRun:
     run_id = (
         _check_run_id(request.run_id, "--run-id") if request.run_id is not None else _new_run_id(protocol)
     )
-    check_out_dir(request.out_dir)
-    if not dry_run:
-        _make_out_dir(request.out_dir)
-    lock = None if dry_run else _lock_run(request.out_dir, run_id)
+    path = _new_journal_path(request.out_dir, run_id)
+    journal = RunJournal(
+        path=path,
+        run_id=run_id,
+        # Absolute, so that `--resume RUN_ID` finds them from any directory.
+        protocol_path=str(request.protocol_path.absolute()),
+        protocol_hash=content_hash(protocol.text),
+        rig_path=str(Path(config.source).absolute()),
+        rig_hash=content_hash(config.text),
+        seed=request.seed,
+        planned_trials=protocol.planned_trial_ids,
+        rig_builtin=request.rig_path is None,
+        protocol_text=protocol.text,
+        rig_text=config.text,
+    )
+    return _prepared(request, protocol, config, journal, None)
+
+
+def claim_run(prepared: PreparedRun) -> PreparedRun:
+    """Make `--out` if needed and lock the run (`OUT/RUN_ID.lock`) against other invocations.
+
+    The lock is held until `execute_run` returns or `PreparedRun.release()`. Under it, what another
+    invocation could have changed since `validate_run` is checked again: a new run's journal and
+    this invocation's log must still not exist, a resumed run's journal must be the one validated.
+    """
+    out = prepared.request.out_dir
+    if prepared.request.resume is None:
+        _make_out_dir(out)
+    lock = _lock_run(out, prepared.run_id)
     with _released_on_error(lock):
-        path = _in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id))
-        if path.exists():
+        journal_path = prepared.journal.path
+        if prepared.journal_hash is None:
+            _new_journal_path(out, prepared.run_id)
+        elif _file_hash(journal_path) != prepared.journal_hash:
             raise InputError(
-                f"{path}: run {run_id} already exists; use --resume {run_id} or another --run-id"
+                f"{journal_path}: run {prepared.run_id} changed while this invocation started (another "
+                "invocation worked on it); try again"
             )
-        journal = RunJournal(
-            path=path,
-            run_id=run_id,
-            # Absolute, so that `--resume RUN_ID` finds them from any directory.
-            protocol_path=str(request.protocol_path.absolute()),
-            protocol_hash=content_hash(protocol.text),
-            rig_path=str(Path(config.source).absolute()),
-            rig_hash=content_hash(config.text),
-            seed=request.seed,
-            planned_trials=protocol.planned_trial_ids,
-            rig_builtin=request.rig_path is None,
-            protocol_text=protocol.text,
-            rig_text=config.text,
-        )
-        return _prepared(request, protocol, config, journal, lock)
+        if prepared.log_path.exists():
+            raise InputError(f"{prepared.log_path}: exists; refusing to overwrite a log")
+    prepared.lock = lock
+    return prepared
 
 
-def _resumed_journal(request: RunRequest, run_id: str) -> tuple[Protocol, RigConfig, RunJournal]:
-    """The journal of run `run_id`, its protocol and rig config, checked to be the same files by content.
+def _new_journal_path(out_dir: Path, run_id: str) -> Path:
+    """Where a new run's journal goes; InputError if the run exists already."""
+    path = _in_out_dir(out_dir, RunJournal.path_for(out_dir, run_id))
+    if path.exists():
+        raise InputError(f"{path}: run {run_id} already exists; use --resume {run_id} or another --run-id")
+    return path
+
+
+def _file_hash(path: Path) -> str | None:
+    """The content hash of the file at `path` (None if it cannot be read: `RunJournal.load` says why)."""
+    try:
+        return content_hash(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def _resumed_journal(request: RunRequest, run_id: str) -> tuple[Protocol, RigConfig, RunJournal, str | None]:
+    """The journal of run `run_id` (and its file's hash), its protocol and rig config, checked by content.
 
     PROTOCOL and `--rig` left out are the journal's files; given, they may be elsewhere (a copy or a
     move) but must have the same content. A changed file is named with the values that changed.
     """
-    journal = RunJournal.load(_in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id)))
+    path = _in_out_dir(request.out_dir, RunJournal.path_for(request.out_dir, run_id))
+    journal_hash = _file_hash(path)  # before it is read: `claim_run` sees any change after this
+    journal = RunJournal.load(path)
     if journal.status == "completed":
         raise InputError(f"{journal.path}: run {run_id} is already completed; nothing to resume")
     config = load_rig_config(_resumed_file(request.rig_path, journal, "rig"))
@@ -229,7 +271,7 @@ def _resumed_journal(request: RunRequest, run_id: str) -> tuple[Protocol, RigCon
             + "; refusing to resume"
         )
     check_limits(protocol, config)
-    return protocol, config, journal
+    return protocol, config, journal, journal_hash
 
 
 def _resumed_file(given: Path | None, journal: RunJournal, which: str) -> Path | None:
@@ -249,7 +291,7 @@ def _resumed_file(given: Path | None, journal: RunJournal, which: str) -> Path |
 
 
 def _prepared(
-    request: RunRequest, protocol: Protocol, config: RigConfig, journal: RunJournal, lock: RunLock | None
+    request: RunRequest, protocol: Protocol, config: RigConfig, journal: RunJournal, journal_hash: str | None
 ) -> PreparedRun:
     # The detector's rate-dependent defaults for this rig's load cell; the logged protocol metadata
     # carries them, so replay detects with them.
@@ -278,62 +320,59 @@ def _prepared(
         remaining,
         log_path,
         estimates_path,
-        lock=lock,
+        journal_hash,
     )
 
 
-def execute_run(
-    prepared: PreparedRun,
-    rig: RigToRun,
-    progress: ProgressReporter,
-    *,
-    live: LivePublisher | None = None,
-) -> RunReport:
-    """Run the remaining trials on `rig`'s session, write the log, journal and estimates, release the lock.
+def execute_run(prepared: PreparedRun, rig: RigToRun, *sinks: RunSink, log_file: bool = True) -> RunReport:
+    """Run the remaining trials on `rig`'s session, emitting the run to `sinks`; release the lock.
 
-    A simulated rig's truth goes into the log's `sim_truth` metadata and the report; its log limit,
-    if any, caps the log file (rig_to_run.py).
+    The one way a run happens (`rig run`, `rig study`'s workers, the studies and tests). An
+    unclaimed run is claimed first (`claim_run`). With `log_file`, the MCAP file
+    `prepared.log_path` is the first sink (`McapSink`); `rig study` runs without it. The journal
+    and the estimates file are written either way.
 
-    With `live`, every logged message is also offered to the live view (which the caller closes; its
-    counts of published and dropped messages end the run's `/rig/log`).
+    A simulated rig's truth goes into the `sim_truth` metadata and the report; its log limit, if
+    any, caps the log file (rig_to_run.py).
 
-    Ctrl-C and SIGTERM stop the trials (the runner ends in the safe state); while the log and journal
-    are set up, and from the safe state on while they are finished, they are held, so the journal
-    always ends with the run's status and the report is returned (docs/design.md §6).
+    Ctrl-C and SIGTERM stop the trials (the runner ends in the safe state); while the sinks are set
+    up, and from the safe state on while they are finished, they are held, so the journal always
+    ends with the run's status and the report is returned (docs/design.md §6).
     """
+    if prepared.lock is None:
+        claim_run(prepared)
     try:
-        return _execute(prepared, rig, progress, live)
+        return _execute(prepared, rig, sinks, log_file)
     finally:
         prepared.release()
 
 
-def _execute(
-    prepared: PreparedRun, rig: RigToRun, progress: ProgressReporter, live: LivePublisher | None
-) -> RunReport:
+def _execute(prepared: PreparedRun, rig: RigToRun, given: tuple[RunSink, ...], log_file: bool) -> RunReport:
     protocol, config, journal = prepared.protocol, prepared.config, prepared.journal
     session = rig.session
-    log_path = prepared.log_path
     outcome: RunOutcome | None = None
-    logger: RunLogger | None = None
     log_error: LogWriteError | None = None
     schedule: TrialSchedule | None = None
+    sinks: tuple[RunSink, ...] = given
     try:
         with interrupts_held() as early:
             journal.invocations += 1
-            journal.logs.append(str(log_path))
+            journal.logs.append(str(prepared.log_path))
             journal.status = "running"
             journal.save()
-            logger = RunLogger(log_path, clock=session.clock, max_file_bytes=rig.log_limit_bytes, live=live)
-            _write_metadata(logger, prepared, session)
-            progress.start(journal.run_id, len(protocol.planned_trial_ids), len(journal.completed))
+            if log_file:
+                mcap = McapSink(prepared.log_path, session.clock, max_file_bytes=rig.log_limit_bytes)
+                sinks = (mcap, *given)
+            for sink in sinks:
+                sink.start(journal.run_id, len(protocol.planned_trial_ids), len(journal.completed))
+            _emit_metadata(sinks, prepared, session)
             runner = TrialRunner(
                 protocol=protocol,
                 config=config,
                 session=session,
-                logger=logger,
+                sinks=sinks,
                 journal=journal,
                 estimator=prepared.estimator,
-                progress=progress,
                 line_stiffness_n_per_m=config.line_stiffness_n_per_m,
             )
             schedule = TrialSchedule(protocol, config, journal, runner.announce)
@@ -349,9 +388,7 @@ def _execute(
             outcome = RunOutcome(ExitCode.INTERRUPTED, "interrupted", _INTERRUPTED)
     finally:
         with interrupts_held():
-            progress.stop()
-            if logger is not None:
-                log_error = _finish_log(logger, session if outcome is not None else None, rig.truth)
+            log_error = _end_sinks(sinks, session if outcome is not None else None, rig.truth)
     if log_error is not None and outcome.exit_code == ExitCode.OK:  # the rig is safe; the log is not whole
         reason = f"LogWriteError: {log_error}"
         verified = outcome.safe_state_verified
@@ -360,29 +397,33 @@ def _execute(
         return _finish(prepared, rig.truth, outcome, schedule)
 
 
-def _finish_log(
-    logger: RunLogger, session: RigSession | None, truth: GroundTruth | None
+def _end_sinks(
+    sinks: tuple[RunSink, ...], session: RigSession | None, truth: GroundTruth | None
 ) -> LogWriteError | None:
-    """Add the simulator's truth (every trial's hidden draws) and finish the file; the error, if any.
+    """The sinks' closing notes, the simulator's truth (every trial's hidden draws), then stop them all.
 
-    A log that cannot be written does not hide how the run ended: the error is returned, not raised.
+    A log that cannot be written does not hide how the run ended: the error is returned, not raised,
+    and every sink is still stopped.
     """
+    error: LogWriteError | None = None
     try:
-        if logger.live is not None:
-            stats = logger.live.close()
-            logger.live = None
-            now = session.clock.time_ns() if session is not None else time.time_ns()
-            level = LogLevel.WARNING if stats.dropped or stats.slow_client_events else LogLevel.INFO
-            logger.log(schemas.LOG, now, LogMessage(now, level, stats.text()).to_payload())
-        if session is not None and truth is not None:
+        now = session.clock.time_ns() if session is not None else time.time_ns()
+        notes = [note for sink in sinks if (note := sink.closing_note(now)) is not None]
+        for note in notes:
+            for sink in sinks:
+                sink.log(schemas.LOG, note.time_ns, note.to_payload())
+        if sinks and session is not None and truth is not None:
             truth_json = json.dumps(truth.snapshot().to_json(), allow_nan=False)
-            logger.add_metadata("sim_truth", {"json": truth_json})
-        logger.finish()
+            for sink in sinks:
+                sink.metadata("sim_truth", {"json": truth_json})
     except LogWriteError as exc:
-        with contextlib.suppress(LogWriteError):
-            logger.finish()
-        return exc
-    return None
+        error = exc
+    for sink in sinks:
+        try:
+            sink.stop()
+        except LogWriteError as exc:
+            error = error or exc
+    return error
 
 
 def _finish(
@@ -431,27 +472,34 @@ def _estimate_json(summary: FitSummary | None, detail: EstimateSummary | None) -
     return summary.as_json() if summary is not None else None
 
 
-def _write_metadata(logger: RunLogger, prepared: PreparedRun, session: RigSession) -> None:
+def _emit_metadata(sinks: tuple[RunSink, ...], prepared: PreparedRun, session: RigSession) -> None:
+    """The run's metadata records and attached files, to every sink."""
     request = prepared.request
-    logger.add_metadata(
-        "session",
-        {
-            "software": f"rig {rig.__version__}",
-            "python": platform.python_version(),
-            "host": socket.gethostname(),
-            "seed": str(prepared.journal.seed),
-            "clock": "realtime" if request.realtime or session.kind == RigKind.HARDWARE else "virtual",
-            "run_id": prepared.run_id,
-            "invocation": str(prepared.journal.invocations),
-            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        },
-    )
-    logger.add_metadata("protocol", prepared.protocol.as_metadata())
-    logger.add_metadata("rig", prepared.config.as_metadata())
-    logger.add_attachment(prepared.protocol.source.name, "application/yaml", prepared.protocol.text.encode())
-    logger.add_attachment(prepared.config.source.name, "application/yaml", prepared.config.text.encode())
-    for name, media_type, data in session.attachments:
-        logger.add_attachment(name, media_type, data)
+    session_metadata = {
+        "software": f"rig {rig.__version__}",
+        "python": platform.python_version(),
+        "host": socket.gethostname(),
+        "seed": str(prepared.journal.seed),
+        "clock": "realtime" if request.realtime or session.kind == RigKind.HARDWARE else "virtual",
+        "run_id": prepared.run_id,
+        "invocation": str(prepared.journal.invocations),
+        "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+    records = [
+        ("session", session_metadata),
+        ("protocol", prepared.protocol.as_metadata()),
+        ("rig", prepared.config.as_metadata()),
+    ]
+    attachments = [
+        (prepared.protocol.source.name, "application/yaml", prepared.protocol.text.encode()),
+        (prepared.config.source.name, "application/yaml", prepared.config.text.encode()),
+        *session.attachments,
+    ]
+    for sink in sinks:
+        for name, data in records:
+            sink.metadata(name, data)
+        for name, media_type, body in attachments:
+            sink.attachment(name, media_type, body)
 
 
 def _check_run_id(run_id: str, flag: str) -> str:
@@ -472,12 +520,15 @@ def _new_run_id(protocol: Protocol) -> str:
 
 
 def _make_out_dir(out_dir: Path) -> None:
-    """Make the (checked) `--out` directory of a new run."""
+    """Make the (checked) `--out` directory of a new run.
+
+    Made by another process since the check as something else, it fails here (`mkdir` refuses a
+    non-directory) or when the lock file cannot be written there.
+    """
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"--out {out_dir}: cannot create the directory ({exc.strerror or exc})") from None
-    check_out_dir(out_dir)  # made by another process since, as something else
 
 
 def _lock_run(out_dir: Path, run_id: str) -> RunLock:

@@ -40,7 +40,7 @@ class LinkView:
 
     @property
     def enabled(self) -> bool:
-        return self.recorder.log_ticks and self.recorder.failed is None
+        return self.recorder.wants_ticks
 
     def _scene(self, trial: TrialPlan, found: TrialMeasurements, tension_n: float, time_ns: int) -> LinkScene:
         angles = found.joint_angles_rad or (0.0,) * self.geometry.joint_count

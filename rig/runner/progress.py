@@ -1,13 +1,15 @@
 """Progress for people: a bar with ETA and a live table on a TTY, plain lines otherwise, nothing with --json.
 
-All output goes to stderr, so stdout stays clean for `--json` and pipes.
+Each display is a run sink (`rig.runner.sinks`) that shows the run's start, its trials and its
+one-line messages and ignores the rest. All output goes to stderr, so stdout stays clean for
+`--json` and pipes.
 """
 
 from __future__ import annotations
 
 import sys
 import time
-from typing import Any, Protocol
+from typing import Any
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -15,49 +17,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from rig.records import Estimate, TrialOutcome, TrialResult
+from rig.runner.sinks import NullSink, RunSink
 
-
-class ProgressReporter(Protocol):
-    """What the runner tells about its progress."""
-
-    def start(self, run_id: str, total: int, done: int) -> None:
-        """The run begins (or resumes with `done` trials already complete)."""
-        ...
-
-    def trial_started(self, trial_id: int, description: str) -> None:
-        """A trial begins."""
-        ...
-
-    def trial_finished(self, result: TrialResult, estimate: Estimate) -> None:
-        """A trial ended with `result`; `estimate` is the run's estimate after it."""
-        ...
-
-    def message(self, text: str) -> None:
-        """A one-line event (interlock, prompt, warning)."""
-        ...
-
-    def stop(self) -> None:
-        """The run ended (whatever the reason)."""
-        ...
-
-
-class SilentProgress:
-    """For `--json`: says nothing."""
-
-    def start(self, run_id: str, total: int, done: int) -> None:
-        pass
-
-    def trial_started(self, trial_id: int, description: str) -> None:
-        pass
-
-    def trial_finished(self, result: TrialResult, estimate: Estimate) -> None:
-        pass
-
-    def message(self, text: str) -> None:
-        pass
-
-    def stop(self) -> None:
-        pass
+# `--json`: the progress display says nothing.
+SilentProgress = NullSink
 
 
 def _result_line(r: TrialResult) -> str:
@@ -80,7 +43,7 @@ def _result_line(r: TrialResult) -> str:
     return "  ".join(parts)
 
 
-class PlainProgress:
+class PlainProgress(NullSink):
     """Not a TTY: one line per event, with elapsed wall time and an ETA."""
 
     def __init__(self, stream: Any = None) -> None:
@@ -98,9 +61,6 @@ class PlainProgress:
         self.started_at = time.monotonic()
         self._print(f"run {run_id}: {total} trials, {done} already done")
 
-    def trial_started(self, trial_id: int, description: str) -> None:
-        pass
-
     def trial_finished(self, result: TrialResult, estimate: Estimate) -> None:
         self.done += 1
         elapsed = time.monotonic() - self.started_at
@@ -113,11 +73,8 @@ class PlainProgress:
     def message(self, text: str) -> None:
         self._print(text)
 
-    def stop(self) -> None:
-        pass
 
-
-class LiveProgress:
+class LiveProgress(NullSink):
     """A TTY: a progress bar with ETA above a table of the latest trials and the current estimate."""
 
     def __init__(self, rows_shown: int = 12) -> None:
@@ -181,7 +138,7 @@ def _fmt(value: Any, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
-def make_progress(json_output: bool) -> ProgressReporter:
+def make_progress(json_output: bool) -> RunSink:
     """Silent for --json, live on a terminal, plain lines otherwise."""
     if json_output:
         return SilentProgress()

@@ -1,57 +1,61 @@
-"""What the runner writes while it runs: phase changes, servo commands, notes, per-tick rows.
+"""What the runner emits while it runs, handed to the run's sinks: phases, commands, notes, per-tick rows.
 
-A run whose log cannot be written stops (a fault), except inside the safe state, where logging is
-best effort: the first failure ends logging and the release goes on (`best_effort`). Warnings and
-errors also reach the progress display, which still works when the log does not.
+The recorder knows the sinks only as `rig.runner.sinks.RunSink`s. A run whose log cannot be written
+(a sink raises `LogWriteError`) stops (a fault), except inside the safe state, where logging is best
+effort: the first failure ends logging and the release goes on (`best_effort`). Warnings and errors
+also go out as one-line messages for people, which still go out when the log does not.
 """
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator, Mapping
-from operator import attrgetter, itemgetter
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any
 
 from rig.hw.seams import Clock, LoadCellSample, ServoState
 from rig.log.format import schemas
-from rig.log.writing.writer import LogWriteError, RunLogger
-from rig.records import LogLevel, LogMessage, ServoCommand, ServoCommandName, TrialPhase, TrialState
+from rig.log.writing.writer import LogWriteError
+from rig.records import (
+    Estimate,
+    LogLevel,
+    LogMessage,
+    ServoCommand,
+    ServoCommandName,
+    TrialPhase,
+    TrialResult,
+    TrialState,
+)
 from rig.runner.phases import PhaseMachine
-from rig.runner.progress import ProgressReporter
+from rig.runner.sinks import RunSink
 from rig.vocabulary import ServoRole
-
-# The load-cell log columns, taken without a Python-level call per sample.
-_FIRST, _SECOND = itemgetter(0), itemgetter(1)
-_SEQ, _RAW, _DEVICE_TIME_US = attrgetter("seq"), attrgetter("raw"), attrgetter("device_time_us")
 
 
 class RunRecorder:
-    """The run's log and progress lines, and the phase machine whose changes it logs."""
+    """Emits the run to its sinks, and keeps the phase machine whose changes it logs."""
 
-    def __init__(
-        self,
-        logger: RunLogger,
-        clock: Clock,
-        progress: ProgressReporter,
-        roles: Mapping[int, ServoRole],
-        *,
-        log_ticks: bool = True,
-    ) -> None:
-        self.log = logger
+    def __init__(self, sinks: Sequence[RunSink], clock: Clock, roles: Mapping[int, ServoRole]) -> None:
+        self.sinks = tuple(sinks)
         self.clock = clock
-        self.progress = progress
         self.roles = roles
-        # False for a logger that keeps nothing (`rig study`'s): the per-tick rows are then not built.
-        self.log_ticks = log_ticks
+        # Only these are offered the per-tick rows; with none, the runner does not build them.
+        self._tick_sinks = tuple(sink for sink in self.sinks if sink.wants_ticks)
         self.phases = PhaseMachine()
         self.failed: LogWriteError | None = None
         self._best_effort = False
 
-    def write(self, topic: str, payload: dict[str, object], time_ns: int | None = None) -> None:
+    @property
+    def wants_ticks(self) -> bool:
+        """Whether a sink takes the per-tick rows (and the link scenes) and logging still works."""
+        return bool(self._tick_sinks) and self.failed is None
+
+    def write(self, topic: str, payload: Mapping[str, Any], time_ns: int | None = None) -> None:
         """Log one message (now, unless `time_ns` is given); nothing once the log has failed."""
         if self.failed is not None:
             return
+        at_ns = self.clock.time_ns() if time_ns is None else time_ns
         try:
-            self.log.log(topic, self.clock.time_ns() if time_ns is None else time_ns, payload)
+            for sink in self.sinks:
+                sink.log(topic, at_ns, payload)
         except LogWriteError as exc:
             self.logger_failed(exc)
 
@@ -62,40 +66,41 @@ class RunRecorder:
         states: dict[int, ServoState],
     ) -> None:
         """One tick's load-cell samples (with their tare-corrected forces) and servo states."""
-        if self.failed is not None or not self.log_ticks:
+        if self.failed is not None:
             return
         try:
-            if samples:
-                # One column per `schemas.ROW_FIELDS` field, by name: no dict or object per sample.
-                self.log.log_columns(
-                    schemas.LOADCELL,
-                    map(_FIRST, tick_samples),
-                    seq=map(_SEQ, samples),
-                    raw=map(_RAW, samples),
-                    force_n=map(_SECOND, tick_samples),
-                    device_time_us=map(_DEVICE_TIME_US, samples),
-                )
-            roles = self.roles
-            for state in states.values():
-                self.log.log(
-                    schemas.SERVO_STATE,
-                    state.time_ns,
-                    schemas.servo_state_payload(state, roles.get(state.servo_id, "")),
-                )
+            for sink in self._tick_sinks:
+                sink.tick_rows(samples, tick_samples, states, self.roles)
         except LogWriteError as exc:
             self.logger_failed(exc)
+
+    def trial_started(self, trial_id: int, description: str) -> None:
+        """A trial begins."""
+        for sink in self.sinks:
+            sink.trial_started(trial_id, description)
+
+    def trial_finished(self, result: TrialResult, estimate: Estimate) -> None:
+        """A trial ended (its result and the estimate after it are logged by the runner)."""
+        for sink in self.sinks:
+            sink.trial_finished(result, estimate)
+
+    def message(self, text: str) -> None:
+        """A one-line event for people."""
+        for sink in self.sinks:
+            sink.message(text)
 
     def flush(self) -> None:
         """Wait until everything logged so far is written (end of a trial)."""
         try:
-            self.log.flush(wait=True)
+            for sink in self.sinks:
+                sink.flush()
         except LogWriteError as exc:
             self.logger_failed(exc)
 
     def logger_failed(self, exc: LogWriteError) -> None:
         """The log cannot be written: stop logging; outside the safe state, stop the run (a fault)."""
         self.failed = exc
-        self.progress.message(f"log write failed, logging stopped: {exc}")
+        self.message(f"log write failed, logging stopped: {exc}")
         if not self._best_effort:
             raise exc
 
@@ -126,16 +131,16 @@ class RunRecorder:
             self.phase(phase, trial_id, "safe_state")
 
     def note(self, level: LogLevel, text: str) -> None:
-        """A line on `/rig/log`; warnings and errors go to the progress display too."""
-        # The log itself may be what failed; the progress line below still tells.
+        """A line on `/rig/log`; warnings and errors also as a one-line message for people."""
+        # The log itself may be what failed; the one-line message below still tells.
         with contextlib.suppress(Exception):
             now = self.clock.time_ns()
             self.write(schemas.LOG, LogMessage(now, level, text).to_payload(), now)
         if level >= LogLevel.WARNING:
-            self.progress.message(text)
+            self.message(text)
 
     def announce(self, text: str, warning: bool = False) -> None:
-        """A line for the log (`/rig/log`, INFO or WARNING) that the progress display shows too."""
+        """A line for the log (`/rig/log`, INFO or WARNING) that also goes out as a one-line message."""
         self.note(LogLevel.WARNING if warning else LogLevel.INFO, text)
         if not warning:  # a warning is shown by `note` already
-            self.progress.message(text)
+            self.message(text)

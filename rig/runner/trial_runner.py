@@ -16,7 +16,7 @@ interrupt, then the log is finished and the journal saved. The stages of the saf
 from __future__ import annotations
 
 import traceback
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import assert_never
 
@@ -37,17 +37,16 @@ from rig.hw.session import RigSession
 from rig.inputs.protocol import Protocol, TrialPlan
 from rig.inputs.rig_config import RigConfig, nominal_loadcell_rate_hz
 from rig.log.format import schemas
-from rig.log.writing.writer import RunLogger
 from rig.records import LogLevel, ServoCommandName, TrialOutcome, TrialPhase, TrialResult, TrialWireStats
 from rig.runner.control_loop import ControlLoop
 from rig.runner.journal import RunJournal
 from rig.runner.link_view import LinkView
 from rig.runner.loaded_at_connect import PayoutVerdict, pay_out_verified
-from rig.runner.progress import ProgressReporter
 from rig.runner.recorder import RunRecorder
 from rig.runner.recovery import MAX_TRIAL_RETRIES, is_device_fault, recover
 from rig.runner.results import TrialMeasurements, nothing_measured, trial_result
 from rig.runner.run_estimates import RunEstimator
+from rig.runner.sinks import RunSink
 from rig.runner.step_context import BENDER_SPEED_RAD_S, StepContext
 from rig.runner.steps import STEPS
 from rig.runner.wire_counts import TrialWireCounter
@@ -83,12 +82,10 @@ class TrialRunner:
         protocol: Protocol,
         config: RigConfig,
         session: RigSession,
-        logger: RunLogger,
+        sinks: Sequence[RunSink],
         journal: RunJournal,
         estimator: RunEstimator,
-        progress: ProgressReporter,
         line_stiffness_n_per_m: float,
-        log_ticks: bool = True,
     ) -> None:
         self.protocol = protocol
         self.config = config
@@ -96,9 +93,7 @@ class TrialRunner:
         self.clock = session.clock
         self.journal = journal
         self.estimator = estimator
-        self.progress = progress
-        # `log_ticks` False: a logger that keeps nothing (`rig study`'s); the per-tick rows are not built.
-        self.recorder = RunRecorder(logger, session.clock, progress, session.roles, log_ticks=log_ticks)
+        self.recorder = RunRecorder(sinks, session.clock, session.roles)
         ceiling = config.limits.force_ceiling_n
         if protocol.force_ceiling_n is not None:
             ceiling = min(ceiling, protocol.force_ceiling_n)
@@ -310,7 +305,7 @@ class TrialRunner:
     def _run_trial(self, trial: TrialPlan, links: TrialWireCounter) -> TrialResult:
         self.trial = trial
         start_ns = self.clock.time_ns()
-        self.progress.trial_started(trial.trial_id, _describe(trial))
+        self.recorder.trial_started(trial.trial_id, _describe(trial))
         found = TrialMeasurements(joint_angles_rad=trial.joint_angles_rad)
         try:
             for step in trial.steps:
@@ -334,7 +329,7 @@ class TrialRunner:
         self.recorder.write(schemas.ESTIMATE, estimate.to_payload(), log_time)
         self.recorder.flush()
         self.journal.record_trial(result)
-        self.progress.trial_finished(result, estimate)
+        self.recorder.trial_finished(result, estimate)
         return result
 
     def _abort_trial(self, trial: TrialPlan, found: TrialMeasurements, exc: StepTimeoutError) -> None:

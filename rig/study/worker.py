@@ -1,11 +1,11 @@
 """One seed of a study: the protocol on a fresh simulated rig, k estimated every way, scored with the truth.
 
 `run_seed` is what a worker process (or a Dask worker) executes; it never raises for a failed run:
-whatever stops it becomes an aborted `RunRecord` with its reason. The run is the same
-`TrialRunner` that `rig run` drives, on the devices the study asks for, with its journal in a
-temporary directory and its log messages discarded: a study's evidence is its Parquet table, and
-an MCAP file per seed would cost a writer process and most of the run's time (`rig run --seed N`
-reproduces any seed with its full log).
+whatever stops it becomes an aborted `RunRecord` with its reason. The run is `rig run`'s
+(`rig.runner.execute.execute_run`), on the devices the study asks for, with its journal kept in memory
+(its estimates file in a temporary directory) and no sink: a study's evidence is its Parquet
+table, and an MCAP file per seed would cost a writer process and most of the run's time
+(`rig run --seed N` reproduces any seed with its full log).
 """
 
 from __future__ import annotations
@@ -13,23 +13,18 @@ from __future__ import annotations
 import math
 import tempfile
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, cast
 
 from model.design import StopReason
 from model.fit import DEFAULT_LEVEL
 from model.k_estimators import ESTIMATOR_NAMES, check_estimator, crlb_k, estimate_k
 from rig.errors import ExitCode
-from rig.log.writing.writer import RunLogger
 from rig.records import TrialKind, TrialOutcome, TrialResult
 from rig.rigs import open_simulated_rig
-from rig.runner.execute import RunRequest, prepare_run
+from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.journal import RunJournal
-from rig.runner.planning import TrialSchedule
-from rig.runner.progress import SilentProgress
-from rig.runner.trial_runner import TrialRunner
 from rig.sim.kinds import DeviceLevel
 from rig.sim.truth import WorldTruth
 from rig.study.series import score_series
@@ -108,35 +103,6 @@ class _UnsavedJournal(RunJournal):
         return None
 
 
-class _DiscardingLogger:
-    """Takes what the runner logs and keeps nothing (a study keeps its results, not its logs)."""
-
-    def __init__(self) -> None:
-        self.messages_logged = 0
-        self.live = None
-
-    def log(self, topic: str, log_time_ns: int, payload: Mapping[str, Any]) -> None:
-        self.messages_logged += 1
-
-    def log_many(self, topic: str, messages: Iterable[tuple[int, Any]]) -> None:
-        self.messages_logged += sum(1 for _ in messages)
-
-    def log_columns(self, topic: str, times_ns: Iterable[int], **columns: Iterable[Any]) -> None:
-        self.messages_logged += sum(1 for _ in times_ns)
-
-    def flush(self, *, wait: bool = True, fsync: bool = False, timeout_s: float = 30.0) -> None:
-        return None
-
-    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        return None
-
-    def add_attachment(self, *args: Any, **kwargs: Any) -> None:
-        return None
-
-    def finish(self, timeout_s: float = 60.0) -> None:
-        return None
-
-
 def run_seed(spec: StudySpec, seed: int) -> RunRecord:
     """Run the protocol with `seed` and score every estimator; a failure is an aborted record."""
     start = time.perf_counter()
@@ -156,38 +122,26 @@ def run_seed(spec: StudySpec, seed: int) -> RunRecord:
             planned = len(prepared.protocol.planned_trial_ids)
             try:
                 rig = open_simulated_rig(prepared, devices=spec.devices)
-                runner = TrialRunner(
-                    protocol=prepared.protocol,
-                    config=prepared.config,
-                    session=rig.session,
-                    logger=cast(RunLogger, _DiscardingLogger()),
-                    journal=prepared.journal,
-                    estimator=prepared.estimator,
-                    progress=SilentProgress(),
-                    line_stiffness_n_per_m=prepared.config.line_stiffness_n_per_m,
-                    log_ticks=False,  # the logger keeps nothing: do not build its per-tick rows
-                )
-                schedule = TrialSchedule(
-                    prepared.protocol, prepared.config, prepared.journal, runner.announce
-                )
-                outcome = runner.run(schedule)
-            finally:
+            except BaseException:
                 prepared.release()
+                raise
+            # No sink: the study keeps the report, no log, and the per-tick rows are not built.
+            report = execute_run(prepared, rig, log_file=False)
             world = rig.truth.snapshot().world
     except Exception as exc:  # a broken run is counted, never the end of the study
         return RunRecord(seed, "aborted", f"{type(exc).__name__}: {exc}", planned, 0, _since(start), ())
-    if outcome.exit_code == ExitCode.INTERRUPTED:
+    if report.exit_code == ExitCode.INTERRUPTED:
         raise KeyboardInterrupt  # Ctrl-C in this process (--jobs 1) stops the study, not just this run
-    results = outcome.new_results
-    aborted = outcome.exit_code != ExitCode.OK
-    stops = {block: summary.step.stop for block, summary in schedule.summaries.items()}
+    results = report.trials  # a fresh run's journal: this invocation's trials, in run order
+    aborted = report.exit_code != ExitCode.OK
+    stops = {summary.block: summary.step.stop for summary in report.design}
     joints = score_series(
         results, prepared.protocol.adaptive, stops, lambda trials: score_joints(trials, world, spec.level)
     )
     return RunRecord(
         seed=seed,
         status="aborted" if aborted else "completed",
-        reason=outcome.reason if aborted else None,
+        reason=report.reason if aborted else None,
         trials_planned=planned,
         trials_completed=len(results),
         wall_s=_since(start),

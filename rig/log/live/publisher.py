@@ -161,6 +161,11 @@ class LivePublisher:
         """The WebSocket address to open in Foxglove."""
         return f"ws://{self.host}:{self.port}"
 
+    @property
+    def has_subscribers(self) -> bool:
+        """Whether a client is subscribed to any topic (while none is, what is published is skipped)."""
+        return bool(self._subscribed) and self._closed is None
+
     def wants(self, topic: str) -> bool:
         """Whether a client is subscribed to `topic` (as the server process last reported)."""
         return topic in self._subscribed
