@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 from rig import __version__
 from rig.errors import ExitCode, InputError, RigError, one_line
-from rig.safety.interrupts import interrupts_held, terminate_as_interrupt
+from rig.safety.interrupts import interrupts_deferred, interrupts_held, terminate_as_interrupt
 
 # What other code may use: the entry point; its command modules are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
@@ -74,7 +74,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     terminate_as_interrupt()
     try:
-        parser = build_parser()
+        # Importing the commands takes most of a start-up. A Ctrl-C that lands inside importlib's
+        # module-lock cleanup (a weakref callback) is printed and swallowed there, and the command
+        # then ran on as if nothing came: so it waits until the imports are done.
+        with interrupts_deferred():
+            parser = build_parser()
         args = parser.parse_args(argv)
         handler = getattr(args, "handler", None)
         if handler is None:
