@@ -50,7 +50,7 @@ from rig.sim.object_devices import ObjectLoadCell, ObjectServoBus
 from rig.sim.physics.configuration_source import SimConfigurationSource
 from rig.sim.physics.link_presets import STREAM_LOADCELL_ARTEFACTS, SimPreset, make_preset, stream_rng
 from rig.sim.physics.world import ShaftLike, SimWorld
-from rig.sim.settings import require_simulated, simulation_section, simulation_settings
+from rig.sim.settings import SimulationConfig, require_simulated, simulation_section, simulation_settings
 from rig.sim.truth import RunTruth
 from rig.sim.virtual_clock import DEFAULT_EPOCH_NS, VirtualClock
 from rig.vocabulary import ConfigurationSourceKind, RigKind, TrialKind
@@ -210,9 +210,9 @@ def simulated_rig(
     clock = run_clock(realtime, invocation)
     match DeviceLevel(devices):  # ValueError for a name that is no level
         case DeviceLevel.BYTE:
-            behind, servos, load_cell = _byte_devices(config, preset, clock, seed)
+            behind, servos, load_cell = _byte_devices(config, sim, preset, clock, seed)
         case DeviceLevel.OBJECT:
-            behind, servos, load_cell = _object_devices(config, preset, clock, seed)
+            behind, servos, load_cell = _object_devices(config, sim, preset, clock, seed)
         case level:
             assert_never(level)
     world = behind.world
@@ -235,10 +235,9 @@ def simulated_rig(
 
 
 def _byte_devices(
-    config: RigConfig, preset: SimPreset, clock: VirtualClock, seed: int
+    config: RigConfig, sim: SimulationConfig, preset: SimPreset, clock: VirtualClock, seed: int
 ) -> tuple[SimulatedDevices, ServoBus, LoadCell]:
     """The byte-level emulators in the world, and the real drivers on them."""
-    sim = require_simulated(config)
     ids = [s.servo_id for s in config.servos.servos]
     bus = EmulatedBus.with_servos(
         clock, ids=ids, model=emulated_models(config), baud=config.servos.baud, firmware=sim.servo_firmware
@@ -277,10 +276,9 @@ def _byte_devices(
 
 
 def _object_devices(
-    config: RigConfig, preset: SimPreset, clock: VirtualClock, seed: int
+    config: RigConfig, sim: SimulationConfig, preset: SimPreset, clock: VirtualClock, seed: int
 ) -> tuple[SimulatedDevices, ServoBus, LoadCell]:
     """The object-level devices in the world (no bytes: timed faults and line-level options refused)."""
-    sim = require_simulated(config)
     if sim.faults:
         raise ConfigError(
             f"{config.source}: simulation/faults: the object-level devices have no bytes to corrupt; "
