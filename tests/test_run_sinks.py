@@ -51,7 +51,6 @@ class RecordingSink(NullSink):
     def tick_rows(
         self,
         samples: list[LoadCellSample],
-        tick_samples: list[tuple[int, float]],
         states: Mapping[int, ServoState],
         roles: Mapping[int, ServoRole],
     ) -> None:
@@ -192,3 +191,32 @@ def test_a_study_seed_runs_through_execute_run(monkeypatch: pytest.MonkeyPatch) 
     record = run_seed(StudySpec(str(SMOKE), None, DeviceLevel.OBJECT), 0)
     assert record.status == "completed" and record.trials_completed == record.trials_planned
     assert calls == [(0, False)]
+
+
+class SampleKeepingSink(NullSink):
+    """Keeps every load-cell sample it is offered, as it was offered."""
+
+    wants_ticks = True
+
+    def __init__(self) -> None:
+        self.samples: list[LoadCellSample] = []
+
+    def tick_rows(
+        self, samples: list[LoadCellSample], states: Mapping[int, ServoState], roles: Mapping[int, ServoRole]
+    ) -> None:
+        self.samples += samples
+
+
+def test_a_load_cell_sample_keeps_one_shape_from_the_driver_to_the_log(tmp_path: Path) -> None:
+    """The sinks get the driver's `LoadCellSample`s (tare taken off), and the log holds exactly those."""
+    kept = SampleKeepingSink()
+    report = _run(tmp_path, kept)
+    assert kept.samples and all(type(sample) is LoadCellSample for sample in kept.samples)
+    with Path(report.log).open("rb") as f:
+        logged = [
+            (message.log_time, json.loads(message.data))
+            for _schema, _channel, message in make_reader(f).iter_messages(topics=[schemas.LOADCELL])
+        ]
+    assert [(t, p.get("seq"), p["raw"], p["force_n"], p.get("device_time_us")) for t, p in logged] == [
+        (s.time_ns, s.seq, s.raw, s.force_n, s.device_time_us) for s in kept.samples
+    ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, cast
 
+from rig.hw.seams import LoadCellSample
 from rig.hw.session import RigSession
 from rig.inputs.protocol import RampSettings
 from rig.inputs.rig_config import load_rig_config
@@ -36,8 +37,8 @@ class _Log(NullSink):
     def log(self, topic: str, time_ns: int, payload: Any) -> None:
         self.messages.append((topic, time_ns, payload))
 
-    def tick_rows(self, samples: Any, tick_samples: Any, states: Any, roles: Any) -> None:
-        self.messages.append(("ticks", 0, [list(samples), list(tick_samples), dict(states)]))
+    def tick_rows(self, samples: Any, states: Any, roles: Any) -> None:
+        self.messages.append(("ticks", 0, [list(samples), dict(states)]))
 
 
 def _loop_on_a_simulated_rig() -> tuple[RigSession, ControlLoop, RunRecorder]:
@@ -68,7 +69,7 @@ def test_release_waits_from_its_own_copy_and_leaves_the_loop_alone_until_adopted
     release = LineRelease(session, recorder, RAMP, control_period_s=0.01, tare_n=0.0, last=loop.reading())
     # What a step or the ramp might do to the loop's readings after the release was made:
     loop.states = {}
-    loop.tick_samples.append((0, 1e6))
+    loop.tick_samples.append(LoadCellSample(0, 0, 1e6))
     loop.force_n = 1e6
 
     assert release.run(zero_rad) == zero_rad

@@ -34,12 +34,12 @@ LATE_TICK_FRACTION = 0.1
 # Warnings for late ticks: one per tick late by at least a period, up to this many per trial.
 MAX_LATE_TICK_NOTES = 10
 
-_SECOND = operator.itemgetter(1)
+_FORCE_N = operator.attrgetter("force_n")
 
 
-def tare_corrected(samples: list[LoadCellSample], tare_n: float) -> list[tuple[int, float]]:
-    """(time_ns, force minus tare) of each sample."""
-    return [(s.time_ns, s.force_n - tare_n) for s in samples]
+def tare_corrected(samples: list[LoadCellSample], tare_n: float) -> list[LoadCellSample]:
+    """Each sample with the tare taken off its force: the one shape a sample has up to the log."""
+    return [LoadCellSample(s.time_ns, s.raw, s.force_n - tare_n, s.seq, s.device_time_us) for s in samples]
 
 
 @dataclass(frozen=True)
@@ -47,7 +47,7 @@ class Reading:
     """What the last tick saw: every servo's state, the tare-corrected samples, the latest tension."""
 
     states: dict[int, ServoState]
-    tick_samples: list[tuple[int, float]]
+    tick_samples: list[LoadCellSample]
     force_n: float
 
 
@@ -74,7 +74,7 @@ class ControlLoop:
         self.tare_n = 0.0
         self.force_n = 0.0  # latest tare-corrected tension
         self.states: dict[int, ServoState] = {}
-        self.tick_samples: list[tuple[int, float]] = []  # (time_ns, tare-corrected force) this tick
+        self.tick_samples: list[LoadCellSample] = []  # this tick's samples, tare-corrected
         self._ticks = 0
         # The servos' watchdog-trip side, found once per servo object (a Protocol isinstance each
         # tick cost about 1 % of a simulated run, benchmarks/bench_runner.py).
@@ -189,7 +189,7 @@ class ControlLoop:
         """Raise InterlockTripped if this tick's samples or servo states trip an interlock."""
         now_ns = self.clock.monotonic_ns()
         reason = (
-            self.ceiling.check(max(map(_SECOND, self.tick_samples), default=self.force_n))
+            self.ceiling.check(max(map(_FORCE_N, self.tick_samples), default=self.force_n))
             or self.health.check(self.states)
             or self.current_limit.check(self.states, now_ns)
         )
@@ -200,8 +200,8 @@ class ControlLoop:
         """Take one read's samples (tare-corrected) and log them with the servo states."""
         self.tick_samples = tare_corrected(samples, self.tare_n)
         if samples:
-            self.force_n = self.tick_samples[-1][1]
-        self.recorder.tick_rows(samples, self.tick_samples, self.states)
+            self.force_n = self.tick_samples[-1].force_n
+        self.recorder.tick_rows(self.tick_samples, self.states)
 
     def reading(self) -> Reading:
         """A copy of what the last tick saw (for the release, which must not share it)."""

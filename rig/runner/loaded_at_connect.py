@@ -128,7 +128,7 @@ def pay_out_verified(ctx: StepContext, reading_n: float) -> PayoutResult:
         )
         while loop.clock.monotonic_ns() < end_ns or 0 < len(forces) < AVERAGE_SAMPLES:
             loop.tick(interlocks=False)
-            forces += [f for _, f in loop.tick_samples]
+            forces += [s.force_n for s in loop.tick_samples]
             if loop.clock.monotonic_ns() > end_ns + round(1e9):  # a second past: the cell is silent
                 break
         return sum(forces) / len(forces) if forces else None

@@ -24,6 +24,7 @@ from model.slipped_joint import moved_joint, noise_threshold_rad
 from rig.errors import InterlockTripped, StepTimeoutError
 from rig.hw.configuration.factory import sees_slips
 from rig.hw.dxl.units import RAD_PER_PULSE, RAD_S_PER_VELOCITY_UNIT
+from rig.hw.seams import LoadCellSample
 from rig.inputs.protocol import TrialPlan
 from rig.log.format import schemas
 from rig.records import LogLevel, ServoCommandName, SlipMessage, TrialOutcome, TrialPhase
@@ -160,17 +161,17 @@ class DetectorFeed:
         self,
         params: DetectorParams,
         start_ns: int,
-        already_read: list[tuple[int, float]],
+        already_read: list[LoadCellSample],
         confirm: Callable[[SlipEvent], bool],
     ) -> None:
         self.params = params
         self.start_ns = start_ns
-        self._pending = [(t_ns, force) for t_ns, force in already_read if t_ns >= start_ns]
+        self._pending = [s for s in already_read if s.time_ns >= start_ns]
         self.confirm = confirm
         self.state: DetectorState = detector_init(params)
         self.peak_n = 0.0
         self.event: SlipEvent | None = None
-        self.after_event: list[tuple[int, float]] = []  # samples of the detecting tick after the event
+        self.after_event: list[LoadCellSample] = []  # samples of the detecting tick after the event
         self.first_ns: int | None = None  # the first and last sample fed, and how many
         self.last_ns = 0
         self.fed = 0
@@ -181,14 +182,14 @@ class DetectorFeed:
             return None
         return (self.fed - 1) / ((self.last_ns - self.first_ns) * 1e-9)
 
-    def feed(self, tick_samples: list[tuple[int, float]]) -> SlipEvent | None:
+    def feed(self, tick_samples: list[LoadCellSample]) -> SlipEvent | None:
         """Step the detector over one tick's samples; the confirmed slip, if one fired."""
         params = self.params
         samples = self._pending + tick_samples
         self._pending = []
-        fed = [i for i, (t_ns, _) in enumerate(samples) if t_ns >= self.start_ns]
-        times = [samples[i][0] for i in fed]
-        forces = [samples[i][1] for i in fed]
+        fed = [i for i, s in enumerate(samples) if s.time_ns >= self.start_ns]
+        times = [samples[i].time_ns for i in fed]
+        forces = [samples[i].force_n for i in fed]
         if times:
             if self.first_ns is None:
                 self.first_ns = times[0]
@@ -223,8 +224,9 @@ class DetectorFeed:
         while loop.clock.monotonic_ns() < stop:
             loop.tick()
             samples += loop.tick_samples
-        window = [(t_ns, force) for t_ns, force in samples if t_ns <= end_ns]
-        _, drops = further_drops(self.params, self.state, [t for t, _ in window], [f for _, f in window])
+        window = [s for s in samples if s.time_ns <= end_ns]
+        times, forces = [s.time_ns for s in window], [s.force_n for s in window]
+        _, drops = further_drops(self.params, self.state, times, forces)
         return drops
 
 

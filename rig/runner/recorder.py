@@ -62,15 +62,14 @@ class RunRecorder:
     def tick_rows(
         self,
         samples: list[LoadCellSample],
-        tick_samples: list[tuple[int, float]],
         states: dict[int, ServoState],
     ) -> None:
-        """One tick's load-cell samples (with their tare-corrected forces) and servo states."""
+        """One tick's load-cell samples (tare-corrected) and servo states."""
         if self.failed is not None:
             return
         try:
             for sink in self._tick_sinks:
-                sink.tick_rows(samples, tick_samples, states, self.roles)
+                sink.tick_rows(samples, states, self.roles)
         except LogWriteError as exc:
             self.logger_failed(exc)
 

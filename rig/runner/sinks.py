@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import pickle
 from collections.abc import Mapping
-from operator import attrgetter, itemgetter
+from operator import attrgetter
 from typing import Any, Protocol
 
 from rig.hw.seams import Clock, LoadCellSample, ServoState
@@ -27,8 +27,8 @@ from rig.records import Estimate, LogLevel, LogMessage, TrialResult
 from rig.vocabulary import ServoRole
 
 # The load-cell log columns, taken without a Python-level call per sample.
-_FIRST, _SECOND = itemgetter(0), itemgetter(1)
-_SEQ, _RAW, _DEVICE_TIME_US = attrgetter("seq"), attrgetter("raw"), attrgetter("device_time_us")
+_TIME_NS, _SEQ, _RAW = attrgetter("time_ns"), attrgetter("seq"), attrgetter("raw")
+_FORCE_N, _DEVICE_TIME_US = attrgetter("force_n"), attrgetter("device_time_us")
 
 
 class RunSink(Protocol):
@@ -55,11 +55,10 @@ class RunSink(Protocol):
     def tick_rows(
         self,
         samples: list[LoadCellSample],
-        tick_samples: list[tuple[int, float]],
         states: Mapping[int, ServoState],
         roles: Mapping[int, ServoRole],
     ) -> None:
-        """One tick's load-cell samples with their (time, tare-corrected force), and servo states."""
+        """One tick's load-cell samples (tare-corrected: the force the log records) and servo states."""
         ...
 
     def trial_started(self, trial_id: int, description: str) -> None:
@@ -107,7 +106,6 @@ class NullSink:
     def tick_rows(
         self,
         samples: list[LoadCellSample],
-        tick_samples: list[tuple[int, float]],
         states: Mapping[int, ServoState],
         roles: Mapping[int, ServoRole],
     ) -> None:
@@ -154,7 +152,6 @@ class McapSink(NullSink):
     def tick_rows(
         self,
         samples: list[LoadCellSample],
-        tick_samples: list[tuple[int, float]],
         states: Mapping[int, ServoState],
         roles: Mapping[int, ServoRole],
     ) -> None:
@@ -163,10 +160,10 @@ class McapSink(NullSink):
             # One column per `schemas.LoadCellRow` field, by name: no dict or object per sample.
             log.log_columns(
                 schemas.LOADCELL,
-                map(_FIRST, tick_samples),
+                map(_TIME_NS, samples),
                 seq=map(_SEQ, samples),
                 raw=map(_RAW, samples),
-                force_n=map(_SECOND, tick_samples),
+                force_n=map(_FORCE_N, samples),
                 device_time_us=map(_DEVICE_TIME_US, samples),
             )
         for state in states.values():
@@ -209,15 +206,14 @@ class LiveSink(NullSink):
     def tick_rows(
         self,
         samples: list[LoadCellSample],
-        tick_samples: list[tuple[int, float]],
         states: Mapping[int, ServoState],
         roles: Mapping[int, ServoRole],
     ) -> None:
         if not self.publisher.has_subscribers:
             return
         rows: list[tuple[str, int, int, Any]] = [
-            (schemas.LOADCELL, t, t, (s.seq, s.raw, force_n, s.device_time_us))  # `LoadCellRow`'s order
-            for s, (t, force_n) in zip(samples, tick_samples, strict=True)
+            (schemas.LOADCELL, s.time_ns, s.time_ns, (s.seq, s.raw, s.force_n, s.device_time_us))
+            for s in samples  # the payload in the loadcell row's field order
         ]
         rows += [
             (

@@ -47,7 +47,7 @@ def tare(ctx: StepContext, step: StepSpec, trial: TrialPlan, found: TrialMeasure
     end = loop.clock.monotonic_ns() + round(settle_s * 1e9)
     while loop.clock.monotonic_ns() < end:
         loop.tick()
-        raw_forces += [f for _, f in loop.tick_samples]
+        raw_forces += [s.force_n for s in loop.tick_samples]
     if not raw_forces:
         raise StaleDataError(f"no load-cell samples during the {settle_s:.2f} s tare window")
     tare_n = sum(raw_forces) / len(raw_forces)

@@ -234,7 +234,7 @@ class TrialRunner:
         travel in a direction nobody has verified yet; the payout sets the winch's zero-tension angle
         (`pay_out_verified`). The safe state's load-cell check then says whether the line ended slack.
         """
-        samples = [f for _, f in self.loop.tick_samples]
+        samples = [s.force_n for s in self.loop.tick_samples]
         reading_n = sum(samples) / len(samples)
         limits = self.config.limits
         if abs(reading_n) <= limits.zero_tolerance_n:

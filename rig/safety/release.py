@@ -245,6 +245,6 @@ class LineRelease:
             samples = []
         self.tick_samples = tare_corrected(samples, self.tare_n)
         if samples:
-            self.force_n = self.tick_samples[-1][1]
+            self.force_n = self.tick_samples[-1].force_n
             self._cell_answered = True
-        self.recorder.tick_rows(samples, self.tick_samples, self.states)
+        self.recorder.tick_rows(self.tick_samples, self.states)
