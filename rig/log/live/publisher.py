@@ -1,8 +1,8 @@
 """Live view: the run's topics served over the Foxglove WebSocket protocol (`foxglove-sdk`).
 
 `LivePublisher` starts the server in a child process (`rig.log.live.server_process`) that advertises every
-topic of `rig.log.format.schemas.TOPICS` (the same schema names and JSON Schemas as the MCAP file). A
-`RunLogger` given the publisher hands it each batch exactly as it pickled it for the MCAP writer
+topic of `rig.log.format.schemas.TOPICS` (the same schema names and JSON Schemas as the MCAP file). The
+run's live sink (`rig.runner.sinks.LiveSink`) hands it batches pickled as the MCAP writer's are
 (`publish_pickled`), one pipe write per batch and only while some client subscribes to something:
 the JSON encoding, the subscription checks and the hand-over to the server all happen in the child,
 so the acquisition loop neither encodes twice nor shares its GIL with the view. Nothing waits for a
@@ -140,7 +140,6 @@ class LivePublisher:
         self.failure: str | None = None  # why the server process could not serve
         self._closed_event = threading.Event()
         self._closed: LiveStats | None = None
-        self._close_hooks: list[Callable[[], None]] = []
         # The child starts (imports foxglove, binds) while this process goes on with the run.
         topics = [(t, spec.schema_name, spec.schema_bytes) for t, spec in schemas.TOPICS.items()]
         self._send(pickle.dumps(("topics", topics, dict(schemas.ROW_FIELDS))), 0, wait_s=START_TIMEOUT_S)
@@ -170,14 +169,10 @@ class LivePublisher:
         """Whether a client is subscribed to `topic` (as the server process last reported)."""
         return topic in self._subscribed
 
-    def add_close_hook(self, hook: Callable[[], None]) -> None:
-        """Call `hook` first thing in `close()` (the logger hands over its pending batch)."""
-        self._close_hooks.append(hook)
-
     def publish_pickled(self, frame: bytes, count: int) -> None:
         """Hand over `count` messages pickled as `("batch", [(topic, log_ns, publish_ns, payload), ...])`.
 
-        What the MCAP writer gets (`RunLogger` passes the same bytes). Skipped while no client
+        The form the MCAP writer's batches take. Skipped while no client
         subscribes to anything; dropped (and counted) if the pipe has no room.
         """
         if self._subscribed and self._closed is None:
@@ -247,9 +242,6 @@ class LivePublisher:
         """Publish what is handed over (for at most `timeout_s`), stop the server; idempotent."""
         if self._closed is not None:
             return self._closed
-        for hook in self._close_hooks:
-            hook()
-        self._close_hooks.clear()
         closed = self.failure is None and self._send(pickle.dumps(("close",)), 0, wait_s=timeout_s)
         if not (closed and self._closed_event.wait(timeout_s + self._stop_timeout_s + 1.0)):
             # The server process is behind or stuck: what it has not accounted for is lost.

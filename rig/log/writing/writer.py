@@ -27,7 +27,7 @@ import weakref
 from collections.abc import Callable, Iterable, Mapping
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from mcap.writer import __version__ as MCAP_VERSION
 
@@ -37,9 +37,6 @@ from rig.hw.seams import Clock
 from rig.log.child_process import start_child
 from rig.log.format import schemas
 from rig.log.writing.writer_process import COMPRESSION
-
-if TYPE_CHECKING:
-    from rig.log.live.publisher import LivePublisher
 
 LIBRARY = f"rig-logger/{rig.__version__} mcap-python/{MCAP_VERSION}"
 DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes; periodic flushes usually close chunks first
@@ -79,8 +76,6 @@ class RunLogger:
     :param max_pending: queued messages above which `log()` waits for the writer to catch up.
     :param max_file_bytes: the most the file may hold; the writer's writes beyond it fail (as on a
         full disk) and the logger raises `LogWriteError`. None: no limit but the disk's.
-    :param live: a live view that gets every batch too (the bytes pickled for the writer process,
-        while a client subscribes to something; `rig.log.live.publisher`).
     """
 
     def __init__(
@@ -94,7 +89,6 @@ class RunLogger:
         strict: bool | None = None,
         max_pending: int = DEFAULT_MAX_PENDING,
         max_file_bytes: int | None = None,
-        live: LivePublisher | None = None,
     ) -> None:
         if compression not in COMPRESSION:
             raise ValueError(f"compression: {compression!r} not allowed; allowed: {', '.join(COMPRESSION)}")
@@ -118,9 +112,6 @@ class RunLogger:
         self._finish_lock = threading.Lock()
         self._finished = False
         self.messages_logged = 0  # accepted by log()
-        self.live = live
-        if live is not None:  # what is still in the batch when the view closes goes to it first
-            live.add_close_hook(self._send_batch)
 
         file_fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         child = start_child(
@@ -330,9 +321,6 @@ class RunLogger:
                 self._release(request[1])
             return
         data = pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL)
-        live = self.live
-        if count and live is not None:
-            live.publish_pickled(data, count)  # the same bytes: no second encoding in this process
         self._sent += count
         try:
             self._requests.send_bytes(data)
