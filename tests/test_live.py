@@ -380,10 +380,11 @@ def test_the_foxglove_layout_names_only_logged_topics_and_fields():
     [(1, 120268, 0.00335, 2000), (2, -5, None, 3), (3, 0, -0.0, 4), (4, 1, 1.5e-7, 5), (5, 1, 1e300, 6)],
 )
 def test_a_load_cell_row_is_published_as_the_object_the_file_holds(row):
-    from rig.log.live.server_process import row_encoder
+    from rig.log.format.encoding import row_encoder
+    from rig.log.live.server_process import _DUMPS
 
     fields = schemas.ROW_FIELDS[schemas.LOADCELL]
-    assert json.loads(row_encoder(fields)(row)) == schemas.row_payload(schemas.LOADCELL, row)
+    assert json.loads(row_encoder(fields, _DUMPS)(row)) == schemas.row_payload(schemas.LOADCELL, row)
 
 
 def test_rig_run_live_prints_the_address_and_logs_the_counts(tmp_path, protocol_file, run_cli):

@@ -15,6 +15,7 @@ from mcap.reader import make_reader
 
 from rig.hw.seams import LoadCellSample, ServoState
 from rig.log.format import schemas as S
+from rig.log.format.encoding import MESSAGE_ENCODING, SCHEMA_ENCODING
 from rig.log.format.examples import example_payloads
 from rig.records import (
     Estimate,
@@ -351,8 +352,8 @@ def test_every_payload_of_a_default_run_is_javascript_exact_and_valid_against_it
     counts: dict[str, int] = {}
     with default_run_log.open("rb") as f:
         for schema, channel, message in make_reader(f).iter_messages():
-            assert schema is not None and schema.encoding == S.SCHEMA_ENCODING, channel.topic
-            assert channel.message_encoding == S.MESSAGE_ENCODING
+            assert schema is not None and schema.encoding == SCHEMA_ENCODING, channel.topic
+            assert channel.message_encoding == MESSAGE_ENCODING
             if schema.id not in validators:
                 advertised = json.loads(schema.data)
                 assert advertised == S.TOPICS[channel.topic].schema, channel.topic

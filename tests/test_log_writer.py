@@ -316,9 +316,11 @@ def test_a_run_killed_with_sigkill_keeps_every_flushed_message(tmp_path):
 
 
 def test_the_writer_process_encodes_load_cell_rows_exactly_as_the_json_encoder():
-    from rig.log.writing.writer_process import _DUMPS, _loadcell_row_json
+    from rig.log.format.encoding import row_encoder
+    from rig.log.writing.writer_process import _DUMPS
 
     fields = S.ROW_FIELDS[S.LOADCELL]
+    encode = row_encoder(fields, _DUMPS)
     floats = [0.0, -0.0, 5e-324, 1.7976931348623157e308, 0.1 + 0.2, -7.25, 1e16, 1e-7, 123456.789]
     for i, force in enumerate(floats):
         for seq, device_us in ((None, None), (i, None), (None, 2**40 + i), (2**33, 7)):
@@ -326,15 +328,24 @@ def test_the_writer_process_encodes_load_cell_rows_exactly_as_the_json_encoder()
                 raw=(-1) ** i * 2**i, force_n=force, seq=seq, device_time_us=device_us
             )
             row = tuple(payload.get(field) for field in fields)
-            fast = _loadcell_row_json(row)
-            if seq is None or device_us is None:
-                assert fast is None  # a missing value is left out: the JSON encoder's job
-                assert S.row_payload(S.LOADCELL, row) == payload and None not in payload.values()
-            else:
-                assert fast == _DUMPS(payload).encode()
-    # Anything but exact types goes to the JSON encoder (which rejects NaN).
-    unusual = [(True, 1, 1.0, None), (1, 1, 1, None), (1, 1, float("nan"), None), (1, 1.0, 1.0, None)]
-    assert [_loadcell_row_json(row) for row in unusual] == [None] * len(unusual)
+            assert S.row_payload(S.LOADCELL, row) == payload and None not in payload.values()
+            assert encode(row) == _DUMPS(payload).encode()  # a missing value is left out
+    # Other types go through the JSON encoder, as their payload would; it rejects NaN.
+    for row in [(True, 1, 1.0, None), (1, 1, 1, None), (1, 1.0, 1.0, None), (10**400, 1, 1.0, 2)]:
+        assert encode(row) == _DUMPS(S.row_payload(S.LOADCELL, row)).encode()
+    with pytest.raises(ValueError):
+        encode((1, 1, float("nan"), None))
+
+
+def test_the_writer_process_starts_without_building_the_schemas():
+    """The writer child takes the schemas from its parent: importing it must not import the schemas
+    module, nor the records and the model the schemas are built from (a third of a second a run)."""
+    code = (
+        "import sys, rig.log.writing.writer_process; "
+        "print(sorted(m for m in ('rig.log.format.schemas', 'model', 'numpy') if m in sys.modules))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]"
 
 
 def test_log_columns_rows_write_the_same_json_as_log_and_a_bad_row_is_reported(tmp_path):

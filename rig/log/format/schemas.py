@@ -50,8 +50,6 @@ from rig.records import (
     stamp_name,
 )
 
-MESSAGE_ENCODING = "json"
-SCHEMA_ENCODING = "jsonschema"
 MAX_SAFE_INT = 2**53 - 1  # largest integer a JavaScript double holds exactly
 
 LOADCELL = "/rig/loadcell"
@@ -441,6 +439,20 @@ ROW_FIELDS: dict[str, tuple[str, ...]] = {LOADCELL: ("seq", "raw", "force_n", "d
 def row_payload(topic: str, row: tuple[Any, ...]) -> dict[str, Any]:
     """The payload of a row of `topic` (`ROW_FIELDS`): its fields by name, None values left out."""
     return present(dict(zip(ROW_FIELDS[topic], row, strict=True)))
+
+
+TopicsRequest = tuple[str, list[tuple[str, str, bytes]], dict[str, tuple[str, ...]]]
+
+
+def topics_request() -> TopicsRequest:
+    """The first request of a log child process (the MCAP writer, the live server).
+
+    `("topics", [(topic, schema_name, schema_bytes), ...], {topic: row_fields})`: every topic's
+    schema, and the fields of the topics logged as rows. The children take them from here rather
+    than import this module, which would cost each of them a third of a second at every start.
+    """
+    topics = [(topic, spec.schema_name, spec.schema_bytes) for topic, spec in TOPICS.items()]
+    return ("topics", topics, dict(ROW_FIELDS))
 
 
 def servo_state(

@@ -141,8 +141,7 @@ class LivePublisher:
         self._closed_event = threading.Event()
         self._closed: LiveStats | None = None
         # The child starts (imports foxglove, binds) while this process goes on with the run.
-        topics = [(t, spec.schema_name, spec.schema_bytes) for t, spec in schemas.TOPICS.items()]
-        self._send(pickle.dumps(("topics", topics, dict(schemas.ROW_FIELDS))), 0, wait_s=START_TIMEOUT_S)
+        self._send(pickle.dumps(schemas.topics_request()), 0, wait_s=START_TIMEOUT_S)
         self._reader = threading.Thread(target=self._read_replies, name="rig-live-replies", daemon=True)
         self._reader.start()
 

@@ -130,6 +130,7 @@ class RunLogger:
         request_write, reply_read = child.request_fd, child.reply_fd
         self._requests = Connection(request_write, readable=False)
         self._replies = Connection(reply_read, writable=False)
+        self._send(schemas.topics_request())  # the schemas, so that the child need not build them
         self._reader = threading.Thread(
             target=self._read_replies, name=f"rig-logger {self.path.name}", daemon=True
         )

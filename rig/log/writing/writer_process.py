@@ -6,6 +6,10 @@ It reads pickled requests from one pipe and answers on another.
 
 Requests (parent -> child), and the replies (child -> parent) they get:
 
+* ``("topics", [(topic, schema_name, schema_bytes), ...], {topic: row_fields})``, always first
+  (`rig.log.format.schemas.topics_request`): the schemas to register, and the topics whose
+  payloads may come as rows; no reply. The child never imports the schemas module: building the
+  schemas imports the records they describe, which would cost a third of a second per run.
 * ``("batch", [(topic, log_ns, publish_ns, payload), ...])`` -> ``("written", n)`` once written
 * ``("flush", token, fsync)`` -> ``("done", token)``
 * ``("metadata", name, data)``, ``("attachment", args)`` -> no reply
@@ -25,19 +29,19 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import pickle
 import resource
 import signal
 import sys
 import time
+from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Any, BinaryIO
 
 from mcap.writer import CompressionType, Writer
 
-from rig.log.format import schemas
+from rig.log.format.encoding import MESSAGE_ENCODING, SCHEMA_ENCODING, row_encoder
 from rig.log.format.log_format import METADATA_NAME, format_metadata
 
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
@@ -78,6 +82,8 @@ class WriterProcess:
         self._writer.add_metadata(METADATA_NAME, format_metadata())
         self._file.flush()
         self._interval_ns = flush_interval_ns
+        self._schemas: dict[str, tuple[str, bytes]] = {}  # topic -> (schema name, schema), from "topics"
+        self._row_encoders: dict[str, Callable[[tuple[Any, ...]], bytes]] = {}
         self._channels: dict[str, int] = {}
         self._sequences: dict[int, int] = {}
         self._last_flush_log_ns: int | None = None
@@ -107,6 +113,11 @@ class WriterProcess:
                 op = request[0]
                 if op == "batch":
                     self._write_batch(request[1])
+                elif op == "topics":
+                    self._schemas = {topic: (name, schema) for topic, name, schema in request[1]}
+                    self._row_encoders = {
+                        topic: row_encoder(row, _DUMPS) for topic, row in request[2].items()
+                    }
                 elif op == "flush":
                     self._flush(fsync=request[2])
                     self._reply(("done", request[1]))
@@ -133,7 +144,7 @@ class WriterProcess:
 
     def _write_batch(self, batch: list[tuple[str, int, int, Any]]) -> None:
         dumps = _DUMPS
-        loadcell_row_json = _loadcell_row_json
+        row_encoders = self._row_encoders
         writer = self._writer
         channels = self._channels
         sequences = self._sequences
@@ -143,12 +154,8 @@ class WriterProcess:
             if channel_id is None:
                 channel_id = self._register(topic)
             try:
-                if type(payload) is tuple:  # a row: the values of schemas.ROW_FIELDS[topic], in order
-                    data = (topic == schemas.LOADCELL and loadcell_row_json(payload)) or dumps(
-                        schemas.row_payload(topic, payload)
-                    ).encode()
-                else:
-                    data = dumps(payload).encode()
+                # A tuple is a row: the values of its topic's row fields, in order.
+                data = row_encoders[topic](payload) if type(payload) is tuple else dumps(payload).encode()
             except (ValueError, TypeError, OverflowError) as error:
                 self._reply(("error", f"{topic} message at log time {log_ns} not written: {error}"))
                 continue
@@ -165,9 +172,9 @@ class WriterProcess:
         self._reply(("written", len(batch)))
 
     def _register(self, topic: str) -> int:
-        spec = schemas.TOPICS[topic]
-        schema_id = self._writer.register_schema(spec.schema_name, schemas.SCHEMA_ENCODING, spec.schema_bytes)
-        channel_id = self._writer.register_channel(topic, schemas.MESSAGE_ENCODING, schema_id)
+        schema_name, schema = self._schemas[topic]
+        schema_id = self._writer.register_schema(schema_name, SCHEMA_ENCODING, schema)
+        channel_id = self._writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
         self._channels[topic] = channel_id
         self._sequences[channel_id] = 0
         return channel_id
@@ -204,23 +211,6 @@ class WriterProcess:
 
 
 _DUMPS = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
-_INT_OR_NONE = (int, type(None))
-
-
-def _loadcell_row_json(row: tuple[Any, ...]) -> bytes | None:
-    """A `/rig/loadcell` row as `_DUMPS` encodes its dict, byte for byte, ~3x faster; None if unusual.
-
-    Only exact types take this path (ints or None, a finite float); anything else goes through the
-    JSON encoder, which also raises for what JSON cannot hold.
-    """
-    seq, raw, force, device_us = row
-    if type(raw) is not int or type(force) is not float or not math.isfinite(force):
-        return None
-    if type(seq) not in _INT_OR_NONE or type(device_us) not in _INT_OR_NONE:
-        return None
-    if seq is None or device_us is None:
-        return None  # the encoder leaves the missing field out
-    return f'{{"seq":{seq},"raw":{raw},"force_n":{force!r},"device_time_us":{device_us}}}'.encode()
 
 
 def main(argv: list[str]) -> int:
