@@ -5,6 +5,7 @@ from rig.exports import lazy_names
 # The modules other packages may import; the others are private to this package
 # (import-linter contract "private modules stay private", pyproject.toml).
 PUBLIC_MODULES = (
+    "encoding",
     "examples",
     "link_scene",
     "log_format",
