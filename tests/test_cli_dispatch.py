@@ -4,10 +4,13 @@ its options, and it dispatches to a handler; unknown commands and options exit 2
 from __future__ import annotations
 
 import argparse
+import subprocess
+import sys
 
 import pytest
 
-from rig.cli import COMMAND_MODULES, build_parser, main
+from rig.cli import build_parser, main
+from rig.cli.commands import COMMANDS as COMMAND_SUMMARIES
 
 
 def _subcommands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
@@ -25,7 +28,7 @@ IDS = [" ".join(path) for path, _ in COMMANDS]
 
 def test_every_command_module_registers_its_command():
     top = {path[0] for path, _ in COMMANDS}
-    assert top == set(COMMAND_MODULES)
+    assert top == set(COMMAND_SUMMARIES)
 
 
 def test_top_level_help_lists_every_command(capsys):
@@ -33,7 +36,7 @@ def test_top_level_help_lists_every_command(capsys):
         main(["--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    for name in COMMAND_MODULES:
+    for name in COMMAND_SUMMARIES:
         assert f"\n    {name} " in out or f"\n    {name}\n" in out, name
 
 
@@ -77,3 +80,25 @@ def test_a_command_runs_through_dispatch(capsys, tmp_path):
     data.write_text("distance_m,mass_kg\n0.05,3.2\n0.06,2.7\n0.08,2.0\n")
     assert main(["fit", str(data), "--radius-m", "0.01", "--json"]) == 0
     assert '"k"' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "loaded"),
+    [(["--help"], set()), (["fit", "--help"], {"rig.cli.fit"}), (["sim", "--help"], {"rig.cli.sim"})],
+)
+def test_a_start_up_imports_only_the_command_it_names(argv, loaded):
+    """`rig --help` lists every command without importing one; `rig fit` imports no other command."""
+    code = (
+        "import sys\n"
+        "from rig.cli import main\n"
+        "from rig.cli.commands import COMMANDS, module_name\n"
+        "try:\n"
+        f"    main({argv!r})\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "print(sorted(module_name(c) for c in COMMANDS if module_name(c) in sys.modules), file=sys.stderr)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stderr.strip() == repr(sorted(loaded))
+    if argv == ["--help"]:
+        assert all(summary[:30] in result.stdout for summary in COMMAND_SUMMARIES.values())

@@ -19,13 +19,13 @@ from rig.errors import ExitCode
 def test_a_ctrl_c_swallowed_during_the_imports_still_ends_the_command(monkeypatch, capsys):
     build = rig.cli.build_parser
 
-    def build_with_a_swallowed_interrupt():  # type: ignore[no-untyped-def]
+    def build_with_a_swallowed_interrupt(argv):  # type: ignore[no-untyped-def]
         try:  # what a weakref callback does with an exception: print it, go on
             os.kill(os.getpid(), signal.SIGINT)
             signal.pthread_sigmask(signal.SIG_BLOCK, [])  # a point where Python runs the handler
         except BaseException:
             pass
-        return build()
+        return build(argv)
 
     monkeypatch.setattr(rig.cli, "build_parser", build_with_a_swallowed_interrupt)
     assert rig.cli.main(["--version"]) == ExitCode.INTERRUPTED

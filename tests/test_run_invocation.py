@@ -162,9 +162,9 @@ CHILD = """\
 import os, sys
 import rig.cli
 build = rig.cli.build_parser
-def announced():
+def announced(argv):
     os.write(int(sys.argv[1]), b"!")
-    return build()
+    return build(argv)
 rig.cli.build_parser = announced
 sys.exit(rig.cli.main(sys.argv[2:]))
 """

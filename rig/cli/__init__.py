@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 
 from rig import __version__
+from rig.cli.commands import COMMANDS, module_name
 from rig.errors import ExitCode, InputError, RigError, one_line
 from rig.safety.interrupts import interrupts_deferred, interrupts_held, terminate_as_interrupt
 
@@ -21,24 +22,6 @@ from rig.safety.interrupts import interrupts_deferred, interrupts_held, terminat
 # (import-linter contract "private modules stay private", pyproject.toml).
 PUBLIC_MODULES: tuple[str, ...] = ()
 __all__ = ["main"]
-
-# Each module `rig.cli.<name>` (a `-` in the command is a `_` in the module) defines
-# `register(subparsers)`, which adds its parser and sets `handler=<callable(args) -> int>` as a default.
-COMMAND_MODULES: tuple[str, ...] = (
-    "run",
-    "fit",
-    "predict",
-    "sim",
-    "scan",
-    "ports",
-    "calibrate",
-    "check",
-    "replay",
-    "study",
-    "camera",
-    "config",
-    "setup-servos",
-)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -48,8 +31,12 @@ class _Parser(argparse.ArgumentParser):
         self.exit(ExitCode.INVALID_INPUT, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full `rig` parser with every registered subcommand."""
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The `rig` parser: every command's in full, or, given the `argv` to parse, only the one it names.
+
+    Given `argv`, the other commands are listed with their summaries (`rig.cli.commands`) but
+    their modules, and what those import, are not loaded: a start-up pays for one command.
+    """
     parser = _Parser(
         prog="rig",
         description=(
@@ -61,8 +48,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"rig {__version__}")
     subparsers = parser.add_subparsers(title="commands", metavar="COMMAND", parser_class=_Parser)
-    for name in COMMAND_MODULES:
-        importlib.import_module(f"rig.cli.{name.replace('-', '_')}").register(subparsers)
+    # The top level has no option that takes a value: the first word that is not an option is the command.
+    named = None if argv is None else next((word for word in argv if not word.startswith("-")), None)
+    for name, summary in COMMANDS.items():
+        if argv is None or name == named:
+            importlib.import_module(module_name(name)).register(subparsers)
+        else:
+            subparsers.add_parser(name, help=summary)
     return parser
 
 
@@ -77,9 +69,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Importing the commands takes most of a start-up. A Ctrl-C that lands inside importlib's
         # module-lock cleanup (a weakref callback) is printed and swallowed there, and the command
         # then ran on as if nothing came: so it waits until the imports are done.
+        words = sys.argv[1:] if argv is None else list(argv)
         with interrupts_deferred():
-            parser = build_parser()
-        args = parser.parse_args(argv)
+            parser = build_parser(words)
+        args = parser.parse_args(words)
         handler = getattr(args, "handler", None)
         if handler is None:
             parser.print_help(sys.stderr)

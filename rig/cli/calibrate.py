@@ -8,6 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from model.gravity import STANDARD_GRAVITY_M_S2
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.hw.clock import SystemClock
@@ -33,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig calibrate`."""
     parser = subparsers.add_parser(
         "calibrate",
-        help="two-point load-cell calibration (tare + reference mass) written as JSON",
+        help=COMMANDS["calibrate"],
         description=(
             "Calibrate the line load cell: with no load, the mean raw count is the offset (tare); "
             "with a known tension in the line, factor = mass * g / (raw_ref - raw_zero). The cell sits "

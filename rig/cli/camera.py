@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.hw.camera.camera_calibration import Board, BoardKind, calibrate, check_board, write_calibration
@@ -17,7 +18,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig camera` and its subcommand `calibrate`."""
     parser = subparsers.add_parser(
         "camera",
-        help="camera tools for the camera configuration source (needs the camera extra)",
+        help=COMMANDS["camera"],
         description="Camera tools for measuring the link with ArUco markers (pip install -e '.[camera]').",
     )
     commands = parser.add_subparsers(title="commands", metavar="COMMAND", parser_class=type(parser))

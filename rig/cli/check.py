@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json
 from rig.errors import ExitCode, InputError
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
@@ -55,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
     parser = subparsers.add_parser(
         "check",
-        help="pre-flight check of a rig: ports, servos, load cell, slack line, limits (--move: a jog)",
+        help=COMMANDS["check"],
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

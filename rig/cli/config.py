@@ -9,6 +9,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 from rig.errors import ExitCode, InputError, RigError, one_line
 from rig.hw.camera.camera_calibration import load_calibration
@@ -21,7 +22,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig config` and its subcommand `measure`."""
     parser = subparsers.add_parser(
         "config",
-        help="link configurations: measure them from camera images (needs the camera extra)",
+        help=COMMANDS["config"],
         description=(
             "Link configurations measured by the camera configuration source (pip install -e '.[camera]')."
         ),

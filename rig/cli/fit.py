@@ -16,6 +16,7 @@ from model.fit_keys import EstimateSummary, summarize_estimate
 from model.gravity import PAPER_G_M_S2
 from model.joint import CapacityConstant, resolve_constant
 from model.k_estimators import DEFAULT_ESTIMATOR, ESTIMATOR_NAMES, check_estimator
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.inputs.files import read_text_file
@@ -84,7 +85,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig fit`."""
     parser = subparsers.add_parser(
         "fit",
-        help="fit m = k/l to joint-estimation data; joint capacity and mu_s*delta0 with bounds",
+        help=COMMANDS["fit"],
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

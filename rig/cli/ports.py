@@ -6,6 +6,7 @@ import argparse
 
 from serial.tools import list_ports
 
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 
 DESCRIPTION = """\
@@ -24,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig ports`."""
     parser = subparsers.add_parser(
         "ports",
-        help="list serial ports with descriptions",
+        help=COMMANDS["ports"],
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from model.chain import SlipPrediction, joint_moment_norms, predict_slip
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 from rig.inputs.linkfile import LinkSpec, load_link_file
 
@@ -47,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig predict`."""
     parser = subparsers.add_parser(
         "predict",
-        help="predict joint moments, slip load and link capacity from a link file",
+        help=COMMANDS["predict"],
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -6,6 +6,7 @@ import argparse
 import warnings
 from typing import TYPE_CHECKING, Any
 
+from rig.cli.commands import COMMANDS
 from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 
@@ -53,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig replay`."""
     parser = subparsers.add_parser(
         "replay",
-        help="replay MCAP logs: trial table, re-detection, offline refit, Table IV/V, report",
+        help=COMMANDS["replay"],
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rig.cli.commands import COMMANDS
 from rig.cli.live_options import add_live_address
 from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
@@ -62,7 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig run`."""
     p = subparsers.add_parser(
         "run",
-        help="run a protocol of slip trials (default: on the built-in simulated rig)",
+        help=COMMANDS["run"],
         description=DESCRIPTION,
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,

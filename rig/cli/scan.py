@@ -6,6 +6,7 @@ import argparse
 import os
 import time
 
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 from rig.errors import InputError
 from rig.hw.dxl.control_table import SDK_BAUDS
@@ -40,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig scan`."""
     parser = subparsers.add_parser(
         "scan",
-        help="find the Dynamixel servos on a serial port (broadcast ping per baud rate)",
+        help=COMMANDS["scan"],
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

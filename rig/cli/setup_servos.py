@@ -13,6 +13,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 
+from rig.cli.commands import COMMANDS
 from rig.errors import InputError, RigError
 from rig.hw.dxl import control_table as ct
 from rig.hw.dxl.setup import assign_id_and_baud, describe_found, find_single_servo, search_order
@@ -41,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig setup-servos`."""
     parser = subparsers.add_parser(
         "setup-servos",
-        help="set each servo's ID and baud rate, connecting one servo at a time",
+        help=COMMANDS["setup-servos"],
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

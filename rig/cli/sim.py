@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from rig.cli.commands import COMMANDS
+
 # Each module `rig.cli.<name>` defines `register(sim_subparsers)` for one emulated device.
 SIM_DEVICE_MODULES: tuple[str, ...] = ("sim_loadcell", "sim_servos", "sim_rig")
 
@@ -13,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig sim` and its device subcommands."""
     parser = subparsers.add_parser(
         "sim",
-        help="serve emulated servos or a load cell on a pty (for trying drivers without a rig)",
+        help=COMMANDS["sim"],
         description=(
             "Serve byte-level emulated devices on a pseudo-terminal, symlinked at --link, until "
             "killed (SIGTERM/SIGINT exit cleanly and remove the link). Point the real drivers, "

@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import ExitCode, InputError
@@ -73,7 +74,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     """Add `rig study`."""
     p = subparsers.add_parser(
         "study",
-        help="run a protocol over many seeds on the simulated rig; coverage, bias, MSE/CRLB per estimator",
+        help=COMMANDS["study"],
         description=DESCRIPTION,
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
