@@ -341,6 +341,21 @@ def test_cli_scheduler_without_dask_names_the_extra(
     assert "study` extra" in capsys.readouterr().err
 
 
+def _wait_for_workers(pid: int, count: int, timeout_s: float = 30.0) -> None:
+    """Until process `pid` has `count` children (Linux's /proc; elsewhere a fixed 6 s)."""
+    tasks = Path(f"/proc/{pid}/task")
+    if not tasks.is_dir():
+        time.sleep(6)
+        return
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        children = [c for task in tasks.iterdir() for c in (task / "children").read_text().split()]
+        if len(children) >= count:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"the study did not start {count} workers within {timeout_s:g} s")
+
+
 @pytest.mark.slow
 @pytest.mark.subprocess
 def test_ctrl_c_stops_workers_and_writes_nothing(tmp_path: Path) -> None:
@@ -365,7 +380,8 @@ def test_ctrl_c_stops_workers_and_writes_nothing(tmp_path: Path) -> None:
         env=env,
         start_new_session=True,
     )
-    time.sleep(6)
+    _wait_for_workers(process.pid, 2)
+    time.sleep(0.5)  # into their first runs
     os.killpg(process.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
     try:
         _, err = process.communicate(timeout=60)
