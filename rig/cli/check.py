@@ -12,6 +12,7 @@ from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json
 from rig.errors import ExitCode, InputError
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
+from rig.safety.interrupts import interrupts_deferred
 
 if TYPE_CHECKING:
     from rig.preflight.check_context import CheckContext
@@ -114,14 +115,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Run the sections, print the rows, offer to write the jog's findings; returns the exit code."""
-    from rig.inputs.files import parse_yaml, read_text_file
-    from rig.inputs.protocol import load_protocol
-    from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, parse_rig_config
-    from rig.preflight.check_context import CheckContext, CheckOptions
-    from rig.preflight.devices import check_devices
-    from rig.preflight.sections import run_sections
-    from rig.preflight.verdicts import Verdict, exit_code
-    from rig.sim.settings import check_simulation
+    # Imported here, so that `--help` stays quick; a Ctrl-C meanwhile waits for the imports
+    # (one landing in importlib's lock cleanup would be printed and swallowed there).
+    with interrupts_deferred():
+        from rig.inputs.files import parse_yaml, read_text_file
+        from rig.inputs.protocol import load_protocol
+        from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, parse_rig_config
+        from rig.preflight.check_context import CheckContext, CheckOptions
+        from rig.preflight.devices import check_devices
+        from rig.preflight.sections import run_sections
+        from rig.preflight.verdicts import Verdict, exit_code
+        from rig.sim.settings import check_simulation
 
     if args.write and not args.move:
         raise InputError("--write: only with --move (it writes what the jog measured)")

@@ -15,6 +15,7 @@ from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import InputError
 from rig.hw.usb_latency import DEFAULT_SYSFS_ROOT
+from rig.safety.interrupts import interrupts_deferred, interrupts_held
 from rig.sim.kinds import DeviceLevel
 from rig.vocabulary import ConfigurationSourceKind, RigKind, StepKind
 
@@ -123,14 +124,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Handle `rig run`."""
-    # The runner is imported here, not at the top, so that `rig --help` stays quick.
-    from rig.rigs import check_session_inputs, open_rig
-    from rig.runner.execute import claim_run, execute_run, validate_run
-    from rig.runner.journal import MAX_SEED
-    from rig.runner.progress import make_progress
-    from rig.runner.sinks import LiveSink, RunSink
-    from rig.safety.interrupts import interrupts_held
-    from rig.sim.settings import check_simulation
+    # Imported here, so that `--help` stays quick; a Ctrl-C meanwhile waits for the imports
+    # (one landing in importlib's lock cleanup would be printed and swallowed there).
+    with interrupts_deferred():
+        from rig.rigs import check_session_inputs, open_rig
+        from rig.runner.execute import claim_run, execute_run, validate_run
+        from rig.runner.journal import MAX_SEED
+        from rig.runner.progress import make_progress
+        from rig.runner.sinks import LiveSink, RunSink
+        from rig.sim.settings import check_simulation
 
     if not 0 <= args.seed <= MAX_SEED:
         raise InputError(f"--seed {args.seed}: allowed: an integer from 0 to {MAX_SEED}")

@@ -7,30 +7,19 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-from model.k_estimators import ESTIMATOR_NAMES
 from rig.cli.commands import COMMANDS
 from rig.cli.output import emit_json, format_table
 from rig.cli.run_options import add_protocol_and_rig
 from rig.errors import ExitCode, InputError
 from rig.inputs.files import check_out_dir
-from rig.rigs import check_session_inputs
-from rig.runner.execute import RunRequest, prepare_run
+from rig.safety.interrupts import interrupts_deferred
 from rig.sim.kinds import DeviceLevel
-from rig.sim.settings import check_simulation, require_simulated
-from rig.study.executor import require_dask, run_dask, run_local
-from rig.study.seeds import parse_seeds
-from rig.study.statistics import summarise
-from rig.study.table import write_table
-from rig.study.worker import StudySpec
 from rig.vocabulary import RigKind, TrialKind
 
 if TYPE_CHECKING:
     from rig.inputs.protocol import Protocol
     from rig.study.statistics import StudySummary
-    from rig.study.worker import RunRecord
+    from rig.study.worker import RunRecord, StudySpec
 
 DESCRIPTION = """\
 Plan an experiment before running it: run PROTOCOL on the simulated rig once per seed (each seed
@@ -130,6 +119,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 def run(args: argparse.Namespace) -> int:
     """Handle `rig study`."""
+    # Imported here, so that `--help` stays quick; a Ctrl-C meanwhile waits for the imports
+    # (one landing in importlib's lock cleanup would be printed and swallowed there).
+    with interrupts_deferred():
+        from model.k_estimators import ESTIMATOR_NAMES
+        from rig.study.executor import require_dask, run_dask, run_local
+        from rig.study.seeds import parse_seeds
+        from rig.study.statistics import summarise
+        from rig.study.table import write_table
+
     seeds = parse_seeds(args.seeds)
     jobs = _jobs(args.jobs)
     if args.out is not None:
@@ -162,6 +160,13 @@ def _jobs(jobs: int | None) -> int:
 
 def _checked_spec(args: argparse.Namespace) -> StudySpec:
     """Everything a run will read, validated once here (exit 2 before any worker starts)."""
+    # As in `run`: imported here, a Ctrl-C meanwhile deferred.
+    with interrupts_deferred():
+        from rig.rigs import check_session_inputs
+        from rig.runner.execute import RunRequest, prepare_run
+        from rig.sim.settings import check_simulation, require_simulated
+        from rig.study.worker import StudySpec
+
     request = RunRequest(protocol_path=args.protocol, rig_path=args.rig, out_dir=Path("."), seed=0)
     prepared = prepare_run(request, dry_run=True)
     config = prepared.config
@@ -210,6 +215,9 @@ class _progress:
     def __enter__(self) -> _Advance:
         if self.quiet:
             return _Advance(None, None)
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
         self.bar = Progress(
             TextColumn("study"),
             BarColumn(),
