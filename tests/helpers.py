@@ -1,4 +1,5 @@
-"""Plain test helpers (no fixtures): register value conversions and a scripted world shaft.
+"""Plain test helpers (no fixtures): register value conversions, a scripted world shaft, test protocols
+built in code from the shipped ones, the firmware build and a trial's set-up in the world.
 
 Import as `from tests.helpers import ...`; fixtures live in tests/conftest.py.
 """
@@ -10,7 +11,7 @@ import fcntl
 import functools
 import subprocess
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -73,9 +74,61 @@ def shipped_block(stem: str, index: int = 0, /, **overrides: Any) -> dict[str, A
     return with_overrides(shipped_protocol(stem)["blocks"][index], overrides)
 
 
+class _NoAliasDumper(yaml.SafeDumper):
+    """A SafeDumper that writes an object used twice twice: protocols refuse YAML aliases."""
+
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
 def protocol_text(data: Mapping[str, Any]) -> str:
     """`data` as protocol YAML, keys in their order, lists and mappings of plain values inline."""
-    return yaml.safe_dump(dict(data), sort_keys=False, default_flow_style=None, allow_unicode=True)
+    return yaml.dump(
+        dict(data), Dumper=_NoAliasDumper, sort_keys=False, default_flow_style=None, allow_unicode=True
+    )
+
+
+def _one_block_text(
+    data: Mapping[str, Any], block: Mapping[str, Any] | None, overrides: Mapping[str, Any]
+) -> str:
+    """The text of one-block protocol `data` with `overrides` applied, and `block` to its block."""
+    varied = with_overrides(data, overrides)
+    if block is not None:
+        varied["blocks"] = [with_overrides(varied["blocks"][0], block)]
+    return protocol_text(varied)
+
+
+def smoke_protocol(*, block: Mapping[str, Any] | None = None, **overrides: Any) -> str:
+    """protocols/smoke.yaml's text with `overrides` applied (`with_overrides`), `block` to its one block."""
+    return _one_block_text(shipped_protocol("smoke"), block, overrides)
+
+
+def write_joint_1_protocol(
+    path: Path, name: str, ramp: Mapping[str, float], distances_m: Sequence[float], **block: Any
+) -> Path:
+    """The shipped smoke protocol named `name`, its ramp with `ramp`, its one block (joint 1) at
+    `distances_m` with `block` (`with_overrides`), written to `path`."""
+    text = smoke_protocol(
+        name=name, description=None, ramp=ramp, block={"distances_m": list(distances_m), **block}
+    )
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def bare_protocol(name: str | None, blocks: Sequence[Mapping[str, Any]], **fields: Any) -> str:
+    """A protocol of `blocks` and `fields` alone, every other field at its default, in the shipped
+    protocols' format; `name` None leaves the name out (the file's stem names the protocol)."""
+    named = {} if name is None else {"name": name}
+    data = {"format": shipped_protocol("smoke")["format"], **named, **fields, "blocks": list(blocks)}
+    return protocol_text(data)
+
+
+def adaptive_block(**fields: Any) -> dict[str, Any]:
+    """The shipped adaptive block cut to its kind, joint, design and distance range (every other
+    field at its default), with `fields` (`with_overrides`)."""
+    shipped = shipped_block("joint_estimation_adaptive")
+    kept = {key: shipped[key] for key in ("kind", "joint", "design", "distance_range_m")}
+    return with_overrides(kept, fields)
 
 
 # A tare, the ramp until the slip and the unload, after the operator's prompt: the runner tests' steps.
@@ -83,19 +136,19 @@ QUICK_STEPS = ["prompt", {"tare": {"settle_s": 0.1}}, "ramp_until_slip", "unload
 # Three joint-estimation slips on joint 1, quick to run: the runner tests' protocol, the shipped
 # smoke protocol at three distances with a faster slow ramp.
 QUICK_BLOCK = shipped_block("smoke", distances_m=[0.12, 0.2, 0.25], steps=QUICK_STEPS)
-QUICK_PROTOCOL = protocol_text(
-    shipped_protocol(
-        "smoke", name="quick", description=None, ramp={"slow_speed_rad_s": 0.3}, blocks=[QUICK_BLOCK]
-    )
+QUICK_PROTOCOL_DATA = shipped_protocol(
+    "smoke", name="quick", description=None, ramp={"slow_speed_rad_s": 0.3}, blocks=[QUICK_BLOCK]
 )
+QUICK_PROTOCOL = protocol_text(QUICK_PROTOCOL_DATA)
 
 
 def quick_protocol(*, block: Mapping[str, Any] | None = None, **overrides: Any) -> str:
     """QUICK_PROTOCOL's text with `overrides` applied (`with_overrides`), and `block` to its one block."""
-    data = with_overrides(yaml.safe_load(QUICK_PROTOCOL), overrides)
-    if block is not None:
-        data["blocks"] = [with_overrides(data["blocks"][0], block)]
-    return protocol_text(data)
+    return _one_block_text(QUICK_PROTOCOL_DATA, block, overrides)
+
+
+# A link-validation trial's steps around QUICK_STEPS' tare, ramp and unload: bend, measure, ..., reset.
+QUICK_LINK_STEPS = ["bend", "measure", *QUICK_STEPS[1:], "reset"]
 
 
 def quick_then_link_validation(name: str, **validation: Any) -> str:
@@ -104,18 +157,19 @@ def quick_then_link_validation(name: str, **validation: Any) -> str:
     return quick_protocol(name=name, blocks=[joint, shipped_block("link_validation", 1, **validation)])
 
 
-def write_joint_1_protocol(path: Path, name: str, ramp: str, distances_m: str) -> Path:
-    """A one-block joint-estimation protocol on joint 1 (prompt, tare, ramp until slip, unload) at `path`.
-
-    `ramp` is the protocol's ramp mapping in YAML flow style, `distances_m` the block's list of distances.
-    """
-    path.write_text(
-        f"format: rig-protocol/1\nname: {name}\ndetector: {{arm_threshold_n: 2.0, drop_fraction: 0.15}}\n"
-        f"ramp: {ramp}\nlimits: {{force_ceiling_n: 75.0}}\nblocks:\n"
-        f"  - {{kind: joint_estimation, joint: 1, distances_m: {distances_m}, repeats: 1,\n"
-        "     steps: [prompt, {tare: {settle_s: 0.3}}, ramp_until_slip, unload]}\n"
+def link_small_protocol(**overrides: Any) -> str:
+    """QUICK_PROTOCOL named link_small with the shipped link-validation detector (armed at 1 N): its block
+    at 0.1 and 0.2 m, then two configurations of link 1 (QUICK_LINK_STEPS); with `overrides` applied."""
+    joint = with_overrides(QUICK_BLOCK, {"distances_m": [0.1, 0.2]})
+    validation = shipped_block(
+        "link_validation", 1, configurations_deg=[[5] * 8, [10, -10] * 4], steps=QUICK_LINK_STEPS
     )
-    return path
+    link_small = {
+        "name": "link_small",
+        "detector": shipped_protocol("link_validation")["detector"],
+        "blocks": [joint, validation],
+    }
+    return protocol_text(with_overrides(with_overrides(QUICK_PROTOCOL_DATA, link_small), overrides))
 
 
 FIRMWARE = Path(__file__).resolve().parent.parent / "firmware"

@@ -25,6 +25,7 @@ from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, configuration_source_kind,
 from rig.log.format import schemas
 from rig.sim.virtual_clock import VirtualClock
 from rig.vocabulary import ConfigurationSourceKind
+from tests.helpers import bare_protocol, shipped_block
 
 ROOT = Path(__file__).resolve().parent.parent
 LENGTHS = (0.03, 0.03, 0.03)
@@ -255,20 +256,17 @@ def test_the_real_camera_package_has_every_module_the_factory_imports(tmp_path: 
 
 
 # --- a run: every measurement on its topic, the prediction from the measurement ---------------------
-PROTOCOL = """
-format: rig-protocol/1
-name: lv_small
-ramp: {max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.06, 0.12, 0.2]
-  - kind: link_validation
-    configurations_deg:
-      - [10, -10, 5, 0, -5, 10, -10, 5]
-      - [-15, 15, -15, 15, -15, 15, -15, 15]
-"""
+PROTOCOL = bare_protocol(
+    "lv_small",
+    [
+        shipped_block("smoke", distances_m=[0.06, 0.12, 0.2], steps=None),
+        shipped_block(
+            "link_validation", 1, configurations_deg=[[10, -10, 5, 0, -5, 10, -10, 5], [-15, 15] * 4]
+        ),
+    ],
+    ramp={"max_force_n": 70.0},
+    limits={"force_ceiling_n": 75.0},
+)
 
 
 def _run(tmp_path: Path, rig: Path) -> tuple[dict, list[dict], list[dict]]:

@@ -18,15 +18,15 @@ from rig.inputs.protocol import load_protocol
 from rig.inputs.rig_config import load_rig_config
 from rig.runner.limits import estimated_trial_s, ramp_speeds
 from rig.runner.ramp_speed import RampSpeeds
+from tests.helpers import write_joint_1_protocol
 
 REPO = Path(__file__).resolve().parent.parent
-PROTOCOL_TEXT = (
-    "format: rig-protocol/1\nname: six\ndetector: {arm_threshold_n: 2.0, drop_fraction: 0.15}\n"
-    "ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.08, max_force_n: 70.0}\n"
-    "limits: {force_ceiling_n: 75.0}\nblocks:\n"
-    "  - {kind: joint_estimation, joint: 1, distances_m: [0.03, 0.0614, 0.1243, 0.25], repeats: 2,\n"
-    "     steps: [prompt, {tare: {settle_s: 0.3}}, ramp_until_slip, unload]}\n"
-)
+
+
+def _protocol(tmp_path: Path) -> Path:
+    """Four distances on joint 1, twice each, on the shipped joint-estimation ramp speeds."""
+    ramp = {"fast_speed_rad_s": 1.0, "slow_speed_rad_s": 0.08, "max_force_n": 70.0}
+    return write_joint_1_protocol(tmp_path / "p.yaml", "six", ramp, [0.03, 0.0614, 0.1243, 0.25], repeats=2)
 
 
 def _rig(tmp_path: Path, rate_hz: float) -> Path:
@@ -36,9 +36,7 @@ def _rig(tmp_path: Path, rate_hz: float) -> Path:
 
 
 def test_the_estimate_times_the_ramp_with_the_runs_speeds(tmp_path: Path) -> None:
-    protocol = tmp_path / "p.yaml"
-    protocol.write_text(PROTOCOL_TEXT)
-    plan = load_protocol(protocol)
+    plan = load_protocol(_protocol(tmp_path))
     slow, fast = load_rig_config(_rig(tmp_path, 10.0)), load_rig_config(None)
     assert ramp_speeds(plan, slow) == RampSpeeds(1.0, 0.08, 10.0, 50.0)
     trial = plan.trials[1]
@@ -55,8 +53,7 @@ def test_the_estimate_times_the_ramp_with_the_runs_speeds(tmp_path: Path) -> Non
 def test_a_dry_run_estimates_the_simulated_run_time_within_a_factor_of_2_and_the_slowdown_at_10_per_s(
     tmp_path: Path, cli_json: Callable[..., Any]
 ) -> None:
-    protocol = tmp_path / "p.yaml"
-    protocol.write_text(PROTOCOL_TEXT)
+    protocol = _protocol(tmp_path)
     estimated, measured = {}, {}
     for rate_hz in (10.0, 1000.0):
         rig = _rig(tmp_path, rate_hz)

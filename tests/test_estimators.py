@@ -20,6 +20,7 @@ from rig.inputs.protocol import parse_protocol
 from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, load_rig_config
 from rig.records import Estimate
 from rig.runner.run_estimates import RunEstimator
+from tests.helpers import quick_protocol
 
 K = 0.1615
 PAPER_DESIGN = np.repeat(np.linspace(0.03, 0.25, 8), 3)
@@ -278,14 +279,14 @@ def test_run_estimator_paper_choice_is_the_online_fit():
 
 def test_a_no_slip_trial_is_a_lower_bound_in_the_run_and_in_replay(tmp_path, write_file, cli_json):
     # 1.6 N·m at 0.03 m needs about 53 N: beyond max_force_n, so that trial ends without a slip.
-    protocol = write_file(
-        "format: rig-protocol/1\nname: cens\n"
-        "ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 40.0}\n"
-        "limits: {force_ceiling_n: 45.0}\nblocks:\n  - kind: joint_estimation\n"
-        "    distances_m: [0.03, 0.1, 0.15, 0.2]\n"
-        "    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]\n",
-        "cens.yaml",
+    text = quick_protocol(
+        name="cens",
+        detector=None,
+        ramp={"max_force_n": 40.0},
+        limits={"force_ceiling_n": 45.0},
+        block={"distances_m": [0.03, 0.1, 0.15, 0.2]},
     )
+    protocol = write_file(text, "cens.yaml")
     report = cli_json("run", protocol, "--out", tmp_path / "out", "--json")
     assert [t["outcome"] for t in report["trials"]] == ["no_slip", "slip", "slip", "slip"]
     estimate = report["estimate"]

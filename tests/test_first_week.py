@@ -14,6 +14,7 @@ import yaml
 
 from rig.hw.loadcell.driver import FIRMWARE_BAUD
 from rig.inputs.rig_config import DEFAULT_RIG_CONFIG, StaleTimeoutFit, load_rig_config
+from tests.helpers import smoke_protocol
 
 REPO = Path(__file__).parent.parent
 TEMPLATE = REPO / "protocols" / "rigs" / "hardware.example.yaml"
@@ -65,7 +66,7 @@ def test_a_joint_beyond_the_rig_configs_link_says_where_the_count_comes_from(
     run_cli: Callable[..., Any], tmp_path: Path
 ) -> None:
     protocol = tmp_path / "j9.yaml"
-    protocol.write_text((REPO / "protocols" / "smoke.yaml").read_text().replace("joint: 1", "joint: 9"))
+    protocol.write_text(smoke_protocol(block={"joint": 9}))
     result = run_cli("run", protocol, "--rig", TEMPLATE, "--dry-run")
     assert result.code == 2 and result.err.count("\n") == 1
     assert f"blocks[0].joint: 9; allowed: 1..8, the joints of the link in {TEMPLATE} (article" in result.err

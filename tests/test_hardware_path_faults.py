@@ -22,6 +22,7 @@ import pytest
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 from tests.conftest import TwinServer
+from tests.helpers import smoke_protocol
 
 pytestmark = [pytest.mark.pty, pytest.mark.subprocess, pytest.mark.slow]
 
@@ -29,19 +30,14 @@ Process = subprocess.Popen[str]
 TORQUE_ENABLE = 64
 BUS_WATCHDOG = 98
 PRESENT_POSITION = 132
-PROTOCOL = """\
-format: rig-protocol/1
-name: hwpath
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 0.4, slow_speed_rad_s: 0.4, max_force_n: 40.0}
-limits: {force_ceiling_n: 45.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12]
-    repeats: 1
-    steps: [{tare: {settle_s: 0.2}}, ramp_until_slip, unload]
-"""
+# The shipped smoke protocol at one distance without the prompt, its ramp at 0.4 rad/s up to 40 N.
+PROTOCOL = smoke_protocol(
+    name="hwpath",
+    description=None,
+    ramp={"fast_speed_rad_s": 0.4, "slow_speed_rad_s": 0.4, "max_force_n": 40.0},
+    limits={"force_ceiling_n": 45.0},
+    block={"distances_m": [0.12], "steps": [{"tare": {"settle_s": 0.2}}, "ramp_until_slip", "unload"]},
+)
 # Mid-ramp: the line carries this much, past the arm threshold (the joint slips near 13 N on the twin).
 MID_RAMP_N = 2.5
 

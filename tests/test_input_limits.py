@@ -14,7 +14,7 @@ from rig.errors import InputError
 from rig.inputs.rig_config import DEFAULT_RIG_CONFIG
 from rig.runner.journal import JOURNAL_FORMAT, RunJournal, content_hash
 from rig.runner.run_estimates import load_estimates_file
-from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, quick_protocol
+from tests.helpers import QUICK_LINK_STEPS, QUICK_PROTOCOL, QUICK_STEPS, quick_protocol, shipped_block
 
 REPO = Path(__file__).resolve().parents[1]
 PROTOCOLS = REPO / "protocols"
@@ -23,18 +23,19 @@ MINIMAL_ESTIMATES = {"n": 3, "k": 0.16, "capacity_nm": 1.58, "capacity_ci_nm": [
 ESTIMATES = {
     **MINIMAL_ESTIMATES, "level": 0.99, "k_ci": [0.14, 0.17], "mu_delta0_ci_pa": [2.6e5, 3.2e5],
 }  # fmt: skip
-LINK_VALIDATION = """\
-format: rig-protocol/1
-name: lv
-detector: {arm_threshold_n: 2.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: link_validation
-    estimates_from: est.json
-    configurations_deg: [[0, 10, 0, 0, 0, 0, 0, 0]]
-    steps: [bend, measure, {tare: {settle_s: 0.1}}, ramp_until_slip, unload, reset]
-"""
+# QUICK_PROTOCOL's settings, one link-validation trial predicted from est.json.
+LINK_VALIDATION = quick_protocol(
+    name="lv",
+    blocks=[
+        shipped_block(
+            "link_validation",
+            1,
+            estimates_from="est.json",
+            configurations_deg=[[0, 10, 0, 0, 0, 0, 0, 0]],
+            steps=QUICK_LINK_STEPS,
+        )
+    ],
+)
 
 
 def assert_one_line_exit_2(result, *needles):

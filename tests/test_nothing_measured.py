@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
-SMOKE = Path(__file__).resolve().parent.parent / "protocols" / "smoke.yaml"
+from tests.helpers import smoke_protocol
 
 
 def test_a_run_whose_trials_all_end_without_a_slip_exits_1_naming_the_cause(tmp_path, run_cli):
     # The joints hold about 15 N at these distances; a ramp capped at 5 N never sees them slip.
     protocol = tmp_path / "low.yaml"
-    protocol.write_text(SMOKE.read_text(encoding="utf-8").replace("max_force_n: 70.0", "max_force_n: 5.0"))
+    protocol.write_text(smoke_protocol(ramp={"max_force_n": 5.0}))
     result = run_cli("run", protocol, "--out", tmp_path / "out", "--run-id", "low")
     assert result.code == 1
     assert (

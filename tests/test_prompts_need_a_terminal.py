@@ -13,23 +13,23 @@ from pathlib import Path
 import pytest
 
 from rig.hw.loadcell.calibration import Calibration
+from tests.helpers import bare_protocol, shipped_block
 
 ROOT = Path(__file__).resolve().parent.parent
 TEMPLATE = ROOT / "protocols" / "rigs" / "hardware.example.yaml"
 # Joint estimation with the hook already hung (no prompt), then two configurations bent and reset.
-PROTOCOL = """\
-format: rig-protocol/1
-name: no-prompts
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.12, 0.2]
-    steps: [tare, ramp_until_slip, unload]
-  - kind: link_validation
-    estimates_from: run
-    configurations_deg: [[5, 0, 5, 5, 0, 0, 0, 0], [5, 5, 0, 0, 0, 0, 0, 0]]
-    steps: [bend, measure, tare, ramp_until_slip, unload, reset]
-"""
+PROTOCOL = bare_protocol(
+    "no-prompts",
+    [
+        shipped_block("smoke", distances_m=[0.12, 0.2], steps=["tare", "ramp_until_slip", "unload"]),
+        shipped_block(
+            "link_validation",
+            1,
+            configurations_deg=[[5, 0, 5, 5, 0, 0, 0, 0], [5, 5, 0, 0, 0, 0, 0, 0]],
+            steps=["bend", "measure", "tare", "ramp_until_slip", "unload", "reset"],
+        ),
+    ],
+)
 FORKS = "\n".join(
     [
         "servos:",

@@ -2,45 +2,38 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from model.design import DEFAULT_STOP_SCALE_CONFIDENCE
 from rig.errors import ConfigError
 from rig.inputs.files import parse_yaml
 from rig.inputs.protocol import AdaptiveBlock, TrialPlan, load_protocol, parse_protocol
+from tests.helpers import QUICK_STEPS, adaptive_block, bare_protocol, shipped_block, with_overrides
 
-HEAD = """\
-format: rig-protocol/1
-name: adaptive
-ramp: {max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-"""
-ADAPTIVE = """\
-  - kind: joint_estimation
-    joint: 1
-    design: adaptive
-    distance_range_m: [0.03, 0.25]
-    max_trials: 10
-"""
-LINK = """\
-  - kind: link_validation
-    configurations_deg: [[5, 5, 5, 5, 5, 5, 5, 5]]
-"""
-FIXED = """\
-  - kind: joint_estimation
-    distances_m: [0.1, 0.2]
-    repeats: 2
-"""
+ADAPTIVE = adaptive_block(max_trials=10)
+LINK = shipped_block("link_validation", 1, estimates_from=None, configurations_deg=[[5] * 8])
+FIXED = shipped_block("smoke", repeats=2, steps=None)
 
 
-def parse(blocks: str):
-    text = HEAD + blocks
+def adaptive(**fields: Any) -> dict[str, Any]:
+    """ADAPTIVE with `fields` (`with_overrides`: None deletes a field)."""
+    return with_overrides(ADAPTIVE, fields)
+
+
+def adaptive_protocol(*blocks: dict[str, Any]) -> str:
+    """A protocol named adaptive of `blocks`, with a 70 N ramp and a 75 N ceiling."""
+    return bare_protocol("adaptive", blocks, ramp={"max_force_n": 70.0}, limits={"force_ceiling_n": 75.0})
+
+
+def parse(*blocks: dict[str, Any]):
+    text = adaptive_protocol(*blocks)
     return parse_protocol(parse_yaml(text, "p.yaml"), source="p.yaml", text=text, joint_count=8)
 
 
 def test_an_adaptive_block_keeps_its_budget_of_trial_ids():
-    protocol = parse(FIXED + ADAPTIVE + LINK)
+    protocol = parse(FIXED, ADAPTIVE, LINK)
     (block,) = protocol.adaptive
     assert isinstance(block, AdaptiveBlock) and block.block == 1
     assert block.first_trial_id == 5 and block.trial_ids == range(5, 15)
@@ -67,7 +60,7 @@ def test_an_adaptive_block_keeps_its_budget_of_trial_ids():
 
 
 def test_a_link_validation_block_may_take_its_estimates_from_an_adaptive_block():
-    protocol = parse(ADAPTIVE + LINK)
+    protocol = parse(ADAPTIVE, LINK)
     assert protocol.estimates_from == "run" and protocol.kinds == {"joint_estimation", "link_validation"}
 
 
@@ -86,38 +79,32 @@ def test_the_shipped_adaptive_protocol_loads():
 
 
 @pytest.mark.parametrize(
-    ("block", "needles"),
+    ("blocks", "needles"),
     [
-        (ADAPTIVE + "    distances_m: [0.1]\n", ["blocks[0].distances_m", "not with design: adaptive"]),
-        (ADAPTIVE + "    repeats: 3\n", ["blocks[0].repeats", "allowed: distance_range_m"]),
-        (
-            ADAPTIVE.replace("[0.03, 0.25]", "[0.25, 0.03]"),
-            ["blocks[0].distance_range_m", "shortest < longest"],
-        ),
-        (ADAPTIVE.replace("[0.03, 0.25]", "[0.0, 0.25]"), ["blocks[0].distance_range_m[0]", "allowed"]),
-        (ADAPTIVE.replace("[0.03, 0.25]", "[0.03]"), ["blocks[0].distance_range_m", "expected 2 numbers"]),
-        (ADAPTIVE.replace("    distance_range_m: [0.03, 0.25]\n", ""), ["blocks[0].distance_range_m"]),
-        (ADAPTIVE + "    target_half_width_rel: 0.9\n", ["blocks[0].target_half_width_rel", "0.001", "0.5"]),
-        (ADAPTIVE + "    min_trials: 12\n", ["blocks[0].min_trials", "out of range", "2", "10"]),
-        (ADAPTIVE + "    startup_trials: 1\n", ["blocks[0].startup_trials", "out of range"]),
-        (ADAPTIVE.replace("max_trials: 10", "max_trials: 1"), ["blocks[0].max_trials", "out of range"]),
-        (ADAPTIVE + "    estimator: best\n", ["blocks[0].estimator", "allowed: paper, weighted, auto"]),
-        (ADAPTIVE + "    max_force_fraction: 1.5\n", ["blocks[0].max_force_fraction", "0.95"]),
-        (ADAPTIVE + "    min_spread_fraction: 0.7\n", ["blocks[0].min_spread_fraction", "0.5"]),
-        (ADAPTIVE + "    stop_scale_confidence: 1\n", ["blocks[0].stop_scale_confidence", "0.99"]),
-        (ADAPTIVE + "    distance_count: 1\n", ["blocks[0].distance_count", "out of range"]),
-        (
-            ADAPTIVE.replace("design: adaptive", "design: smart"),
-            ["blocks[0].design", "allowed: fixed, adaptive"],
-        ),
-        (FIXED + "    max_trials: 5\n", ["blocks[0].max_trials", "only with design: adaptive"]),
-        (LINK + "    design: adaptive\n", ["blocks[0]", "design"]),
-        (ADAPTIVE.replace("max_trials: 10", "max_trials: 1000") * 11, ["max_trials", "at most 10000"]),
+        ([adaptive(distances_m=[0.1])], ["blocks[0].distances_m", "not with design: adaptive"]),
+        ([adaptive(repeats=3)], ["blocks[0].repeats", "allowed: distance_range_m"]),
+        ([adaptive(distance_range_m=[0.25, 0.03])], ["blocks[0].distance_range_m", "shortest < longest"]),
+        ([adaptive(distance_range_m=[0.0, 0.25])], ["blocks[0].distance_range_m[0]", "allowed"]),
+        ([adaptive(distance_range_m=[0.03])], ["blocks[0].distance_range_m", "expected 2 numbers"]),
+        ([adaptive(distance_range_m=None)], ["blocks[0].distance_range_m"]),
+        ([adaptive(target_half_width_rel=0.9)], ["blocks[0].target_half_width_rel", "0.001", "0.5"]),
+        ([adaptive(min_trials=12)], ["blocks[0].min_trials", "out of range", "2", "10"]),
+        ([adaptive(startup_trials=1)], ["blocks[0].startup_trials", "out of range"]),
+        ([adaptive(max_trials=1)], ["blocks[0].max_trials", "out of range"]),
+        ([adaptive(estimator="best")], ["blocks[0].estimator", "allowed: paper, weighted, auto"]),
+        ([adaptive(max_force_fraction=1.5)], ["blocks[0].max_force_fraction", "0.95"]),
+        ([adaptive(min_spread_fraction=0.7)], ["blocks[0].min_spread_fraction", "0.5"]),
+        ([adaptive(stop_scale_confidence=1)], ["blocks[0].stop_scale_confidence", "0.99"]),
+        ([adaptive(distance_count=1)], ["blocks[0].distance_count", "out of range"]),
+        ([adaptive(design="smart")], ["blocks[0].design", "allowed: fixed, adaptive"]),
+        ([with_overrides(FIXED, {"max_trials": 5})], ["blocks[0].max_trials", "only with design: adaptive"]),
+        ([with_overrides(LINK, {"design": "adaptive"})], ["blocks[0]", "design"]),
+        ([adaptive(max_trials=1000)] * 11, ["max_trials", "at most 10000"]),
     ],
 )
-def test_bad_adaptive_blocks_are_refused_naming_the_field(block, needles):
+def test_bad_adaptive_blocks_are_refused_naming_the_field(blocks, needles):
     with pytest.raises(ConfigError) as info:
-        parse(block)
+        parse(*blocks)
     message = str(info.value)
     assert message.startswith("p.yaml: "), message
     for needle in needles:
@@ -125,7 +112,7 @@ def test_bad_adaptive_blocks_are_refused_naming_the_field(block, needles):
 
 
 def test_bad_adaptive_block_exits_2_with_one_line(run_cli, protocol_file):
-    path = protocol_file(HEAD + ADAPTIVE + "    target_half_width_rel: 0\n")
+    path = protocol_file(adaptive_protocol(adaptive(target_half_width_rel=0)))
     result = run_cli("run", path, "--dry-run")
     assert result.code == 2 and result.out == ""
     lines = result.err.strip().splitlines()
@@ -155,10 +142,9 @@ def test_dry_run_of_a_fixed_protocol_has_no_adaptive_key(cli_json):
 
 @pytest.mark.slow  # a few trials on the byte-level simulated rig
 def test_rig_run_on_the_simulated_rig_says_why_the_adaptive_block_stopped(run_cli, protocol_file, tmp_path):
-    body = HEAD + ADAPTIVE.replace("max_trials: 10", "max_trials: 4")
-    body += "    min_trials: 3\n    target_half_width_rel: 0.5\n"
-    body += "    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]\n"
-    path = protocol_file(body)
+    path = protocol_file(
+        adaptive_protocol(adaptive(max_trials=4, min_trials=3, target_half_width_rel=0.5, steps=QUICK_STEPS))
+    )
     result = run_cli("run", path, "--out", tmp_path / "out", "--run-id", "sim1")
     assert result.code == 0, result.err
     summary = result.out.splitlines()

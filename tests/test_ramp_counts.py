@@ -71,8 +71,8 @@ def test_a_10_per_s_run_steps_whole_counts_after_samples_and_reads_slips_within_
     protocol = write_joint_1_protocol(
         tmp_path / "p.yaml",
         "slow",
-        "{fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.08, max_force_n: 70.0}",
-        "[0.25, 0.22, 0.25, 0.19]",
+        {"fast_speed_rad_s": 1.0, "slow_speed_rad_s": 0.08, "max_force_n": 70.0},
+        [0.25, 0.22, 0.25, 0.19],
     )
     argv = ["run", str(protocol), "--rig", str(rig), "--seed", "0", "--json", "--out", str(tmp_path / "o")]
     assert main(argv) == 0
@@ -118,8 +118,8 @@ def test_on_the_compliant_10_per_s_scenario_slip_loads_are_read_within_half_a_pe
     protocol = write_joint_1_protocol(
         tmp_path / "p.yaml",
         "soft",
-        "{fast_speed_rad_s: 4.0, slow_speed_rad_s: 0.48, max_force_n: 70.0, unload_speed_rad_s: 4.0}",
-        "[0.25, 0.22, 0.25, 0.19]",
+        {"fast_speed_rad_s": 4.0, "slow_speed_rad_s": 0.48, "max_force_n": 70.0, "unload_speed_rad_s": 4.0},
+        [0.25, 0.22, 0.25, 0.19],
     )
     argv = ["run", str(protocol), "--rig", str(rig), "--seed", "0", "--json", "--out", str(tmp_path / "o")]
     assert main(argv) == 0

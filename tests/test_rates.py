@@ -25,11 +25,20 @@ from rig.inputs.protocol import for_loadcell_rate, load_protocol
 from rig.inputs.rig_config import DEFAULT_LOADCELL_RATE_HZ, load_rig_config, nominal_loadcell_rate_hz
 from rig.log.format import schemas
 from rig.runner.ramp_speed import SAMPLING_ERROR_FRACTION, RampSpeeds
-from tests.helpers import write_joint_1_protocol
+from tests.helpers import bare_protocol, shipped_block, write_joint_1_protocol
 
 RATES_HZ = (10.0, 80.0, 320.0, 1000.0, 2000.0)
 SIM_N_PER_RAD = 50.0  # the built-in simulated rig: 5000 N/m line on a 10 mm spool
 PROTOCOL_DETECTOR = {"arm_threshold_n": 2.0, "drop_fraction": 0.15}  # protocols/joint_estimation.yaml
+
+
+def _protocol_with_detector(tmp_path: Path, detector: dict[str, float]) -> Path:
+    """A protocol of `detector` and one trial at 0.1 m on joint 1 (everything else at its default)."""
+    path = tmp_path / "p.yaml"
+    path.write_text(
+        bare_protocol("p", [shipped_block("smoke", distances_m=[0.1], steps=None)], detector=detector)
+    )
+    return path
 
 
 def _speeds(rate_hz: float) -> RampSpeeds:
@@ -97,13 +106,7 @@ def test_rate_defaults_below_1khz() -> None:
 
 
 def test_a_protocols_own_detector_fields_are_kept_at_any_rate(tmp_path: Path) -> None:
-    text = (
-        "format: rig-protocol/1\nname: p\ndetector: {arm_threshold_n: 2.0, creep_min_s: 0.07}\n"
-        "blocks:\n  - {kind: joint_estimation, joint: 1, distances_m: [0.1], repeats: 1}\n"
-    )
-    path = tmp_path / "p.yaml"
-    path.write_text(text)
-    protocol = load_protocol(path)
+    protocol = load_protocol(_protocol_with_detector(tmp_path, {"arm_threshold_n": 2.0, "creep_min_s": 0.07}))
     assert protocol.detector_given == frozenset({"arm_threshold_n", "creep_min_s"})
     slow = for_loadcell_rate(protocol, 10.0)
     assert slow.detector.creep_min_s == 0.07 and slow.detector.peak_leak_n_per_s == pytest.approx(0.01)
@@ -196,8 +199,8 @@ def test_a_run_at_10_samples_per_s_ends_in_slips_with_the_slip_load_close(tmp_pa
     protocol = write_joint_1_protocol(
         tmp_path / "p.yaml",
         "slow",
-        "{fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.08, max_force_n: 70.0}",
-        "[0.25, 0.22, 0.25]",
+        {"fast_speed_rad_s": 1.0, "slow_speed_rad_s": 0.08, "max_force_n": 70.0},
+        [0.25, 0.22, 0.25],
     )
     code = main(
         ["run", str(protocol), "--rig", str(rig), "--seed", "0", "--json", "--out", str(tmp_path / "o")]
@@ -301,24 +304,15 @@ def test_a_fall_caught_part_way_is_seen_on_the_next_sample(rate_hz: float) -> No
 
 def test_a_protocol_giving_the_drift_per_sample_is_refused_naming_the_field(tmp_path: Path) -> None:
     # The pre-release name (N per sample) is gone: the detector has one set of names.
-    text = (
-        "format: rig-protocol/1\nname: p\ndetector: {cusum_threshold_n: 1.0, cusum_drift_n: 0.05}\n"
-        "blocks:\n  - {kind: joint_estimation, joint: 1, distances_m: [0.1], repeats: 1}\n"
-    )
-    path = tmp_path / "p.yaml"
-    path.write_text(text)
+    path = _protocol_with_detector(tmp_path, {"cusum_threshold_n": 1.0, "cusum_drift_n": 0.05})
     with pytest.raises(InputError, match=r"unknown field 'cusum_drift_n'.*cusum_drift_n_per_s"):
         load_protocol(path)
 
 
 def test_the_drift_per_second_is_kept_at_every_rate(tmp_path: Path) -> None:
-    text = (
-        "format: rig-protocol/1\nname: p\ndetector: {cusum_threshold_n: 1.0, cusum_drift_n_per_s: 50}\n"
-        "blocks:\n  - {kind: joint_estimation, joint: 1, distances_m: [0.1], repeats: 1}\n"
+    protocol = load_protocol(
+        _protocol_with_detector(tmp_path, {"cusum_threshold_n": 1.0, "cusum_drift_n_per_s": 50})
     )
-    path = tmp_path / "p.yaml"
-    path.write_text(text)
-    protocol = load_protocol(path)
     assert protocol.detector.cusum_drift_n_per_s == 50.0
     assert for_loadcell_rate(protocol, 1000.0) is protocol
     assert for_loadcell_rate(protocol, 10.0).detector.cusum_drift_n_per_s == 50.0

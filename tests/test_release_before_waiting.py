@@ -21,6 +21,7 @@ from rig.rigs import open_simulated_rig
 from rig.runner.execute import RunRequest, execute_run, prepare_run
 from rig.runner.progress import SilentProgress
 from rig.sim.physics.world import SimWorld
+from tests.helpers import shipped_block, smoke_protocol
 
 ROOT = Path(__file__).resolve().parent.parent
 SMOKE = ROOT / "protocols" / "smoke.yaml"
@@ -83,11 +84,10 @@ def test_the_line_is_slack_before_anyone_is_asked_which_joint_moved(tmp_path):
 
 
 def test_a_step_between_the_ramp_and_the_unload_is_refused(tmp_path):
-    text = SMOKE.read_text(encoding="utf-8").replace(
-        "ramp_until_slip, unload]", "ramp_until_slip, prompt, unload]"
-    )
+    steps = shipped_block("smoke")["steps"]
+    steps.insert(steps.index("unload"), "prompt")
     path = tmp_path / "p.yaml"
-    path.write_text(text, encoding="utf-8")
+    path.write_text(smoke_protocol(block={"steps": steps}), encoding="utf-8")
     with pytest.raises(
         InputError, match=r"p\.yaml: blocks\[0\]\.steps: an 'unload' step must come right after"
     ):
@@ -108,10 +108,10 @@ def test_the_dry_run_warns_when_nobody_is_asked_to_move_the_hook(cli_json, tmp_p
     """The rig cannot move the hook: a joint-estimation block with several distances and no prompt
     runs every trial wherever the hook hangs (the simulated person, like a real one, moves it only
     when asked). The shipped protocols prompt, so they are not warned about."""
-    text = SMOKE.read_text(encoding="utf-8")
-    assert "steps: [prompt, " in text
+    steps = shipped_block("smoke")["steps"]
+    assert steps[0] == "prompt"
     quiet = tmp_path / "no-prompt.yaml"
-    quiet.write_text(text.replace("steps: [prompt, ", "steps: ["), encoding="utf-8")
+    quiet.write_text(smoke_protocol(block={"steps": steps[1:]}), encoding="utf-8")
     warned = cli_json("run", quiet, "--dry-run", "--json")
     assert any("nobody is asked to move the hook" in w for w in warned.get("warnings", [])), warned
     for protocol in ("smoke", "joint_estimation", "joint_estimation_adaptive", "link_validation"):

@@ -24,27 +24,11 @@ from rig.cli import main
 from rig.inputs.rig_config import load_rig_config
 from rig.log.format import schemas as S
 from rig.log.reading.reader import RunLog, read_run
+from tests.helpers import link_small_protocol
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 
-LINK = """\
-format: rig-protocol/1
-name: link_small
-detector: {arm_threshold_n: 1.0, drop_fraction: 0.15}
-ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.1, 0.2]
-    steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
-  - kind: link_validation
-    estimates_from: run
-    configurations_deg:
-      - [5, 5, 5, 5, 5, 5, 5, 5]
-      - [10, -10, 10, -10, 10, -10, 10, -10]
-    steps: [bend, measure, {tare: {settle_s: 0.1}}, ramp_until_slip, unload, reset]
-"""
+LINK = link_small_protocol()
 
 REPORT_FILES = (
     "report.md",

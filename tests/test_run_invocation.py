@@ -29,7 +29,7 @@ from rig.runner.execute import RunReport, RunRequest, prepare_run
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
 from rig.runner.runlock import RunInProgressError
-from tests.helpers import QUICK_PROTOCOL
+from tests.helpers import QUICK_PROTOCOL, quick_protocol
 from tests.runner_rig import RunnerRig, assert_released_then_torque_off, execute_on, runner_rig
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -229,7 +229,7 @@ def test_a_run_in_progress_cannot_be_started_or_resumed_twice(tmp_path, quick, r
 def test_the_lock_is_given_back_when_preparing_fails(tmp_path, quick, protocol_file):
     out = tmp_path / "out"
     interrupted_run(quick, out)
-    quick.write_text(QUICK_PROTOCOL.replace("repeats: 1", "repeats: 2"))
+    quick.write_text(quick_protocol(block={"repeats": 2}))
     with pytest.raises(InputError, match="changed since run f1 started"):
         prepare_run(request(quick, out, resume="f1"))
     assert not (out / "f1.lock").exists()
@@ -317,7 +317,7 @@ def test_a_moved_but_identical_protocol_resumes(tmp_path, quick):
 def test_a_changed_protocol_at_another_path_is_refused(tmp_path, quick, protocol_file):
     out = tmp_path / "out"
     interrupted_run(quick, out)
-    other = protocol_file(QUICK_PROTOCOL.replace("0.25]", "0.3]"), "other.yaml")
+    other = protocol_file(quick_protocol(block={"distances_m": [0.12, 0.2, 0.3]}), "other.yaml")
     with pytest.raises(InputError, match="changed since run f1 started"):
         prepare_run(request(other, out, resume="f1"))
 
@@ -384,7 +384,7 @@ def test_a_changed_rig_config_is_named_with_what_changed(tmp_path, quick):
 def test_a_changed_protocol_is_named_with_what_changed(tmp_path, quick):
     out = tmp_path / "out"
     interrupted_run(quick, out)
-    quick.write_text(QUICK_PROTOCOL.replace("0.25]", "0.3]"))
+    quick.write_text(quick_protocol(block={"distances_m": [0.12, 0.2, 0.3]}))
     with pytest.raises(
         InputError,
         match=r"changed since run f1 started \(it used .*: blocks\[0\]\.distances_m\[\d\]: 0\.25 -> 0\.3\)",
@@ -434,7 +434,7 @@ def test_the_stop_line_prints_a_resume_command_that_works(tmp_path, run_cli, mon
 
 @pytest.mark.parametrize("name", ["../../../escaped", "/etc/passwd", "a b/c", "....", "n" * 300])
 def test_an_unsafe_protocol_name_is_refused_before_anything_is_written(tmp_path, quick, run_cli, name):
-    quick.write_text(QUICK_PROTOCOL.replace("name: quick", f"name: {json.dumps(name)}"))
+    quick.write_text(quick_protocol(name=name))
     result = run_cli("run", quick, "--out", tmp_path / "out")
     assert result.code == 2 and "name:" in result.err and result.err.count("\n") == 1
     assert not (tmp_path / "out").exists()
@@ -453,7 +453,7 @@ def test_a_protocol_file_name_gives_a_safe_run_id(tmp_path, file_name, expected)
     # Without `name:`, the protocol is named after its file, which may hold any character: the run
     # id keeps only letters, digits, '_' and '-' of it.
     protocol = tmp_path / file_name
-    protocol.write_text(QUICK_PROTOCOL.replace("name: quick\n", ""))
+    protocol.write_text(quick_protocol(name=None))
     out = tmp_path / "deep" / "out"
     prepared = prepare_run(request(protocol, out, run_id=None))
     prepared.release()
@@ -464,7 +464,7 @@ def test_a_protocol_file_name_gives_a_safe_run_id(tmp_path, file_name, expected)
 
 def test_a_long_protocol_file_name_is_cut_to_the_run_id_limit(tmp_path):
     protocol = tmp_path / ("n" * 200 + ".yaml")
-    protocol.write_text(QUICK_PROTOCOL.replace("name: quick\n", ""))
+    protocol.write_text(quick_protocol(name=None))
     report, _ = run_sim(protocol, tmp_path / "out", run_id=None)
     assert report.exit_code == 0 and len(report.run_id) == 100
     assert Path(report.log).parent == tmp_path / "out"

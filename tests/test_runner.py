@@ -13,7 +13,7 @@ from rig.cli import main
 from rig.errors import InputError
 from rig.inputs.rig_config import load_rig_config
 from rig.runner.journal import RunJournal
-from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, quick_protocol
+from tests.helpers import QUICK_PROTOCOL, QUICK_STEPS, link_small_protocol, quick_protocol
 
 PROTOCOLS = Path(__file__).resolve().parent.parent / "protocols"
 
@@ -195,24 +195,7 @@ def test_resume_refuses_an_edited_protocol(sim_run, protocol_file):
 
 
 def test_link_validation_predicts_from_the_rigs_own_estimates(sim_run, protocol_file, assert_safe):
-    body = """\
-    format: rig-protocol/1
-    estimator: paper
-    detector: {arm_threshold_n: 1.0, drop_fraction: 0.15}
-    ramp: {fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}
-    limits: {force_ceiling_n: 75.0}
-    blocks:
-      - kind: joint_estimation
-        distances_m: [0.1, 0.2]
-        steps: [prompt, {tare: {settle_s: 0.1}}, ramp_until_slip, unload]
-      - kind: link_validation
-        estimates_from: run
-        configurations_deg:
-          - [5, 5, 5, 5, 5, 5, 5, 5]
-          - [10, -10, 10, -10, 10, -10, 10, -10]
-        steps: [bend, measure, {tare: {settle_s: 0.1}}, ramp_until_slip, unload, reset]
-    """
-    report, sim = sim_run(protocol_file(body))
+    report, sim = sim_run(protocol_file(link_small_protocol(name=None, estimator="paper")))
     assert report.exit_code == 0 and report.completed == 4
     estimation = [t for t in report.trials if t.kind == "joint_estimation"]
     validation = [t for t in report.trials if t.kind == "link_validation"]

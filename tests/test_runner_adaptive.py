@@ -16,28 +16,23 @@ from rig.log.format import schemas
 from rig.runner.execute import RunRequest, prepare_run
 from rig.runner.journal import RunJournal
 from rig.runner.progress import SilentProgress
+from tests.helpers import QUICK_STEPS, adaptive_block, quick_protocol
 from tests.runner_rig import execute_on, runner_rig
 
 MAX_SLIP_FORCE_N = 0.8 * 70.0  # max_force_fraction x max_force_n
 
-PROTOCOL = """\
-format: rig-protocol/1
-name: adaptive
-detector: {{arm_threshold_n: 2.0, drop_fraction: 0.15}}
-ramp: {{fast_speed_rad_s: 1.0, slow_speed_rad_s: 0.3, max_force_n: 70.0}}
-limits: {{force_ceiling_n: 75.0}}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    design: adaptive
-    distance_range_m: [0.03, 0.25]
-    distance_count: 8
-    max_trials: {max_trials}
-    min_trials: 6
-    target_half_width_rel: {target}
-    estimator: weighted
-    steps: [prompt, {{tare: {{settle_s: 0.1}}}}, ramp_until_slip, unload]
-"""
+
+def adaptive_protocol(target: float, max_trials: int) -> str:
+    """QUICK_PROTOCOL's settings, its block adaptive (8 candidates, at least 6 trials, the weighted fit)."""
+    block = adaptive_block(
+        distance_count=8,
+        max_trials=max_trials,
+        min_trials=6,
+        target_half_width_rel=target,
+        estimator="weighted",
+        steps=QUICK_STEPS,
+    )
+    return quick_protocol(name="adaptive", blocks=[block])
 
 
 class RecordingProgress(SilentProgress):
@@ -55,7 +50,7 @@ def run_adaptive(tmp_path, protocol_file):
     """`run_adaptive(target=, max_trials=, run_id=, resume=, interrupt_at_trial=)` -> (report, progress)."""
 
     def run(*, target=0.001, max_trials=8, run_id="a1", resume=False, interrupt_at_trial=None):
-        protocol = protocol_file(PROTOCOL.format(target=target, max_trials=max_trials), name=f"{run_id}.yaml")
+        protocol = protocol_file(adaptive_protocol(target, max_trials), name=f"{run_id}.yaml")
         request = RunRequest(
             protocol_path=protocol,
             rig_path=None,

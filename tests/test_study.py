@@ -25,6 +25,7 @@ from rig.study.seeds import parse_seeds
 from rig.study.statistics import clopper_pearson, summarise
 from rig.study.table import TABLE_NAME, write_table
 from rig.study.worker import EstimatorResult, JointResult, RunRecord, StudySpec
+from tests.helpers import bare_protocol, shipped_block
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "protocols" / "smoke.yaml"
@@ -294,10 +295,10 @@ def _link_only_protocol(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> P
     estimates = tmp_path / "estimates.json"
     estimates.write_text(capsys.readouterr().out)
     path = tmp_path / "link_only.yaml"
-    path.write_text(
-        "format: rig-protocol/1\nname: link_only\nblocks:\n  - kind: link_validation\n"
-        f"    estimates_from: {estimates}\n    configurations_deg:\n      - [0, 0, 0, 0, 0, 0, 0, 0]\n"
+    validation = shipped_block(
+        "link_validation", 1, estimates_from=str(estimates), configurations_deg=[[0] * 8]
     )
+    path.write_text(bare_protocol("link_only", [validation]))
     return path
 
 

@@ -21,6 +21,7 @@ from rig.study.series import score_series
 from rig.study.statistics import clopper_pearson, summarise
 from rig.study.table import TABLE_NAME
 from rig.study.worker import EstimatorResult, JointResult, RunRecord, StudySpec
+from tests.helpers import adaptive_block, bare_protocol, shipped_block
 
 REPO = Path(__file__).resolve().parents[1]
 ADAPTIVE = REPO / "protocols" / "joint_estimation_adaptive.yaml"
@@ -28,33 +29,16 @@ ADAPTIVE = REPO / "protocols" / "joint_estimation_adaptive.yaml"
 # A fixed block and an adaptive one on joint 1, another adaptive block on joint 2: the first
 # adaptive block stops on its (wide) target after its 3 minimum trials, the second can never reach
 # its target and uses its budget of 4.
-MIXED = """\
-format: rig-protocol/1
-name: mixed
-ramp: {max_force_n: 70.0}
-limits: {force_ceiling_n: 75.0}
-blocks:
-  - kind: joint_estimation
-    joint: 1
-    distances_m: [0.1, 0.2]
-    repeats: 1
-  - kind: joint_estimation
-    joint: 1
-    design: adaptive
-    distance_range_m: [0.03, 0.25]
-    target_half_width_rel: 0.5
-    min_trials: 3
-    startup_trials: 2
-    max_trials: 6
-  - kind: joint_estimation
-    joint: 2
-    design: adaptive
-    distance_range_m: [0.03, 0.25]
-    target_half_width_rel: 0.001
-    min_trials: 3
-    startup_trials: 2
-    max_trials: 4
-"""
+MIXED = bare_protocol(
+    "mixed",
+    [
+        shipped_block("smoke", steps=None),
+        adaptive_block(target_half_width_rel=0.5, min_trials=3, startup_trials=2, max_trials=6),
+        adaptive_block(joint=2, target_half_width_rel=0.001, min_trials=3, startup_trials=2, max_trials=4),
+    ],
+    ramp={"max_force_n": 70.0},
+    limits={"force_ceiling_n": 75.0},
+)
 
 
 def _mixed_protocol(tmp_path: Path) -> Path:
