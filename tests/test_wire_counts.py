@@ -1,4 +1,4 @@
-"""The servo bus's and the load cell's link counts are logged per trial (/rig/trial/links) and replayed."""
+"""The servo bus's and the load cell's wire counts are logged per trial (/rig/trial/links) and replayed."""
 
 from __future__ import annotations
 
