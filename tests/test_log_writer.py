@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from rig.errors import RigError
@@ -406,3 +408,29 @@ def test_log_columns_checks_the_names(tmp_path):
     assert [p for _, p in rows] == samples
     with RunLogger(tmp_path / "unequal.mcap") as log, pytest.raises(ValueError):  # columns of unequal length
         log.log_columns(S.LOADCELL, times[:2], seq=[1], raw=[2, 3], force_n=[0.5, 1], device_time_us=[1, 2])
+
+
+_ROW_VALUES = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(2**60), max_value=2**60),
+    st.sampled_from([S.MAX_SAFE_INT, S.MAX_SAFE_INT + 1, -S.MAX_SAFE_INT - 1]),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=3),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(_ROW_VALUES, min_size=3, max_size=5))
+def test_strict_modes_fast_row_check_accepts_only_what_the_schema_accepts(row):
+    """`row_passes` (the fast path) never accepts a row that `check_payload` (the plain check) refuses."""
+    row = tuple(row)
+    if S.row_passes(S.LOADCELL, row):
+        S.check_payload(S.LOADCELL, S.row_payload(S.LOADCELL, row))
+
+
+def test_strict_modes_fast_row_check_takes_the_rows_a_run_logs():
+    assert S.row_passes(S.LOADCELL, (7, -120268, 0.00335, 2_000_000))
+    assert S.row_passes(S.LOADCELL, (None, 5, -1.5, None))  # a format without seq or device clock
+    assert not S.row_passes(S.LOADCELL, (1, 5, float("nan"), 2))  # the plain check says why
+    assert not S.row_passes(S.LOADCELL, (1, None, 1.0, 2))  # raw is required

@@ -181,7 +181,7 @@ class RunLogger:
             if isinstance(payload, tuple):
                 if not rows:  # a tuple through `log`: its fields' order would be unchecked
                     raise TypeError(f"{topic}: a payload must be a mapping (rows go through log_columns)")
-                if strict:  # a row field by field, by its name
+                if strict and not schemas.row_passes(topic, payload):  # a row field by field, by its name
                     schemas.check_payload(topic, schemas.row_payload(topic, payload))
             elif strict:
                 schemas.check_payload(topic, payload)
