@@ -247,6 +247,18 @@ class RigLimits:
             "`ramp.hold_after_slip_s` must be shorter",
         ),
     )
+    recovery_grace_s: float = field(
+        default=2.0,
+        metadata=number(
+            0.1,
+            60.0,
+            unit="s",
+            doc="after a device fault in a trial and the release of the line, how long the rig has to "
+            "answer healthily again (every servo without a hardware error, the winch at its zero, fresh "
+            "load-cell samples) before the run stops (exit 1); a cell whose board resets when its port "
+            "reopens needs its boot time",
+        ),
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
