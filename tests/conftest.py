@@ -481,9 +481,11 @@ TWIN_LINE_STIFFNESS_N_PER_M = 5000.0
 # 500/s, 0.6 s at 1000/s. The fault tests upset the rig in that stretch, after polling the twin's
 # console for 2.5 N, so it must stay long enough for that: 400/s, about 1 s.
 TWIN_CELL_RATE_HZ = 400
-# `hardware_twin`'s `limits.recovery_grace_s` (2 s by default): a fault that clears lets the twin's
-# rig answer within a tick of the release, and the tests of one that does not wait all of it.
+# `hardware_twin`'s `limits.recovery_grace_s` and `servos.release_margin_s` (2 s each by default):
+# a fault that clears lets the twin's rig answer within a tick of the release, and its winch is back
+# well within twice its travel time; the tests of a fault that does not clear wait all of both.
 TWIN_RECOVERY_GRACE_S = 0.5
+TWIN_RELEASE_MARGIN_S = 0.5
 
 
 @dataclass
@@ -546,9 +548,8 @@ def hardware_twin(tmp_path: Path, hardware_rig: Callable[..., Path]) -> Iterator
     The config is `hardware_rig`'s at tmp_path/dxl and tmp_path/cell, with a link of eight 4 cm
     segments (the `link1` world's), the cell at `TWIN_CELL_RATE_HZ`, a line of
     `TWIN_LINE_STIFFNESS_N_PER_M` (the world's line; the config's nominal stiffness is the same),
-    `TWIN_RECOVERY_GRACE_S` and the calibration the twin writes for its cell. The hand follows
-    `protocol` (a path).
-    Killed after the test if still running.
+    `TWIN_RECOVERY_GRACE_S`, `TWIN_RELEASE_MARGIN_S` and the calibration the twin writes for its
+    cell. The hand follows `protocol` (a path). Killed after the test if still running.
     """
     servers: list[TwinServer] = []
 
@@ -565,6 +566,7 @@ def hardware_twin(tmp_path: Path, hardware_rig: Callable[..., Path]) -> Iterator
             loadcell={"rate_hz": TWIN_CELL_RATE_HZ, "calibration": "cal.json", **kwargs.pop("loadcell", {})},
             article={"segment_lengths_m": [0.04] * 8, **kwargs.pop("article", {})},
             limits={"recovery_grace_s": TWIN_RECOVERY_GRACE_S, **kwargs.pop("limits", {})},
+            servos={"release_margin_s": TWIN_RELEASE_MARGIN_S, **kwargs.pop("servos", {})},
             top=top,
             **kwargs,
         )

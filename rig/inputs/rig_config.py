@@ -72,6 +72,10 @@ class ServoSpec:
 DEFAULT_WATCHDOG_MS = 500
 # How long the release keeps trying a servo bus that went quiet before it gives up (rig config may say).
 DEFAULT_RELEASE_PATIENCE_S = 10.0
+# How long the release of the line waits for the winch beyond its travel time (rig config may say):
+# interlocks are off by then, and the load cell may be what failed, so arrival at the zero-tension
+# angle is all it waits for.
+DEFAULT_RELEASE_MARGIN_S = 2.0
 _PORT = f"serial port, 1-{MAX_PORT_CHARS} characters"
 
 
@@ -105,6 +109,17 @@ class ServoBusConfig:
             doc="how long the release of the line keeps trying a servo bus that stopped answering (a USB "
             "adapter that hangs); once it answers, the safe state is verified and the trial repeated; a bus "
             "silent for longer ends the run (exit 1)",
+        ),
+    )
+    release_margin_s: float = field(
+        default=DEFAULT_RELEASE_MARGIN_S,
+        metadata=number(
+            0.1,
+            60.0,
+            unit="s",
+            doc="how long the release of the line waits for the winch beyond twice its travel time at the "
+            "speed in force; a winch not back at its zero-tension angle by then leaves the safe state not "
+            "verified",
         ),
     )
 

@@ -45,5 +45,6 @@ class StepContext:
             tare_n=self.loop.tare_n,
             last=self.loop.reading(),
             patience_s=self.config.servos.release_patience_s,
+            margin_s=self.config.servos.release_margin_s,
             port=self.config.servos.port,
         )
