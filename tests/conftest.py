@@ -481,11 +481,13 @@ TWIN_LINE_STIFFNESS_N_PER_M = 5000.0
 # 500/s, 0.6 s at 1000/s. The fault tests upset the rig in that stretch, after polling the twin's
 # console for 2.5 N, so it must stay long enough for that: 400/s, about 1 s.
 TWIN_CELL_RATE_HZ = 400
-# `hardware_twin`'s `limits.recovery_grace_s` and `servos.release_margin_s` (2 s each by default):
-# a fault that clears lets the twin's rig answer within a tick of the release, and its winch is back
-# well within twice its travel time; the tests of a fault that does not clear wait all of both.
+# `hardware_twin`'s `limits.recovery_grace_s`, `servos.release_margin_s` (2 s each by default) and
+# `loadcell.slack_settle_s` (1 s): a fault that clears lets the twin's rig answer within a tick of
+# the release, its winch is back well within twice its travel time and its cell reads the slack line
+# at its next sample (2.5 ms at 400/s); the tests of a fault that does not clear wait all of them.
 TWIN_RECOVERY_GRACE_S = 0.5
 TWIN_RELEASE_MARGIN_S = 0.5
+TWIN_SLACK_SETTLE_S = 0.3
 
 
 @dataclass
@@ -548,8 +550,8 @@ def hardware_twin(tmp_path: Path, hardware_rig: Callable[..., Path]) -> Iterator
     The config is `hardware_rig`'s at tmp_path/dxl and tmp_path/cell, with a link of eight 4 cm
     segments (the `link1` world's), the cell at `TWIN_CELL_RATE_HZ`, a line of
     `TWIN_LINE_STIFFNESS_N_PER_M` (the world's line; the config's nominal stiffness is the same),
-    `TWIN_RECOVERY_GRACE_S`, `TWIN_RELEASE_MARGIN_S` and the calibration the twin writes for its
-    cell. The hand follows `protocol` (a path). Killed after the test if still running.
+    `TWIN_RECOVERY_GRACE_S`, `TWIN_RELEASE_MARGIN_S`, `TWIN_SLACK_SETTLE_S` and the calibration the
+    twin writes for its cell. The hand follows `protocol` (a path). Killed after the test if still running.
     """
     servers: list[TwinServer] = []
 
@@ -563,7 +565,12 @@ def hardware_twin(tmp_path: Path, hardware_rig: Callable[..., Path]) -> Iterator
             tmp_path / "dxl",
             tmp_path / "cell",
             calibration=False,
-            loadcell={"rate_hz": TWIN_CELL_RATE_HZ, "calibration": "cal.json", **kwargs.pop("loadcell", {})},
+            loadcell={
+                "rate_hz": TWIN_CELL_RATE_HZ,
+                "calibration": "cal.json",
+                "slack_settle_s": TWIN_SLACK_SETTLE_S,
+                **kwargs.pop("loadcell", {}),
+            },
             article={"segment_lengths_m": [0.04] * 8, **kwargs.pop("article", {})},
             limits={"recovery_grace_s": TWIN_RECOVERY_GRACE_S, **kwargs.pop("limits", {})},
             servos={"release_margin_s": TWIN_RELEASE_MARGIN_S, **kwargs.pop("servos", {})},

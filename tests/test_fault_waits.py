@@ -1,8 +1,10 @@
-"""The waits after a device fault a rig config sets: `limits.recovery_grace_s`, `servos.release_margin_s`.
+"""The waits after a device fault that a rig config sets.
 
-On the simulated rig in virtual time, with a fault 3 s into the smoke protocol (mid-ramp) that
-never clears: the run releases the line, waits the grace for the rig to answer healthily again and
-stops (exit 1). The release waits for the winch twice its travel time and the margin.
+`limits.recovery_grace_s`, `servos.release_margin_s`, `loadcell.slack_settle_s`. On the simulated
+rig in virtual time, with a fault 3 s into the smoke protocol (mid-ramp) that never clears: the run
+releases the line, waits the grace for the rig to answer healthily again and stops (exit 1). The
+release waits for the winch twice its travel time and the margin; with the winch back, the safe
+state waits the settle time for the cell to read the line slack.
 """
 
 from __future__ import annotations
@@ -76,10 +78,26 @@ def test_the_release_waits_for_a_silent_winch_its_travel_time_and_the_configured
     assert waited_s[None] - waited_s[0.5] == pytest.approx(2.0 - 0.5, abs=0.05)
 
 
+def test_the_safe_state_waits_the_configured_settle_time_for_a_cell_that_is_gone(tmp_path: Path):
+    # The cell unplugged for good: the winch is back at once, then no sample comes while it waits.
+    waited_s = {}
+    for settle_s in (None, 0.2):
+        settle = "" if settle_s is None else f"loadcell: {{slack_settle_s: {settle_s}}}\n"
+        (tmp_path / str(settle_s)).mkdir()
+        report, notes = _run(tmp_path / str(settle_s), _fault_config("loadcell", "disconnect") + settle)
+        assert report.exit_code == 1 and report.safe_state_verified
+        assert "the load cell gave no reading once the winch was back" in (report.reason or "")
+        (stopped_ns,) = [t for m, t in notes.items() if m.startswith("run stopped:")]
+        (safe_ns,) = [t for m, t in notes.items() if m.startswith("safe state:")]
+        waited_s[settle_s] = (safe_ns - stopped_ns) / 1e9
+    assert waited_s[None] - waited_s[0.2] == pytest.approx(1.0 - 0.2, abs=0.05), waited_s
+
+
 @pytest.mark.parametrize(
     ("field", "value"),
     [("limits.recovery_grace_s", v) for v in ("0", "61", "-1", "soon")]
-    + [("servos.release_margin_s", v) for v in ("0.05", "61", "nan")],
+    + [("servos.release_margin_s", v) for v in ("0.05", "61", "nan")]
+    + [("loadcell.slack_settle_s", v) for v in ("0", "100")],
 )
 def test_a_wait_out_of_range_is_refused_naming_the_field(tmp_path: Path, field: str, value: str):
     section, key = field.split(".")

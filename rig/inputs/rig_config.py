@@ -72,6 +72,9 @@ class ServoSpec:
 DEFAULT_WATCHDOG_MS = 500
 # How long the release keeps trying a servo bus that went quiet before it gives up (rig config may say).
 DEFAULT_RELEASE_PATIENCE_S = 10.0
+# Once the winch is back from a release, how long the load cell has to read the line slack (a line
+# relaxing, a slow cell's next sample) before the safe state is reported not verified (rig config may say).
+DEFAULT_SLACK_SETTLE_S = 1.0
 # How long the release of the line waits for the winch beyond its travel time (rig config may say):
 # interlocks are off by then, and the load cell may be what failed, so arrival at the zero-tension
 # angle is all it waits for.
@@ -198,6 +201,17 @@ class LoadCellConfig:
             unit="s",
             doc="after opening the port, how long the first valid sample may take (an Arduino "
             "resets when its port opens and is silent 1-3 s); then `limits.stale_timeout_s` applies",
+        ),
+    )
+    slack_settle_s: float = field(
+        default=DEFAULT_SLACK_SETTLE_S,
+        metadata=number(
+            0.1,
+            60.0,
+            unit="s",
+            doc="once the release of the line has the winch back at its zero-tension angle, how long the "
+            "cell has to read the line slack (a line relaxing, a slow cell's next sample) before the safe "
+            "state is reported not verified",
         ),
     )
 

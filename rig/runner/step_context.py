@@ -46,5 +46,6 @@ class StepContext:
             last=self.loop.reading(),
             patience_s=self.config.servos.release_patience_s,
             margin_s=self.config.servos.release_margin_s,
+            settle_s=self.config.loadcell.slack_settle_s,
             port=self.config.servos.port,
         )

@@ -27,15 +27,11 @@ from rig.errors import NotConnectedError, RigError, StepTimeoutError
 from rig.hw.seams import LoadCellSample, WatchdogTripSource
 from rig.hw.session import RigSession
 from rig.inputs.protocol import RampSettings
-from rig.inputs.rig_config import DEFAULT_RELEASE_MARGIN_S
+from rig.inputs.rig_config import DEFAULT_RELEASE_MARGIN_S, DEFAULT_SLACK_SETTLE_S
 from rig.records import LogLevel, ServoCommandName
 from rig.runner.control_loop import Reading, tare_corrected
 from rig.runner.recorder import RunRecorder
 from rig.safety.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
-
-# Once the winch is back, the load cell has this long to read the line slack (a line relaxing, a
-# slow cell's next sample) before the safe state is reported not verified.
-SLACK_SETTLE_S = 1.0
 
 
 class LineRelease:
@@ -52,6 +48,7 @@ class LineRelease:
         last: Reading,
         patience_s: float = 0.0,
         margin_s: float = DEFAULT_RELEASE_MARGIN_S,
+        settle_s: float = DEFAULT_SLACK_SETTLE_S,
         port: str = "the servo port",
     ) -> None:
         self.session = session
@@ -66,6 +63,7 @@ class LineRelease:
         self._cell_answered = bool(last.tick_samples)  # any sample in the release (or the tick before)
         self.patience_s = patience_s
         self.margin_s = margin_s
+        self.settle_s = settle_s
         self.port = port
         self.report: list[str] = []  # what the release did and verified
         self.at_zero = False  # the winch's position was read back at its zero-tension angle
@@ -139,14 +137,15 @@ class LineRelease:
     def confirm_slack(self, tolerance_n: float) -> bool:
         """With the winch at its zero: does the load cell read the line slack? Recorded in `report`.
 
-        Waits up to `SLACK_SETTLE_S` for a sample within `tolerance_n` of the cell's zero (tare
-        corrected), taken at or after the winch's arrival. A cell that gives no sample at all in the
-        release is gone: the release is taken on the winch's position alone, and the report says the
-        tension was not measured. A cell reading beyond the tolerance is not slack: not verified.
+        Waits up to `settle_s` (`loadcell.slack_settle_s`) for a sample within `tolerance_n` of the
+        cell's zero (tare corrected), taken at or after the winch's arrival. A cell that gives no
+        sample at all in the release is gone: the release is taken on the winch's position alone, and
+        the report says the tension was not measured. A cell reading beyond the tolerance is not
+        slack: not verified.
         """
         if not self.at_zero:
             return False
-        deadline = self.clock.monotonic_ns() + round(SLACK_SETTLE_S * 1e9)
+        deadline = self.clock.monotonic_ns() + round(self.settle_s * 1e9)
         fresh = bool(self.tick_samples)  # the arrival's tick brought a sample
         while not (fresh and abs(self.force_n) <= tolerance_n):
             if self.clock.monotonic_ns() >= deadline:
