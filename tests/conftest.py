@@ -488,6 +488,11 @@ TWIN_CELL_RATE_HZ = 400
 TWIN_RECOVERY_GRACE_S = 0.5
 TWIN_RELEASE_MARGIN_S = 0.5
 TWIN_SLACK_SETTLE_S = 0.3
+# The twin and the run share two cores with the rest of the suite: a bus reply may miss the SDK's
+# 34 ms packet timeout while the twin waits for a core (a real adapter has no such contention). A
+# run stopped at connect on three of them at a load of 4-5; five retries ride out about 0.2 s. The
+# faults the tests inject (a second's silence and more, a pulled port) outlast them by far.
+TWIN_BUS_RETRIES = 5
 
 
 @dataclass
@@ -550,8 +555,9 @@ def hardware_twin(tmp_path: Path, hardware_rig: Callable[..., Path]) -> Iterator
     The config is `hardware_rig`'s at tmp_path/dxl and tmp_path/cell, with a link of eight 4 cm
     segments (the `link1` world's), the cell at `TWIN_CELL_RATE_HZ`, a line of
     `TWIN_LINE_STIFFNESS_N_PER_M` (the world's line; the config's nominal stiffness is the same),
-    `TWIN_RECOVERY_GRACE_S`, `TWIN_RELEASE_MARGIN_S`, `TWIN_SLACK_SETTLE_S` and the calibration the
-    twin writes for its cell. The hand follows `protocol` (a path). Killed after the test if still running.
+    `TWIN_RECOVERY_GRACE_S`, `TWIN_RELEASE_MARGIN_S`, `TWIN_SLACK_SETTLE_S`, `TWIN_BUS_RETRIES` and
+    the calibration the twin writes for its cell. The hand follows `protocol` (a path). Killed after
+    the test if still running.
     """
     servers: list[TwinServer] = []
 
@@ -573,7 +579,11 @@ def hardware_twin(tmp_path: Path, hardware_rig: Callable[..., Path]) -> Iterator
             },
             article={"segment_lengths_m": [0.04] * 8, **kwargs.pop("article", {})},
             limits={"recovery_grace_s": TWIN_RECOVERY_GRACE_S, **kwargs.pop("limits", {})},
-            servos={"release_margin_s": TWIN_RELEASE_MARGIN_S, **kwargs.pop("servos", {})},
+            servos={
+                "retries": TWIN_BUS_RETRIES,
+                "release_margin_s": TWIN_RELEASE_MARGIN_S,
+                **kwargs.pop("servos", {}),
+            },
             top=top,
             **kwargs,
         )
