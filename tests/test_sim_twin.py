@@ -43,10 +43,11 @@ RATE_HZ = 80  # the rehearsal's load cell (docstring of the rehearsal test)
 LED = 65  # the servos' LED register (X-series control table)
 # The rehearsal waits in real time for each of these, three opens of the cell and a jog each way:
 # a board reset shorter than an Uno's optiboot wait (about 1.5 s, docs/hardware.md) shows the same
-# reset and banner; the jog only needs to pass the twin's 0.5 rad of slack and the 5 N rise
-# (about 0.12 rev) the right way, and goes the whole travel (there and back) the wrong way.
+# reset and banner; the jog only needs to pass the twin's 0.5 rad of slack and the 5 N rise the
+# right way (0.097 rev, reeled in on the twin in virtual time), and goes the whole travel (there and
+# back) the wrong way.
 DTR_RESET_S = 0.5
-JOG_TRAVEL_REV = 0.2
+JOG_TRAVEL_REV = 0.15
 
 
 def _hardware_config(tmp_path: Path, simulation: str = "simulation:\n  winch_reversed: true\n") -> Path:
