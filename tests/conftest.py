@@ -472,7 +472,27 @@ def hardware_rig(tmp_path: Path) -> Callable[..., Path]:
     return write
 
 
-TWIN_LINE_STIFFNESS_N_PER_M = 2000.0  # `hardware_twin`'s world line, and its config's nominal
+# `hardware_twin`'s line, and its config's nominal: the `link1` world's line alone. These tests run
+# in real time: at 2000 N/m (that line in series with a spring) a trial's ramp from its tare to the
+# slip took 3.65 s and the release after the slip 0.83 s; at 5000 N/m 3.3 s and 0.6 s (200/s cell).
+TWIN_LINE_STIFFNESS_N_PER_M = 5000.0
+# `hardware_twin`'s cell (lines/s). The ramp's tension rate is bound by the cell's rate
+# (rig/runner/ramp_speed.py): from 2.5 N to the twin's 13.5 N slip took 1.9 s at 200/s, 0.8 s at
+# 500/s, 0.6 s at 1000/s. The fault tests upset the rig in that stretch, after polling the twin's
+# console for 2.5 N, so it must stay long enough for that: 400/s, about 1 s.
+TWIN_CELL_RATE_HZ = 400
+# `hardware_twin`'s `limits.recovery_grace_s`, `servos.release_margin_s` (2 s each by default) and
+# `loadcell.slack_settle_s` (1 s): a fault that clears lets the twin's rig answer within a tick of
+# the release, its winch is back well within twice its travel time and its cell reads the slack line
+# at its next sample (2.5 ms at 400/s); the tests of a fault that does not clear wait all of them.
+TWIN_RECOVERY_GRACE_S = 0.5
+TWIN_RELEASE_MARGIN_S = 0.5
+TWIN_SLACK_SETTLE_S = 0.3
+# The twin and the run share two cores with the rest of the suite: a bus reply may miss the SDK's
+# 34 ms packet timeout while the twin waits for a core (a real adapter has no such contention). A
+# run stopped at connect on three of them at a load of 4-5; five retries ride out about 0.2 s. The
+# faults the tests inject (a second's silence and more, a pulled port) outlast them by far.
+TWIN_BUS_RETRIES = 5
 
 
 @dataclass
@@ -533,26 +553,37 @@ def hardware_twin(tmp_path: Path, hardware_rig: Callable[..., Path]) -> Iterator
     """Factory: `hardware_twin(protocol, **hardware_rig_kwargs)`: `rig sim rig` serving `hardware_rig`'s twin.
 
     The config is `hardware_rig`'s at tmp_path/dxl and tmp_path/cell, with a link of eight 4 cm
-    segments (the `link1` world's), the cell at 200 lines/s, a line of
-    `TWIN_LINE_STIFFNESS_N_PER_M` (the world's 5000 N/m line in series with a spring; the config's
-    nominal stiffness is the same) and the calibration the twin writes for its cell. The hand
-    follows `protocol` (a path). Killed after the test if still running.
+    segments (the `link1` world's), the cell at `TWIN_CELL_RATE_HZ`, a line of
+    `TWIN_LINE_STIFFNESS_N_PER_M` (the world's line; the config's nominal stiffness is the same),
+    `TWIN_RECOVERY_GRACE_S`, `TWIN_RELEASE_MARGIN_S`, `TWIN_SLACK_SETTLE_S`, `TWIN_BUS_RETRIES` and
+    the calibration the twin writes for its cell. The hand follows `protocol` (a path). Killed after
+    the test if still running.
     """
     servers: list[TwinServer] = []
 
     def start(protocol: Path, **kwargs: Any) -> TwinServer:
-        spring_n_per_m = 1 / (1 / TWIN_LINE_STIFFNESS_N_PER_M - 1 / 5000.0)
         top = {
             "line_stiffness_n_per_m": TWIN_LINE_STIFFNESS_N_PER_M,
-            "simulation": {"spring_stiffness_n_per_m": round(spring_n_per_m, 3)},
+            "simulation": {},
             **kwargs.pop("top", {}),
         }
         config = hardware_rig(
             tmp_path / "dxl",
             tmp_path / "cell",
             calibration=False,
-            loadcell={"rate_hz": 200, "calibration": "cal.json", **kwargs.pop("loadcell", {})},
+            loadcell={
+                "rate_hz": TWIN_CELL_RATE_HZ,
+                "calibration": "cal.json",
+                "slack_settle_s": TWIN_SLACK_SETTLE_S,
+                **kwargs.pop("loadcell", {}),
+            },
             article={"segment_lengths_m": [0.04] * 8, **kwargs.pop("article", {})},
+            limits={"recovery_grace_s": TWIN_RECOVERY_GRACE_S, **kwargs.pop("limits", {})},
+            servos={
+                "retries": TWIN_BUS_RETRIES,
+                "release_margin_s": TWIN_RELEASE_MARGIN_S,
+                **kwargs.pop("servos", {}),
+            },
             top=top,
             **kwargs,
         )

@@ -76,7 +76,7 @@ def test_a_host_paused_mid_ramp_finds_the_tripped_watchdog_clears_it_and_repeats
     twin, run = _start(tmp_path, hardware_twin, patience_s=5.0)
     run.send_signal(signal.SIGSTOP)  # the host stops (a suspend, a slow disk); the servos' watchdog trips
     try:
-        time.sleep(1.5)
+        time.sleep(1.0)  # twice the servos' Bus Watchdog (500 ms)
     finally:
         run.send_signal(signal.SIGCONT)
     out, _ = run.communicate(timeout=180)

@@ -21,6 +21,11 @@ CHECK_KEYS: dict[str, Any] = {
     "loadcell": {"rate_hz": 200, "capacity_n": 98},
     "limits": {"force_ceiling_n": 75, "winch_current_limit_a": 0.52},
 }
+# How long `rig check` listens to the cell (`--window-s`; its sections `loadcell` and `line` each
+# listen this long) where no row asserted depends on the length: the shortest allowed. A check that
+# must pass whole keeps the default 5 s: over 1-2 s the clock-skew row warned (1667, 2750 ppm) on the
+# pty emulator, whose receipt times carry the host's scheduling.
+SHORT_WINDOW = ("--window-s", "1")
 
 
 def _verdicts(out: dict[str, Any]) -> dict[str, str]:
@@ -39,7 +44,7 @@ def test_emulators_show_latency_voltage_and_a_loaded_line(
         ids=[1, 2], extra_args=["--usb-latency-ms", "16", "--sysfs-root", str(sysfs), "--voltage-v", "9.0"]
     )
     rig = hardware_rig(servos.link, loadcell_server("constant:8").link, **CHECK_KEYS)
-    result = run_cli("check", "--rig", rig, "--sysfs-root", sysfs, "--json")
+    result = run_cli("check", "--rig", rig, "--sysfs-root", sysfs, *SHORT_WINDOW, "--json")
     assert result.code == 1
     rows = {row["check"]: row for row in result.data["rows"]}
     assert rows["servo bus USB latency timer"]["verdict"] == "fail"
@@ -75,14 +80,16 @@ def test_emulators_at_1_ms_pass_then_a_missing_calibration_fails_then_a_jog_find
 
     # Without a calibration the line check fails, naming `rig calibrate`.
     uncalibrated = hardware_rig(servos.link, cell.link, calibration=False, **CHECK_KEYS)
-    result = run_cli("check", "--rig", uncalibrated, "--only", "line", "--json")
+    result = run_cli("check", "--rig", uncalibrated, "--only", "line", *SHORT_WINDOW, "--json")
     assert result.code == 1
     (row,) = result.data["rows"]
     assert "no calibration" in row["measured"] and "rig calibrate" in row["fix"]
 
-    # The jog on uncoupled emulators: the tension does not rise; nothing is written.
+    # The jog on uncoupled emulators: the tension does not rise; nothing is written. The shortest
+    # jog allowed (0.01 rev each way and back) shows it as well as a longer one.
     rig = hardware_rig(servos.link, cell.link, **CHECK_KEYS)
-    result = run_cli("check", "--rig", rig, "--only", "move", "--move", "--jog-travel-rev", "0.05", "--json")
+    jog = ("--move", "--jog-travel-rev", "0.01")
+    result = run_cli("check", "--rig", rig, "--only", "move", *jog, *SHORT_WINDOW, "--json")
     assert result.code == 1
     row = next(r for r in result.data["rows"] if r["check"].startswith("reel direction"))
     assert row["verdict"] == "fail" and "did not rise" in row["measured"]

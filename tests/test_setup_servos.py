@@ -48,10 +48,12 @@ def _point(link: Path, target: str) -> None:
     os.symlink(os.path.realpath(target), link)
 
 
-def _scan(port: str, baud: int) -> list[dict]:
-    args = ["scan", "--port", port, "--baud", str(baud), "--protocol1-max-id", "-1", "--json"]
-    out = subprocess.run([sys.executable, "-m", "rig.cli", *args], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout)["servos"]
+def _scan(capsys: pytest.CaptureFixture[str], port: str, baud: int) -> list[dict]:
+    """`rig scan` at one baud (Protocol 2.0), in-process: a new interpreter would cost a second."""
+    capsys.readouterr()  # only the scan's output
+    assert main(["scan", "--port", port, "--baud", str(baud), "--protocol1-max-id", "-1", "--json"]) == 0
+    servos: list[dict] = json.loads(capsys.readouterr().out)["servos"]
+    return servos
 
 
 def test_each_servo_gets_its_id_and_the_bus_baud(tmp_path, dxl_server, monkeypatch, capsys):
@@ -73,9 +75,9 @@ def test_each_servo_gets_its_id_and_the_bus_baud(tmp_path, dxl_server, monkeypat
     assert len(prompts) == 2 and "winch servo (XM430-W350, to become id 3)" in prompts[0]
     assert "id 1 -> 3, baud 57600 -> 1000000 (read back)" in out
     assert "id 1 -> 7, baud 57600 -> 1000000 (read back)" in out
-    assert [(s["id"], s["baud"]) for s in _scan(first.link, 1_000_000)] == [(3, 1_000_000)]
-    assert [(s["id"], s["baud"]) for s in _scan(second.link, 1_000_000)] == [(7, 1_000_000)]
-    assert _scan(first.link, 57_600) == []  # nothing left at the old rate
+    assert [(s["id"], s["baud"]) for s in _scan(capsys, first.link, 1_000_000)] == [(3, 1_000_000)]
+    assert [(s["id"], s["baud"]) for s in _scan(capsys, second.link, 1_000_000)] == [(7, 1_000_000)]
+    assert _scan(capsys, first.link, 57_600) == []  # nothing left at the old rate
 
 
 def test_two_servos_connected_at_once_are_refused_until_one_is_left(
@@ -89,7 +91,7 @@ def test_two_servos_connected_at_once_are_refused_until_one_is_left(
     out = capsys.readouterr().out
     assert "2 servos answered (id 1 (XM430-W350) at 57600 baud, id 2 (XM430-W350) at 57600 baud)" in out
     assert "connect only one" in out and "stopped by the operator" in out
-    assert [s["id"] for s in _scan(both.link, 57_600)] == [1, 2]  # nothing was written
+    assert [s["id"] for s in _scan(capsys, both.link, 57_600)] == [1, 2]  # nothing was written
 
 
 def test_without_a_terminal_it_exits_2_saying_why(tmp_path, dxl_server):

@@ -41,6 +41,13 @@ TEMPLATE = ROOT / "protocols" / "rigs" / "hardware.example.yaml"
 SMOKE = ROOT / "protocols" / "smoke.yaml"
 RATE_HZ = 80  # the rehearsal's load cell (docstring of the rehearsal test)
 LED = 65  # the servos' LED register (X-series control table)
+# The rehearsal waits in real time for each of these, three opens of the cell and a jog each way:
+# a board reset shorter than an Uno's optiboot wait (about 1.5 s, docs/hardware.md) shows the same
+# reset and banner; the jog only needs to pass the twin's 0.5 rad of slack and the 5 N rise the
+# right way (0.097 rev, reeled in on the twin in virtual time), and goes the whole travel (there and
+# back) the wrong way.
+DTR_RESET_S = 0.5
+JOG_TRAVEL_REV = 0.15
 
 
 def _hardware_config(tmp_path: Path, simulation: str = "simulation:\n  winch_reversed: true\n") -> Path:
@@ -156,7 +163,7 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
     """A lab's bring-up on the twin (docs/hardware.md, "Rehearse before the rig exists"), 25-50 s.
 
     Where the AVR toolchain and simavr are installed (CI installs them) the load cell is the built
-    firmware image under simavr, reset on every open after an optiboot-like 1.5 s; else the emulator.
+    firmware image under simavr, reset on every open (`DTR_RESET_S`); else the emulator.
     The cell runs at 80/s (the HX711's RATE pin high): at the template's 10/s the smoke protocol's
     detector (drop_fraction 0.15) missed a 20 % slip whose peak fell between samples in 1 of 4
     rehearsals (the sampled drop was 14 %), and caught the third slip of the trial 0.7 s later.
@@ -164,7 +171,7 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
     firmware = _firmware_harness()
     simulation = "simulation:\n  winch_reversed: true\n"
     if firmware is not None:
-        simulation += "  loadcell_dtr_reset_s: 1.5\n"
+        simulation += f"  loadcell_dtr_reset_s: {DTR_RESET_S}\n"
     path = _hardware_config(tmp_path, simulation)
     text = path.read_text()
     assert "  rate_hz: 10 " in text
@@ -191,7 +198,7 @@ def test_rehearsal_check_move_write_then_smoke_run_on_the_twin_of_a_reversed_win
         cell = twin.stdout.readline()
         assert cell.startswith(f"LOADCELL {tmp_path / 'cell'} /dev/")
         assert cell.endswith(" firmware\n") == (firmware is not None)
-        jog = ("--move", "--jog-travel-rev", "0.3", "--window-s", "1", "--json")
+        jog = ("--move", "--jog-travel-rev", str(JOG_TRAVEL_REV), "--window-s", "1", "--json")
         first = _rig("check", "--rig", str(path), "--write", *jog)
         assert first.returncode == 1, first.stderr  # the reversed winch, found by the jog
         assert yaml.safe_load(path.read_text())["reel_direction"] == -1, first.stdout
@@ -255,7 +262,7 @@ def test_the_console_hangs_and_unhangs_a_reference_mass():
 @pytest.mark.subprocess
 @pytest.mark.slow
 def test_rig_calibrate_on_the_twin_with_a_mass_hung_at_its_console(tmp_path):
-    """`rig calibrate --rig` against the twin finds the twin's own calibration (about 10 s)."""
+    """`rig calibrate --rig` against the twin finds the twin's own calibration (about 5 s)."""
     path = _hardware_config(tmp_path)
     twin = subprocess.Popen(
         [sys.executable, "-m", "rig.cli", "sim", "rig", "--rig", str(path),
@@ -266,8 +273,11 @@ def test_rig_calibrate_on_the_twin_with_a_mass_hung_at_its_console(tmp_path):
     try:
         assert twin.stdout is not None and twin.stdin is not None
         assert twin.stdout.readline().startswith("SERVOS") and twin.stdout.readline().startswith("LOADCELL")
+        # The twin's hung mass pulls at once (a person's takes a while to stop swinging: the 2 s
+        # default); half a second before the confirmation and half after it are plenty here.
         calibrate = subprocess.Popen(
-            [sys.executable, "-m", "rig.cli", "calibrate", "--rig", str(path), "--reference-kg", "1.0"],
+            [sys.executable, "-m", "rig.cli", "calibrate", "--rig", str(path), "--reference-kg", "1.0",
+             "--settle-s", "0.5"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         )  # fmt: skip
         assert calibrate.stdin is not None and calibrate.stdout is not None

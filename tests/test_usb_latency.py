@@ -77,11 +77,11 @@ def test_a_16_ms_timer_is_named_at_connect_and_for_late_ticks(
     sysfs = tmp_path / "sys"
     servos = dxl_server(ids=[1, 2], extra_args=["--usb-latency-ms", "16", "--sysfs-root", str(sysfs)])
     # A constant cell: no rise, so the first ramp ends on the reel-direction check, exit 1; the
-    # timer's warnings come before it. The check at 0.1 turn (default 0.25) takes about 1.6 s at
-    # 0.4 rad/s instead of 4 s: some 80 control ticks, each with 16 ms holds, are plenty.
+    # timer's warnings come before it. The check at 0.05 turn (default 0.25) takes about 0.8 s at
+    # 0.4 rad/s instead of 4 s: some 40 control ticks, each with 16 ms holds, are plenty.
     cell = loadcell_server("constant:0.5")
     rig = hardware_rig(
-        servos.link, cell.link, top={"line_stiffness_n_per_m": 20000}, limits={"direction_check_rev": 0.1}
+        servos.link, cell.link, top={"line_stiffness_n_per_m": 20000}, limits={"direction_check_rev": 0.05}
     )
     protocol = tmp_path / "p.yaml"
     protocol.write_text(PROTOCOL)

@@ -72,6 +72,13 @@ class ServoSpec:
 DEFAULT_WATCHDOG_MS = 500
 # How long the release keeps trying a servo bus that went quiet before it gives up (rig config may say).
 DEFAULT_RELEASE_PATIENCE_S = 10.0
+# Once the winch is back from a release, how long the load cell has to read the line slack (a line
+# relaxing, a slow cell's next sample) before the safe state is reported not verified (rig config may say).
+DEFAULT_SLACK_SETTLE_S = 1.0
+# How long the release of the line waits for the winch beyond its travel time (rig config may say):
+# interlocks are off by then, and the load cell may be what failed, so arrival at the zero-tension
+# angle is all it waits for.
+DEFAULT_RELEASE_MARGIN_S = 2.0
 _PORT = f"serial port, 1-{MAX_PORT_CHARS} characters"
 
 
@@ -105,6 +112,17 @@ class ServoBusConfig:
             doc="how long the release of the line keeps trying a servo bus that stopped answering (a USB "
             "adapter that hangs); once it answers, the safe state is verified and the trial repeated; a bus "
             "silent for longer ends the run (exit 1)",
+        ),
+    )
+    release_margin_s: float = field(
+        default=DEFAULT_RELEASE_MARGIN_S,
+        metadata=number(
+            0.1,
+            60.0,
+            unit="s",
+            doc="how long the release of the line waits for the winch beyond twice its travel time at the "
+            "speed in force; a winch not back at its zero-tension angle by then leaves the safe state not "
+            "verified",
         ),
     )
 
@@ -185,6 +203,17 @@ class LoadCellConfig:
             "resets when its port opens and is silent 1-3 s); then `limits.stale_timeout_s` applies",
         ),
     )
+    slack_settle_s: float = field(
+        default=DEFAULT_SLACK_SETTLE_S,
+        metadata=number(
+            0.1,
+            60.0,
+            unit="s",
+            doc="once the release of the line has the winch back at its zero-tension angle, how long the "
+            "cell has to read the line slack (a line relaxing, a slow cell's next sample) before the safe "
+            "state is reported not verified",
+        ),
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -245,6 +274,18 @@ class RigLimits:
             doc="after a slip the line is released before anything waits; from the slip's detection to "
             "the cell reading the line slack should take at most this (a longer one is warned about); "
             "`ramp.hold_after_slip_s` must be shorter",
+        ),
+    )
+    recovery_grace_s: float = field(
+        default=2.0,
+        metadata=number(
+            0.1,
+            60.0,
+            unit="s",
+            doc="after a device fault in a trial and the release of the line, how long the rig has to "
+            "answer healthily again (every servo without a hardware error, the winch at its zero, fresh "
+            "load-cell samples) before the run stops (exit 1); a cell whose board resets when its port "
+            "reopens needs its boot time",
         ),
     )
 

@@ -2,8 +2,9 @@
 
 A device fault (a servo or load cell not answering, stale data, a latched hardware error) stops
 the attempt in a trial-level safe state: the line is released (`rig.safety.release`; a faulted
-winch is rebooted first). The rig has recovered when, within `RECOVERY_GRACE_S`, every servo
-answers without a hardware error, the winch is home and the load cell delivers fresh samples.
+winch is rebooted first). The rig has recovered when, within `limits.recovery_grace_s` (2 s by
+default), every servo answers without a hardware error, the winch is home and the load cell
+delivers fresh samples.
 """
 
 from __future__ import annotations
@@ -15,10 +16,8 @@ from rig.records import LogLevel, TrialPhase
 from rig.runner.step_context import StepContext
 from rig.safety.safe_state import POSITION_TOLERANCE_RAD
 
-# After a device fault in a trial: how many times the trial may be repeated, and how long the rig
-# has to answer healthily again (servos without a hardware error, fresh load-cell samples).
+# After a device fault in a trial: how many times the trial may be repeated.
 MAX_TRIAL_RETRIES = 2
-RECOVERY_GRACE_S = 2.0
 
 
 def is_device_fault(exc: RigError, states: dict[int, ServoState]) -> bool:
@@ -48,7 +47,8 @@ def recover(ctx: StepContext, trial: TrialPlan, exc: RigError) -> bool:
     finally:
         loop.adopt(release.reading())
     winch = session.winch_id
-    deadline = clock.monotonic_ns() + round(RECOVERY_GRACE_S * 1e9)
+    grace_s = ctx.config.limits.recovery_grace_s
+    deadline = clock.monotonic_ns() + round(grace_s * 1e9)
     while clock.monotonic_ns() < deadline:
         clock.sleep(ctx.protocol.control_period_s)
         try:
@@ -63,5 +63,5 @@ def recover(ctx: StepContext, trial: TrialPlan, exc: RigError) -> bool:
             loop.restart_pacing()
             note(LogLevel.INFO, f"trial {trial.trial_id}: rig healthy again ({'; '.join(release.report)})")
             return True
-    note(LogLevel.ERROR, f"trial {trial.trial_id}: the rig did not recover within {RECOVERY_GRACE_S:g} s")
+    note(LogLevel.ERROR, f"trial {trial.trial_id}: the rig did not recover within {grace_s:g} s")
     return False

@@ -45,5 +45,7 @@ class StepContext:
             tare_n=self.loop.tare_n,
             last=self.loop.reading(),
             patience_s=self.config.servos.release_patience_s,
+            margin_s=self.config.servos.release_margin_s,
+            settle_s=self.config.loadcell.slack_settle_s,
             port=self.config.servos.port,
         )

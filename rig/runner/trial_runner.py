@@ -271,7 +271,7 @@ class TrialRunner:
 
         A device fault (a servo or load cell not answering, stale data, a latched hardware error)
         stops the attempt in a trial-level safe state (`rig.runner.recovery`). If the rig recovers
-        within `RECOVERY_GRACE_S`, the trial starts again from its first step; the retry is logged
+        within `limits.recovery_grace_s`, the trial starts again from its first step; the retry is logged
         and counted in the journal. Otherwise the fault ends the run (exit 1).
         """
         links = TrialWireCounter(self.session, self.loop.take_tick_stats)  # over every attempt
@@ -336,7 +336,7 @@ class TrialRunner:
         """A step timed out: release the line and, if the rig is healthy, record the trial as aborted.
 
         The run goes on with the next trial. If the line cannot be released or the rig does not
-        answer healthily within `RECOVERY_GRACE_S`, the timeout ends the run (exit 1).
+        answer healthily within `limits.recovery_grace_s`, the timeout ends the run (exit 1).
         """
         if not recover(self.ctx, trial, exc):
             raise exc

@@ -9,7 +9,8 @@ its last readings back to the loop when it ends.
 Each stage goes on when an earlier one failed, and what was verified is recorded in `report`: a
 winch with a latched hardware error is rebooted first (its turn count is lost, so the zero is
 carried over into the new count); the goal goes out as a broadcast sync write, which needs no
-reply; the wait reads the winch's position back. A bus that stops answering (a USB adapter that
+reply; the wait reads the winch's position back, for twice its travel time at the speed in force
+and `margin_s` (`servos.release_margin_s`) more. A bus that stops answering (a USB adapter that
 hangs) is given `patience_s` (`servos.release_patience_s`) per silence: when it answers again the
 goal goes out again (a servo whose Bus Watchdog tripped in the silence refused the first one; the
 driver has cleared the trip by then) and the wait goes on. A bus silent for longer, or a port that
@@ -26,17 +27,11 @@ from rig.errors import NotConnectedError, RigError, StepTimeoutError
 from rig.hw.seams import LoadCellSample, WatchdogTripSource
 from rig.hw.session import RigSession
 from rig.inputs.protocol import RampSettings
+from rig.inputs.rig_config import DEFAULT_RELEASE_MARGIN_S, DEFAULT_SLACK_SETTLE_S
 from rig.records import LogLevel, ServoCommandName
 from rig.runner.control_loop import Reading, tare_corrected
 from rig.runner.recorder import RunRecorder
 from rig.safety.safe_state import POSITION_TOLERANCE_RAD, move_timeout_s
-
-# The safe state waits this long beyond the winch's travel time: interlocks are off by then, and
-# the load cell may be what failed, so arrival at the zero-tension angle is all it waits for.
-SAFE_STATE_MARGIN_S = 2.0
-# Once the winch is back, the load cell has this long to read the line slack (a line relaxing, a
-# slow cell's next sample) before the safe state is reported not verified.
-SLACK_SETTLE_S = 1.0
 
 
 class LineRelease:
@@ -52,6 +47,8 @@ class LineRelease:
         tare_n: float,
         last: Reading,
         patience_s: float = 0.0,
+        margin_s: float = DEFAULT_RELEASE_MARGIN_S,
+        settle_s: float = DEFAULT_SLACK_SETTLE_S,
         port: str = "the servo port",
     ) -> None:
         self.session = session
@@ -65,6 +62,8 @@ class LineRelease:
         self.force_n = last.force_n
         self._cell_answered = bool(last.tick_samples)  # any sample in the release (or the tick before)
         self.patience_s = patience_s
+        self.margin_s = margin_s
+        self.settle_s = settle_s
         self.port = port
         self.report: list[str] = []  # what the release did and verified
         self.at_zero = False  # the winch's position was read back at its zero-tension angle
@@ -94,7 +93,7 @@ class LineRelease:
         self._send_goal(zero_rad)
         last = self.states.get(winch)
         travel = abs(last.position_rad - zero_rad) if last is not None else 2 * math.pi
-        wait_s = move_timeout_s(travel, speed, SAFE_STATE_MARGIN_S)
+        wait_s = move_timeout_s(travel, speed, self.margin_s)
         clock = self.clock
         deadline = clock.monotonic_ns() + round(wait_s * 1e9)
         silent_since: int | None = None  # when the bus stopped answering (None: it answers)
@@ -128,9 +127,7 @@ class LineRelease:
                     servos.set_profile(winch, velocity_rad_s=speed)
                 self._send_goal(zero_rad)
                 travel = abs(self.states[winch].position_rad - zero_rad)
-                deadline = clock.monotonic_ns() + round(
-                    move_timeout_s(travel, speed, SAFE_STATE_MARGIN_S) * 1e9
-                )
+                deadline = clock.monotonic_ns() + round(move_timeout_s(travel, speed, self.margin_s) * 1e9)
             if abs(self.states[winch].position_rad - zero_rad) < POSITION_TOLERANCE_RAD:
                 self.at_zero = True
                 report.append("winch back at its zero-tension angle (read back)")
@@ -140,14 +137,15 @@ class LineRelease:
     def confirm_slack(self, tolerance_n: float) -> bool:
         """With the winch at its zero: does the load cell read the line slack? Recorded in `report`.
 
-        Waits up to `SLACK_SETTLE_S` for a sample within `tolerance_n` of the cell's zero (tare
-        corrected), taken at or after the winch's arrival. A cell that gives no sample at all in the
-        release is gone: the release is taken on the winch's position alone, and the report says the
-        tension was not measured. A cell reading beyond the tolerance is not slack: not verified.
+        Waits up to `settle_s` (`loadcell.slack_settle_s`) for a sample within `tolerance_n` of the
+        cell's zero (tare corrected), taken at or after the winch's arrival. A cell that gives no
+        sample at all in the release is gone: the release is taken on the winch's position alone, and
+        the report says the tension was not measured. A cell reading beyond the tolerance is not
+        slack: not verified.
         """
         if not self.at_zero:
             return False
-        deadline = self.clock.monotonic_ns() + round(SLACK_SETTLE_S * 1e9)
+        deadline = self.clock.monotonic_ns() + round(self.settle_s * 1e9)
         fresh = bool(self.tick_samples)  # the arrival's tick brought a sample
         while not (fresh and abs(self.force_n) <= tolerance_n):
             if self.clock.monotonic_ns() >= deadline:
