@@ -106,6 +106,7 @@ def run_script_in_a_fork(script: Path, argv: list[str], output: Path, timeout_s:
     child.start()
     try:
         child.join(timeout_s)
+        code = child.exitcode
     finally:
         if child.exitcode is None:  # timed out, or the test was interrupted
             assert child.pid is not None
@@ -114,8 +115,7 @@ def run_script_in_a_fork(script: Path, argv: list[str], output: Path, timeout_s:
             except ProcessLookupError:
                 child.kill()
             child.join()
-            return None
-    return child.exitcode
+    return code
 
 
 @pytest.mark.slow
