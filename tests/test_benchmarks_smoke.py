@@ -135,3 +135,51 @@ def test_benchmark_runs_in_smoke_mode(script: Path, tmp_path: Path) -> None:
     text = output.read_text(encoding="utf-8", errors="replace")
     outcome = f"timed out after {TIMEOUT_S} s" if code is None else f"exit {code} after {seconds:.1f} s"
     assert code == 0, f"{script.name} --smoke: {outcome}\noutput (end):\n{text[-6000:]}"
+
+
+SCRIPTS = {  # what a broken benchmark does, and the exit code `python SCRIPT` gives it
+    "raises.py": ("print('measuring')\nraise RuntimeError('broken')\n", 1),
+    "says_why.py": ("raise SystemExit('smoke: nothing measured')\n", 1),
+    "bad_option.py": ("import argparse\nargparse.ArgumentParser().parse_args()\n", 2),
+    "fine.py": ("import subprocess, sys\nsubprocess.run([sys.executable, '-c', 'print(\"child\")'])\n", 0),
+}
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_the_fork_gives_a_scripts_exit_code_and_output(name: str, tmp_path: Path) -> None:
+    source, expected = SCRIPTS[name]
+    script = tmp_path / name
+    script.write_text(source, encoding="utf-8")
+    output = tmp_path / "output.txt"
+    assert run_script_in_a_fork(script, ["--smoke"], output, TIMEOUT_S) == expected
+    text = output.read_text(encoding="utf-8")
+    wanted = {"raises.py": "RuntimeError: broken", "says_why.py": "smoke: nothing measured"}
+    wanted |= {"bad_option.py": "unrecognized arguments: --smoke", "fine.py": "child"}
+    assert wanted[name] in text
+
+
+def _running(pid: int) -> bool:
+    """Whether process `pid` exists and is not a zombie (killed, waiting to be reaped)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
+
+
+def test_a_hung_benchmark_is_stopped_with_what_it_started(tmp_path: Path) -> None:
+    pid_file = tmp_path / "child.pid"
+    script = tmp_path / "hangs.py"
+    script.write_text(
+        "import pathlib, subprocess, sys, time\n"
+        "child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])\n"
+        f"pathlib.Path({str(pid_file)!r}).write_text(str(child.pid))\n"
+        "time.sleep(60)\n",
+        encoding="utf-8",
+    )
+    assert run_script_in_a_fork(script, [], tmp_path / "output.txt", 2.0) is None
+    grandchild = int(pid_file.read_text())
+    deadline = time.monotonic() + 5
+    while _running(grandchild) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _running(grandchild), "the benchmark's own child outlived the timeout"
