@@ -177,7 +177,7 @@ def test_a_hung_benchmark_is_stopped_with_what_it_started(tmp_path: Path) -> Non
         "time.sleep(60)\n",
         encoding="utf-8",
     )
-    assert run_script_in_a_fork(script, [], tmp_path / "output.txt", 2.0) is None
+    assert run_script_in_a_fork(script, [], tmp_path / "output.txt", 1.0) is None
     grandchild = int(pid_file.read_text())
     deadline = time.monotonic() + 5
     while _running(grandchild) and time.monotonic() < deadline:
