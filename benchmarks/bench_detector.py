@@ -22,6 +22,8 @@ cell (25 mN) and a gain creeping by +1 %/min; it is measured on quiet holds and 
 Segments run in `--jobs` processes (the step function is pure Python, one core each).
 `--before` adds the detector before the noise, creep and train rules
 (`noise_k=none creep_k=none train_k=none spike_samples=1`).
+`--smoke`: every case, quiet case, cell and detector, on one trial each and one quiet segment of
+2,000 samples (instead of 60,000) per quiet case.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ DT_NS = 1_000_000
 T0_NS = 1_700_000_000_000_000_000
 HOLD_S = 0.2  # the protocols' hold_after_slip_s: the window in which further drops are counted
 SEGMENT = 60_000  # quiet samples per task
+SMOKE_SEGMENT = 2_000  # the same, in smoke mode
 
 
 @dataclass(frozen=True)
@@ -210,12 +213,13 @@ class QuietTask:
     cell: Cell
     seed: int
     segment: int  # its number, for the alarm descriptions
+    samples: int  # the hold's (SEGMENT; SMOKE_SEGMENT in smoke mode)
 
 
 def run_quiet_task(task: QuietTask) -> tuple[list[str], int]:
     """(a description of each false alarm, samples) on one quiet segment: a 0.5 s ramp to 2.5 N, a hold."""
     rng = np.random.default_rng(task.seed)
-    clean = np.concatenate([2.5 * np.arange(500) / 500.0, np.full(SEGMENT, 2.5)])
+    clean = np.concatenate([2.5 * np.arange(500) / 500.0, np.full(task.samples, 2.5)])
     forces = task.cell.apply(rng, clean).tolist()
     times = (T0_NS + np.arange(len(forces), dtype=np.int64) * DT_NS).tolist()
     state = detector_init(task.params)
@@ -229,15 +233,21 @@ def run_quiet_task(task: QuietTask) -> tuple[list[str], int]:
                 f"ramp, {(event.peak_force_n - event.force_after_n) * 1e3:.0f} mN below the peak "
                 f"{event.peak_force_n:.4f} N"
             )
-    return alarms, SEGMENT
+    return alarms, task.samples
 
 
 def quiet_line(
-    pool: ProcessPoolExecutor, params: DetectorParams, cell: Cell, samples: int, seed: int, show: bool
+    pool: ProcessPoolExecutor,
+    params: DetectorParams,
+    cell: Cell,
+    samples: int,
+    seed: int,
+    show: bool,
+    segment: int = SEGMENT,
 ) -> str:
-    segments = max(1, -(-samples // SEGMENT))
+    segments = max(1, -(-samples // segment))
     seeds = np.random.SeedSequence(seed).generate_state(segments)
-    tasks = [QuietTask(params, cell, int(s), i) for i, s in enumerate(seeds)]
+    tasks = [QuietTask(params, cell, int(s), i, segment) for i, s in enumerate(seeds)]
     results = list(pool.map(run_quiet_task, tasks))
     alarms = sum(len(a) for a, _ in results)
     total = sum(n for _, n in results)
@@ -269,7 +279,7 @@ def main() -> None:
     parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
     if args.smoke:  # every case and quiet case, both detectors, on a few trials and samples
-        args.trials, args.quiet_samples, args.noisy_samples = 2, 20_000, 20_000
+        args.trials, args.quiet_samples, args.noisy_samples = 1, SMOKE_SEGMENT, SMOKE_SEGMENT
         args.jobs, args.before = 1, True
     detectors = {"defaults": DetectorParams(arm_threshold_n=1.0).with_overrides(args.detector)}
     if args.before:
@@ -314,7 +324,10 @@ def main() -> None:
                     if label not in args.quiet_cases:
                         continue
                     start = time.perf_counter()
-                    line = quiet_line(pool, params, quiet_cell, samples, args.seed + 1, args.show_alarms)
+                    segment = SMOKE_SEGMENT if args.smoke else SEGMENT
+                    line = quiet_line(
+                        pool, params, quiet_cell, samples, args.seed + 1, args.show_alarms, segment
+                    )
                     print(f"{label:22s} {line}  [{time.perf_counter() - start:.1f} s]", flush=True)
 
 

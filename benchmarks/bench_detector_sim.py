@@ -351,11 +351,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="quiet, ratios")
     parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP + "; every mode")
     args = parser.parse_args()
-    if args.smoke:  # every mode, on a two-trial copy of the protocol: one scenario, one ratio
+    if args.smoke:  # every mode, on a two-trial copy of the protocol (an estimate): one scenario, one ratio
         with tempfile.TemporaryDirectory() as folder:
             protocol = short_protocol(Path(folder))
             scenarios([0], ["mixed"], protocol)
-            quiet(2 * SEGMENT_SAMPLES, args.seed, protocol)
+            quiet(SEGMENT_SAMPLES, args.seed, protocol)  # one segment per load cell
             ratios([0.8], args.seed, protocol)  # 0.8: the old detector's ramps do not time out
         return
     if args.mode == "scenarios":

@@ -215,7 +215,7 @@ def main() -> None:
     parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
     if args.smoke:
-        args.lines, args.repeats, args.chain_s, args.duration_s, args.skip_pty = 2_000, 1, 1.0, 1.0, False
+        args.lines, args.repeats, args.chain_s, args.duration_s, args.skip_pty = 2_000, 1, 1.0, 0.3, False
     chain = bench_chain(args.chain_s, max(args.repeats, 5))
     print(
         f"chain: {chain['samples']} samples: emulator + in-process port + driver poll "

@@ -17,7 +17,8 @@ Variants run alternately, each in a fresh process, `--repeats` times; the ratios
 
 Run: .venv/bin/python benchmarks/bench_log_reader.py [--messages 1000000] [--repeats 2]
      .venv/bin/python benchmarks/bench_log_reader.py --default-run --repeats 5
-     .venv/bin/python benchmarks/bench_log_reader.py --smoke  (both, small: the log of a two-trial run)
+     .venv/bin/python benchmarks/bench_log_reader.py --smoke  (both, small: the log of a one-trial run and
+         2,000 messages, each set of variants in one child process)
 """
 
 from __future__ import annotations
@@ -86,25 +87,35 @@ def run_library_variant(name: str, path: Path) -> dict[str, float]:
     return {"seconds": elapsed, "messages": count, "peak_rss_mb": peak_mb}
 
 
+def variant_results(
+    names: tuple[str, ...], child: list[str], one_process: bool
+) -> dict[str, dict[str, float]]:
+    """Each variant's result from `child --variant NAME` (a JSON line): a process per variant, or one for all.
+
+    One process for all (the smoke mode) runs the same variant code, without a fresh process each.
+    """
+    results: dict[str, dict[str, float]] = {}
+    for group in [names] if one_process else [(name,) for name in names]:
+        done = subprocess.run(
+            [*child, "--variant", *group], capture_output=True, text=True, check=True, timeout=600
+        )
+        for name, line in zip(group, done.stdout.splitlines(), strict=True):
+            results[name] = json.loads(line)
+    return results
+
+
 def default_run_main(repeats: int, smoke: bool = False) -> None:
     import statistics
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.mcap"
-        generate_default_run(path, short_protocol(Path(tmp)) if smoke else DEFAULT_PROTOCOL)
+        generate_default_run(path, short_protocol(Path(tmp), trials=1) if smoke else DEFAULT_PROTOCOL)
         print(f"default run log: {path.stat().st_size / 1e6:.1f} MB")
         times: dict[str, list[float]] = {name: [] for name in RUN_VARIANTS}
         peaks: dict[str, float] = {}
         for _ in range(repeats):
-            for name in RUN_VARIANTS:
-                done = subprocess.run(
-                    [sys.executable, __file__, "--file", str(path), "--variant", name],
-                    capture_output=True,
-                    text=True,
-                    check=True,
-                    timeout=600,
-                )
-                result = json.loads(done.stdout)
+            results = variant_results(RUN_VARIANTS, [sys.executable, __file__, "--file", str(path)], smoke)
+            for name, result in results.items():
                 times[name].append(result["seconds"])
                 peaks[name] = max(peaks.get(name, 0.0), result["peak_rss_mb"])
     medians = {name: statistics.median(values) for name, values in times.items()}
@@ -165,18 +176,21 @@ def main() -> None:
     parser.add_argument("--messages", type=int, default=1_000_000)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--default-run", action="store_true", help="the default run's log, library variants")
-    parser.add_argument(
-        "--variant", choices=(*VARIANTS, *RUN_VARIANTS, "generate", "imports"), help=argparse.SUPPRESS
+    parser.add_argument(  # several names: each in turn (JSON lines), `generate` and `imports` alone
+        "--variant",
+        nargs="+",
+        choices=(*VARIANTS, *RUN_VARIANTS, "generate", "imports"),
+        help=argparse.SUPPRESS,
     )
     parser.add_argument("--file", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
     if args.smoke:
         args.messages, args.repeats = 2_000, 1
-    if args.variant == "generate":
+    if args.variant == ["generate"]:
         generate(args.file, args.messages)
         return
-    if args.variant == "imports":
+    if args.variant == ["imports"]:
         import mcap.reader  # noqa: F401
         import pandas  # noqa: F401
         import pyarrow.json  # noqa: F401
@@ -185,11 +199,10 @@ def main() -> None:
 
         print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
         return
-    if args.variant in RUN_VARIANTS:
-        print(json.dumps(run_library_variant(args.variant, args.file)))
-        return
-    if args.variant:  # child process: one variant, JSON on stdout
-        print(json.dumps(run_variant(args.variant, args.file)))
+    if args.variant:  # child process: its variants in turn, a JSON line each on stdout
+        for name in args.variant:
+            run = run_library_variant if name in RUN_VARIANTS else run_variant
+            print(json.dumps(run(name, args.file)), flush=True)
         return
     if args.default_run:
         default_run_main(args.repeats)
@@ -211,15 +224,7 @@ def main() -> None:
         print(f"peak RSS of a child that only imports mcap, pandas, pyarrow, rig.log: {import_mb:.0f} MB")
         best: dict[str, dict[str, float]] = {}
         for _ in range(args.repeats):
-            for name in VARIANTS:
-                done = subprocess.run(
-                    [*child, "--variant", name],
-                    capture_output=True,
-                    text=True,
-                    check=True,
-                    timeout=600,
-                )
-                result = json.loads(done.stdout)
+            for name, result in variant_results(VARIANTS, child, args.smoke).items():
                 if result["messages"] != args.messages:
                     raise SystemExit(f"{name} read {result['messages']} messages, expected {args.messages}")
                 if name not in best or result["seconds"] < best[name]["seconds"]:

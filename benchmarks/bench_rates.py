@@ -236,11 +236,13 @@ def main() -> None:
     )
     parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP + "; both modes")
     args = parser.parse_args()
-    if args.smoke:  # both modes at 80/s, a two-trial copy of the protocol on a scenario's config, 2 segments
+    if (
+        args.smoke
+    ):  # both modes at 80/s, a two-trial copy of the protocol (an estimate) on a scenario's config
         with tempfile.TemporaryDirectory() as folder:
             protocol = short_protocol(Path(folder))
             runs([80.0], [0], True, "noisy-cell", protocol)
-            quiet([80.0], 20_000, args.seed, protocol)
+            quiet([80.0], 10_000, args.seed, protocol)  # one segment
         return
     if args.mode is None:
         parser.error("a mode (runs or quiet) is required")

@@ -168,8 +168,8 @@ def main() -> None:
     parser.add_argument("--latency-ms", type=float, nargs="+", default=[1.0, 16.0])
     parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
-    if args.smoke:  # both latencies, 50 ticks each, one of them late
-        args.seconds = 1.0
+    if args.smoke:  # both latencies, 20 ticks each, one of them (the 11th) late
+        args.seconds = 0.4
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         results = [measure(latency, args.seconds, Path(tmp), args.smoke) for latency in args.latency_ms]

@@ -95,12 +95,12 @@ def main() -> None:
     parser.add_argument("--control-period-s", type=float, help="run a copy with this control period")
     parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
-    if args.smoke:  # a two-trial copy of the protocol, one seed, with the parts and a control period
+    if args.smoke:  # a one-trial copy of the protocol, one seed, with the parts and a control period
         args.seeds, args.parts, args.control_period_s = [0], True, 0.02
     parts = instrument_parts() if args.parts else None
     ratios = []
     with tempfile.TemporaryDirectory() as tmp:
-        protocol = short_protocol(Path(tmp), args.protocol) if args.smoke else args.protocol
+        protocol = short_protocol(Path(tmp), args.protocol, trials=1) if args.smoke else args.protocol
         if args.control_period_s is not None:
             protocol = with_control_period(protocol, args.control_period_s, Path(tmp))
         print(f"protocol {protocol.name}")

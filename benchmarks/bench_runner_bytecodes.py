@@ -8,7 +8,8 @@ between modules shows as one gone and one new). Work done in C (builtins, regula
 numpy, pickling) is not counted, only the bytecodes that call it. About 4 minutes per tree.
 
     .venv/bin/python benchmarks/bench_runner_bytecodes.py --baseline-tree DIR [--protocol PATH] [--top N]
-    .venv/bin/python benchmarks/bench_runner_bytecodes.py --smoke   (one trial, this tree against itself)
+    .venv/bin/python benchmarks/bench_runner_bytecodes.py --smoke   (one trial, this tree against itself,
+        without the warm-up run: its first-use imports are counted too, about 0.4 % more bytecodes)
 
 The interpreter of a tree is its own `.venv/bin/python`, or this one's where it has none.
 """
@@ -25,6 +26,7 @@ from smoke_mode import SMOKE_HELP, short_protocol, tree_python  # benchmarks/ is
 
 ROOT = Path(__file__).resolve().parent.parent
 # Run in the tree's own interpreter; prints {"file:function": bytecodes, "file:function:calls": calls}.
+# Arguments: the protocol, the tree's path with a trailing slash, 1 to warm up first (0: not).
 COUNT = """
 import collections, json, re, sys, tempfile, threading
 from pathlib import Path
@@ -45,7 +47,8 @@ def tracer(frame, event, arg):
         return local
     return local
 with tempfile.TemporaryDirectory() as tmp:
-    one_run(Path(sys.argv[1]), 1, Path(tmp) / 'warm')
+    if sys.argv[3] == '1':
+        one_run(Path(sys.argv[1]), 1, Path(tmp) / 'warm')
     threading.settrace(tracer)
     sys.settrace(tracer)
     one_run(Path(sys.argv[1]), 0, Path(tmp) / 'run')
@@ -55,9 +58,9 @@ print(json.dumps(counts))
 """
 
 
-def bytecodes(tree: Path, protocol: Path) -> dict[str, int]:
+def bytecodes(tree: Path, protocol: Path, warm_up: bool = True) -> dict[str, int]:
     result = subprocess.run(
-        [tree_python(tree), "-c", COUNT, str(protocol), f"{tree}/"],
+        [tree_python(tree), "-c", COUNT, str(protocol), f"{tree}/", "1" if warm_up else "0"],
         cwd=tree,
         capture_output=True,
         text=True,
@@ -81,9 +84,9 @@ def main() -> None:
     if args.baseline_tree is None and not args.smoke:
         parser.error("--baseline-tree is required")
     with tempfile.TemporaryDirectory() as tmp:
-        if args.smoke:  # one trial, counted once and taken as both trees'
+        if args.smoke:  # one trial, counted once (not warmed up) and taken as both trees'
             protocol = short_protocol(Path(tmp), (ROOT / args.protocol).resolve(), trials=1)
-            old = new = bytecodes(ROOT, protocol)
+            old = new = bytecodes(ROOT, protocol, warm_up=False)
         else:
             old, new = bytecodes(args.baseline_tree.resolve(), args.protocol), bytecodes(ROOT, args.protocol)
     ratio = total(new) / total(old)
