@@ -28,8 +28,10 @@ FloatArray = NDArray[np.float64]
 
 # Two candidates within this relative distance of the minimum slip force count as tied.
 SLIP_TIE_RTOL = 1e-12
-# A lever arm this small relative to the joint's distance from Q is rounding error: the joint is on
-# the load's line of action (cross products of parallel vectors come out ~1e-17 relative, not 0).
+# A lever arm this small relative to the link's size (the largest joint distance from Q) is rounding
+# error: the joint is on the load's line of action (cross products of parallel vectors come out
+# ~1e-17 relative, not 0). Relative to the link, not to each joint's own distance: a joint a few
+# ulps from Q would otherwise keep an arm of 1e-150 m and slip under a load of 1e149 N.
 ON_LOAD_LINE_RTOL = 1e-12
 
 
@@ -224,8 +226,9 @@ def joint_moment_norms(transforms: ArrayLike, point_m: ArrayLike, force_w: Array
 def lever_arms_m(transforms: ArrayLike, point_m: ArrayLike, direction_w: ArrayLike) -> FloatArray:
     """Lever arms d_i = ‖(Q_w − o_i) × u‖ (..., J+1) [m] of a load along `direction_w` (normalised).
 
-    An arm below `ON_LOAD_LINE_RTOL` × ‖Q_w − o_i‖ is rounding error of a point on the load's line
-    of action and is returned as exactly 0. A zero direction raises `ValueError`.
+    An arm below `ON_LOAD_LINE_RTOL` × max_i ‖Q_w − o_i‖ (the link's size seen from Q) is rounding
+    error of a point on the load's line of action and is returned as exactly 0. A zero direction
+    raises `ValueError`.
     """
     t = _transforms(transforms)
     point = _vectors("point_m", point_m)
@@ -236,8 +239,8 @@ def lever_arms_m(transforms: ArrayLike, point_m: ArrayLike, direction_w: ArrayLi
     origins, point_w = _origins_and_point(t, point)
     offsets = point_w[..., None, :] - origins
     arms = np.linalg.norm(_cross(offsets, (direction / norm)[..., None, :]), axis=-1)
-    distances = np.linalg.norm(offsets, axis=-1)
-    return np.where(arms <= ON_LOAD_LINE_RTOL * distances, 0.0, arms)
+    link_size = np.linalg.norm(offsets, axis=-1).max(axis=-1, keepdims=True)
+    return np.where(arms <= ON_LOAD_LINE_RTOL * link_size, 0.0, arms)
 
 
 def _capacities(capacities_nm: ArrayLike, n_joints: int) -> FloatArray:

@@ -355,3 +355,15 @@ def test_infinite_capacity_is_a_joint_that_never_slips():
     p = predict_slip(vector_4_transforms(), [np.inf, 0.9, np.inf], Q_TIP, DOWN)
     assert int(p.first_slip_joint) == 2
     assert float(p.slip_force_n) == pytest.approx(15.231399, rel=REL)
+
+
+def test_a_joint_a_few_ulps_from_the_load_point_holds_no_moment():
+    """Found by hypothesis: the load point 2.45e-150 m from the last joint, the others 0.05 m away on
+    the load's line up to a 1e-16 tilt. Every arm is rounding error against the link's size, so
+    nothing slips (before: the last joint's 2.45e-150 m arm gave a slip load of 4e149 N, which put
+    the other joints at 4.5e132 times their capacity)."""
+    transforms = np.stack([np.eye(4)] * 4)
+    transforms[3, 1, 3] = 0.05
+    p = predict_slip(transforms, [1.0] * 4, [0.0, 0.0, 2.452837e-150], [0.0, 10.0, 2.22044605e-15])
+    np.testing.assert_array_equal(p.lever_arms_m, 0.0)
+    assert int(p.first_slip_joint) == 0 and np.isinf(p.slip_force_n)
