@@ -52,6 +52,21 @@ def _unstuffed_status(params: bytes) -> list[int]:
     return [*p.HEADER, 1, length & 0xFF, length >> 8, 0x55, 0, *params, 0, 0]
 
 
+def _sdk_misreads(params: bytes) -> bool:
+    """Params the SDK's removeStuffing does not recover exactly, whatever the stuffing.
+
+    It compacts the packet in place and tests each byte against the two before it: once it has
+    dropped exactly one stuffing byte, one of those two is a byte it has already moved, so a later
+    FF FD FD in the data reads as FF FF FD FD and loses an FD (found by hypothesis with
+    FF FF FD 00 FF FD FD); and its last test looks one byte past the data, into the CRC, which
+    makes data ending in FF FD after a stuffing depend on the CRC. Data without these is exact.
+    """
+    stuffed_once = b"\xff\xff\xfd" in params
+    return b"\xfd\xfd" in params or (
+        stuffed_once and (b"\xff\xff\xfd\xff\xfd" in params or params.endswith(b"\xff\xfd"))
+    )
+
+
 # Params biased towards the FF FF FD header pattern.
 params_st = st.lists(st.sampled_from([0xFF, 0xFD, 0x00, 0x01]) | st.integers(0, 255), max_size=40).map(bytes)
 
@@ -68,8 +83,7 @@ def test_stuffing_matches_sdk_add_stuffing(params):
 @settings(max_examples=300, deadline=None)
 @given(params_st)
 def test_sdk_remove_stuffing_recovers_our_status(params):
-    # The SDK's removeStuffing is not an exact inverse for FF FF FD FD in the data (notes); skip those.
-    if b"\xff\xff\xfd\xfd" in params or b"\xff\xff\xfd\xff\xfd" in params:
+    if _sdk_misreads(params):
         return
     ours = p.build_status(7, 0x80, params)
     recovered = SDK.removeStuffing(list(ours))
