@@ -79,6 +79,9 @@ DEFAULT_SLACK_SETTLE_S = 1.0
 # interlocks are off by then, and the load cell may be what failed, so arrival at the zero-tension
 # angle is all it waits for.
 DEFAULT_RELEASE_MARGIN_S = 2.0
+# After a device fault and the release of the line, how long the rig has to answer healthily again
+# (rig config may say).
+DEFAULT_RECOVERY_GRACE_S = 2.0
 _PORT = f"serial port, 1-{MAX_PORT_CHARS} characters"
 
 
@@ -277,7 +280,7 @@ class RigLimits:
         ),
     )
     recovery_grace_s: float = field(
-        default=2.0,
+        default=DEFAULT_RECOVERY_GRACE_S,
         metadata=number(
             0.1,
             60.0,
