@@ -5,10 +5,15 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, cast
 
+import pytest
+
+from rig.errors import BusWatchdogTripped
+from rig.hw.dxl.bus import WatchdogTrip
 from rig.hw.seams import LoadCellSample
 from rig.hw.session import RigSession
 from rig.inputs.protocol import RampSettings
 from rig.inputs.rig_config import load_rig_config
+from rig.log.format import schemas
 from rig.runner.control_loop import ControlLoop
 from rig.runner.recorder import RunRecorder
 from rig.runner.sinks import NullSink
@@ -97,3 +102,35 @@ def test_release_reboots_a_faulted_winch_from_the_state_it_was_given():
     assert [c.args for c in cast(RecordingServoBus, session.servos).calls_to("reboot")] == [
         {"servo_id": winch}
     ]
+
+
+class _PausedInTheRead:
+    """The servo bus of a host stopped for 1.5 s while it read the states, which tripped the watchdog."""
+
+    def __init__(self, inner: Any, clock: Any) -> None:
+        self.inner, self.clock, self.paused = inner, clock, False
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def read_states(self) -> Any:
+        states = self.inner.read_states()
+        self.clock.sleep(1.5)
+        self.paused = True
+        return states
+
+    def take_watchdog_trips(self) -> list[WatchdogTrip]:
+        return [WatchdogTrip(1, "winch", 1.5)] if self.paused else []
+
+
+def test_a_host_paused_inside_a_ticks_reads_is_a_late_tick_though_the_trip_ends_the_trial():
+    """Found on the twin (a SIGSTOP landing in a bus read): the trip voided the trial before any tick
+    started late, so the pause went unreported. The tick that finds the trip counts it."""
+    session, loop, recorder = _loop_on_a_simulated_rig()
+    loop.session = dataclasses.replace(session, servos=_PausedInTheRead(session.servos, session.clock))
+    with pytest.raises(BusWatchdogTripped):
+        loop.tick()
+    log = cast(_Log, recorder.sinks[0])
+    notes = [payload["message"] for topic, _, payload in log.messages if topic == schemas.LOG]
+    assert any(n.startswith("control tick late by 1490.0 ms") for n in notes), notes
+    assert loop.take_tick_stats().late_ticks == 1

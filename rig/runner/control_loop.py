@@ -110,6 +110,9 @@ class ControlLoop:
         samples = self.session.load_cell.poll()
         self.ingest(samples)
         if tripped is not None:
+            # The trial ends here, so no next tick will start late and say so: count now the lateness
+            # it would start with (a host paused during this tick's reads is what trips the watchdog).
+            self._late(self.clock.monotonic_ns() - self._next_tick_ns - self.period_ns)
             raise tripped
         if interlocks:
             self.check_interlocks()
